@@ -1,0 +1,372 @@
+//! The precomputed compliance `L = K⁻¹` (the paper's eq. 3), restricted to what a scene needs:
+//! rows for the displayed nodes and columns for the touchable nodes, plus each touchable node's
+//! 3×3 block `L_ii` and its inverse (eq. 7).
+//!
+//! # Layout
+//! `L` is stored column-major as a dense `(3R) × (3C)` matrix, R = rows, C = columns:
+//! entry (row node `r`, axis `a`; column node `c`, axis `b`) is at index
+//! `(3c + b)·3R + 3r + a`. One column node's three DOF columns are contiguous, so a frame with a
+//! few active columns touches a few contiguous runs, and the GPU's per-vertex threads read
+//! consecutive addresses. The f32 copy for the GPU has the same layout.
+
+use faer::Mat;
+use glam::{DMat3, DVec3};
+use std::time::Instant;
+
+use crate::fem::{FemError, Stiffness};
+use crate::mesh::Mesh;
+
+/// A set of mesh nodes.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub enum NodeSet {
+    /// Every node.
+    All,
+    /// The boundary nodes (clamped ones included).
+    Surface,
+    /// The boundary nodes that are not clamped.
+    FreeSurface,
+    /// These nodes, in this order.
+    Nodes(Vec<u32>),
+}
+
+impl NodeSet {
+    /// The node indices this set names on `mesh`.
+    pub fn resolve(&self, mesh: &Mesh) -> Vec<u32> {
+        match self {
+            NodeSet::All => (0..mesh.nodes.len() as u32).collect(),
+            NodeSet::Surface => mesh.surface_nodes.clone(),
+            NodeSet::FreeSurface => mesh.free_surface_nodes(),
+            NodeSet::Nodes(v) => v.clone(),
+        }
+    }
+}
+
+/// Which part of `L` to precompute.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub struct Selection {
+    /// Displayed nodes (rows). The touchable nodes are always added to them.
+    pub rows: NodeSet,
+    /// Touchable nodes (columns); none may be clamped.
+    pub cols: NodeSet,
+}
+
+impl Default for Selection {
+    /// Rows: the surface; columns: the free surface.
+    fn default() -> Self {
+        Selection {
+            rows: NodeSet::Surface,
+            cols: NodeSet::FreeSurface,
+        }
+    }
+}
+
+/// What the precompute cost and how accurate it is.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct PrecomputeStats {
+    /// Free DOFs of K.
+    pub free_dofs: usize,
+    /// Non-zeros of K (both triangles).
+    pub k_nonzeros: usize,
+    /// Wall time for assembly, factorisation and the solves, seconds.
+    pub seconds: f64,
+    /// Bytes held by L (f64 + f32 copies) and the diagonal blocks.
+    pub bytes: usize,
+    /// max |K·L − I| over the computed columns (full columns, before row selection).
+    pub residual: f64,
+    /// max |L_ij − L_jiᵀ| over the touchable square block, relative to max |L|.
+    pub symmetry: f64,
+}
+
+/// `L = K⁻¹` for displayed rows × touchable columns, with the touchable diagonal blocks.
+#[derive(Clone, Debug)]
+pub struct Compliance {
+    rows: Vec<u32>,
+    cols: Vec<u32>,
+    /// For each mesh node, its row index or `u32::MAX`.
+    row_of_node: Vec<u32>,
+    /// For each mesh node, its column index or `u32::MAX`.
+    col_of_node: Vec<u32>,
+    /// Row index of each column's node.
+    col_row: Vec<u32>,
+    l: Vec<f64>,
+    l32: Vec<f32>,
+    diag_inv: Vec<DMat3>,
+    clamp_compliance: f64,
+    /// Precompute cost and accuracy.
+    pub stats: PrecomputeStats,
+}
+
+/// Inverts a 3×3 symmetric positive definite block; `None` if it is not invertible.
+pub fn invert3(m: DMat3) -> Option<DMat3> {
+    let det = m.determinant();
+    let scale = m.x_axis.length() * m.y_axis.length() * m.z_axis.length();
+    if !det.is_finite() || det.abs() <= 1e-14 * scale || scale == 0.0 {
+        return None;
+    }
+    Some(m.inverse())
+}
+
+impl Compliance {
+    /// Assembles K, factorises it and solves for the selected columns (f64).
+    pub fn compute(mesh: &Mesh, sel: &Selection) -> Result<Compliance, FemError> {
+        let t0 = Instant::now();
+        let stiff = Stiffness::assemble(mesh)?;
+        let factor = stiff.factorize()?;
+        let n = mesh.nodes.len();
+        let cols = sel.cols.resolve(mesh);
+        let mut rows = sel.rows.resolve(mesh);
+        let mut row_of_node = vec![u32::MAX; n];
+        let mut col_of_node = vec![u32::MAX; n];
+        for (ci, &c) in cols.iter().enumerate() {
+            if c as usize >= n {
+                return Err(FemError::BadSelection(format!(
+                    "touchable node {c} does not exist ({n} nodes)"
+                )));
+            }
+            if mesh.fixed[c as usize] {
+                return Err(FemError::BadSelection(format!(
+                    "touchable node {c} is clamped"
+                )));
+            }
+            if col_of_node[c as usize] != u32::MAX {
+                return Err(FemError::BadSelection(format!("node {c} selected twice")));
+            }
+            col_of_node[c as usize] = ci as u32;
+        }
+        for (ri, &r) in rows.iter().enumerate() {
+            if r as usize >= n || row_of_node[r as usize] != u32::MAX {
+                return Err(FemError::BadSelection(format!(
+                    "displayed node {r} is out of range or repeated"
+                )));
+            }
+            row_of_node[r as usize] = ri as u32;
+        }
+        for &c in &cols {
+            if row_of_node[c as usize] == u32::MAX {
+                row_of_node[c as usize] = rows.len() as u32;
+                rows.push(c);
+            }
+        }
+        let col_row: Vec<u32> = cols.iter().map(|&c| row_of_node[c as usize]).collect();
+        let nr = rows.len();
+        let nc = cols.len();
+        let mut l = vec![0.0f64; 9 * nr * nc];
+        let nf = stiff.dofs.n_free;
+        let mut residual = 0.0f64;
+        let batch = 64usize.max(1);
+        let mut kx = vec![0.0; nf];
+        for chunk_start in (0..nc).step_by(batch) {
+            let chunk = (chunk_start..(chunk_start + batch).min(nc)).collect::<Vec<_>>();
+            let mut b = Mat::<f64>::zeros(nf, 3 * chunk.len());
+            for (k, &ci) in chunk.iter().enumerate() {
+                for a in 0..3 {
+                    let d = stiff.dofs.free(cols[ci], a).expect("columns are free");
+                    b[(d, 3 * k + a)] = 1.0;
+                }
+            }
+            factor.solve_in_place(&mut b);
+            for (k, &ci) in chunk.iter().enumerate() {
+                for bax in 0..3 {
+                    let x = b.col(3 * k + bax);
+                    let xs: Vec<f64> = (0..nf).map(|i| x[i]).collect();
+                    if xs.iter().any(|v| !v.is_finite()) {
+                        return Err(FemError::Singular {
+                            node: cols[ci],
+                            dof: stiff.dofs.free(cols[ci], bax).unwrap_or(0),
+                        });
+                    }
+                    stiff.mul(&xs, &mut kx);
+                    let e = stiff.dofs.free(cols[ci], bax).expect("free");
+                    for (i, v) in kx.iter().enumerate() {
+                        let target = if i == e { 1.0 } else { 0.0 };
+                        residual = residual.max((v - target).abs());
+                    }
+                    let base = (3 * ci + bax) * 3 * nr;
+                    for (ri, &r) in rows.iter().enumerate() {
+                        for a in 0..3 {
+                            if let Some(d) = stiff.dofs.free(r, a) {
+                                l[base + 3 * ri + a] = xs[d];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        let mut c = Compliance::from_dense(rows, cols, l, n)?;
+        c.stats.free_dofs = nf;
+        c.stats.k_nonzeros = stiff.k.compute_nnz();
+        c.stats.residual = residual;
+        c.stats.seconds = t0.elapsed().as_secs_f64();
+        // row_of_node/col_of_node were rebuilt by from_dense; they agree with ours.
+        debug_assert_eq!(c.col_row, col_row);
+        Ok(c)
+    }
+
+    /// Builds a compliance from a dense column-major `(3R)×(3C)` matrix in this module's layout.
+    /// `cols` must be a subset of `rows`; `n_nodes` is the mesh's node count. Used by the cache
+    /// and by tests with synthetic data.
+    pub fn from_dense(
+        rows: Vec<u32>,
+        cols: Vec<u32>,
+        l: Vec<f64>,
+        n_nodes: usize,
+    ) -> Result<Compliance, FemError> {
+        let nr = rows.len();
+        let nc = cols.len();
+        if l.len() != 9 * nr * nc {
+            return Err(FemError::BadSelection(format!(
+                "L has {} entries, expected 9·{nr}·{nc}",
+                l.len()
+            )));
+        }
+        let mut row_of_node = vec![u32::MAX; n_nodes];
+        let mut col_of_node = vec![u32::MAX; n_nodes];
+        for (i, &r) in rows.iter().enumerate() {
+            *row_of_node.get_mut(r as usize).ok_or_else(|| {
+                FemError::BadSelection(format!("row node {r} out of range"))
+            })? = i as u32;
+        }
+        let mut col_row = Vec::with_capacity(nc);
+        for (i, &c) in cols.iter().enumerate() {
+            *col_of_node.get_mut(c as usize).ok_or_else(|| {
+                FemError::BadSelection(format!("column node {c} out of range"))
+            })? = i as u32;
+            let r = row_of_node[c as usize];
+            if r == u32::MAX {
+                return Err(FemError::BadSelection(format!(
+                    "column node {c} is not among the rows"
+                )));
+            }
+            col_row.push(r);
+        }
+        let l32 = l.iter().map(|&v| v as f32).collect();
+        let mut c = Compliance {
+            rows,
+            cols,
+            row_of_node,
+            col_of_node,
+            col_row,
+            l,
+            l32,
+            diag_inv: Vec::with_capacity(nc),
+            clamp_compliance: 0.0,
+            stats: PrecomputeStats::default(),
+        };
+        let mut min_trace = f64::INFINITY;
+        for ci in 0..nc {
+            let d = c.block(c.col_row[ci] as usize, ci);
+            let inv = invert3(d).ok_or(FemError::Singular {
+                node: c.cols[ci],
+                dof: 0,
+            })?;
+            min_trace = min_trace.min(d.x_axis.x + d.y_axis.y + d.z_axis.z);
+            c.diag_inv.push(inv);
+        }
+        // A clamped node is modelled as ten times stiffer than the stiffest touchable node, so
+        // that the force near the clamp is large but finite (see `clamp_compliance`).
+        c.clamp_compliance = if min_trace.is_finite() {
+            0.1 * min_trace / 3.0
+        } else {
+            0.0
+        };
+        c.stats.symmetry = c.symmetry_error();
+        c.stats.bytes = c.l.len() * 8 + c.l32.len() * 4 + c.diag_inv.len() * 72;
+        Ok(c)
+    }
+
+    /// Displayed nodes (mesh indices), touchable nodes first-included in order given.
+    pub fn rows(&self) -> &[u32] {
+        &self.rows
+    }
+    /// Touchable nodes (mesh indices).
+    pub fn cols(&self) -> &[u32] {
+        &self.cols
+    }
+    /// Row index of a mesh node, if displayed.
+    #[inline]
+    pub fn row_of(&self, node: u32) -> Option<usize> {
+        let r = *self.row_of_node.get(node as usize)?;
+        (r != u32::MAX).then_some(r as usize)
+    }
+    /// Column index of a mesh node, if touchable.
+    #[inline]
+    pub fn col_of(&self, node: u32) -> Option<usize> {
+        let c = *self.col_of_node.get(node as usize)?;
+        (c != u32::MAX).then_some(c as usize)
+    }
+    /// Row index of column `c`'s node.
+    #[inline]
+    pub fn col_row(&self, c: usize) -> usize {
+        self.col_row[c] as usize
+    }
+    /// The f64 matrix in this module's layout (m/N).
+    pub fn l_f64(&self) -> &[f64] {
+        &self.l
+    }
+    /// The f32 copy for the GPU, same layout.
+    pub fn l_f32(&self) -> &[f32] {
+        &self.l32
+    }
+    /// The 3×3 block L(row r, column c), m/N.
+    #[inline]
+    pub fn block(&self, r: usize, c: usize) -> DMat3 {
+        let nr3 = 3 * self.rows.len();
+        let base = 3 * c * nr3 + 3 * r;
+        let col = |b: usize| {
+            let o = base + b * nr3;
+            DVec3::new(self.l[o], self.l[o + 1], self.l[o + 2])
+        };
+        DMat3::from_cols(col(0), col(1), col(2))
+    }
+    /// The 3×3 block between two touchable columns, L(node of column i, column j).
+    #[inline]
+    pub fn touch_block(&self, i: usize, j: usize) -> DMat3 {
+        self.block(self.col_row[i] as usize, j)
+    }
+    /// `L_ii⁻¹` of column `c` (N/m): the stiffness felt at that node alone (eq. 7).
+    #[inline]
+    pub fn diag_inv(&self, c: usize) -> DMat3 {
+        self.diag_inv[c]
+    }
+    /// Compliance (m/N) given to clamped nodes when a contact triangle touches the clamp: one
+    /// tenth of the smallest touchable diagonal compliance, so that forces stay finite.
+    pub fn clamp_compliance(&self) -> f64 {
+        self.clamp_compliance
+    }
+
+    /// u = L·F over the active columns (eq. 8), f64, into `out` (one entry per row, metres).
+    pub fn displace(&self, forces: &[(u32, DVec3)], out: &mut [DVec3]) {
+        let nr = self.rows.len();
+        out[..nr].iter_mut().for_each(|v| *v = DVec3::ZERO);
+        let nr3 = 3 * nr;
+        for &(c, f) in forces {
+            let f = f.to_array();
+            for (b, fb) in f.iter().enumerate() {
+                if *fb == 0.0 {
+                    continue;
+                }
+                let col = &self.l[(3 * c as usize + b) * nr3..][..nr3];
+                for (r, o) in out[..nr].iter_mut().enumerate() {
+                    *o += DVec3::new(col[3 * r], col[3 * r + 1], col[3 * r + 2]) * *fb;
+                }
+            }
+        }
+    }
+
+    fn symmetry_error(&self) -> f64 {
+        let nc = self.cols.len();
+        let maxl = self.l.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        if maxl == 0.0 {
+            return 0.0;
+        }
+        let mut err = 0.0f64;
+        for i in 0..nc {
+            for j in i..nc {
+                let a = self.touch_block(i, j);
+                let b = self.touch_block(j, i).transpose();
+                err = err.max((a - b).abs().to_cols_array().iter().fold(0.0, |m, v| m.max(*v)));
+            }
+        }
+        err / maxl
+    }
+}

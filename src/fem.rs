@@ -1,0 +1,350 @@
+//! Linear-elastic constant-strain tetrahedra: element and global stiffness (the paper's eq. 1),
+//! elimination of the clamped DOFs, and the sparse Cholesky factorisation of `K` (faer, supernodal
+//! with AMD ordering).
+
+use faer::linalg::solvers::Solve;
+use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
+use faer::sparse::{SparseColMat, Triplet};
+use faer::{Mat, Side};
+use glam::DVec3;
+use thiserror::Error;
+
+use crate::mesh::Mesh;
+use crate::units::Material;
+
+/// Errors from building or factorising the stiffness.
+#[derive(Debug, Error)]
+pub enum FemError {
+    /// E or ν out of range.
+    #[error("bad material: {0}")]
+    BadMaterial(String),
+    /// No node is clamped: the stiffness is singular (six rigid-body modes).
+    #[error(
+        "no node is fixed: the object can move freely and its stiffness is singular \
+         (name a clamped node group with --fixed)"
+    )]
+    NoFixedNodes,
+    /// A connected part of the mesh is not held by enough clamped nodes.
+    #[error(
+        "a part of the mesh ({part_nodes} nodes, including node {example_node}) is held by \
+         {fixed_in_part} clamped node(s) {how}: it can move rigidly and its stiffness is singular"
+    )]
+    Unconstrained {
+        /// Nodes in the floating part.
+        part_nodes: usize,
+        /// One node of that part.
+        example_node: u32,
+        /// Clamped nodes in that part.
+        fixed_in_part: usize,
+        /// "that are collinear", or "" when there are none.
+        how: &'static str,
+    },
+    /// The factorisation met a non-positive pivot.
+    #[error("the stiffness matrix is singular or indefinite at node {node} (DOF {dof})")]
+    Singular {
+        /// The node whose DOF failed.
+        node: u32,
+        /// The free DOF index.
+        dof: usize,
+    },
+    /// faer reported an allocation or structural failure.
+    #[error("sparse factorisation failed: {0}")]
+    Factorisation(String),
+    /// A touchable node is clamped, or a node index is out of range.
+    #[error("bad node selection: {0}")]
+    BadSelection(String),
+}
+
+/// The numbering of free (unclamped) DOFs: DOF `3·node + axis` → free index.
+#[derive(Clone, Debug)]
+pub struct Dofs {
+    map: Vec<u32>,
+    /// Number of free DOFs.
+    pub n_free: usize,
+    /// The node and axis of each free DOF.
+    pub owner: Vec<(u32, u8)>,
+}
+
+impl Dofs {
+    /// Numbers the DOFs of the unclamped nodes in node order.
+    pub fn new(fixed: &[bool]) -> Dofs {
+        let mut map = vec![u32::MAX; fixed.len() * 3];
+        let mut owner = Vec::new();
+        for (n, &f) in fixed.iter().enumerate() {
+            if !f {
+                for a in 0..3 {
+                    map[3 * n + a] = owner.len() as u32;
+                    owner.push((n as u32, a as u8));
+                }
+            }
+        }
+        Dofs {
+            n_free: owner.len(),
+            map,
+            owner,
+        }
+    }
+    /// The free index of (node, axis), or `None` if the node is clamped.
+    #[inline]
+    pub fn free(&self, node: u32, axis: usize) -> Option<usize> {
+        let d = self.map[3 * node as usize + axis];
+        (d != u32::MAX).then_some(d as usize)
+    }
+}
+
+/// Gradients of the four linear shape functions of a tet and its volume.
+pub fn shape_gradients(p: [DVec3; 4]) -> ([DVec3; 4], f64) {
+    let j = glam::DMat3::from_cols(p[1] - p[0], p[2] - p[0], p[3] - p[0]);
+    let vol = j.determinant() / 6.0;
+    // Rows of J⁻¹ are ∇N₁, ∇N₂, ∇N₃.
+    let inv = j.inverse().transpose();
+    let g1 = inv.x_axis;
+    let g2 = inv.y_axis;
+    let g3 = inv.z_axis;
+    ([-(g1 + g2 + g3), g1, g2, g3], vol)
+}
+
+/// The 12×12 stiffness of a constant-strain tet, `V·Bᵀ D B`, DOFs ordered (node, axis).
+pub fn element_stiffness(p: [DVec3; 4], mat: &Material) -> [[f64; 12]; 12] {
+    let (g, vol) = shape_gradients(p);
+    let (lambda, mu) = mat.lame();
+    let mut k = [[0.0; 12]; 12];
+    // K_ab(i,j) = V (λ g_a,i g_b,j + μ g_a,j g_b,i + μ δ_ij g_a·g_b)
+    for a in 0..4 {
+        for b in 0..4 {
+            let ga = g[a].to_array();
+            let gb = g[b].to_array();
+            let dot = g[a].dot(g[b]);
+            for i in 0..3 {
+                for jx in 0..3 {
+                    let mut v = lambda * ga[i] * gb[jx] + mu * ga[jx] * gb[i];
+                    if i == jx {
+                        v += mu * dot;
+                    }
+                    k[3 * a + i][3 * b + jx] = vol * v;
+                }
+            }
+        }
+    }
+    k
+}
+
+/// The full (unconstrained) global stiffness as a dense matrix, for tests on small meshes.
+pub fn dense_stiffness(mesh: &Mesh) -> Vec<Vec<f64>> {
+    let n = mesh.nodes.len() * 3;
+    let mut k = vec![vec![0.0; n]; n];
+    for t in &mesh.tets {
+        let ke = element_stiffness(t.map(|i| mesh.nodes[i as usize]), &mesh.material);
+        for a in 0..4 {
+            for b in 0..4 {
+                for i in 0..3 {
+                    for j in 0..3 {
+                        k[3 * t[a] as usize + i][3 * t[b] as usize + j] += ke[3 * a + i][3 * b + j];
+                    }
+                }
+            }
+        }
+    }
+    k
+}
+
+/// The stiffness over the free DOFs (`K` of the paper's eq. 1), sparse, both triangles stored.
+pub struct Stiffness {
+    /// Free-DOF numbering.
+    pub dofs: Dofs,
+    /// K over free DOFs, N/m.
+    pub k: SparseColMat<usize, f64>,
+}
+
+impl Stiffness {
+    /// Assembles K with the clamped DOFs eliminated. Checks the material and that every
+    /// connected part of the mesh is held by at least three non-collinear clamped nodes.
+    pub fn assemble(mesh: &Mesh) -> Result<Stiffness, FemError> {
+        mesh.material.validate()?;
+        check_constrained(mesh)?;
+        let dofs = Dofs::new(&mesh.fixed);
+        let mut trip = Vec::with_capacity(mesh.tets.len() * 144);
+        for t in &mesh.tets {
+            let ke = element_stiffness(t.map(|i| mesh.nodes[i as usize]), &mesh.material);
+            for a in 0..4 {
+                for i in 0..3 {
+                    let Some(r) = dofs.free(t[a], i) else { continue };
+                    for b in 0..4 {
+                        for j in 0..3 {
+                            if let Some(c) = dofs.free(t[b], j) {
+                                trip.push(Triplet::new(r, c, ke[3 * a + i][3 * b + j]));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        let k = SparseColMat::try_new_from_triplets(dofs.n_free, dofs.n_free, &trip)
+            .map_err(|e| FemError::Factorisation(format!("{e:?}")))?;
+        Ok(Stiffness { dofs, k })
+    }
+
+    /// Factorises K = LLᵀ (faer: AMD ordering, supernodal or simplicial as it sees fit).
+    pub fn factorize(&self) -> Result<Factor, FemError> {
+        let symbolic = SymbolicLlt::try_new(self.k.symbolic(), Side::Lower)
+            .map_err(|e| FemError::Factorisation(format!("{e:?}")))?;
+        let llt = Llt::try_new_with_symbolic(symbolic, self.k.as_ref(), Side::Lower).map_err(
+            |e| match e {
+                faer::sparse::linalg::LltError::Numeric(
+                    faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index },
+                ) => {
+                    // `index` is in the permuted order; name the DOF's node as best we can.
+                    let dof = index.min(self.dofs.n_free.saturating_sub(1));
+                    FemError::Singular {
+                        node: self.dofs.owner.get(dof).map(|o| o.0).unwrap_or(0),
+                        dof,
+                    }
+                }
+                other => FemError::Factorisation(format!("{other:?}")),
+            },
+        )?;
+        Ok(Factor { llt })
+    }
+
+    /// y = K·x over free DOFs.
+    pub fn mul(&self, x: &[f64], y: &mut [f64]) {
+        y.iter_mut().for_each(|v| *v = 0.0);
+        let k = self.k.as_ref();
+        for c in 0..k.ncols() {
+            let xc = x[c];
+            if xc == 0.0 {
+                continue;
+            }
+            for (r, v) in k.row_idx_of_col(c).zip(k.val_of_col(c)) {
+                y[r] += v * xc;
+            }
+        }
+    }
+}
+
+/// The Cholesky factor of K.
+pub struct Factor {
+    llt: Llt<usize, f64>,
+}
+
+impl Factor {
+    /// Solves K X = B in place (B is n_free × m, column-major).
+    pub fn solve_in_place(&self, b: &mut Mat<f64>) {
+        self.llt.solve_in_place(b.as_mut());
+    }
+}
+
+/// Checks that every connected part of the mesh has at least three non-collinear clamped nodes.
+fn check_constrained(mesh: &Mesh) -> Result<(), FemError> {
+    if mesh.fixed_count() == 0 {
+        return Err(FemError::NoFixedNodes);
+    }
+    let n = mesh.nodes.len();
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    fn find(p: &mut [u32], mut x: u32) -> u32 {
+        while p[x as usize] != x {
+            p[x as usize] = p[p[x as usize] as usize];
+            x = p[x as usize];
+        }
+        x
+    }
+    for t in &mesh.tets {
+        let r0 = find(&mut parent, t[0]);
+        for &v in &t[1..] {
+            let r = find(&mut parent, v);
+            if r != r0 {
+                parent[r as usize] = r0;
+            }
+        }
+    }
+    // Per component: node count, fixed nodes.
+    let mut comp_nodes: std::collections::HashMap<u32, (usize, Vec<DVec3>)> = Default::default();
+    for i in 0..n as u32 {
+        let r = find(&mut parent, i);
+        let e = comp_nodes.entry(r).or_insert((0, Vec::new()));
+        e.0 += 1;
+        if mesh.fixed[i as usize] {
+            e.1.push(mesh.nodes[i as usize]);
+        }
+    }
+    let (lo, hi) = mesh.bounds();
+    let scale = (hi - lo).length().max(f64::MIN_POSITIVE);
+    for (root, (count, fixed)) in comp_nodes {
+        let ok = fixed.len() >= 3 && !collinear(&fixed, scale);
+        if !ok {
+            return Err(FemError::Unconstrained {
+                part_nodes: count,
+                example_node: root,
+                fixed_in_part: fixed.len(),
+                how: if fixed.len() >= 3 {
+                    "that are collinear"
+                } else {
+                    ""
+                },
+            });
+        }
+    }
+    Ok(())
+}
+
+/// True when all points lie (to 1e-9 of `scale`) on one line.
+fn collinear(p: &[DVec3], scale: f64) -> bool {
+    let a = p[0];
+    let Some(b) = p.iter().copied().max_by(|x, y| {
+        x.distance(a)
+            .partial_cmp(&y.distance(a))
+            .unwrap_or(std::cmp::Ordering::Equal)
+    }) else {
+        return true;
+    };
+    let d = b - a;
+    if d.length() <= 1e-9 * scale {
+        return true;
+    }
+    let dir = d.normalize();
+    p.iter().all(|&q| (q - a).cross(dir).length() <= 1e-9 * scale)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::cube;
+
+    #[test]
+    fn element_stiffness_is_symmetric_and_kills_rigid_modes() {
+        let p = [
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(1.0, 0.1, 0.0),
+            DVec3::new(0.2, 1.0, 0.1),
+            DVec3::new(0.1, 0.3, 1.2),
+        ];
+        let k = element_stiffness(p, &Material::DEFAULT);
+        for i in 0..12 {
+            for j in 0..12 {
+                assert!((k[i][j] - k[j][i]).abs() < 1e-12 * 1000.0);
+            }
+        }
+        // Translation along x and rotation about z.
+        let mut t = [0.0; 12];
+        let mut r = [0.0; 12];
+        for a in 0..4 {
+            t[3 * a] = 1.0;
+            r[3 * a] = -p[a].y;
+            r[3 * a + 1] = p[a].x;
+        }
+        for v in [t, r] {
+            for row in &k {
+                let s: f64 = row.iter().zip(&v).map(|(a, b)| a * b).sum();
+                assert!(s.abs() < 1e-10, "{s}");
+            }
+        }
+    }
+
+    #[test]
+    fn cube_assembles_and_factorizes() {
+        let m = cube();
+        let s = Stiffness::assemble(&m).unwrap();
+        assert_eq!(s.dofs.n_free, (125 - 25) * 3);
+        s.factorize().unwrap();
+    }
+}

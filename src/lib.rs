@@ -1,0 +1,26 @@
+//! # touchfem
+//!
+//! Touch and see soft objects in real time: the method of Hirota & Kaneko, *Representation of
+//! Soft Objects in Virtual Environment*. A linear tetrahedral FEM object's compliance `L = K⁻¹`
+//! is precomputed once for the displayed rows and touchable columns; the finger's displacement is
+//! turned into an equivalent nodal force with 3×3 blocks `L_ii⁻¹` (so `L` never changes); the
+//! haptic loop runs that small solve at 1 kHz on the CPU, and the visual loop computes
+//! `u = L·F` over the active columns.
+//!
+//! Units are SI throughout (m, N, Pa, s); mesh files may declare millimetres (see [`units`]).
+//!
+//! Data flows one way:
+//! * precompute: [`mesh`] → [`fem`] (sparse K, Cholesky) → [`compliance`] (L, L_ii⁻¹) → [`cache`]
+//! * haptic path: [`contact`] (god-object) → [`force`] (eq. 9–12) → [`haptics`] (lock-free publish)
+//! * visual path: [`compliance::Compliance::displace`] on the CPU (f64 reference) or the GPU pass.
+
+#![warn(missing_docs)]
+
+pub mod compliance;
+pub mod contact;
+pub mod fem;
+pub mod mesh;
+pub mod units;
+
+pub use mesh::{Mesh, MeshError, RawMesh};
+pub use units::{LengthUnit, Material};
