@@ -19,8 +19,11 @@
 pub mod compliance;
 pub mod contact;
 pub mod fem;
+pub mod gpu;
 pub mod mesh;
+pub mod render;
 pub mod units;
 
 pub use mesh::{Mesh, MeshError, RawMesh};
 pub use units::{LengthUnit, Material};
+pub use wgpu;

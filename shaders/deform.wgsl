@@ -1,0 +1,104 @@
+// touchfem deformation passes (Hirota & Kaneko eq. 8): u = L·F over the active columns, then
+// area-weighted vertex normals of the deformed surface. Used by `touchfem::gpu::Deformer`.
+//
+// L is column-major (3R)×(3C), split by column nodes into chunks (one storage binding each, to
+// stay under max_storage_buffer_binding_size). `deform` is dispatched once per chunk that has
+// active columns (chunk 0 always, it starts from the rest pose); later chunks accumulate.
+// All counts come from uniforms: nothing relies on arrayLength (VERTEX buffers are padded).
+
+struct Frame {
+    // Displayed vertices (rows of L).
+    n_rows: u32,
+    // Output: first f32 word of vertex 0 in `out`, and the vertex stride in f32 words.
+    out_offset: u32,
+    out_stride: u32,
+    // Normal's first word relative to the vertex start; 0xffffffff: no normals written.
+    normal_offset: u32,
+}
+
+// One active column of the force boundary condition: F_c (newtons) and c, local to its chunk.
+struct Active {
+    force: vec3<f32>,
+    col: u32,
+}
+
+struct Chunk {
+    // This chunk's entries are active[first .. first + count].
+    first: u32,
+    count: u32,
+    // 1: start from the rest position; 0: add to what `out` holds.
+    init: u32,
+    _pad: u32,
+}
+
+@group(0) @binding(0) var<uniform> frame: Frame;
+@group(0) @binding(1) var<storage, read> active_list: array<Active>;
+@group(0) @binding(2) var<storage, read> rest: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read_write> out: array<f32>;
+// Surface triangles as row indices, 3 per triangle.
+@group(0) @binding(4) var<storage, read> tris: array<u32>;
+// CSR vertex → incident triangles: offsets[0..=n_rows] then the triangle ids.
+@group(0) @binding(5) var<storage, read> adj: array<u32>;
+
+@group(1) @binding(0) var<uniform> chunk: Chunk;
+@group(1) @binding(1) var<storage, read> l: array<f32>;
+
+fn load_l(i: u32) -> vec3<f32> {
+    return vec3<f32>(l[i], l[i + 1u], l[i + 2u]);
+}
+
+@compute @workgroup_size(64)
+fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let r = gid.x;
+    if r >= frame.n_rows {
+        return;
+    }
+    let nr3 = 3u * frame.n_rows;
+    var u = vec3<f32>(0.0);
+    for (var k = 0u; k < chunk.count; k += 1u) {
+        let a = active_list[chunk.first + k];
+        // Entry (row r, axis 0; column c, axis b) sits at (3c + b)·3R + 3r.
+        let base = 3u * a.col * nr3 + 3u * r;
+        u += load_l(base) * a.force.x + load_l(base + nr3) * a.force.y
+            + load_l(base + 2u * nr3) * a.force.z;
+    }
+    let o = frame.out_offset + r * frame.out_stride;
+    var p: vec3<f32>;
+    if chunk.init != 0u {
+        p = rest[r].xyz + u;
+    } else {
+        p = vec3<f32>(out[o], out[o + 1u], out[o + 2u]) + u;
+    }
+    out[o] = p.x;
+    out[o + 1u] = p.y;
+    out[o + 2u] = p.z;
+}
+
+fn position(v: u32) -> vec3<f32> {
+    let o = frame.out_offset + v * frame.out_stride;
+    return vec3<f32>(out[o], out[o + 1u], out[o + 2u]);
+}
+
+@compute @workgroup_size(64)
+fn normals(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let v = gid.x;
+    if v >= frame.n_rows || frame.normal_offset == 0xffffffffu {
+        return;
+    }
+    var n = vec3<f32>(0.0);
+    let list = frame.n_rows + 1u;
+    for (var i = adj[v]; i < adj[v + 1u]; i += 1u) {
+        let t = 3u * adj[list + i];
+        let p0 = position(tris[t]);
+        // |cross| is twice the area: the sum is area-weighted.
+        n += cross(position(tris[t + 1u]) - p0, position(tris[t + 2u]) - p0);
+    }
+    let len = length(n);
+    if len > 0.0 {
+        n = n / len;
+    }
+    let o = frame.out_offset + v * frame.out_stride + frame.normal_offset;
+    out[o] = n.x;
+    out[o + 1u] = n.y;
+    out[o + 2u] = n.z;
+}

@@ -1,0 +1,290 @@
+//! The GPU side of the visual loop: a wgpu compute pass that evaluates `u = L·F` over the active
+//! columns straight into a vertex buffer, and recomputes the deformed surface's vertex normals.
+//!
+//! * [`Deformer`] is the embeddable piece (in the style of glyphon or egui-wgpu): it borrows the
+//!   caller's [`wgpu::Device`] and [`wgpu::Queue`], uploads `L` once, takes a force boundary
+//!   condition per frame with [`Deformer::set_forces`] and records its passes into the caller's
+//!   encoder with [`Deformer::encode`].
+//! * [`Gpu`] is a small headless context (instance, adapter, device, queue) for tools, tests and
+//!   the offscreen [`crate::render`]er; it honours `WGPU_BACKEND`, `WGPU_ADAPTER_NAME` and
+//!   `WGPU_POWER_PREF`.
+//!
+//! Use the re-exported [`crate::wgpu`] so that your wgpu version matches ours.
+
+mod deform;
+
+pub use deform::{
+    Deformer, DeformerInput, DeformerOptions, OutputTarget, Vertex, MAX_ACTIVE, NO_NORMALS,
+    VERTEX_STRIDE,
+};
+
+use thiserror::Error;
+
+/// The WGSL source of the deformation and normal passes (`shaders/deform.wgsl`).
+pub const DEFORM_WGSL: &str = include_str!("../../shaders/deform.wgsl");
+
+/// Everything that can go wrong on the GPU side.
+#[derive(Debug, Error)]
+pub enum GpuError {
+    /// No adapter matched the request.
+    #[error(
+        "no GPU adapter found (WGPU_BACKEND={backends}, WGPU_ADAPTER_NAME={name}): {reason}. \
+         Set WGPU_BACKEND to a backend this machine has (e.g. WGPU_BACKEND=vulkan with Mesa's \
+         lavapipe installed for a software GPU) or unset WGPU_ADAPTER_NAME"
+    )]
+    NoAdapter {
+        /// The backends that were searched, as `WGPU_BACKEND` spells them.
+        backends: String,
+        /// The adapter name filter, or `(unset)`.
+        name: String,
+        /// What wgpu said.
+        reason: String,
+    },
+    /// The adapter refused to create a device.
+    #[error("cannot create a GPU device: {0}")]
+    RequestDevice(#[from] wgpu::RequestDeviceError),
+    /// More active columns than the shader's active-list buffer holds.
+    #[error("{count} active columns in the force boundary condition; at most {max} are supported")]
+    TooManyActive {
+        /// Entries passed.
+        count: usize,
+        /// [`MAX_ACTIVE`].
+        max: usize,
+    },
+    /// A force names a column the compliance does not have.
+    #[error("force on column {col}, but the compliance has {n_cols} columns")]
+    ColumnOutOfRange {
+        /// The column index passed.
+        col: u32,
+        /// The number of columns.
+        n_cols: usize,
+    },
+    /// A force component is NaN or infinite.
+    #[error("force on column {col} is not finite: {force:?}")]
+    NonFiniteForce {
+        /// The column index.
+        col: u32,
+        /// The force passed.
+        force: [f32; 3],
+    },
+    /// A buffer or binding would exceed the device's limits.
+    #[error("{what} needs {bytes} bytes, but the device allows {limit}")]
+    BufferTooLarge {
+        /// Which buffer.
+        what: &'static str,
+        /// Bytes it needs.
+        bytes: u64,
+        /// The device limit it exceeds.
+        limit: u64,
+    },
+    /// The compliance, rest positions or triangles are inconsistent.
+    #[error("invalid deformer input: {0}")]
+    BadInput(String),
+    /// The caller-supplied output target is unusable.
+    #[error("invalid output target: {0}")]
+    BadOutput(String),
+    /// Reading a buffer back failed.
+    #[error("GPU readback failed: {0}")]
+    Readback(String),
+}
+
+/// Which adapter [`Gpu::new`] picks.
+#[derive(Clone, Debug)]
+pub struct AdapterSelection {
+    /// Backends to search.
+    pub backends: wgpu::Backends,
+    /// If set, the first adapter whose name contains this (case-insensitive).
+    pub name: Option<String>,
+    /// Preference when no name is given.
+    pub power: wgpu::PowerPreference,
+}
+
+impl AdapterSelection {
+    /// From `WGPU_BACKEND` (default: all), `WGPU_ADAPTER_NAME` and `WGPU_POWER_PREF` (default:
+    /// high performance).
+    pub fn from_env() -> Self {
+        AdapterSelection {
+            backends: wgpu::Backends::from_env().unwrap_or_default(),
+            name: std::env::var("WGPU_ADAPTER_NAME")
+                .ok()
+                .filter(|s| !s.is_empty()),
+            power: wgpu::PowerPreference::from_env()
+                .unwrap_or(wgpu::PowerPreference::HighPerformance),
+        }
+    }
+}
+
+/// A headless wgpu context: instance, adapter, device and queue.
+///
+/// The device is created with the adapter's own limits (not the WebGPU defaults), so that large
+/// compliance matrices can use the biggest bindings the hardware offers.
+#[derive(Debug)]
+pub struct Gpu {
+    /// The instance.
+    pub instance: wgpu::Instance,
+    /// The chosen adapter.
+    pub adapter: wgpu::Adapter,
+    /// The device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+}
+
+fn backends_name(b: wgpu::Backends) -> String {
+    if b == wgpu::Backends::all() {
+        return "(unset: all)".into();
+    }
+    let names: Vec<&str> = [
+        (wgpu::Backends::VULKAN, "vulkan"),
+        (wgpu::Backends::METAL, "metal"),
+        (wgpu::Backends::DX12, "dx12"),
+        (wgpu::Backends::GL, "gl"),
+        (wgpu::Backends::BROWSER_WEBGPU, "webgpu"),
+        (wgpu::Backends::NOOP, "noop"),
+    ]
+    .into_iter()
+    .filter(|(f, _)| b.contains(*f))
+    .map(|(_, n)| n)
+    .collect();
+    if names.is_empty() {
+        "(none)".into()
+    } else {
+        names.join(",")
+    }
+}
+
+impl Gpu {
+    /// A headless context chosen by the environment (see [`AdapterSelection::from_env`]).
+    /// Fails with [`GpuError::NoAdapter`] when nothing matches.
+    pub fn new_headless() -> Result<Gpu, GpuError> {
+        Gpu::new(&AdapterSelection::from_env())
+    }
+
+    /// A headless context on the adapter `sel` names.
+    pub fn new(sel: &AdapterSelection) -> Result<Gpu, GpuError> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        desc.backends = sel.backends;
+        let instance = wgpu::Instance::new(desc);
+        let no_adapter = |reason: String| GpuError::NoAdapter {
+            backends: backends_name(sel.backends),
+            name: sel.name.clone().unwrap_or_else(|| "(unset)".into()),
+            reason,
+        };
+        let adapter = match &sel.name {
+            Some(name) => {
+                let want = name.to_lowercase();
+                let adapters = pollster::block_on(instance.enumerate_adapters(sel.backends));
+                let seen: Vec<String> = adapters.iter().map(|a| a.get_info().name).collect();
+                adapters
+                    .into_iter()
+                    .find(|a| a.get_info().name.to_lowercase().contains(&want))
+                    .ok_or_else(|| {
+                        no_adapter(format!(
+                            "no adapter name contains '{name}' (found: {seen:?})"
+                        ))
+                    })?
+            }
+            None => pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+                power_preference: sel.power,
+                force_fallback_adapter: false,
+                compatible_surface: None,
+                apply_limit_buckets: false,
+            }))
+            .map_err(|e| no_adapter(e.to_string()))?,
+        };
+        let (device, queue) =
+            pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+                label: Some("touchfem"),
+                required_features: wgpu::Features::empty(),
+                required_limits: adapter.limits(),
+                experimental_features: wgpu::ExperimentalFeatures::disabled(),
+                memory_hints: wgpu::MemoryHints::Performance,
+                trace: wgpu::Trace::Off,
+            }))?;
+        Ok(Gpu {
+            instance,
+            adapter,
+            device,
+            queue,
+        })
+    }
+}
+
+/// Copies `size` bytes at `offset` of `buffer` (which needs `COPY_SRC`) back to the CPU, waiting
+/// for the GPU. `offset` and `size` must be multiples of 4.
+pub fn read_buffer(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    buffer: &wgpu::Buffer,
+    offset: u64,
+    size: u64,
+) -> Result<Vec<u8>, GpuError> {
+    let staging = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("touchfem readback"),
+        size,
+        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+        mapped_at_creation: false,
+    });
+    let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor::default());
+    enc.copy_buffer_to_buffer(buffer, offset, &staging, 0, size);
+    queue.submit([enc.finish()]);
+    map_read(device, &staging)
+}
+
+/// Maps a `MAP_READ` buffer that the GPU has been asked to fill and returns its bytes.
+pub(crate) fn map_read(device: &wgpu::Device, staging: &wgpu::Buffer) -> Result<Vec<u8>, GpuError> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    staging.map_async(wgpu::MapMode::Read, .., move |r| {
+        let _ = tx.send(r);
+    });
+    device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| GpuError::Readback(e.to_string()))?;
+    rx.recv()
+        .map_err(|e| GpuError::Readback(e.to_string()))?
+        .map_err(|e| GpuError::Readback(e.to_string()))?;
+    let bytes = staging
+        .get_mapped_range(..)
+        .map_err(|e| GpuError::Readback(e.to_string()))?
+        .to_vec();
+    staging.unmap();
+    Ok(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    /// Every shader in `shaders/` parses and validates with naga (no GPU needed).
+    #[test]
+    fn shaders_validate_with_naga() {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/shaders");
+        let mut n = 0;
+        for entry in std::fs::read_dir(dir).expect("shaders/ exists") {
+            let path = entry.unwrap().path();
+            if path.extension().and_then(|e| e.to_str()) != Some("wgsl") {
+                continue;
+            }
+            let src = std::fs::read_to_string(&path).unwrap();
+            let module = naga::front::wgsl::parse_str(&src)
+                .unwrap_or_else(|e| panic!("{}: {}", path.display(), e.emit_to_string(&src)));
+            naga::valid::Validator::new(
+                naga::valid::ValidationFlags::all(),
+                naga::valid::Capabilities::empty(),
+            )
+            .validate(&module)
+            .unwrap_or_else(|e| panic!("{}: {}", path.display(), e.emit_to_string(&src)));
+            n += 1;
+        }
+        assert!(
+            n >= 2,
+            "expected at least deform.wgsl and render.wgsl, found {n}"
+        );
+    }
+
+    #[test]
+    fn embedded_shader_is_the_file() {
+        let file =
+            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/shaders/deform.wgsl"))
+                .unwrap();
+        assert_eq!(file, super::DEFORM_WGSL);
+    }
+}
