@@ -168,9 +168,7 @@ impl Stiffness {
             let ke = element_stiffness(t.map(|i| mesh.nodes[i as usize]), &mesh.material);
             for a in 0..4 {
                 for i in 0..3 {
-                    let Some(r) = dofs.free(t[a], i) else {
-                        continue;
-                    };
+                    let Some(r) = dofs.free(t[a], i) else { continue };
                     for b in 0..4 {
                         for j in 0..3 {
                             if let Some(c) = dofs.free(t[b], j) {
@@ -304,8 +302,7 @@ fn collinear(p: &[DVec3], scale: f64) -> bool {
         return true;
     }
     let dir = d.normalize();
-    p.iter()
-        .all(|&q| (q - a).cross(dir).length() <= 1e-9 * scale)
+    p.iter().all(|&q| (q - a).cross(dir).length() <= 1e-9 * scale)
 }
 
 #[cfg(test)]
