@@ -706,7 +706,7 @@ fn validate_target(
     if !t.buffer.usage().contains(wgpu::BufferUsages::STORAGE) {
         return bad("the buffer's usage must include STORAGE".into());
     }
-    if t.offset % 4 != 0 || t.stride % 4 != 0 {
+    if !t.offset.is_multiple_of(4) || !t.stride.is_multiple_of(4) {
         return bad(format!(
             "offset {} and stride {} must be multiples of 4",
             t.offset, t.stride
@@ -717,7 +717,7 @@ fn validate_target(
     }
     let span = match t.normal_offset {
         Some(no) => {
-            if no % 4 != 0 || no < 12 || no + 12 > t.stride {
+            if !no.is_multiple_of(4) || no < 12 || no + 12 > t.stride {
                 return bad(format!(
                     "normal offset {no} must be a multiple of 4 in [12, stride − 12]"
                 ));
