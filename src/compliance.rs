@@ -222,15 +222,17 @@ impl Compliance {
         let mut row_of_node = vec![u32::MAX; n_nodes];
         let mut col_of_node = vec![u32::MAX; n_nodes];
         for (i, &r) in rows.iter().enumerate() {
-            *row_of_node.get_mut(r as usize).ok_or_else(|| {
-                FemError::BadSelection(format!("row node {r} out of range"))
-            })? = i as u32;
+            *row_of_node
+                .get_mut(r as usize)
+                .ok_or_else(|| FemError::BadSelection(format!("row node {r} out of range")))? =
+                i as u32;
         }
         let mut col_row = Vec::with_capacity(nc);
         for (i, &c) in cols.iter().enumerate() {
-            *col_of_node.get_mut(c as usize).ok_or_else(|| {
-                FemError::BadSelection(format!("column node {c} out of range"))
-            })? = i as u32;
+            *col_of_node
+                .get_mut(c as usize)
+                .ok_or_else(|| FemError::BadSelection(format!("column node {c} out of range")))? =
+                i as u32;
             let r = row_of_node[c as usize];
             if r == u32::MAX {
                 return Err(FemError::BadSelection(format!(
@@ -364,7 +366,13 @@ impl Compliance {
             for j in i..nc {
                 let a = self.touch_block(i, j);
                 let b = self.touch_block(j, i).transpose();
-                err = err.max((a - b).abs().to_cols_array().iter().fold(0.0, |m, v| m.max(*v)));
+                err = err.max(
+                    (a - b)
+                        .abs()
+                        .to_cols_array()
+                        .iter()
+                        .fold(0.0, |m, v| m.max(*v)),
+                );
             }
         }
         err / maxl

@@ -90,7 +90,9 @@ struct Grid {
 
 impl Grid {
     fn cell_range(&self, lo: DVec3, hi: DVec3) -> [std::ops::RangeInclusive<usize>; 3] {
-        let c = |p: f64, o: f64, d: usize| (((p - o) * self.inv_cell).floor().max(0.0) as usize).min(d - 1);
+        let c = |p: f64, o: f64, d: usize| {
+            (((p - o) * self.inv_cell).floor().max(0.0) as usize).min(d - 1)
+        };
         [
             c(lo.x, self.lo.x, self.dims[0])..=c(hi.x, self.lo.x, self.dims[0]),
             c(lo.y, self.lo.y, self.dims[1])..=c(hi.y, self.lo.y, self.dims[1]),
@@ -217,7 +219,10 @@ impl Surface {
     pub fn first_entry(&self, p0: DVec3, p1: DVec3) -> Option<(u32, DVec3)> {
         let d = p1 - p0;
         let eps = 1e-9 * self.grid_scale();
-        let r = self.grid.cell_range(p0.min(p1) - DVec3::splat(eps), p0.max(p1) + DVec3::splat(eps));
+        let r = self.grid.cell_range(
+            p0.min(p1) - DVec3::splat(eps),
+            p0.max(p1) + DVec3::splat(eps),
+        );
         let mut best: Option<(u32, f64)> = None;
         for k in r[2].clone() {
             for j in r[1].clone() {

@@ -168,7 +168,9 @@ impl Stiffness {
             let ke = element_stiffness(t.map(|i| mesh.nodes[i as usize]), &mesh.material);
             for a in 0..4 {
                 for i in 0..3 {
-                    let Some(r) = dofs.free(t[a], i) else { continue };
+                    let Some(r) = dofs.free(t[a], i) else {
+                        continue;
+                    };
                     for b in 0..4 {
                         for j in 0..3 {
                             if let Some(c) = dofs.free(t[b], j) {
@@ -232,6 +234,33 @@ impl Factor {
     pub fn solve_in_place(&self, b: &mut Mat<f64>) {
         self.llt.solve_in_place(b.as_mut());
     }
+}
+
+/// Solves the static problem K u = f on the whole mesh (a fresh factorisation): `forces` are
+/// (node, force in N); returns the displacement of every node in metres (zero on clamped nodes).
+/// This is the direct reference that the precomputed `L·F` must reproduce.
+pub fn solve_static(mesh: &Mesh, forces: &[(u32, DVec3)]) -> Result<Vec<DVec3>, FemError> {
+    let stiff = Stiffness::assemble(mesh)?;
+    let factor = stiff.factorize()?;
+    let mut b = Mat::<f64>::zeros(stiff.dofs.n_free, 1);
+    for &(node, f) in forces {
+        if node as usize >= mesh.nodes.len() {
+            return Err(FemError::BadSelection(format!(
+                "force on node {node} out of range"
+            )));
+        }
+        for a in 0..3 {
+            if let Some(d) = stiff.dofs.free(node, a) {
+                b[(d, 0)] += f[a];
+            }
+        }
+    }
+    factor.solve_in_place(&mut b);
+    let mut u = vec![DVec3::ZERO; mesh.nodes.len()];
+    for (d, &(node, a)) in stiff.dofs.owner.iter().enumerate() {
+        u[node as usize][a as usize] = b[(d, 0)];
+    }
+    Ok(u)
 }
 
 /// Checks that every connected part of the mesh has at least three non-collinear clamped nodes.
@@ -302,7 +331,8 @@ fn collinear(p: &[DVec3], scale: f64) -> bool {
         return true;
     }
     let dir = d.normalize();
-    p.iter().all(|&q| (q - a).cross(dir).length() <= 1e-9 * scale)
+    p.iter()
+        .all(|&q| (q - a).cross(dir).length() <= 1e-9 * scale)
 }
 
 #[cfg(test)]

@@ -24,7 +24,11 @@ pub fn cube() -> Mesh {
 /// A box of `cells` cells spanning `[0, size_mm]` (millimetres), each cell cut into five tets with
 /// alternating orientation so that neighbouring cells' face diagonals match. The bottom face
 /// (z = 0) is the group `fixed` and is clamped.
-pub fn cube_with(cells: [usize; 3], size_mm: [f64; 3], material: Material) -> Result<Mesh, MeshError> {
+pub fn cube_with(
+    cells: [usize; 3],
+    size_mm: [f64; 3],
+    material: Material,
+) -> Result<Mesh, MeshError> {
     let [nx, ny, nz] = cells;
     let id = |i: usize, j: usize, k: usize| (k * (ny + 1) + j) * (nx + 1) + i;
     let mut nodes = Vec::with_capacity((nx + 1) * (ny + 1) * (nz + 1));

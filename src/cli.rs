@@ -1,0 +1,227 @@
+//! The `touchfem` command line (see `../shared/CONTRACTS.md` for the stable flags and keys).
+
+use clap::{Args, Parser, Subcommand};
+use glam::DVec3;
+use std::path::PathBuf;
+
+use crate::compliance::Selection;
+use crate::force::ForceModel;
+use crate::scene::{load_mesh, LoadOptions, Scene};
+use crate::units::LengthUnit;
+use crate::Error;
+
+/// Touch and see soft objects in real time (Hirota & Kaneko's precomputed-compliance FEM).
+#[derive(Parser, Debug)]
+#[command(name = "touchfem", version, about)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Print the paper's Table 1 row of a mesh.
+    Info {
+        /// Mesh file (.msh, .node/.ele) or bundled name (cube).
+        mesh: String,
+        /// How to load the mesh.
+        #[command(flatten)]
+        load: LoadArgs,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Touch the surface at the point nearest --at, push by --push, print the force fed back.
+    Poke(PokeArgs),
+}
+
+/// Flags that say how to load a mesh.
+#[derive(Args, Debug, Clone)]
+pub struct LoadArgs {
+    /// Length unit of the mesh file: mm or m (default m; bundled meshes know their own).
+    #[arg(long)]
+    pub unit: Option<LengthUnit>,
+    /// The Gmsh physical group (or TetGen marker) whose nodes are clamped.
+    #[arg(long, default_value = "fixed")]
+    pub fixed: String,
+    /// Young's modulus in Pa (default: the bundled mesh's, else 1000).
+    #[arg(long)]
+    pub young: Option<f64>,
+    /// Poisson's ratio (default: the bundled mesh's, else 0.3).
+    #[arg(long)]
+    pub poisson: Option<f64>,
+}
+
+impl LoadArgs {
+    fn options(&self) -> LoadOptions {
+        LoadOptions {
+            unit: self.unit,
+            young_pa: self.young,
+            poisson: self.poisson,
+            fixed_group: self.fixed.clone(),
+        }
+    }
+}
+
+/// `touchfem poke` flags.
+#[derive(Args, Debug)]
+pub struct PokeArgs {
+    /// Mesh file or bundled name.
+    pub mesh: String,
+    /// The point to touch, X,Y,Z in mesh units.
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub at: DVec3,
+    /// The finger's motion, DX,DY,DZ in mesh units.
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub push: DVec3,
+    /// How to load the mesh.
+    #[command(flatten)]
+    pub load: LoadArgs,
+    /// Use the exact contact-point compliance instead of the paper's interpolation.
+    #[arg(long)]
+    pub exact: bool,
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
+    /// Write a VTK XML unstructured grid with displacement, force and fixed arrays.
+    #[arg(long)]
+    pub vtu: Option<PathBuf>,
+    /// Haptic ticks over which the finger moves.
+    #[arg(long, default_value_t = 50)]
+    pub steps: usize,
+}
+
+/// Parses "x,y,z" into a finite vector.
+pub fn parse_vec3(s: &str) -> Result<DVec3, String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(format!("expected X,Y,Z, got '{s}'"));
+    }
+    let mut v = [0.0; 3];
+    for (o, p) in v.iter_mut().zip(&parts) {
+        *o = p
+            .parse::<f64>()
+            .map_err(|e| format!("'{p}' is not a number: {e}"))?;
+        if !o.is_finite() {
+            return Err(format!("'{p}' is not finite"));
+        }
+    }
+    Ok(DVec3::from_array(v))
+}
+
+/// Runs the command line; returns the process exit code.
+pub fn run(cli: Cli) -> Result<(), Error> {
+    match cli.command {
+        Command::Info { mesh, load, json } => info(&mesh, &load, json),
+        Command::Poke(args) => poke(&args),
+    }
+}
+
+fn info(spec: &str, load: &LoadArgs, json: bool) -> Result<(), Error> {
+    let (mesh, unit) = load_mesh(spec, &load.options())?;
+    let t = mesh.table1();
+    if json {
+        let mut v = serde_json::to_value(&t).expect("serialisable");
+        v["unit"] = serde_json::json!(unit.symbol());
+        v["fixed_nodes"] = serde_json::json!(mesh.fixed_count());
+        v["reoriented_tets"] = serde_json::json!(mesh.report.reoriented_tets.len());
+        v["dropped_nodes"] = serde_json::json!(mesh.report.dropped_nodes.len());
+        println!("{v}");
+    } else {
+        println!("mesh                 {spec} (coordinates in {unit})");
+        println!("all nodes            {}", t.nodes);
+        println!("surface nodes        {}", t.surface_nodes);
+        println!("free surface nodes   {}", t.free_surface_nodes);
+        println!("surface patches      {}", t.surface_triangles);
+        println!("tetrahedral elements {}", t.tets);
+        println!("Young's modulus      {} Pa", t.young_pa);
+        println!("Poisson's ratio      {}", t.poisson);
+        report_changes(&mesh);
+    }
+    Ok(())
+}
+
+fn report_changes(mesh: &crate::Mesh) {
+    if !mesh.report.reoriented_tets.is_empty() {
+        eprintln!(
+            "note: {} inverted tet(s) reoriented (first: {})",
+            mesh.report.reoriented_tets.len(),
+            mesh.report.reoriented_tets[0]
+        );
+    }
+    if !mesh.report.dropped_nodes.is_empty() {
+        eprintln!(
+            "note: {} node(s) used by no tet dropped (first: {})",
+            mesh.report.dropped_nodes.len(),
+            mesh.report.dropped_nodes[0]
+        );
+    }
+}
+
+fn poke(a: &PokeArgs) -> Result<(), Error> {
+    let (mesh, unit) = load_mesh(&a.mesh, &a.load.options())?;
+    if !a.json {
+        report_changes(&mesh);
+    }
+    let s = unit.to_metres();
+    let scene = Scene::new(mesh, &Selection::default())?;
+    let model = if a.exact {
+        ForceModel::Exact
+    } else {
+        ForceModel::Paper
+    };
+    let p = scene.poke(a.at * s, a.push * s, model, a.steps)?;
+    let nodal = scene.nodal_forces(&p.bc);
+    let u = crate::fem::solve_static(&scene.mesh, &nodal)?;
+    let max_u = u.iter().map(|v| v.length()).fold(0.0, f64::max);
+    if let Some(path) = &a.vtu {
+        let mut f = vec![DVec3::ZERO; scene.mesh.nodes.len()];
+        for &(n, v) in &nodal {
+            f[n as usize] += v;
+        }
+        crate::vtu::write_vtu(path, &scene.mesh, &u, &f)?;
+    }
+    let diff = (p.feedback_paper - p.feedback_exact).length();
+    if a.json {
+        let contact = p.contact.map(|c| {
+            serde_json::json!({
+                "triangle": c.tri,
+                "nodes": c.nodes,
+                "alpha": c.alpha,
+                "proxy": c.proxy.to_array(),
+                "finger": c.finger.to_array(),
+            })
+        });
+        let v = serde_json::json!({
+            "force": p.feedback.to_array(),
+            "max_displacement": max_u,
+            "model": if a.exact { "exact" } else { "paper" },
+            "force_paper": p.feedback_paper.to_array(),
+            "force_exact": p.feedback_exact.to_array(),
+            "paper_exact_difference": diff,
+            "touch_point": p.touch_point.to_array(),
+            "contact": contact,
+            "active_columns": p.bc.len(),
+            "units": {"force": "N", "max_displacement": "m", "positions": "m"},
+        });
+        println!("{v}");
+    } else {
+        let f = p.feedback;
+        println!(
+            "force fed back: ({:.6}, {:.6}, {:.6}) N, |F| = {:.6} N ({} model)",
+            f.x,
+            f.y,
+            f.z,
+            f.length(),
+            if a.exact { "exact" } else { "paper" }
+        );
+        println!("paper vs exact: |ΔF| = {diff:.3e} N");
+        println!("max displacement: {:.6} mm", max_u * 1e3);
+        if p.contact.is_none() {
+            println!("(the finger is not in contact)");
+        }
+    }
+    Ok(())
+}
