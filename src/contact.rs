@@ -25,14 +25,32 @@ pub enum Feature {
 }
 
 impl Feature {
-    /// Number of active constraint planes (faces through the feature).
+    /// Number of distinct active constraint planes through the feature (coplanar faces count
+    /// once): 1 on a face or a flat edge, 2 in a valley, 3 or more at a corner.
     pub fn active_planes(self, surf: &Surface, tri: u32) -> usize {
+        let distinct = |faces: &mut dyn Iterator<Item = u32>| {
+            let mut seen: [glam::DVec3; 16] = [glam::DVec3::ZERO; 16];
+            let mut n = 0usize;
+            for f in faces {
+                let nrm = surf.normals[f as usize];
+                if !seen[..n.min(16)].iter().any(|s| s.dot(nrm) > 1.0 - 1e-9) {
+                    if n < 16 {
+                        seen[n] = nrm;
+                    }
+                    n += 1;
+                }
+            }
+            n
+        };
         match self {
             Feature::Face => 1,
-            Feature::Edge(_) => 2,
+            Feature::Edge(k) => {
+                let o = surf.neighbors[tri as usize][k as usize];
+                distinct(&mut [tri, o].into_iter())
+            }
             Feature::Vertex(k) => {
                 let v = surf.tris[tri as usize][k as usize];
-                surf.vertex_tris(v).len()
+                distinct(&mut surf.vertex_tris(v).iter().copied())
             }
         }
     }
