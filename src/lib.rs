@@ -11,7 +11,7 @@
 //!
 //! Data flows one way:
 //! * precompute: [`mesh`] → [`fem`] (sparse K, Cholesky) → [`compliance`] (L, L_ii⁻¹) → [`cache`]
-//! * haptic path: [`contact`] (god-object) → [`force`] (eq. 9–12) → [`haptics` (lock-free publish)
+//! * haptic path: [`contact`] (god-object) → [`force`] (eq. 9–12) → [`[`haptics`] (lock-free publish)
 //! * visual path: [`compliance::Compliance::displace`] on the CPU (f64 reference) or the GPU pass.
 
 #![warn(missing_docs)]
@@ -23,6 +23,7 @@ pub mod contact;
 pub mod error;
 pub mod fem;
 pub mod force;
+pub mod haptics;
 pub mod mesh;
 pub mod scene;
 pub mod units;
