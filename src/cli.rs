@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use crate::compliance::Selection;
 use crate::force::ForceModel;
 use crate::scene::{load_mesh, LoadOptions, Scene};
+
 use crate::units::LengthUnit;
 use crate::Error;
 
@@ -35,6 +36,23 @@ pub enum Command {
     },
     /// Touch the surface at the point nearest --at, push by --push, print the force fed back.
     Poke(PokeArgs),
+    /// The main job: the bundled scenes headless with the 1 kHz haptic loop and the visual loop,
+    /// frames and the paper's Table 2.
+    Demo(DemoArgs),
+}
+
+/// `touchfem demo` flags.
+#[derive(Args, Debug)]
+pub struct DemoArgs {
+    /// Seconds of haptic + visual loop per object.
+    #[arg(long, default_value_t = 3.0)]
+    pub seconds: f64,
+    /// Write the report as JSON here.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Directory for frames and the report.
+    #[arg(long, default_value = "out/demo")]
+    pub out: PathBuf,
 }
 
 /// Flags that say how to load a mesh.
@@ -116,7 +134,62 @@ pub fn run(cli: Cli) -> Result<(), Error> {
     match cli.command {
         Command::Info { mesh, load, json } => info(&mesh, &load, json),
         Command::Poke(args) => poke(&args),
+        Command::Demo(args) => demo(&args),
     }
+}
+
+fn demo(a: &DemoArgs) -> Result<(), Error> {
+    use crate::demo::{machine, run_object, worst, DemoOptions, DemoReport};
+    if !(a.seconds.is_finite() && a.seconds > 0.0 && a.seconds <= 3600.0) {
+        return Err(Error::Input(format!(
+            "--seconds must be in (0, 3600], got {}",
+            a.seconds
+        )));
+    }
+    std::fs::create_dir_all(&a.out).map_err(|source| Error::Write {
+        path: a.out.clone(),
+        source,
+    })?;
+    let opts = DemoOptions {
+        seconds: a.seconds,
+        out: a.out.clone(),
+    };
+    let mut objects = Vec::new();
+    for name in crate::scene::BUNDLED {
+        let mut u = Vec::new();
+        let mut frame = |scene: &Scene, bc: &crate::force::ForceBc, _i: u64| {
+            if u.len() != scene.compliance.rows().len() {
+                u = vec![DVec3::ZERO; scene.compliance.rows().len()];
+            }
+            let t = std::time::Instant::now();
+            scene.compliance.displace(bc.entries(), &mut u);
+            Ok(t.elapsed().as_secs_f64() * 1e6)
+        };
+        let (r, _scene) = run_object(name, &opts, &mut frame, "cpu-f64")?;
+        eprintln!(
+            "{:<6} nodes {:>5}  force {:>6.2} µs  displacement {:>8.2} µs ({})  draw {:>7.1} Hz  haptic {:.1} Hz, p99.9 period error {:.1} µs, {} missed",
+            r.name, r.nodes, r.force_us_median, r.displacement_us_median, r.displacement_backend, r.draw_hz,
+            r.haptic.haptic_rate_hz, r.haptic.period_error_us_p999, r.haptic.missed_deadlines
+        );
+        objects.push(r);
+    }
+    let haptic = worst(&objects.iter().map(|o| o.haptic.clone()).collect::<Vec<_>>());
+    let report = DemoReport {
+        objects,
+        haptic,
+        machine: machine(),
+    };
+    let json = serde_json::to_string_pretty(&report).expect("serialisable");
+    let path = a
+        .report
+        .clone()
+        .unwrap_or_else(|| a.out.join("report.json"));
+    std::fs::write(&path, json).map_err(|source| Error::Write {
+        path: path.clone(),
+        source,
+    })?;
+    eprintln!("report: {}", path.display());
+    Ok(())
 }
 
 fn info(spec: &str, load: &LoadArgs, json: bool) -> Result<(), Error> {

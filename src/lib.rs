@@ -20,6 +20,7 @@ pub mod cache;
 pub mod cli;
 pub mod compliance;
 pub mod contact;
+pub mod demo;
 pub mod error;
 pub mod fem;
 pub mod force;
