@@ -43,7 +43,11 @@ pub const BUNDLED: &[&str] = &["cube"];
 /// the command line.
 pub fn load_mesh(spec: &str, opts: &LoadOptions) -> Result<(Mesh, LengthUnit), Error> {
     let (mut mesh, unit) = match spec {
-        "cube" => (mesh::cube(), LengthUnit::Millimetre),
+        "cube" => {
+            let mut m = mesh::cube();
+            m.set_fixed_group(&opts.fixed_group)?;
+            (m, LengthUnit::Millimetre)
+        }
         _ => {
             let path = Path::new(spec);
             if !path.exists() {
