@@ -33,3 +33,8 @@ pub mod vtu;
 pub use error::Error;
 pub use mesh::{Mesh, MeshError, RawMesh};
 pub use units::{LengthUnit, Material};
+
+/// The README's code runs as a doc test.
+#[doc = include_str!("../README.md")]
+#[cfg(doctest)]
+pub struct ReadmeDoctests;
