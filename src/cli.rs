@@ -39,6 +39,19 @@ pub enum Command {
     /// The main job: the bundled scenes headless with the 1 kHz haptic loop and the visual loop,
     /// frames and the paper's Table 2.
     Demo(DemoArgs),
+    /// Speed against error: every method on the same meshes in one run.
+    Bench(BenchArgs),
+}
+
+/// `touchfem bench` flags.
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// Fewer repetitions and active-column counts (for CI smoke runs).
+    #[arg(long)]
+    pub quick: bool,
+    /// Write the rows as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
 }
 
 /// `touchfem demo` flags.
@@ -135,7 +148,43 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Info { mesh, load, json } => info(&mesh, &load, json),
         Command::Poke(args) => poke(&args),
         Command::Demo(args) => demo(&args),
+        Command::Bench(args) => bench(&args),
     }
+}
+
+fn bench(a: &BenchArgs) -> Result<(), Error> {
+    use crate::tradeoff::{bench_scenes, cpu_rows};
+    let (reps, active): (usize, &[usize]) = if a.quick {
+        (20, &[9])
+    } else {
+        (200, &[3, 9, 90, 900])
+    };
+    let mut rows = Vec::new();
+    for (name, scene) in bench_scenes()? {
+        rows.extend(cpu_rows(&name, &scene, active, reps)?);
+    }
+    println!(
+        "{:<14} {:<6} {:>6} {:>7} {:>12} {:>11}",
+        "method", "mesh", "nodes", "active", "time_us", "rel_error"
+    );
+    for r in &rows {
+        println!(
+            "{:<14} {:<6} {:>6} {:>7} {:>12.3} {:>11.2e}",
+            r.method, r.mesh, r.nodes, r.active_columns, r.time_us, r.rel_error
+        );
+    }
+    if let Some(path) = &a.json {
+        let v = serde_json::json!({ "rows": rows, "machine": crate::demo::machine() });
+        std::fs::write(
+            path,
+            serde_json::to_string_pretty(&v).expect("serialisable"),
+        )
+        .map_err(|source| Error::Write {
+            path: path.clone(),
+            source,
+        })?;
+    }
+    Ok(())
 }
 
 fn demo(a: &DemoArgs) -> Result<(), Error> {

@@ -153,7 +153,7 @@ impl Compliance {
         let mut l = vec![0.0f64; 9 * nr * nc];
         let nf = stiff.dofs.n_free;
         let mut residual = 0.0f64;
-        let batch = 64usize.max(1);
+        let batch = 64usize;
         let mut kx = vec![0.0; nf];
         for chunk_start in (0..nc).step_by(batch) {
             let chunk = (chunk_start..(chunk_start + batch).min(nc)).collect::<Vec<_>>();

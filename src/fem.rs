@@ -212,8 +212,7 @@ impl Stiffness {
     pub fn mul(&self, x: &[f64], y: &mut [f64]) {
         y.iter_mut().for_each(|v| *v = 0.0);
         let k = self.k.as_ref();
-        for c in 0..k.ncols() {
-            let xc = x[c];
+        for (c, &xc) in x.iter().enumerate().take(k.ncols()) {
             if xc == 0.0 {
                 continue;
             }
@@ -349,9 +348,9 @@ mod tests {
             DVec3::new(0.1, 0.3, 1.2),
         ];
         let k = element_stiffness(p, &Material::DEFAULT);
-        for i in 0..12 {
-            for j in 0..12 {
-                assert!((k[i][j] - k[j][i]).abs() < 1e-12 * 1000.0);
+        for (i, row) in k.iter().enumerate() {
+            for (j, v) in row.iter().enumerate() {
+                assert!((v - k[j][i]).abs() < 1e-12 * 1000.0);
             }
         }
         // Translation along x and rotation about z.

@@ -214,21 +214,15 @@ pub fn coupled_force(
     let n = 3 * m;
     // Cholesky in place on the leading n×n block (W is symmetric positive definite).
     for j in 0..n {
-        let mut d = a[j][j];
-        for p in 0..j {
-            d -= a[j][p] * a[j][p];
-        }
-        if !(d > 0.0) || !d.is_finite() {
+        let d = a[j][j] - a[j][..j].iter().map(|v| v * v).sum::<f64>();
+        if d.is_nan() || d <= 0.0 || !d.is_finite() {
             out[..m].iter_mut().for_each(|o| *o = DVec3::ZERO);
             return false;
         }
         let d = d.sqrt();
         a[j][j] = d;
         for i in j + 1..n {
-            let mut s = a[i][j];
-            for p in 0..j {
-                s -= a[i][p] * a[j][p];
-            }
+            let s = a[i][j] - (0..j).map(|p| a[i][p] * a[j][p]).sum::<f64>();
             a[i][j] = s / d;
         }
     }

@@ -27,6 +27,7 @@ pub mod force;
 pub mod haptics;
 pub mod mesh;
 pub mod scene;
+pub mod tradeoff;
 pub mod units;
 pub mod vtu;
 

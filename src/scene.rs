@@ -156,6 +156,13 @@ impl Scene {
         Ok(out)
     }
 
+    /// The contact of a finger at `x` that entered through the surface point nearest it
+    /// (`None` if `x` is outside). Brute force: for tests and reports, not the haptic loop.
+    pub fn surface_contact(&self, x: DVec3) -> Option<ContactPoint> {
+        let (tri, _) = self.surface.closest_global(x);
+        GodObject::touching(tri).update(&self.surface, x)
+    }
+
     /// The applied nodal forces of a boundary condition as (mesh node, force) pairs.
     pub fn nodal_forces(&self, bc: &ForceBc) -> Vec<(u32, DVec3)> {
         bc.entries()

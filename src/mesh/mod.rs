@@ -210,7 +210,7 @@ impl Mesh {
                 0.0
             };
             let distinct = (0..4).all(|a| (a + 1..4).all(|b| t[a] != t[b]));
-            if !distinct || !(quality.abs() > DEGENERATE_QUALITY) {
+            if !distinct || quality.is_nan() || quality.abs() <= DEGENERATE_QUALITY {
                 return Err(MeshError::Degenerate {
                     tet,
                     nodes: *t,
