@@ -558,3 +558,235 @@ fn nan_and_inf_reach_validation() {
     .unwrap();
     assert_non_finite(raw, 0);
 }
+
+// ---------------------------------------------------------------------------------------------
+// Robustness: truncations, garbage and mutations never panic
+// ---------------------------------------------------------------------------------------------
+
+/// A small deterministic xorshift generator.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n as u64) as usize
+    }
+}
+
+/// Parses `bytes` as the fixture `name` would be (for TetGen, as the `.node` with the real
+/// `.ele`, or the real `.node` with these bytes as `.ele`); a panic fails the test with the input.
+fn parse_as(name: &str, bytes: &[u8]) -> Result<RawMesh, MeshError> {
+    let run = || {
+        if name.ends_with(".msh") {
+            io::parse_msh(bytes, Path::new(name))
+        } else if name.ends_with(".node") {
+            let ele = std::fs::read(data("box.ele")).unwrap();
+            io::parse_tetgen(bytes, Path::new(name), &ele, Path::new("box.ele"))
+        } else {
+            let node = std::fs::read(data("box.node")).unwrap();
+            io::parse_tetgen(&node, Path::new("box.node"), bytes, Path::new(name))
+        }
+    };
+    match catch_unwind(AssertUnwindSafe(run)) {
+        Ok(r) => r,
+        Err(_) => {
+            let dump = std::env::temp_dir().join("touchfem_mesh_io_panic.bin");
+            let _ = std::fs::write(&dump, bytes);
+            panic!("parsing {name}-like input panicked; input saved to {dump:?}")
+        }
+    }
+}
+
+/// Parses an accepted input all the way through validation too: that must not panic either.
+fn validate_any(r: Result<RawMesh, MeshError>) {
+    if let Ok(raw) = r {
+        let _ = Mesh::from_raw(raw, LengthUnit::Millimetre, Material::DEFAULT);
+    }
+}
+
+const ALL_FIXTURES: [&str; 10] = [
+    "box_v41.msh",
+    "box_v41_bin.msh",
+    "box_v22.msh",
+    "box_v22_bin.msh",
+    "box_points_v41.msh",
+    "box_points_v22.msh",
+    "box_curves_v41.msh",
+    "box_curves_v22.msh",
+    "box.node",
+    "box.ele",
+];
+
+#[test]
+fn truncated_files_are_parse_errors() {
+    for name in ALL_FIXTURES {
+        let full_bytes = std::fs::read(data(name)).unwrap();
+        let full = parse_as(name, &full_bytes).unwrap();
+        let len = full_bytes.len();
+        // Every byte of the first 300 and the last 300, and ~500 cuts in between.
+        let step = (len / 500).max(1);
+        let cuts: BTreeSet<usize> = (0..300.min(len))
+            .chain((len.saturating_sub(300))..len)
+            .chain((0..len).step_by(step))
+            .collect();
+        for cut in cuts {
+            match parse_as(name, &full_bytes[..cut]) {
+                Err(MeshError::Parse { msg, .. }) => assert!(!msg.is_empty()),
+                Err(e) => panic!("{name} cut at {cut}: not a parse error: {e:?}"),
+                // Only whitespace or a trailing comment may be cut off without an error.
+                Ok(raw) => {
+                    assert_eq!(raw.nodes, full.nodes, "{name} cut at {cut}");
+                    assert_eq!(raw.tets, full.tets, "{name} cut at {cut}");
+                    assert!(
+                        len - cut <= 16,
+                        "{name} cut at {cut} of {len} bytes was accepted"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn garbage_is_a_parse_error() {
+    let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+    let headers: [&[u8]; 6] = [
+        b"",
+        b"$MeshFormat\n4.1 0 8\n$EndMeshFormat\n",
+        b"$MeshFormat\n4.1 1 8\n\x01\x00\x00\x00\n$EndMeshFormat\n",
+        b"$MeshFormat\n2.2 0 8\n$EndMeshFormat\n",
+        b"$MeshFormat\n2.2 1 8\n\x01\x00\x00\x00\n$EndMeshFormat\n",
+        b"$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n",
+    ];
+    for round in 0..400 {
+        let mut bytes = headers[round % headers.len()].to_vec();
+        let n = rng.below(2000);
+        for _ in 0..n {
+            // Half the time printable digits and separators, to get further into the parsers.
+            let b = if rng.below(2) == 0 {
+                b"0123456789 \n.-$e"[rng.below(16)]
+            } else {
+                rng.next() as u8
+            };
+            bytes.push(b);
+        }
+        for name in ["g.msh", "g.node", "g.ele"] {
+            let r = parse_as(name, &bytes);
+            assert!(is_parse(&r), "{name} round {round}: {r:?}");
+        }
+    }
+}
+
+#[test]
+fn mutated_fixtures_never_panic() {
+    let mut rng = Rng(12345);
+    for name in ALL_FIXTURES {
+        let orig = std::fs::read(data(name)).unwrap();
+        for _ in 0..300 {
+            let mut bytes = orig.clone();
+            for _ in 0..1 + rng.below(4) {
+                let at = rng.below(bytes.len());
+                match rng.below(4) {
+                    0 => bytes[at] = rng.next() as u8,
+                    1 => bytes[at] = b"0123456789-. \n$"[rng.below(15)],
+                    2 => {
+                        bytes.remove(at);
+                    }
+                    _ => bytes.insert(at, b"0123456789-. \n"[rng.below(14)]),
+                }
+            }
+            validate_any(parse_as(name, &bytes));
+        }
+    }
+}
+
+#[test]
+fn mshio_panics_become_parse_errors() {
+    // A second `$Nodes` with 0 nodes (the pre-check looks at the first only) makes mshio 0.4.2
+    // compute 0 − 1: a panic where overflow checks are on, caught and reported.
+    let r = msh(&SPARSE_41.replace("$Elements", "$Nodes\n0 0 1 1\n$EndNodes\n$Elements"));
+    let m = parse_msg(r);
+    assert!(
+        m.contains("panicked") || m.contains("Multiple node sections"),
+        "{m}"
+    );
+    // mshio's own errors carry a line number.
+    let m = parse_msg(msh(&SPARSE_41.replace("3 1 4 1", "3 1 4 x")));
+    assert!(m.contains("line 33") && m.contains("element block"), "{m}");
+}
+
+/// Dense node tags (1–4) that are not in file order: mshio 0.4.2 drops such tags, the loader
+/// must read them itself rather than assume 1, 2, 3, 4.
+const PERMUTED_41: &str = "$MeshFormat
+4.1 0 8
+$EndMeshFormat
+$Nodes
+2 4 1 4
+3 1 0 2
+3
+1
+0 0 0
+1 0 0
+3 2 0 2
+4
+2
+0 1 0
+0 0 1
+$EndNodes
+$Elements
+1 1 1 1
+3 1 4 1
+1 1 2 3 4
+$EndElements
+";
+
+#[test]
+fn dense_but_permuted_node_tags_msh41() {
+    let raw = msh(PERMUTED_41).unwrap();
+    // Tags in file order: 3, 1, 4, 2 → tag t is at index [1, 3, 0, 2][t − 1].
+    assert_eq!(raw.tets, [[1, 3, 0, 2]]);
+    assert!(raw.node_groups.is_empty());
+    // The same in binary (size_t = 8, little endian).
+    let mut b = b"$MeshFormat\n4.1 1 8\n".to_vec();
+    b.extend(1i32.to_le_bytes());
+    b.extend(b"\n$EndMeshFormat\n$Nodes\n");
+    for v in [2u64, 4, 1, 4] {
+        b.extend(v.to_le_bytes());
+    }
+    for (tags, coords) in [
+        ([3u64, 1], [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]),
+        ([4, 2], [[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+    ] {
+        for v in [3i32, 1, 0] {
+            b.extend(v.to_le_bytes());
+        }
+        b.extend(2u64.to_le_bytes());
+        for t in tags {
+            b.extend(t.to_le_bytes());
+        }
+        for p in coords {
+            for c in p {
+                b.extend(f64::to_le_bytes(c));
+            }
+        }
+    }
+    b.extend(b"\n$EndNodes\n$Elements\n");
+    for v in [1u64, 1, 1, 1] {
+        b.extend(v.to_le_bytes());
+    }
+    for v in [3i32, 1, 4] {
+        b.extend(v.to_le_bytes());
+    }
+    for v in [1u64, 1, 1, 2, 3, 4] {
+        b.extend(v.to_le_bytes());
+    }
+    b.extend(b"\n$EndElements\n");
+    let raw = io::parse_msh(&b, Path::new("p.msh")).unwrap();
+    assert_eq!(raw.nodes[1], [1.0, 0.0, 0.0]);
+    assert_eq!(raw.tets, [[1, 3, 0, 2]]);
+}

@@ -12,9 +12,11 @@ use super::cursor::{self, Cursor, Endian};
 use super::{find_physical_names, finish_groups, group_name, Groups, MshHeader};
 use crate::mesh::{MeshError, RawMesh};
 use mshio::{ElementType, MshFile};
+use std::cell::Cell;
 use std::collections::HashMap;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
+use std::sync::Once;
 
 pub(super) fn parse(data: &[u8], path: &Path, header: &MshHeader) -> Result<RawMesh, MeshError> {
     let err = |msg: String| MeshError::Parse {
@@ -30,9 +32,8 @@ pub(super) fn parse(data: &[u8], path: &Path, header: &MshHeader) -> Result<RawM
     precheck_counts(data, header).map_err(err)?;
     let names = find_physical_names(data, path)?;
 
-    let parsed = catch_unwind(AssertUnwindSafe(|| {
-        mshio::parse_msh_bytes(data).map_err(|e| describe(&e, data, header.binary))
-    }));
+    let parsed =
+        quietly(|| mshio::parse_msh_bytes(data).map_err(|e| describe(&e, data, header.binary)));
     let msh = match parsed {
         Ok(Ok(msh)) => msh,
         Ok(Err(msg)) => return Err(err(msg)),
@@ -42,24 +43,50 @@ pub(super) fn parse(data: &[u8], path: &Path, header: &MshHeader) -> Result<RawM
             ))
         }
     };
-    convert(msh, &names).map_err(err)
+    // mshio drops dense node tags; read them ourselves rather than assume their order.
+    let dense = msh
+        .data
+        .nodes
+        .as_ref()
+        .is_some_and(|n| n.node_blocks.iter().all(|b| b.node_tags.is_none()));
+    let file_tags = if dense {
+        let tags = scan_node_tags(data, header);
+        Some(tags.ok_or_else(|| err("cannot read the node tags of $Nodes".into()))?)
+    } else {
+        None
+    };
+    convert(msh, &names, file_tags).map_err(err)
+}
+
+thread_local! {
+    /// Set while this thread runs mshio: its panics are caught and reported as errors.
+    static QUIET: Cell<bool> = const { Cell::new(false) };
+}
+
+/// Runs `f` under `catch_unwind`, keeping a panic inside it off stderr. The panic hook is wrapped
+/// once per process; the wrapper forwards every panic of other threads (and of this thread outside
+/// `quietly`) to the hook that was installed before.
+fn quietly<T>(f: impl FnOnce() -> T) -> std::thread::Result<T> {
+    static WRAP: Once = Once::new();
+    WRAP.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !QUIET.with(Cell::get) {
+                previous(info);
+            }
+        }));
+    });
+    QUIET.with(|q| q.set(true));
+    let r = catch_unwind(AssertUnwindSafe(f));
+    QUIET.with(|q| q.set(false));
+    r
 }
 
 /// Rejects `$Nodes` / `$Elements` sections that declare 0 entries (mshio computes `count − 1`).
 fn precheck_counts(data: &[u8], header: &MshHeader) -> Result<(), String> {
     let endian = if header.binary {
-        // The endianness check integer follows the format line.
-        let mut c = Cursor::new(data, Path::new(""));
-        if let Some(fmt) = cursor::find_line(data, b"$MeshFormat", 0) {
-            c.seek(fmt);
-        }
-        c.skip_line_end();
-        c.skip_line_end();
-        match c.bytes(4) {
-            Some(b) if b == 1i32.to_le_bytes() => Some(Endian::Little),
-            Some(b) if b == 1i32.to_be_bytes() => Some(Endian::Big),
-            _ => return Err("binary MSH 4.1: the endianness check integer 1 is missing".into()),
-        }
+        let e = binary_endian(data);
+        Some(e.ok_or("binary MSH 4.1: the endianness check integer 1 is missing")?)
     } else {
         None
     };
@@ -104,11 +131,30 @@ fn precheck_counts(data: &[u8], header: &MshHeader) -> Result<(), String> {
     Ok(())
 }
 
+/// The byte order of a binary file, from the integer 1 that follows the format line.
+fn binary_endian(data: &[u8]) -> Option<Endian> {
+    let mut c = Cursor::new(data, Path::new(""));
+    c.seek(cursor::find_line(data, b"$MeshFormat", 0)?);
+    c.skip_line_end();
+    c.skip_line_end();
+    match c.bytes(4)? {
+        b if b == 1i32.to_le_bytes() => Some(Endian::Little),
+        b if b == 1i32.to_be_bytes() => Some(Endian::Big),
+        _ => None,
+    }
+}
+
 /// A one-line description of an mshio error: its innermost cause, its contexts, and where.
 fn describe(e: &mshio::MshParserError<&[u8]>, data: &[u8], binary: bool) -> String {
     let bt = e.filtered_backtrace();
     let (at, kind) = match bt.first().or(e.backtrace.first()) {
-        Some((input, kind)) => (Some(*input), kind.to_string()),
+        Some((input, kind)) => (
+            Some(*input),
+            match kind.context() {
+                Some(ctx) => format!("invalid or missing {ctx}"),
+                None => kind.to_string(),
+            },
+        ),
         None => (None, "unknown error".to_string()),
     };
     let contexts: Vec<String> = bt
@@ -141,7 +187,11 @@ fn describe(e: &mshio::MshParserError<&[u8]>, data: &[u8], binary: bool) -> Stri
 }
 
 /// Builds the raw mesh: nodes in file order, linear tets, physical groups.
-fn convert(msh: MshFile<u64, i32, f64>, names: &super::PhysicalNames) -> Result<RawMesh, String> {
+fn convert(
+    msh: MshFile<u64, i32, f64>,
+    names: &super::PhysicalNames,
+    file_tags: Option<Vec<u64>>,
+) -> Result<RawMesh, String> {
     let nodes_sec = msh.data.nodes.ok_or("no $Nodes section")?;
     let elements = msh.data.elements.ok_or("no $Elements section")?;
 
@@ -166,6 +216,7 @@ fn convert(msh: MshFile<u64, i32, f64>, names: &super::PhysicalNames) -> Result<
     let mut nodes = Vec::new();
     let mut tag_index: HashMap<u64, usize> = HashMap::new();
     let mut next_tag = nodes_sec.min_node_tag;
+    let mut first_tag = 0usize;
     for (b, block) in nodes_sec.node_blocks.iter().enumerate() {
         let len = block.nodes.len();
         let tags: Vec<u64> = match &block.node_tags {
@@ -188,11 +239,18 @@ fn convert(msh: MshFile<u64, i32, f64>, names: &super::PhysicalNames) -> Result<
                 }
                 tags
             }
-            None => (0..len as u64)
-                .map(|k| next_tag.saturating_add(k))
-                .collect(),
+            None => match &file_tags {
+                Some(all) => all
+                    .get(first_tag..first_tag + len)
+                    .ok_or("$Nodes: fewer node tags than nodes")?
+                    .to_vec(),
+                None => (0..len as u64)
+                    .map(|k| next_tag.saturating_add(k))
+                    .collect(),
+            },
         };
         next_tag = next_tag.saturating_add(len as u64);
+        first_tag += len;
         let first = nodes.len();
         for (node, tag) in block.nodes.iter().zip(tags) {
             if tag_index.insert(tag, nodes.len()).is_some() {
@@ -267,4 +325,65 @@ fn convert(msh: MshFile<u64, i32, f64>, names: &super::PhysicalNames) -> Result<
         tets,
         node_groups: finish_groups(groups),
     })
+}
+
+/// The node tags of the first `$Nodes` section, in file order (mshio keeps them only when they
+/// are sparse). Runs after mshio accepted the file, so the layout is known to be sound; `None`
+/// if it is not after all.
+fn scan_node_tags(data: &[u8], header: &MshHeader) -> Option<Vec<u64>> {
+    let start = cursor::find_line(data, b"$Nodes", 0)?;
+    let mut c = Cursor::new(data, Path::new(""));
+    c.seek(start);
+    c.skip_line_end();
+    let mut tags = Vec::new();
+    if header.binary {
+        let e = binary_endian(data)?;
+        let size = header.data_size;
+        let size_t = |c: &mut Cursor| -> Option<u64> {
+            let b = c.bytes(size)?;
+            let mut v = [0u8; 8];
+            Some(match e {
+                Endian::Little => {
+                    v.get_mut(..size)?.copy_from_slice(b);
+                    u64::from_le_bytes(v)
+                }
+                Endian::Big => {
+                    v.get_mut(8usize.checked_sub(size)?..)?.copy_from_slice(b);
+                    u64::from_be_bytes(v)
+                }
+            })
+        };
+        let blocks = size_t(&mut c)?;
+        c.bytes(3 * size)?;
+        for _ in 0..blocks {
+            c.bytes(12)?; // entity dim, entity tag, parametric (0: mshio refuses 1)
+            let n = usize::try_from(size_t(&mut c)?).ok()?;
+            for _ in 0..n {
+                tags.push(size_t(&mut c)?);
+            }
+            c.bytes(n.checked_mul(24)?)?;
+        }
+    } else {
+        let mut tok = data[c.pos()..]
+            .split(|b| b.is_ascii_whitespace())
+            .filter(|t| !t.is_empty())
+            .map(|t| std::str::from_utf8(t).ok()?.parse::<u64>().ok());
+        let blocks = tok.next()??;
+        for _ in 0..3 {
+            tok.next()?;
+        }
+        for _ in 0..blocks {
+            for _ in 0..3 {
+                tok.next()?;
+            }
+            let n = usize::try_from(tok.next()??).ok()?;
+            for _ in 0..n {
+                tags.push(tok.next()??);
+            }
+            for _ in 0..n.checked_mul(3)? {
+                tok.next()?;
+            }
+        }
+    }
+    Some(tags)
 }
