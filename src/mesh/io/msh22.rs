@@ -71,11 +71,14 @@ struct RawTet {
     nodes: [u64; 4],
 }
 
+/// Node coordinates in file order and the index of each node tag.
+type NodeTable = (Vec<[f64; 3]>, HashMap<u64, usize>);
+
 /// Everything read so far; node tags are resolved once all sections are read.
 #[derive(Default)]
 struct Sections {
     names: PhysicalNames,
-    nodes: Option<(Vec<[f64; 3]>, HashMap<u64, usize>)>,
+    nodes: Option<NodeTable>,
     tets: Option<Vec<RawTet>>,
     /// (dimension, physical tag) → node tags of its elements.
     groups: HashMap<(i32, i32), Vec<u64>>,
@@ -200,11 +203,7 @@ fn count_line(c: &mut Cursor, what: &str) -> Result<usize, MeshError> {
 }
 
 /// `$Nodes` body: `n`, then `n` × (`tag x y z` lines | binary i32 tag + 3 f64), `$EndNodes`.
-#[allow(clippy::type_complexity)]
-fn read_nodes(
-    c: &mut Cursor,
-    endian: Option<Endian>,
-) -> Result<(Vec<[f64; 3]>, HashMap<u64, usize>), MeshError> {
+fn read_nodes(c: &mut Cursor, endian: Option<Endian>) -> Result<NodeTable, MeshError> {
     let n = count_line(c, "the number of nodes in $Nodes")?;
     // Never trust a count for allocation: each node takes at least 8 bytes (ASCII) or 28.
     let cap = n.min(c.remaining() / 8);
