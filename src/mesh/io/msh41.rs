@@ -2,11 +2,13 @@
 //! mshio skips.
 //!
 //! mshio 0.4.2 notes: it keeps the node tags of a `$Nodes` section only when they are sparse
-//! (`max − min ≥ count`); otherwise the tags are `min_node_tag, min_node_tag + 1, …` in file
-//! order, which is what Gmsh writes (it numbers nodes entity by entity, in the order it saves
-//! them). mshio panics on a few malformed inputs (a `$Nodes`/`$Elements` count of 0, binary
-//! data-sizes it has no parser for, numbers too long for their type): those are rejected before
-//! the call, and the call runs under `catch_unwind` as a last line of defence.
+//! (`max − min ≥ count`); otherwise they are a permutation of `min..=max` that it drops. Gmsh
+//! writes them in file order (it numbers nodes entity by entity, in the order it saves
+//! them), but other writers need not: for such "dense" files we read the tags ourselves
+//! ([`scan_node_tags`]). mshio panics on a few malformed inputs (a `$Nodes`/`$Elements` count of
+//! 0, a binary data-size it has no parser for, an over-long data-size field): those are rejected
+//! before the call, and the call runs under `catch_unwind` as a last line of defence, with the
+//! panic message kept off stderr for this thread only ([`quietly`]).
 
 use super::cursor::{self, Cursor, Endian};
 use super::{find_physical_names, finish_groups, group_name, Groups, MshHeader};
@@ -107,19 +109,8 @@ fn precheck_counts(data: &[u8], header: &MshHeader) -> Result<(), String> {
                 .and_then(|t| t.parse::<u64>().ok()),
             Some(e) => {
                 let size = header.data_size;
-                data.get(body + size..body + 2 * size).map(|b| {
-                    let mut v = [0u8; 8];
-                    match e {
-                        Endian::Little => {
-                            v[..size].copy_from_slice(b);
-                            u64::from_le_bytes(v)
-                        }
-                        Endian::Big => {
-                            v[8 - size..].copy_from_slice(b);
-                            u64::from_be_bytes(v)
-                        }
-                    }
-                })
+                data.get(body + size..body + 2 * size)
+                    .and_then(|b| size_t(b, e))
             }
         };
         if count == Some(0) {
@@ -129,6 +120,22 @@ fn precheck_counts(data: &[u8], header: &MshHeader) -> Result<(), String> {
         }
     }
     Ok(())
+}
+
+/// A binary `size_t` of 1 to 8 bytes.
+fn size_t(b: &[u8], e: Endian) -> Option<u64> {
+    let mut v = [0u8; 8];
+    match e {
+        Endian::Little => {
+            v.get_mut(..b.len())?.copy_from_slice(b);
+            Some(u64::from_le_bytes(v))
+        }
+        Endian::Big => {
+            v.get_mut(8usize.checked_sub(b.len())?..)?
+                .copy_from_slice(b);
+            Some(u64::from_be_bytes(v))
+        }
+    }
 }
 
 /// The byte order of a binary file, from the integer 1 that follows the format line.
@@ -339,27 +346,14 @@ fn scan_node_tags(data: &[u8], header: &MshHeader) -> Option<Vec<u64>> {
     if header.binary {
         let e = binary_endian(data)?;
         let size = header.data_size;
-        let size_t = |c: &mut Cursor| -> Option<u64> {
-            let b = c.bytes(size)?;
-            let mut v = [0u8; 8];
-            Some(match e {
-                Endian::Little => {
-                    v.get_mut(..size)?.copy_from_slice(b);
-                    u64::from_le_bytes(v)
-                }
-                Endian::Big => {
-                    v.get_mut(8usize.checked_sub(size)?..)?.copy_from_slice(b);
-                    u64::from_be_bytes(v)
-                }
-            })
-        };
-        let blocks = size_t(&mut c)?;
+        let next = |c: &mut Cursor| size_t(c.bytes(size)?, e);
+        let blocks = next(&mut c)?;
         c.bytes(3 * size)?;
         for _ in 0..blocks {
             c.bytes(12)?; // entity dim, entity tag, parametric (0: mshio refuses 1)
-            let n = usize::try_from(size_t(&mut c)?).ok()?;
+            let n = usize::try_from(next(&mut c)?).ok()?;
             for _ in 0..n {
-                tags.push(size_t(&mut c)?);
+                tags.push(next(&mut c)?);
             }
             c.bytes(n.checked_mul(24)?)?;
         }

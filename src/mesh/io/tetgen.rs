@@ -52,19 +52,19 @@ fn data_line<'a>(c: &mut Cursor<'a>) -> Result<Option<(usize, &'a str)>, MeshErr
     Ok(None)
 }
 
-/// A line's whitespace-separated fields, checking their number.
+/// A line's whitespace-separated fields, checking their number; `what` and `k` name the line.
 fn fields<'a>(
     c: &Cursor,
     pos: usize,
     line: &'a str,
     want: usize,
-    what: &str,
+    (what, k): (&str, usize),
 ) -> Result<Vec<&'a str>, MeshError> {
     let f: Vec<&str> = line.split_ascii_whitespace().collect();
     if f.len() != want {
         return Err(c.err(
             pos,
-            format!("{what}: expected {want} fields, found {}", f.len()),
+            format!("{what} line {k}: expected {want} fields, found {}", f.len()),
         ));
     }
     Ok(f)
@@ -114,7 +114,7 @@ fn parse_node(data: &[u8], path: &Path) -> Result<(Vec<[f64; 3]>, usize, Groups)
                 format!("unexpected end of file after {i} of {n} nodes"),
             )
         })?;
-        let f = fields(&c, pos, line, want, &format!("node line {}", i + 1))?;
+        let f = fields(&c, pos, line, want, ("node", i + 1))?;
         let e = |m: String| c.err(pos, format!("node line {}: {m}", i + 1));
         let index: usize = cursor::parse_num(Some(f[0]), "node index").map_err(e)?;
         if i == 0 {
@@ -188,7 +188,7 @@ fn parse_ele(data: &[u8], path: &Path, base: usize) -> Result<Vec<[usize; 4]>, M
                 format!("unexpected end of file after {i} of {n} tetrahedra"),
             )
         })?;
-        let f = fields(&c, pos, line, want, &format!("tetrahedron line {}", i + 1))?;
+        let f = fields(&c, pos, line, want, ("tetrahedron", i + 1))?;
         let e = |m: String| c.err(pos, format!("tetrahedron line {}: {m}", i + 1));
         let index: usize = cursor::parse_num(Some(f[0]), "tetrahedron index").map_err(e)?;
         if i == 0 {
