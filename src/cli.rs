@@ -119,6 +119,9 @@ pub struct PokeArgs {
     /// Write a VTK XML unstructured grid with displacement, force and fixed arrays.
     #[arg(long)]
     pub vtu: Option<PathBuf>,
+    /// Keep the precomputed compliance in this cache file (recomputed if stale or corrupt).
+    #[arg(long)]
+    pub cache: Option<PathBuf>,
     /// Haptic ticks over which the finger moves.
     #[arg(long, default_value_t = 50)]
     pub steps: usize,
@@ -288,7 +291,19 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
         report_changes(&mesh);
     }
     let s = unit.to_metres();
-    let scene = Scene::new(mesh, &Selection::default())?;
+    let sel = Selection::default();
+    let compliance = match &a.cache {
+        Some(path) => {
+            let (c, outcome) = crate::cache::load_or_compute(path, &mesh, &sel)?;
+            if let crate::cache::CacheOutcome::Recomputed(why) = outcome {
+                eprintln!("note: compliance recomputed ({why})");
+            }
+            c
+        }
+        None => precompute_with_bar(&mesh, &sel)?,
+    };
+    let scene = Scene::with_compliance(mesh, compliance);
+    let st = &scene.compliance.stats;
     let model = if a.exact {
         ForceModel::Exact
     } else {
@@ -326,6 +341,14 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
             "touch_point": p.touch_point.to_array(),
             "contact": contact,
             "active_columns": p.bc.len(),
+            "precompute": {
+                "seconds": st.seconds,
+                "bytes": st.bytes,
+                "residual": st.residual,
+                "symmetry": st.symmetry,
+                "rows": scene.compliance.rows().len(),
+                "cols": scene.compliance.cols().len(),
+            },
             "units": {"force": "N", "max_displacement": "m", "positions": "m"},
         });
         println!("{v}");
@@ -341,9 +364,41 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
         );
         println!("paper vs exact: |ΔF| = {diff:.3e} N");
         println!("max displacement: {:.6} mm", max_u * 1e3);
+        println!(
+            "precompute: {} rows × {} columns in {:.3} s, {:.1} MiB, max|K·L − I| = {:.1e}, symmetry {:.1e}",
+            scene.compliance.rows().len(),
+            scene.compliance.cols().len(),
+            st.seconds,
+            st.bytes as f64 / (1 << 20) as f64,
+            st.residual,
+            st.symmetry
+        );
         if p.contact.is_none() {
             println!("(the finger is not in contact)");
         }
     }
     Ok(())
+}
+
+/// Precomputes the compliance with a progress bar on a terminal for large meshes.
+fn precompute_with_bar(
+    mesh: &crate::Mesh,
+    sel: &Selection,
+) -> Result<crate::compliance::Compliance, Error> {
+    use std::io::IsTerminal;
+    let bar = if std::io::stderr().is_terminal() && mesh.nodes.len() > 5000 {
+        indicatif::ProgressBar::new(0)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("precompute {bar:40} {pos}/{len} columns {eta}")
+            .expect("valid template"),
+    );
+    let c = crate::compliance::Compliance::compute_with_progress(mesh, sel, &mut |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    })?;
+    bar.finish_and_clear();
+    Ok(c)
 }

@@ -109,6 +109,16 @@ pub fn invert3(m: DMat3) -> Option<DMat3> {
 impl Compliance {
     /// Assembles K, factorises it and solves for the selected columns (f64).
     pub fn compute(mesh: &Mesh, sel: &Selection) -> Result<Compliance, FemError> {
+        Self::compute_with_progress(mesh, sel, &mut |_, _| {})
+    }
+
+    /// As [`Compliance::compute`], calling `progress(columns done, columns total)` after each
+    /// batch of solves.
+    pub fn compute_with_progress(
+        mesh: &Mesh,
+        sel: &Selection,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<Compliance, FemError> {
         let t0 = Instant::now();
         let stiff = Stiffness::assemble(mesh)?;
         let factor = stiff.factorize()?;
@@ -165,6 +175,7 @@ impl Compliance {
                 }
             }
             factor.solve_in_place(&mut b);
+            progress(chunk_start, nc);
             for (k, &ci) in chunk.iter().enumerate() {
                 for bax in 0..3 {
                     let x = b.col(3 * k + bax);
@@ -182,6 +193,7 @@ impl Compliance {
                         residual = residual.max((v - target).abs());
                     }
                     let base = (3 * ci + bax) * 3 * nr;
+                    debug_assert!(base + 3 * nr <= l.len());
                     for (ri, &r) in rows.iter().enumerate() {
                         for a in 0..3 {
                             if let Some(d) = stiff.dofs.free(r, a) {
@@ -193,6 +205,7 @@ impl Compliance {
             }
         }
         let mut c = Compliance::from_dense(rows, cols, l, n)?;
+        progress(nc, nc);
         c.stats.free_dofs = nf;
         c.stats.k_nonzeros = stiff.k.compute_nnz();
         c.stats.residual = residual;

@@ -175,3 +175,33 @@ fn bad_input_is_a_clear_error_not_a_panic() {
         assert!(err.contains("error"), "{args:?}: {err}");
     }
 }
+
+#[test]
+fn poke_cache_is_written_reused_and_a_corrupt_one_recomputed() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cube.tfc");
+    let c = cache.to_str().unwrap();
+    let args = [
+        "poke", "cube", "--at", "10,12,30", "--push", "0,0,-2", "--json", "--cache", c,
+    ];
+    let (code, out1, err1) = touchfem(&args);
+    assert_eq!(code, 0, "{err1}");
+    assert!(err1.contains("recomputed"), "{err1}");
+    let (_, out2, err2) = touchfem(&args);
+    assert!(
+        !err2.contains("recomputed"),
+        "a valid cache is used: {err2}"
+    );
+    assert_eq!(json(&out1)["force"], json(&out2)["force"]);
+    let mut bytes = std::fs::read(&cache).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 1;
+    std::fs::write(&cache, &bytes).unwrap();
+    let (code, out3, err3) = touchfem(&args);
+    assert_eq!(code, 0);
+    assert!(err3.contains("corrupt"), "{err3}");
+    assert_eq!(json(&out1)["force"], json(&out3)["force"]);
+    let p = &json(&out3)["precompute"];
+    assert!(p["residual"].as_f64().unwrap() < 1e-12);
+    assert_eq!(p["cols"], 73);
+}
