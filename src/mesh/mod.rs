@@ -9,7 +9,7 @@
 mod cube;
 pub mod io;
 
-pub use cube::{cube, cube_with, CUBE_EDGE_MM};
+pub use cube::{cube, cube_with, grid_raw, CUBE_EDGE_MM};
 
 use glam::DVec3;
 use std::collections::{BTreeMap, HashMap};
