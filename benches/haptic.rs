@@ -1,1 +1,102 @@
-fn main(){}
+//! The haptic force step (god-object update + force solve), the CPU reference of the visual
+//! update u = L·F, and the precompute, side by side. Run: `cargo bench --bench haptic`.
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use glam::DVec3;
+use std::hint::black_box;
+use std::time::Duration;
+use touchfem::compliance::{Compliance, Selection};
+use touchfem::contact::Surface;
+use touchfem::force::{ForceBc, ForceModel};
+use touchfem::haptics::Finger;
+use touchfem::mesh::{cube, cube_with};
+use touchfem::{Material, Mesh};
+
+/// A box of about 2k nodes (12³ cells → 2197 nodes), the paper's mouse material, in mm.
+fn box_2k() -> Mesh {
+    cube_with(
+        [12, 12, 12],
+        [30.0; 3],
+        Material {
+            young_pa: 1000.0,
+            poisson: 0.3,
+        },
+    )
+    .unwrap()
+}
+
+/// Finger positions pressing 2 mm into the top face (z = 30 mm) and sliding over it.
+fn slide(n: usize) -> Vec<DVec3> {
+    (0..n)
+        .map(|i| {
+            let t = i as f64 / n as f64;
+            let a = 2.0 * std::f64::consts::PI * t;
+            DVec3::new(15.0 + 11.0 * a.cos(), 15.0 + 11.0 * (3.0 * a).sin(), 28.0) * 1e-3
+        })
+        .collect()
+}
+
+fn force_step(c: &mut Criterion) {
+    let mut g = c.benchmark_group("force_step");
+    for (name, mesh) in [("cube", cube()), ("box2k", box_2k())] {
+        let comp = Compliance::compute(&mesh, &Selection::default()).unwrap();
+        let surf = Surface::new(&mesh);
+        let path = slide(4096);
+        for model in [ForceModel::Paper, ForceModel::Exact] {
+            let mut f = Finger::new(DVec3::new(0.026, 0.015, 0.032));
+            for &x in &path[..8] {
+                f.step(&surf, &comp, x, model, 8.5);
+            }
+            let mut i = 0usize;
+            g.bench_function(
+                BenchmarkId::new(format!("{model:?}").to_lowercase(), name),
+                |b| {
+                    b.iter(|| {
+                        i = (i + 1) & 4095;
+                        black_box(f.step(&surf, &comp, black_box(path[i]), model, 8.5))
+                    })
+                },
+            );
+            assert!(
+                f.contact.is_some(),
+                "the benchmark path must stay in contact"
+            );
+        }
+    }
+    g.finish();
+}
+
+fn displacement_cpu(c: &mut Criterion) {
+    let mut g = c.benchmark_group("displacement_cpu_f64");
+    for (name, mesh) in [("cube", cube()), ("box2k", box_2k())] {
+        let comp = Compliance::compute(&mesh, &Selection::default()).unwrap();
+        let mut out = vec![DVec3::ZERO; comp.rows().len()];
+        for active in [3usize, 9] {
+            let mut bc = ForceBc::default();
+            for k in 0..active {
+                bc.add(
+                    (k * 7 % comp.cols().len()) as u32,
+                    DVec3::new(0.01, -0.02, 0.1),
+                );
+            }
+            g.bench_function(BenchmarkId::new(format!("{active}_columns"), name), |b| {
+                b.iter(|| comp.displace(black_box(bc.entries()), &mut out))
+            });
+        }
+    }
+    g.finish();
+}
+
+fn precompute(c: &mut Criterion) {
+    let mut g = c.benchmark_group("precompute");
+    g.sample_size(10).measurement_time(Duration::from_secs(8));
+    for (name, mesh) in [("cube", cube()), ("box2k", box_2k())] {
+        g.bench_function(name, |b| {
+            b.iter(|| Compliance::compute(black_box(&mesh), &Selection::default()).unwrap())
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, force_step, displacement_cpu, precompute);
+criterion_main!(benches);

@@ -109,6 +109,16 @@ pub fn invert3(m: DMat3) -> Option<DMat3> {
 impl Compliance {
     /// Assembles K, factorises it and solves for the selected columns (f64).
     pub fn compute(mesh: &Mesh, sel: &Selection) -> Result<Compliance, FemError> {
+        Self::compute_with_progress(mesh, sel, &mut |_, _| {})
+    }
+
+    /// As [`Compliance::compute`], calling `progress(columns done, columns total)` after each
+    /// batch of solves.
+    pub fn compute_with_progress(
+        mesh: &Mesh,
+        sel: &Selection,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<Compliance, FemError> {
         let t0 = Instant::now();
         let stiff = Stiffness::assemble(mesh)?;
         let factor = stiff.factorize()?;
@@ -152,47 +162,48 @@ impl Compliance {
         let nc = cols.len();
         let mut l = vec![0.0f64; 9 * nr * nc];
         let nf = stiff.dofs.n_free;
+        // Columns are solved in batches, the batches split over the cores: each worker owns a
+        // contiguous range of column nodes and so a contiguous slice of L.
+        let workers = std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+            .clamp(1, 16)
+            .min(nc.div_ceil(16).max(1));
+        let per = nc.div_ceil(workers).max(1);
+        let done = std::sync::atomic::AtomicUsize::new(0);
+        let ctx = SolveCtx {
+            stiff: &stiff,
+            factor: &factor,
+            rows: &rows,
+            cols: &cols,
+            done: &done,
+        };
+        let mut results: Vec<Result<f64, FemError>> = Vec::with_capacity(workers);
+        std::thread::scope(|sc| {
+            let mut slices = l.chunks_mut(9 * nr * per);
+            let first = slices.next();
+            let handles: Vec<_> = slices
+                .enumerate()
+                .map(|(w, sl)| {
+                    let ctx = &ctx;
+                    sc.spawn(move || ctx.solve_range((w + 1) * per, sl, &mut |_| {}))
+                })
+                .collect();
+            if let Some(sl) = first {
+                results.push(ctx.solve_range(0, sl, &mut |d| progress(d, nc)));
+            }
+            for h in handles {
+                results.push(h.join().unwrap_or_else(|_| {
+                    Err(FemError::Factorisation("a solver thread panicked".into()))
+                }));
+            }
+        });
         let mut residual = 0.0f64;
-        let batch = 64usize.max(1);
-        let mut kx = vec![0.0; nf];
-        for chunk_start in (0..nc).step_by(batch) {
-            let chunk = (chunk_start..(chunk_start + batch).min(nc)).collect::<Vec<_>>();
-            let mut b = Mat::<f64>::zeros(nf, 3 * chunk.len());
-            for (k, &ci) in chunk.iter().enumerate() {
-                for a in 0..3 {
-                    let d = stiff.dofs.free(cols[ci], a).expect("columns are free");
-                    b[(d, 3 * k + a)] = 1.0;
-                }
-            }
-            factor.solve_in_place(&mut b);
-            for (k, &ci) in chunk.iter().enumerate() {
-                for bax in 0..3 {
-                    let x = b.col(3 * k + bax);
-                    let xs: Vec<f64> = (0..nf).map(|i| x[i]).collect();
-                    if xs.iter().any(|v| !v.is_finite()) {
-                        return Err(FemError::Singular {
-                            node: cols[ci],
-                            dof: stiff.dofs.free(cols[ci], bax).unwrap_or(0),
-                        });
-                    }
-                    stiff.mul(&xs, &mut kx);
-                    let e = stiff.dofs.free(cols[ci], bax).expect("free");
-                    for (i, v) in kx.iter().enumerate() {
-                        let target = if i == e { 1.0 } else { 0.0 };
-                        residual = residual.max((v - target).abs());
-                    }
-                    let base = (3 * ci + bax) * 3 * nr;
-                    for (ri, &r) in rows.iter().enumerate() {
-                        for a in 0..3 {
-                            if let Some(d) = stiff.dofs.free(r, a) {
-                                l[base + 3 * ri + a] = xs[d];
-                            }
-                        }
-                    }
-                }
-            }
+        for r in results {
+            residual = residual.max(r?);
         }
         let mut c = Compliance::from_dense(rows, cols, l, n)?;
+        progress(nc, nc);
         c.stats.free_dofs = nf;
         c.stats.k_nonzeros = stiff.k.compute_nnz();
         c.stats.residual = residual;
@@ -222,15 +233,17 @@ impl Compliance {
         let mut row_of_node = vec![u32::MAX; n_nodes];
         let mut col_of_node = vec![u32::MAX; n_nodes];
         for (i, &r) in rows.iter().enumerate() {
-            *row_of_node.get_mut(r as usize).ok_or_else(|| {
-                FemError::BadSelection(format!("row node {r} out of range"))
-            })? = i as u32;
+            *row_of_node
+                .get_mut(r as usize)
+                .ok_or_else(|| FemError::BadSelection(format!("row node {r} out of range")))? =
+                i as u32;
         }
         let mut col_row = Vec::with_capacity(nc);
         for (i, &c) in cols.iter().enumerate() {
-            *col_of_node.get_mut(c as usize).ok_or_else(|| {
-                FemError::BadSelection(format!("column node {c} out of range"))
-            })? = i as u32;
+            *col_of_node
+                .get_mut(c as usize)
+                .ok_or_else(|| FemError::BadSelection(format!("column node {c} out of range")))? =
+                i as u32;
             let r = row_of_node[c as usize];
             if r == u32::MAX {
                 return Err(FemError::BadSelection(format!(
@@ -364,9 +377,90 @@ impl Compliance {
             for j in i..nc {
                 let a = self.touch_block(i, j);
                 let b = self.touch_block(j, i).transpose();
-                err = err.max((a - b).abs().to_cols_array().iter().fold(0.0, |m, v| m.max(*v)));
+                err = err.max(
+                    (a - b)
+                        .abs()
+                        .to_cols_array()
+                        .iter()
+                        .fold(0.0, |m, v| m.max(*v)),
+                );
             }
         }
         err / maxl
+    }
+}
+
+/// What the precompute workers share.
+struct SolveCtx<'a> {
+    stiff: &'a Stiffness,
+    factor: &'a crate::fem::Factor,
+    rows: &'a [u32],
+    cols: &'a [u32],
+    done: &'a std::sync::atomic::AtomicUsize,
+}
+
+impl SolveCtx<'_> {
+    /// Solves the columns `first..first + out.len() / (9R)` into `out` (their slice of L) and
+    /// returns max |K·x − e| over them.
+    fn solve_range(
+        &self,
+        first: usize,
+        out: &mut [f64],
+        progress: &mut dyn FnMut(usize),
+    ) -> Result<f64, FemError> {
+        let nr = self.rows.len();
+        let count = out.len() / (9 * nr);
+        let nf = self.stiff.dofs.n_free;
+        let batch = 64usize;
+        let mut residual = 0.0f64;
+        let mut kx = vec![0.0; nf];
+        let mut xs = vec![0.0; nf];
+        for chunk_start in (0..count).step_by(batch) {
+            let chunk = chunk_start..(chunk_start + batch).min(count);
+            let mut b = Mat::<f64>::zeros(nf, 3 * chunk.len());
+            for (k, local) in chunk.clone().enumerate() {
+                for a in 0..3 {
+                    let d = self
+                        .stiff
+                        .dofs
+                        .free(self.cols[first + local], a)
+                        .expect("columns are free");
+                    b[(d, 3 * k + a)] = 1.0;
+                }
+            }
+            self.factor.solve_in_place(&mut b);
+            for (k, local) in chunk.clone().enumerate() {
+                let node = self.cols[first + local];
+                for bax in 0..3 {
+                    let x = b.col(3 * k + bax);
+                    for (i, v) in xs.iter_mut().enumerate() {
+                        *v = x[i];
+                    }
+                    let e = self.stiff.dofs.free(node, bax).expect("free");
+                    if xs.iter().any(|v| !v.is_finite()) {
+                        return Err(FemError::Singular { node, dof: e });
+                    }
+                    self.stiff.mul(&xs, &mut kx);
+                    for (i, v) in kx.iter().enumerate() {
+                        let target = if i == e { 1.0 } else { 0.0 };
+                        residual = residual.max((v - target).abs());
+                    }
+                    let base = (3 * local + bax) * 3 * nr;
+                    for (ri, &r) in self.rows.iter().enumerate() {
+                        for a in 0..3 {
+                            if let Some(d) = self.stiff.dofs.free(r, a) {
+                                out[base + 3 * ri + a] = xs[d];
+                            }
+                        }
+                    }
+                }
+            }
+            let d = self
+                .done
+                .fetch_add(chunk.len(), std::sync::atomic::Ordering::Relaxed)
+                + chunk.len();
+            progress(d);
+        }
+        Ok(residual)
     }
 }

@@ -25,14 +25,32 @@ pub enum Feature {
 }
 
 impl Feature {
-    /// Number of active constraint planes (faces through the feature).
+    /// Number of distinct active constraint planes through the feature (coplanar faces count
+    /// once): 1 on a face or a flat edge, 2 in a valley, 3 or more at a corner.
     pub fn active_planes(self, surf: &Surface, tri: u32) -> usize {
+        let distinct = |faces: &mut dyn Iterator<Item = u32>| {
+            let mut seen: [glam::DVec3; 16] = [glam::DVec3::ZERO; 16];
+            let mut n = 0usize;
+            for f in faces {
+                let nrm = surf.normals[f as usize];
+                if !seen[..n.min(16)].iter().any(|s| s.dot(nrm) > 1.0 - 1e-9) {
+                    if n < 16 {
+                        seen[n] = nrm;
+                    }
+                    n += 1;
+                }
+            }
+            n
+        };
         match self {
             Feature::Face => 1,
-            Feature::Edge(_) => 2,
+            Feature::Edge(k) => {
+                let o = surf.neighbors[tri as usize][k as usize];
+                distinct(&mut [tri, o].into_iter())
+            }
             Feature::Vertex(k) => {
                 let v = surf.tris[tri as usize][k as usize];
-                surf.vertex_tris(v).len()
+                distinct(&mut surf.vertex_tris(v).iter().copied())
             }
         }
     }
@@ -90,7 +108,9 @@ struct Grid {
 
 impl Grid {
     fn cell_range(&self, lo: DVec3, hi: DVec3) -> [std::ops::RangeInclusive<usize>; 3] {
-        let c = |p: f64, o: f64, d: usize| (((p - o) * self.inv_cell).floor().max(0.0) as usize).min(d - 1);
+        let c = |p: f64, o: f64, d: usize| {
+            (((p - o) * self.inv_cell).floor().max(0.0) as usize).min(d - 1)
+        };
         [
             c(lo.x, self.lo.x, self.dims[0])..=c(hi.x, self.lo.x, self.dims[0]),
             c(lo.y, self.lo.y, self.dims[1])..=c(hi.y, self.lo.y, self.dims[1]),
@@ -217,7 +237,10 @@ impl Surface {
     pub fn first_entry(&self, p0: DVec3, p1: DVec3) -> Option<(u32, DVec3)> {
         let d = p1 - p0;
         let eps = 1e-9 * self.grid_scale();
-        let r = self.grid.cell_range(p0.min(p1) - DVec3::splat(eps), p0.max(p1) + DVec3::splat(eps));
+        let r = self.grid.cell_range(
+            p0.min(p1) - DVec3::splat(eps),
+            p0.max(p1) + DVec3::splat(eps),
+        );
         let mut best: Option<(u32, f64)> = None;
         for k in r[2].clone() {
             for j in r[1].clone() {

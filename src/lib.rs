@@ -11,19 +11,34 @@
 //!
 //! Data flows one way:
 //! * precompute: [`mesh`] → [`fem`] (sparse K, Cholesky) → [`compliance`] (L, L_ii⁻¹) → [`cache`]
-//! * haptic path: [`contact`] (god-object) → [`force`] (eq. 9–12) → [`haptics`] (lock-free publish)
+//! * haptic path: [`contact`] (god-object) → [`force`] (eq. 9–12) → [`[`haptics`] (lock-free publish)
 //! * visual path: [`compliance::Compliance::displace`] on the CPU (f64 reference) or the GPU pass.
 
 #![warn(missing_docs)]
 
+pub mod cache;
+pub mod cli;
 pub mod compliance;
 pub mod contact;
+pub mod demo;
+pub mod error;
 pub mod fem;
+pub mod force;
 pub mod gpu;
+pub mod haptics;
 pub mod mesh;
 pub mod render;
+pub mod scene;
+pub mod tradeoff;
 pub mod units;
+pub mod vtu;
 
+pub use error::Error;
 pub use mesh::{Mesh, MeshError, RawMesh};
 pub use units::{LengthUnit, Material};
 pub use wgpu;
+
+/// The README's code runs as a doc test.
+#[doc = include_str!("../README.md")]
+#[cfg(doctest)]
+pub struct ReadmeDoctests;

@@ -24,7 +24,25 @@ pub fn cube() -> Mesh {
 /// A box of `cells` cells spanning `[0, size_mm]` (millimetres), each cell cut into five tets with
 /// alternating orientation so that neighbouring cells' face diagonals match. The bottom face
 /// (z = 0) is the group `fixed` and is clamped.
-pub fn cube_with(cells: [usize; 3], size_mm: [f64; 3], material: Material) -> Result<Mesh, MeshError> {
+pub fn cube_with(
+    cells: [usize; 3],
+    size_mm: [f64; 3],
+    material: Material,
+) -> Result<Mesh, MeshError> {
+    let raw = grid_raw(cells, size_mm, |_, _, _| true);
+    let mut mesh = Mesh::from_raw(raw, LengthUnit::Millimetre, material)?;
+    mesh.set_fixed_group("fixed")?;
+    Ok(mesh)
+}
+
+/// A structured grid of `cells` cells spanning `[0, size]` (any unit), five tets per cell with
+/// alternating orientation, keeping only the cells for which `keep(i, j, k)` holds (nodes of
+/// dropped cells are removed by validation). The nodes at z = 0 form the group `fixed`.
+pub fn grid_raw(
+    cells: [usize; 3],
+    size: [f64; 3],
+    keep: impl Fn(usize, usize, usize) -> bool,
+) -> RawMesh {
     let [nx, ny, nz] = cells;
     let id = |i: usize, j: usize, k: usize| (k * (ny + 1) + j) * (nx + 1) + i;
     let mut nodes = Vec::with_capacity((nx + 1) * (ny + 1) * (nz + 1));
@@ -32,9 +50,9 @@ pub fn cube_with(cells: [usize; 3], size_mm: [f64; 3], material: Material) -> Re
         for j in 0..=ny {
             for i in 0..=nx {
                 nodes.push([
-                    size_mm[0] * i as f64 / nx as f64,
-                    size_mm[1] * j as f64 / ny as f64,
-                    size_mm[2] * k as f64 / nz as f64,
+                    size[0] * i as f64 / nx as f64,
+                    size[1] * j as f64 / ny as f64,
+                    size[2] * k as f64 / nz as f64,
                 ]);
             }
         }
@@ -43,6 +61,9 @@ pub fn cube_with(cells: [usize; 3], size_mm: [f64; 3], material: Material) -> Re
     for k in 0..nz {
         for j in 0..ny {
             for i in 0..nx {
+                if !keep(i, j, k) {
+                    continue;
+                }
                 // Corner c = (dx, dy, dz) of this cell.
                 let c = |dx: usize, dy: usize, dz: usize| id(i + dx, j + dy, k + dz);
                 if (i + j + k) % 2 == 0 {
@@ -70,14 +91,11 @@ pub fn cube_with(cells: [usize; 3], size_mm: [f64; 3], material: Material) -> Re
         .collect();
     let mut node_groups = BTreeMap::new();
     node_groups.insert("fixed".to_string(), bottom);
-    let raw = RawMesh {
+    RawMesh {
         nodes,
         tets,
         node_groups,
-    };
-    let mut mesh = Mesh::from_raw(raw, LengthUnit::Millimetre, material)?;
-    mesh.set_fixed_group("fixed")?;
-    Ok(mesh)
+    }
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@
 mod cube;
 pub mod io;
 
-pub use cube::{cube, cube_with, CUBE_EDGE_MM};
+pub use cube::{cube, cube_with, grid_raw, CUBE_EDGE_MM};
 
 use glam::DVec3;
 use std::collections::{BTreeMap, HashMap};
@@ -210,7 +210,7 @@ impl Mesh {
                 0.0
             };
             let distinct = (0..4).all(|a| (a + 1..4).all(|b| t[a] != t[b]));
-            if !distinct || !(quality.abs() > DEGENERATE_QUALITY) {
+            if !distinct || quality.is_nan() || quality.abs() <= DEGENERATE_QUALITY {
                 return Err(MeshError::Degenerate {
                     tet,
                     nodes: *t,

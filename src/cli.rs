@@ -1,0 +1,404 @@
+//! The `touchfem` command line (see `../shared/CONTRACTS.md` for the stable flags and keys).
+
+use clap::{Args, Parser, Subcommand};
+use glam::DVec3;
+use std::path::PathBuf;
+
+use crate::compliance::Selection;
+use crate::force::ForceModel;
+use crate::scene::{load_mesh, LoadOptions, Scene};
+
+use crate::units::LengthUnit;
+use crate::Error;
+
+/// Touch and see soft objects in real time (Hirota & Kaneko's precomputed-compliance FEM).
+#[derive(Parser, Debug)]
+#[command(name = "touchfem", version, about)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Print the paper's Table 1 row of a mesh.
+    Info {
+        /// Mesh file (.msh, .node/.ele) or bundled name (cube).
+        mesh: String,
+        /// How to load the mesh.
+        #[command(flatten)]
+        load: LoadArgs,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Touch the surface at the point nearest --at, push by --push, print the force fed back.
+    Poke(PokeArgs),
+    /// The main job: the bundled scenes headless with the 1 kHz haptic loop and the visual loop,
+    /// frames and the paper's Table 2.
+    Demo(DemoArgs),
+    /// Speed against error: every method on the same meshes in one run.
+    Bench(BenchArgs),
+}
+
+/// `touchfem bench` flags.
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// Fewer repetitions and active-column counts (for CI smoke runs).
+    #[arg(long)]
+    pub quick: bool,
+    /// Write the rows as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+/// `touchfem demo` flags.
+#[derive(Args, Debug)]
+pub struct DemoArgs {
+    /// Seconds of haptic + visual loop per object.
+    #[arg(long, default_value_t = 3.0)]
+    pub seconds: f64,
+    /// Write the report as JSON here.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Directory for frames and the report.
+    #[arg(long, default_value = "out/demo")]
+    pub out: PathBuf,
+}
+
+/// Flags that say how to load a mesh.
+#[derive(Args, Debug, Clone)]
+pub struct LoadArgs {
+    /// Length unit of the mesh file: mm or m (default m; bundled meshes know their own).
+    #[arg(long)]
+    pub unit: Option<LengthUnit>,
+    /// The Gmsh physical group (or TetGen marker) whose nodes are clamped.
+    #[arg(long, default_value = "fixed")]
+    pub fixed: String,
+    /// Young's modulus in Pa (default: the bundled mesh's, else 1000).
+    #[arg(long)]
+    pub young: Option<f64>,
+    /// Poisson's ratio (default: the bundled mesh's, else 0.3).
+    #[arg(long)]
+    pub poisson: Option<f64>,
+}
+
+impl LoadArgs {
+    fn options(&self) -> LoadOptions {
+        LoadOptions {
+            unit: self.unit,
+            young_pa: self.young,
+            poisson: self.poisson,
+            fixed_group: self.fixed.clone(),
+        }
+    }
+}
+
+/// `touchfem poke` flags.
+#[derive(Args, Debug)]
+pub struct PokeArgs {
+    /// Mesh file or bundled name.
+    pub mesh: String,
+    /// The point to touch, X,Y,Z in mesh units.
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub at: DVec3,
+    /// The finger's motion, DX,DY,DZ in mesh units.
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub push: DVec3,
+    /// How to load the mesh.
+    #[command(flatten)]
+    pub load: LoadArgs,
+    /// Use the exact contact-point compliance instead of the paper's interpolation.
+    #[arg(long)]
+    pub exact: bool,
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
+    /// Write a VTK XML unstructured grid with displacement, force and fixed arrays.
+    #[arg(long)]
+    pub vtu: Option<PathBuf>,
+    /// Keep the precomputed compliance in this cache file (recomputed if stale or corrupt).
+    #[arg(long)]
+    pub cache: Option<PathBuf>,
+    /// Haptic ticks over which the finger moves.
+    #[arg(long, default_value_t = 50)]
+    pub steps: usize,
+}
+
+/// Parses "x,y,z" into a finite vector.
+pub fn parse_vec3(s: &str) -> Result<DVec3, String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(format!("expected X,Y,Z, got '{s}'"));
+    }
+    let mut v = [0.0; 3];
+    for (o, p) in v.iter_mut().zip(&parts) {
+        *o = p
+            .parse::<f64>()
+            .map_err(|e| format!("'{p}' is not a number: {e}"))?;
+        if !o.is_finite() {
+            return Err(format!("'{p}' is not finite"));
+        }
+    }
+    Ok(DVec3::from_array(v))
+}
+
+/// Runs the command line; returns the process exit code.
+pub fn run(cli: Cli) -> Result<(), Error> {
+    match cli.command {
+        Command::Info { mesh, load, json } => info(&mesh, &load, json),
+        Command::Poke(args) => poke(&args),
+        Command::Demo(args) => demo(&args),
+        Command::Bench(args) => bench(&args),
+    }
+}
+
+fn bench(a: &BenchArgs) -> Result<(), Error> {
+    use crate::tradeoff::{bench_scenes, cpu_rows};
+    let (reps, active): (usize, &[usize]) = if a.quick {
+        (20, &[9])
+    } else {
+        (200, &[3, 9, 90, 900])
+    };
+    let mut rows = Vec::new();
+    for (name, scene) in bench_scenes()? {
+        rows.extend(cpu_rows(&name, &scene, active, reps)?);
+    }
+    println!(
+        "{:<14} {:<6} {:>6} {:>7} {:>12} {:>11}",
+        "method", "mesh", "nodes", "active", "time_us", "rel_error"
+    );
+    for r in &rows {
+        println!(
+            "{:<14} {:<6} {:>6} {:>7} {:>12.3} {:>11.2e}",
+            r.method, r.mesh, r.nodes, r.active_columns, r.time_us, r.rel_error
+        );
+    }
+    if let Some(path) = &a.json {
+        let v = serde_json::json!({ "rows": rows, "machine": crate::demo::machine() });
+        std::fs::write(
+            path,
+            serde_json::to_string_pretty(&v).expect("serialisable"),
+        )
+        .map_err(|source| Error::Write {
+            path: path.clone(),
+            source,
+        })?;
+    }
+    Ok(())
+}
+
+fn demo(a: &DemoArgs) -> Result<(), Error> {
+    use crate::demo::{machine, run_object, worst, DemoOptions, DemoReport};
+    if !(a.seconds.is_finite() && a.seconds > 0.0 && a.seconds <= 3600.0) {
+        return Err(Error::Input(format!(
+            "--seconds must be in (0, 3600], got {}",
+            a.seconds
+        )));
+    }
+    std::fs::create_dir_all(&a.out).map_err(|source| Error::Write {
+        path: a.out.clone(),
+        source,
+    })?;
+    let opts = DemoOptions {
+        seconds: a.seconds,
+        out: a.out.clone(),
+    };
+    let mut objects = Vec::new();
+    for name in crate::scene::BUNDLED {
+        let mut u = Vec::new();
+        let mut frame = |scene: &Scene, bc: &crate::force::ForceBc, _i: u64| {
+            if u.len() != scene.compliance.rows().len() {
+                u = vec![DVec3::ZERO; scene.compliance.rows().len()];
+            }
+            let t = std::time::Instant::now();
+            scene.compliance.displace(bc.entries(), &mut u);
+            Ok(t.elapsed().as_secs_f64() * 1e6)
+        };
+        let (r, _scene) = run_object(name, &opts, &mut frame, "cpu-f64")?;
+        eprintln!(
+            "{:<6} nodes {:>5}  force {:>6.2} µs  displacement {:>8.2} µs ({})  draw {:>7.1} Hz  haptic {:.1} Hz, p99.9 period error {:.1} µs, {} missed",
+            r.name, r.nodes, r.force_us_median, r.displacement_us_median, r.displacement_backend, r.draw_hz,
+            r.haptic.haptic_rate_hz, r.haptic.period_error_us_p999, r.haptic.missed_deadlines
+        );
+        objects.push(r);
+    }
+    let haptic = worst(&objects.iter().map(|o| o.haptic.clone()).collect::<Vec<_>>());
+    let report = DemoReport {
+        objects,
+        haptic,
+        machine: machine(),
+    };
+    let json = serde_json::to_string_pretty(&report).expect("serialisable");
+    let path = a
+        .report
+        .clone()
+        .unwrap_or_else(|| a.out.join("report.json"));
+    std::fs::write(&path, json).map_err(|source| Error::Write {
+        path: path.clone(),
+        source,
+    })?;
+    eprintln!("report: {}", path.display());
+    Ok(())
+}
+
+fn info(spec: &str, load: &LoadArgs, json: bool) -> Result<(), Error> {
+    let (mesh, unit) = load_mesh(spec, &load.options())?;
+    let t = mesh.table1();
+    if json {
+        let mut v = serde_json::to_value(&t).expect("serialisable");
+        v["unit"] = serde_json::json!(unit.symbol());
+        v["fixed_nodes"] = serde_json::json!(mesh.fixed_count());
+        v["reoriented_tets"] = serde_json::json!(mesh.report.reoriented_tets.len());
+        v["dropped_nodes"] = serde_json::json!(mesh.report.dropped_nodes.len());
+        println!("{v}");
+    } else {
+        println!("mesh                 {spec} (coordinates in {unit})");
+        println!("all nodes            {}", t.nodes);
+        println!("surface nodes        {}", t.surface_nodes);
+        println!("free surface nodes   {}", t.free_surface_nodes);
+        println!("surface patches      {}", t.surface_triangles);
+        println!("tetrahedral elements {}", t.tets);
+        println!("Young's modulus      {} Pa", t.young_pa);
+        println!("Poisson's ratio      {}", t.poisson);
+        report_changes(&mesh);
+    }
+    Ok(())
+}
+
+fn report_changes(mesh: &crate::Mesh) {
+    if !mesh.report.reoriented_tets.is_empty() {
+        eprintln!(
+            "note: {} inverted tet(s) reoriented (first: {})",
+            mesh.report.reoriented_tets.len(),
+            mesh.report.reoriented_tets[0]
+        );
+    }
+    if !mesh.report.dropped_nodes.is_empty() {
+        eprintln!(
+            "note: {} node(s) used by no tet dropped (first: {})",
+            mesh.report.dropped_nodes.len(),
+            mesh.report.dropped_nodes[0]
+        );
+    }
+}
+
+fn poke(a: &PokeArgs) -> Result<(), Error> {
+    let (mesh, unit) = load_mesh(&a.mesh, &a.load.options())?;
+    if !a.json {
+        report_changes(&mesh);
+    }
+    let s = unit.to_metres();
+    let sel = Selection::default();
+    let compliance = match &a.cache {
+        Some(path) => {
+            let (c, outcome) = crate::cache::load_or_compute(path, &mesh, &sel)?;
+            if let crate::cache::CacheOutcome::Recomputed(why) = outcome {
+                eprintln!("note: compliance recomputed ({why})");
+            }
+            c
+        }
+        None => precompute_with_bar(&mesh, &sel)?,
+    };
+    let scene = Scene::with_compliance(mesh, compliance);
+    let st = &scene.compliance.stats;
+    let model = if a.exact {
+        ForceModel::Exact
+    } else {
+        ForceModel::Paper
+    };
+    let p = scene.poke(a.at * s, a.push * s, model, a.steps)?;
+    let nodal = scene.nodal_forces(&p.bc);
+    let u = crate::fem::solve_static(&scene.mesh, &nodal)?;
+    let max_u = u.iter().map(|v| v.length()).fold(0.0, f64::max);
+    if let Some(path) = &a.vtu {
+        let mut f = vec![DVec3::ZERO; scene.mesh.nodes.len()];
+        for &(n, v) in &nodal {
+            f[n as usize] += v;
+        }
+        crate::vtu::write_vtu(path, &scene.mesh, &u, &f)?;
+    }
+    let diff = (p.feedback_paper - p.feedback_exact).length();
+    if a.json {
+        let contact = p.contact.map(|c| {
+            serde_json::json!({
+                "triangle": c.tri,
+                "nodes": c.nodes,
+                "alpha": c.alpha,
+                "proxy": c.proxy.to_array(),
+                "finger": c.finger.to_array(),
+            })
+        });
+        let v = serde_json::json!({
+            "force": p.feedback.to_array(),
+            "max_displacement": max_u,
+            "model": if a.exact { "exact" } else { "paper" },
+            "force_paper": p.feedback_paper.to_array(),
+            "force_exact": p.feedback_exact.to_array(),
+            "paper_exact_difference": diff,
+            "touch_point": p.touch_point.to_array(),
+            "contact": contact,
+            "active_columns": p.bc.len(),
+            "precompute": {
+                "seconds": st.seconds,
+                "bytes": st.bytes,
+                "residual": st.residual,
+                "symmetry": st.symmetry,
+                "rows": scene.compliance.rows().len(),
+                "cols": scene.compliance.cols().len(),
+            },
+            "units": {"force": "N", "max_displacement": "m", "positions": "m"},
+        });
+        println!("{v}");
+    } else {
+        let f = p.feedback;
+        println!(
+            "force fed back: ({:.6}, {:.6}, {:.6}) N, |F| = {:.6} N ({} model)",
+            f.x,
+            f.y,
+            f.z,
+            f.length(),
+            if a.exact { "exact" } else { "paper" }
+        );
+        println!("paper vs exact: |ΔF| = {diff:.3e} N");
+        println!("max displacement: {:.6} mm", max_u * 1e3);
+        println!(
+            "precompute: {} rows × {} columns in {:.3} s, {:.1} MiB, max|K·L − I| = {:.1e}, symmetry {:.1e}",
+            scene.compliance.rows().len(),
+            scene.compliance.cols().len(),
+            st.seconds,
+            st.bytes as f64 / (1 << 20) as f64,
+            st.residual,
+            st.symmetry
+        );
+        if p.contact.is_none() {
+            println!("(the finger is not in contact)");
+        }
+    }
+    Ok(())
+}
+
+/// Precomputes the compliance with a progress bar on a terminal for large meshes.
+fn precompute_with_bar(
+    mesh: &crate::Mesh,
+    sel: &Selection,
+) -> Result<crate::compliance::Compliance, Error> {
+    use std::io::IsTerminal;
+    let bar = if std::io::stderr().is_terminal() && mesh.nodes.len() > 5000 {
+        indicatif::ProgressBar::new(0)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("precompute {bar:40} {pos}/{len} columns {eta}")
+            .expect("valid template"),
+    );
+    let c = crate::compliance::Compliance::compute_with_progress(mesh, sel, &mut |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    })?;
+    bar.finish_and_clear();
+    Ok(c)
+}

@@ -1,0 +1,28 @@
+//! The crate-level error: one enum that wraps each domain's typed error.
+
+use thiserror::Error;
+
+/// Any touchfem error.
+#[derive(Debug, Error)]
+pub enum Error {
+    /// Reading or validating a mesh.
+    #[error(transparent)]
+    Mesh(#[from] crate::mesh::MeshError),
+    /// Assembling or factorising the stiffness.
+    #[error(transparent)]
+    Fem(#[from] crate::fem::FemError),
+    /// Reading or writing the compliance cache.
+    #[error(transparent)]
+    Cache(#[from] crate::cache::CacheError),
+    /// Bad input that is none of the above (a flag, a coordinate).
+    #[error("{0}")]
+    Input(String),
+    /// An I/O error writing an output file.
+    #[error("cannot write {path}: {source}")]
+    Write {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+}

@@ -1,0 +1,173 @@
+//! A scene: one object (mesh, rest surface, precomputed compliance) and the operations the
+//! command line offers on it (load by name or path, poke).
+
+use glam::DVec3;
+use std::path::Path;
+
+use crate::compliance::{Compliance, Selection};
+use crate::contact::{ContactPoint, GodObject, Surface};
+use crate::force::{finger_force, ForceBc, ForceModel};
+use crate::mesh::{self, Mesh, MeshError};
+use crate::units::{LengthUnit, Material};
+use crate::Error;
+
+/// How to load a mesh given on the command line.
+#[derive(Clone, Debug)]
+pub struct LoadOptions {
+    /// Length unit of a mesh file (bundled meshes know their own). Default: metres.
+    pub unit: Option<LengthUnit>,
+    /// Young's modulus override, Pa.
+    pub young_pa: Option<f64>,
+    /// Poisson's ratio override.
+    pub poisson: Option<f64>,
+    /// The node group to clamp.
+    pub fixed_group: String,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        LoadOptions {
+            unit: None,
+            young_pa: None,
+            poisson: None,
+            fixed_group: "fixed".into(),
+        }
+    }
+}
+
+/// The names of the bundled meshes.
+pub const BUNDLED: &[&str] = &["cube"];
+
+/// Loads a bundled mesh by name (`cube`) or a mesh file by path, applies material overrides and
+/// clamps the fixed group. Returns the mesh and the length unit its coordinates are given in on
+/// the command line.
+pub fn load_mesh(spec: &str, opts: &LoadOptions) -> Result<(Mesh, LengthUnit), Error> {
+    let (mut mesh, unit) = match spec {
+        "cube" => {
+            let mut m = mesh::cube();
+            m.set_fixed_group(&opts.fixed_group)?;
+            (m, LengthUnit::Millimetre)
+        }
+        _ => {
+            let path = Path::new(spec);
+            if !path.exists() {
+                return Err(MeshError::UnknownBundled(spec.to_string()).into());
+            }
+            let unit = opts.unit.unwrap_or_default();
+            let raw = mesh::io::read(path)?;
+            let mut m = Mesh::from_raw(raw, unit, Material::DEFAULT)?;
+            m.set_fixed_group(&opts.fixed_group)?;
+            (m, unit)
+        }
+    };
+    if let Some(e) = opts.young_pa {
+        mesh.material.young_pa = e;
+    }
+    if let Some(nu) = opts.poisson {
+        mesh.material.poisson = nu;
+    }
+    mesh.material.validate()?;
+    Ok((mesh, unit))
+}
+
+/// One object ready to touch: mesh, walking surface, compliance.
+pub struct Scene {
+    /// The mesh (metres).
+    pub mesh: Mesh,
+    /// The rest surface the god-object walks on.
+    pub surface: Surface,
+    /// The precomputed compliance.
+    pub compliance: Compliance,
+}
+
+/// The outcome of a poke.
+#[derive(Clone, Debug)]
+pub struct Poke {
+    /// Where the finger first touched (the surface point nearest the requested point), m.
+    pub touch_point: DVec3,
+    /// The final contact, if the finger is still in contact.
+    pub contact: Option<ContactPoint>,
+    /// The force fed back to the finger with the chosen model, N.
+    pub feedback: DVec3,
+    /// The paper's feedback (eq. 12), N.
+    pub feedback_paper: DVec3,
+    /// The exact variant's feedback, N.
+    pub feedback_exact: DVec3,
+    /// The force boundary condition of the chosen model.
+    pub bc: ForceBc,
+}
+
+impl Scene {
+    /// Precomputes the compliance for `sel` and builds the surface.
+    pub fn new(mesh: Mesh, sel: &Selection) -> Result<Scene, Error> {
+        let compliance = Compliance::compute(&mesh, sel)?;
+        Ok(Scene::with_compliance(mesh, compliance))
+    }
+
+    /// Builds a scene around an already computed (or cached) compliance.
+    pub fn with_compliance(mesh: Mesh, compliance: Compliance) -> Scene {
+        let surface = Surface::new(&mesh);
+        Scene {
+            mesh,
+            surface,
+            compliance,
+        }
+    }
+
+    /// The finger touches the surface at the point nearest `at` and moves by `push` (metres) in
+    /// `steps` haptic ticks; returns the final force. A push out of the object frees the finger.
+    pub fn poke(
+        &self,
+        at: DVec3,
+        push: DVec3,
+        model: ForceModel,
+        steps: usize,
+    ) -> Result<Poke, Error> {
+        if !at.is_finite() || !push.is_finite() {
+            return Err(Error::Input(format!(
+                "non-finite finger position {at} or push {push}"
+            )));
+        }
+        let (tri, p0) = self.surface.closest_global(at);
+        let mut god = GodObject::touching(tri);
+        let steps = steps.max(1);
+        let mut contact = None;
+        for s in 1..=steps {
+            let x = p0 + push * (s as f64 / steps as f64);
+            contact = god.update(&self.surface, x);
+        }
+        let mut out = Poke {
+            touch_point: p0,
+            contact,
+            feedback: DVec3::ZERO,
+            feedback_paper: DVec3::ZERO,
+            feedback_exact: DVec3::ZERO,
+            bc: ForceBc::default(),
+        };
+        if let Some(c) = contact {
+            let mut scratch = ForceBc::default();
+            out.feedback_paper =
+                finger_force(&self.compliance, &c, ForceModel::Paper, &mut scratch).feedback;
+            scratch.clear();
+            out.feedback_exact =
+                finger_force(&self.compliance, &c, ForceModel::Exact, &mut scratch).feedback;
+            out.feedback = finger_force(&self.compliance, &c, model, &mut out.bc).feedback;
+        }
+        Ok(out)
+    }
+
+    /// The contact of a finger at `x` that entered through the surface point nearest it
+    /// (`None` if `x` is outside). Brute force: for tests and reports, not the haptic loop.
+    pub fn surface_contact(&self, x: DVec3) -> Option<ContactPoint> {
+        let (tri, _) = self.surface.closest_global(x);
+        GodObject::touching(tri).update(&self.surface, x)
+    }
+
+    /// The applied nodal forces of a boundary condition as (mesh node, force) pairs.
+    pub fn nodal_forces(&self, bc: &ForceBc) -> Vec<(u32, DVec3)> {
+        bc.entries()
+            .iter()
+            .map(|&(c, f)| (self.compliance.cols()[c as usize], f))
+            .collect()
+    }
+}

@@ -1,0 +1,228 @@
+//! `touchfem bench`: speed against error, every method on the same meshes in one run.
+//!
+//! Visual update `u = L·F` (error relative to the f64 precomputed product, which itself matches
+//! a direct sparse solve to round-off): `cpu-f64`, `cpu-f32`, `direct-sparse` (a fresh
+//! factorisation-free solve with the kept Cholesky factor, per frame), and the GPU pass where the
+//! caller adds it. Haptic force (error = how far the contact point misses the finger, relative to
+//! the finger's displacement): `force-paper` (eq. 9–12) and `force-exact`.
+
+use glam::{DVec3, Vec3};
+use std::time::Instant;
+
+use crate::compliance::{Compliance, Selection};
+use crate::force::{finger_force, ForceBc, ForceModel};
+use crate::haptics::{percentile, Finger};
+use crate::scene::Scene;
+use crate::Mesh;
+
+/// One row of the report.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Row {
+    /// Method name.
+    pub method: String,
+    /// Mesh name.
+    pub mesh: String,
+    /// Mesh nodes.
+    pub nodes: usize,
+    /// Active columns (nodes with a force).
+    pub active_columns: usize,
+    /// Median time per call, µs.
+    pub time_us: f64,
+    /// Relative error (see the module doc for each method's reference).
+    pub rel_error: f64,
+}
+
+/// Times `f` `reps` times and returns the median in µs.
+pub fn median_us(reps: usize, mut f: impl FnMut()) -> f64 {
+    let mut t = Vec::with_capacity(reps);
+    for _ in 0..reps {
+        let s = Instant::now();
+        f();
+        t.push(s.elapsed().as_secs_f64() * 1e6);
+    }
+    t.sort_by(|a, b| a.total_cmp(b));
+    percentile(&t, 0.5)
+}
+
+/// A force boundary condition on `k` spread-out columns.
+pub fn spread_forces(c: &Compliance, k: usize) -> Vec<(u32, DVec3)> {
+    let n = c.cols().len();
+    (0..k.min(n))
+        .map(|i| {
+            let col = (i * n / k.min(n).max(1)) as u32;
+            let s = i as f64;
+            (col, DVec3::new(0.01 * s.sin(), 0.02 * s.cos(), -0.05))
+        })
+        .collect()
+}
+
+fn rel_err(a: &[DVec3], reference: &[DVec3]) -> f64 {
+    let scale = reference.iter().map(|v| v.length()).fold(0.0, f64::max);
+    let e = a
+        .iter()
+        .zip(reference)
+        .map(|(x, y)| (*x - *y).length())
+        .fold(0.0, f64::max);
+    if scale > 0.0 {
+        e / scale
+    } else {
+        e
+    }
+}
+
+/// The CPU rows for one mesh: displacement methods at each active-column count, force methods.
+pub fn cpu_rows(
+    name: &str,
+    scene: &Scene,
+    active: &[usize],
+    reps: usize,
+) -> Result<Vec<Row>, crate::Error> {
+    let c = &scene.compliance;
+    let nodes = scene.mesh.nodes.len();
+    let mut rows = Vec::new();
+    let nr = c.rows().len();
+    let stiff = crate::fem::Stiffness::assemble(&scene.mesh)?;
+    let factor = stiff.factorize()?;
+    let l32 = c.l_f32();
+    for &k in active {
+        let forces = spread_forces(c, k);
+        let k = forces.len();
+        let mut reference = vec![DVec3::ZERO; nr];
+        let t64 = median_us(reps, || c.displace(&forces, &mut reference));
+        rows.push(Row {
+            method: "cpu-f64".into(),
+            mesh: name.into(),
+            nodes,
+            active_columns: k,
+            time_us: t64,
+            rel_error: 0.0,
+        });
+        let mut u32v = vec![Vec3::ZERO; nr];
+        let t32 = median_us(reps, || {
+            u32v.iter_mut().for_each(|v| *v = Vec3::ZERO);
+            for &(col, f) in &forces {
+                let f = f.as_vec3();
+                for b in 0..3 {
+                    let run = &l32[(3 * col as usize + b) * 3 * nr..][..3 * nr];
+                    for (r, o) in u32v.iter_mut().enumerate() {
+                        *o += Vec3::new(run[3 * r], run[3 * r + 1], run[3 * r + 2]) * f[b];
+                    }
+                }
+            }
+        });
+        let as64: Vec<DVec3> = u32v.iter().map(|v| v.as_dvec3()).collect();
+        rows.push(Row {
+            method: "cpu-f32".into(),
+            mesh: name.into(),
+            nodes,
+            active_columns: k,
+            time_us: t32,
+            rel_error: rel_err(&as64, &reference),
+        });
+        // The alternative to precomputing L: a forward/back substitution per frame.
+        let mut direct = vec![DVec3::ZERO; nr];
+        let tds = median_us(reps.min(50).max(3), || {
+            let mut b = faer::Mat::<f64>::zeros(stiff.dofs.n_free, 1);
+            for &(col, f) in &forces {
+                let node = c.cols()[col as usize];
+                for a in 0..3 {
+                    if let Some(d) = stiff.dofs.free(node, a) {
+                        b[(d, 0)] += f[a];
+                    }
+                }
+            }
+            factor.solve_in_place(&mut b);
+            for (r, &node) in c.rows().iter().enumerate() {
+                direct[r] = DVec3::from_array(std::array::from_fn(|a| {
+                    stiff.dofs.free(node, a).map(|d| b[(d, 0)]).unwrap_or(0.0)
+                }));
+            }
+        });
+        rows.push(Row {
+            method: "direct-sparse".into(),
+            mesh: name.into(),
+            nodes,
+            active_columns: k,
+            time_us: tds,
+            rel_error: rel_err(&direct, &reference),
+        });
+    }
+    rows.extend(force_rows(name, scene, reps)?);
+    Ok(rows)
+}
+
+/// Force-step rows: time per haptic step and how far the contact point misses the finger.
+fn force_rows(name: &str, scene: &Scene, reps: usize) -> Result<Vec<Row>, crate::Error> {
+    let (lo, hi) = scene.mesh.bounds();
+    let centre = (lo + hi) * 0.5;
+    let r = 0.3 * (hi.x - lo.x);
+    let path: Vec<DVec3> = (0..256)
+        .map(|i| {
+            let a = i as f64 / 256.0 * std::f64::consts::TAU;
+            DVec3::new(centre.x + r * a.cos(), centre.y + r * a.sin(), hi.z - 1e-3)
+        })
+        .collect();
+    let c = &scene.compliance;
+    let mut out = Vec::new();
+    let mut u = vec![DVec3::ZERO; c.rows().len()];
+    for model in [ForceModel::Paper, ForceModel::Exact] {
+        let mut finger = Finger::new(DVec3::new(path[0].x, path[0].y, hi.z + 1e-3));
+        finger.step(&scene.surface, c, path[0], model, f64::INFINITY);
+        let mut i = 0;
+        let t = median_us(reps.max(1000), || {
+            i = (i + 1) % path.len();
+            std::hint::black_box(finger.step(&scene.surface, c, path[i], model, f64::INFINITY));
+        });
+        // Error: the contact point's displacement against the finger's, over the path.
+        let mut worst: f64 = 0.0;
+        for &x in &path {
+            let Some(cp) = scene.surface_contact(x) else {
+                continue;
+            };
+            let mut bc = ForceBc::default();
+            finger_force(c, &cp, model, &mut bc);
+            c.displace(bc.entries(), &mut u);
+            let moved: DVec3 = (0..3)
+                .filter_map(|k| c.row_of(cp.nodes[k]).map(|row| u[row] * cp.alpha[k]))
+                .sum();
+            let want = cp.displacement();
+            worst = worst.max((moved - want).length() / want.length().max(1e-300));
+        }
+        out.push(Row {
+            method: format!("force-{}", format!("{model:?}").to_lowercase()),
+            mesh: name.into(),
+            nodes: scene.mesh.nodes.len(),
+            active_columns: 3,
+            time_us: t,
+            rel_error: worst,
+        });
+    }
+    Ok(out)
+}
+
+/// A ~2k-node box (12³ cells, 2197 nodes) with the paper's mouse material, for size scaling.
+pub fn box_2k() -> Mesh {
+    crate::mesh::cube_with(
+        [12, 12, 12],
+        [30.0; 3],
+        crate::Material {
+            young_pa: 1000.0,
+            poisson: 0.3,
+        },
+    )
+    .expect("valid box")
+}
+
+/// The meshes `touchfem bench` runs: the paper's cube and a ~2k-node box.
+pub fn bench_scenes() -> Result<Vec<(String, Scene)>, crate::Error> {
+    Ok(vec![
+        (
+            "cube".to_string(),
+            Scene::new(crate::mesh::cube(), &Selection::default())?,
+        ),
+        (
+            "box2k".to_string(),
+            Scene::new(box_2k(), &Selection::default())?,
+        ),
+    ])
+}

@@ -1,0 +1,207 @@
+//! The command line as scripts use it (../shared/CONTRACTS.md): keys, units, files, errors.
+
+use std::process::Command;
+
+fn touchfem(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args(args)
+        .output()
+        .expect("runs");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn json(s: &str) -> serde_json::Value {
+    serde_json::from_str(s.trim()).unwrap_or_else(|e| panic!("not JSON ({e}): {s}"))
+}
+
+#[test]
+fn info_cube_json_is_table_1() {
+    let (code, out, err) = touchfem(&["info", "cube", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let v = json(&out);
+    assert_eq!(v["nodes"], 125);
+    assert_eq!(v["surface_nodes"], 98);
+    assert_eq!(v["free_surface_nodes"], 73);
+    assert_eq!(v["surface_triangles"], 192);
+    assert_eq!(v["tets"], 320);
+    assert_eq!(v["young_pa"], 10000.0);
+    assert_eq!(v["poisson"], 0.49);
+}
+
+#[test]
+fn poke_top_centre_matches_eq_7_and_writes_a_vtu() {
+    let dir = tempfile::tempdir().unwrap();
+    let vtu = dir.path().join("poke.vtu");
+    let (code, out, err) = touchfem(&[
+        "poke",
+        "cube",
+        "--at",
+        "15,15,30",
+        "--push",
+        "0,0,-5",
+        "--json",
+        "--vtu",
+        vtu.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v = json(&out);
+    let f: Vec<f64> = v["force"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    // The top centre is a node: the force is L_ii⁻¹·u there, pushing the finger back up, and
+    // by the cube's symmetry about x = 15 and y = 15 mm it has no sideways part.
+    assert!(f[2] > 0.1 && f[2] < 10.0, "{f:?}");
+    assert!(
+        f[0].abs() < 1e-9 * f[2] && f[1].abs() < 1e-9 * f[2],
+        "{f:?}"
+    );
+    // The node under the finger moves by exactly 5 mm, and nothing moves more.
+    let u = v["max_displacement"].as_f64().unwrap();
+    assert!((u - 0.005).abs() < 1e-12, "{u}");
+    assert_eq!(v["paper_exact_difference"].as_f64().unwrap(), 0.0);
+    // The VTU has the tets and the three arrays.
+    let text = std::fs::read_to_string(&vtu).unwrap();
+    assert!(text.contains("NumberOfPoints=\"125\" NumberOfCells=\"320\""));
+    for name in ["displacement", "force", "fixed"] {
+        assert!(text.contains(&format!("Name=\"{name}\"")), "{name}");
+    }
+    let fixed_block = text
+        .split("Name=\"fixed\" format=\"ascii\">\n")
+        .nth(1)
+        .unwrap();
+    let ones = fixed_block.lines().take(125).filter(|l| *l == "1").count();
+    assert_eq!(ones, 25);
+    // The force array holds the applied nodal force: one node, equal and opposite to the feedback.
+    let force_block = text
+        .split("Name=\"force\" NumberOfComponents=\"3\" format=\"ascii\">\n")
+        .nth(1)
+        .unwrap();
+    let rows: Vec<Vec<f64>> = force_block
+        .lines()
+        .take(125)
+        .map(|l| l.split_whitespace().map(|x| x.parse().unwrap()).collect())
+        .collect();
+    let loaded: Vec<&Vec<f64>> = rows
+        .iter()
+        .filter(|r| r.iter().any(|x| *x != 0.0))
+        .collect();
+    assert_eq!(loaded.len(), 1);
+    assert!((loaded[0][2] + f[2]).abs() < 1e-12);
+}
+
+#[test]
+fn poke_side_face_pushes_back_along_x() {
+    let (code, out, err) = touchfem(&[
+        "poke", "cube", "--at", "0,15,15", "--push", "5,0,0", "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v = json(&out);
+    let f: Vec<f64> = v["force"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    assert!(f[0] < -0.1, "{f:?}");
+    assert!(f[1].abs() < 1e-9 * f[0].abs());
+    // Paper and exact differ off the nodes; --exact is selectable.
+    let (_, out2, _) = touchfem(&[
+        "poke", "cube", "--at", "10,12,30", "--push", "0,0,-2", "--json", "--exact",
+    ]);
+    let (_, out3, _) = touchfem(&[
+        "poke", "cube", "--at", "10,12,30", "--push", "0,0,-2", "--json",
+    ]);
+    let (e, p) = (json(&out2), json(&out3));
+    assert_eq!(e["model"], "exact");
+    assert_eq!(e["force"], e["force_exact"]);
+    assert_eq!(p["force"], p["force_paper"]);
+    assert!(e["paper_exact_difference"].as_f64().unwrap() > 1e-3);
+    // Stiffer material, stiffer response: twice E, twice the force (linear elasticity).
+    let (_, out4, _) = touchfem(&[
+        "poke", "cube", "--at", "0,15,15", "--push", "5,0,0", "--json", "--young", "20000",
+    ]);
+    let f4 = json(&out4)["force"][0].as_f64().unwrap();
+    assert!((f4 - 2.0 * f[0]).abs() < 1e-9 * f4.abs());
+}
+
+#[test]
+fn pulling_away_from_the_surface_gives_no_force() {
+    let (code, out, _) = touchfem(&[
+        "poke", "cube", "--at", "15,15,30", "--push", "0,0,3", "--json",
+    ]);
+    assert_eq!(code, 0);
+    let v = json(&out);
+    assert_eq!(v["force"], serde_json::json!([0.0, 0.0, 0.0]));
+    assert_eq!(v["max_displacement"], 0.0);
+    assert!(v["contact"].is_null());
+}
+
+#[test]
+fn bad_input_is_a_clear_error_not_a_panic() {
+    let cases: &[&[&str]] = &[
+        &["info", "no-such-mesh"],
+        &["info", "cube", "--fixed", "nope"],
+        &["poke", "cube", "--at", "nan,0,0", "--push", "0,0,-1"],
+        &["poke", "cube", "--at", "1,2", "--push", "0,0,-1"],
+        &[
+            "poke", "cube", "--at", "15,15,30", "--push", "0,0,-1", "--young", "-5",
+        ],
+        &[
+            "poke",
+            "cube",
+            "--at",
+            "15,15,30",
+            "--push",
+            "0,0,-1",
+            "--poisson",
+            "0.5",
+        ],
+        &[
+            "poke", "cube", "--at", "15,15,30", "--push", "0,0,-1", "--unit", "furlong",
+        ],
+        &["demo", "--seconds", "-1"],
+    ];
+    for args in cases {
+        let (code, _, err) = touchfem(args);
+        assert_ne!(code, 0, "{args:?} should fail");
+        assert!(!err.contains("panicked"), "{args:?} panicked: {err}");
+        assert!(err.contains("error"), "{args:?}: {err}");
+    }
+}
+
+#[test]
+fn poke_cache_is_written_reused_and_a_corrupt_one_recomputed() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cube.tfc");
+    let c = cache.to_str().unwrap();
+    let args = [
+        "poke", "cube", "--at", "10,12,30", "--push", "0,0,-2", "--json", "--cache", c,
+    ];
+    let (code, out1, err1) = touchfem(&args);
+    assert_eq!(code, 0, "{err1}");
+    assert!(err1.contains("recomputed"), "{err1}");
+    let (_, out2, err2) = touchfem(&args);
+    assert!(
+        !err2.contains("recomputed"),
+        "a valid cache is used: {err2}"
+    );
+    assert_eq!(json(&out1)["force"], json(&out2)["force"]);
+    let mut bytes = std::fs::read(&cache).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 1;
+    std::fs::write(&cache, &bytes).unwrap();
+    let (code, out3, err3) = touchfem(&args);
+    assert_eq!(code, 0);
+    assert!(err3.contains("corrupt"), "{err3}");
+    assert_eq!(json(&out1)["force"], json(&out3)["force"]);
+    let p = &json(&out3)["precompute"];
+    assert!(p["residual"].as_f64().unwrap() < 1e-12);
+    assert_eq!(p["cols"], 73);
+}

@@ -1,0 +1,28 @@
+//! Mesh builders shared by the integration tests.
+#![allow(dead_code)]
+
+use touchfem::mesh::grid_raw;
+use touchfem::{LengthUnit, Material, Mesh};
+
+/// A structured grid of `cells` cells of size `h` (metres), five tets per kept cell (see
+/// [`grid_raw`]); nothing is clamped.
+pub fn grid_mesh(
+    cells: [usize; 3],
+    h: [f64; 3],
+    material: Material,
+    keep: impl Fn(usize, usize, usize) -> bool,
+) -> Mesh {
+    let size = [0, 1, 2].map(|a| cells[a] as f64 * h[a]);
+    Mesh::from_raw(grid_raw(cells, size, keep), LengthUnit::Metre, material)
+        .expect("valid grid mesh")
+}
+
+/// A deterministic pseudo-random number in [0, 1) (SplitMix64).
+pub fn rand01(state: &mut u64) -> f64 {
+    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    (z >> 11) as f64 / (1u64 << 53) as f64
+}
