@@ -121,7 +121,7 @@ pub fn cpu_rows(
         });
         // The alternative to precomputing L: a forward/back substitution per frame.
         let mut direct = vec![DVec3::ZERO; nr];
-        let tds = median_us(reps.min(50).max(3), || {
+        let tds = median_us(reps.clamp(3, 50), || {
             let mut b = faer::Mat::<f64>::zeros(stiff.dofs.n_free, 1);
             for &(col, f) in &forces {
                 let node = c.cols()[col as usize];
