@@ -206,20 +206,95 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
         seconds: a.seconds,
         out: a.out.clone(),
     };
-    let mut objects = Vec::new();
+    // Leave a core to the haptic loop: lavapipe (software Vulkan) would otherwise use them all.
+    if std::env::var_os("LP_NUM_THREADS").is_none() {
+        std::env::set_var("LP_NUM_THREADS", "1");
+    }
+    let gpu = match crate::gpu::Gpu::new_headless() {
+        Ok(g) => Some(g),
+        Err(e) => {
+            eprintln!("warning: {e}; the visual loop falls back to the CPU and draws no frames");
+            None
+        }
+    };
+    let size = [480u32, 360u32];
+    let renderer = match &gpu {
+        Some(g) => Some(
+            crate::render::Renderer::new(&g.device, size)
+                .map_err(|e| Error::Input(e.to_string()))?,
+        ),
+        None => None,
+    };
+    let mut objects: Vec<crate::demo::ObjectReport> = Vec::new();
     for name in crate::scene::BUNDLED {
         let mut u = Vec::new();
-        let mut frame = |scene: &Scene, bc: &crate::force::ForceBc, _i: u64| {
-            if u.len() != scene.compliance.rows().len() {
-                u = vec![DVec3::ZERO; scene.compliance.rows().len()];
-            }
-            let t = std::time::Instant::now();
-            scene.compliance.displace(bc.entries(), &mut u);
-            Ok(t.elapsed().as_secs_f64() * 1e6)
-        };
-        let (r, _scene) = run_object(name, &opts, &mut frame, "cpu-f64")?;
+        let mut deformer: Option<crate::gpu::Deformer> = None;
+        let mut saved = 0usize;
+        let mut next_save = std::time::Instant::now();
+        let out_dir = a.out.clone();
+        let mut frame =
+            |scene: &Scene, s: &crate::haptics::HapticSample, _i: u64| -> Result<f64, Error> {
+                let gerr = |e: crate::gpu::GpuError| Error::Input(e.to_string());
+                let (Some(g), Some(r)) = (&gpu, &renderer) else {
+                    if u.len() != scene.compliance.rows().len() {
+                        u = vec![DVec3::ZERO; scene.compliance.rows().len()];
+                    }
+                    let t = std::time::Instant::now();
+                    scene.compliance.displace(s.bc.entries(), &mut u);
+                    return Ok(t.elapsed().as_secs_f64() * 1e6);
+                };
+                if deformer.is_none() {
+                    deformer = Some(
+                        crate::gpu::Deformer::new(
+                            &g.device,
+                            &g.queue,
+                            &scene.compliance,
+                            &scene.mesh.nodes,
+                            &scene.mesh.surface,
+                            &crate::gpu::DeformerOptions::default(),
+                        )
+                        .map_err(gerr)?,
+                    );
+                }
+                let d = deformer.as_mut().expect("just made");
+                let (f32s, n) = s.bc.to_f32();
+                // The displacement update alone, submit to completion.
+                let t = std::time::Instant::now();
+                d.set_forces(&g.queue, &f32s[..n]).map_err(gerr)?;
+                let mut enc = g.device.create_command_encoder(&Default::default());
+                d.encode(&mut enc);
+                g.queue.submit([enc.finish()]);
+                g.device
+                    .poll(wgpu::PollType::wait_indefinitely())
+                    .map_err(|e| Error::Input(format!("GPU poll: {e}")))?;
+                let us = t.elapsed().as_secs_f64() * 1e6;
+                // Then the frame: deform + draw + read back, as a headless client would.
+                let forces: Vec<(u32, [f32; 3])> = f32s[..n].to_vec();
+                let rs = crate::render::Scene {
+                    mesh: &scene.mesh,
+                    compliance: &scene.compliance,
+                    forces: &forces,
+                    finger: Some(s.finger),
+                    proxy: s.proxy,
+                    wireframe: true,
+                };
+                let img = r
+                    .render_with(&g.device, &g.queue, d, &rs)
+                    .map_err(|e| Error::Input(e.to_string()))?;
+                if std::time::Instant::now() >= next_save && saved < 12 {
+                    let path = out_dir.join(format!("{name}_{saved:02}.png"));
+                    img.save(&path)
+                        .map_err(|e| Error::Input(format!("{}: {e}", path.display())))?;
+                    saved += 1;
+                    next_save = std::time::Instant::now()
+                        + std::time::Duration::from_secs_f64(a.seconds / 12.0);
+                }
+                Ok(us)
+            };
+        let backend = if gpu.is_some() { "gpu" } else { "cpu-f64" };
+        let (r, _scene) = run_object(name, &opts, &mut frame, backend)?;
         eprintln!(
-            "{:<6} nodes {:>5}  force {:>6.2} µs  displacement {:>8.2} µs ({})  draw {:>7.1} Hz  haptic {:.1} Hz, p99.9 period error {:.1} µs, {} missed",
+            "{:<6} nodes {:>5}  force {:>6.2} µs  displacement {:>8.1} µs ({})  draw {:>6.1} Hz  haptic {:.1} Hz, p99.9 period error {:.1} µs, {} missed",
             r.name, r.nodes, r.force_us_median, r.displacement_us_median, r.displacement_backend, r.draw_hz,
             r.haptic.haptic_rate_hz, r.haptic.period_error_us_p999, r.haptic.missed_deadlines
         );

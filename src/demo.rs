@@ -8,6 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use crate::compliance::Selection;
+use crate::contact::Surface;
 use crate::force::ForceModel;
 use crate::haptics::{
     bc_channel, percentile, run_loop, Finger, HapticConfig, HapticStats, ScriptedDevice,
@@ -57,7 +58,8 @@ pub struct DemoReport {
 
 /// What the visual loop does each frame, given the latest boundary condition; returns the time
 /// spent in the displacement update (µs).
-pub type FrameFn<'a> = dyn FnMut(&Scene, &crate::force::ForceBc, u64) -> Result<f64, Error> + 'a;
+pub type FrameFn<'a> =
+    dyn FnMut(&Scene, &crate::haptics::HapticSample, u64) -> Result<f64, Error> + 'a;
 
 /// Options of the demo.
 #[derive(Clone, Debug)]
@@ -68,31 +70,48 @@ pub struct DemoOptions {
     pub out: PathBuf,
 }
 
-/// The scripted finger: comes down on the top face at its centre, presses 5 mm (Fig. 1b),
-/// slides in a circle, and lifts off. Positions in metres for an object with top at `top_z` and
-/// centre `c`, at time t of a run lasting `secs`.
-pub fn finger_path(c: DVec3, top_z: f64, radius: f64, t: f64, secs: f64) -> DVec3 {
+/// The scripted finger: comes down on the object's top at the centre of its bounds, presses
+/// up to 5 mm into the surface under it (Fig. 1b), slides in a circle of `radius`, and lifts
+/// off. The depth is measured from the rest surface straight below the finger (a ray cast on
+/// the surface grid, allocation-free), so the finger follows a curved top. Metres, at time `t`
+/// of a run lasting `secs`.
+pub fn finger_path(
+    surface: &Surface,
+    lo: DVec3,
+    hi: DVec3,
+    radius: f64,
+    t: f64,
+    secs: f64,
+) -> DVec3 {
+    let c = (lo + hi) * 0.5;
     let s = (t / secs).clamp(0.0, 1.0);
     let press = 5e-3 * (std::f64::consts::PI * s).sin().powf(0.5) - 1e-3;
     let a = 2.0 * std::f64::consts::PI * s;
     let r = radius * (std::f64::consts::PI * s).sin();
-    DVec3::new(c.x + r * a.cos(), c.y + r * a.sin(), top_z - press)
+    let (x, y) = (c.x + r * a.cos(), c.y + r * a.sin());
+    let above = DVec3::new(x, y, hi.z + 0.01);
+    let below = DVec3::new(x, y, lo.z - 0.01);
+    let top = surface
+        .first_entry(above, below)
+        .map(|(_, p)| p.z)
+        .unwrap_or(hi.z + 0.01);
+    DVec3::new(x, y, top - press)
+}
+
+/// The demo's circle radius for an object: a fifth of its smaller horizontal extent.
+fn path_radius(lo: DVec3, hi: DVec3) -> f64 {
+    0.2 * (hi.x - lo.x).min(hi.y - lo.y)
 }
 
 /// Median force step (µs) over a scripted press-and-slide, measured outside the loop.
 pub fn force_step_median(scene: &Scene, samples: usize) -> f64 {
     let (lo, hi) = scene.mesh.bounds();
-    let c = (lo + hi) * 0.5;
-    let mut f = Finger::new(finger_path(c, hi.z, 0.25 * (hi.x - lo.x), 0.0, 1.0));
+    let rad = path_radius(lo, hi);
+    let mut f = Finger::new(finger_path(&scene.surface, lo, hi, rad, 0.0, 1.0));
     let mut times = Vec::with_capacity(samples);
     for i in 0..samples {
-        let x = finger_path(
-            c,
-            hi.z,
-            0.25 * (hi.x - lo.x),
-            0.05 + 0.9 * i as f64 / samples as f64,
-            1.0,
-        );
+        let t = 0.05 + 0.9 * i as f64 / samples as f64;
+        let x = finger_path(&scene.surface, lo, hi, rad, t, 1.0);
         let t = Instant::now();
         std::hint::black_box(f.step(&scene.surface, &scene.compliance, x, ForceModel::Paper, 8.5));
         times.push(t.elapsed().as_secs_f64() * 1e6);
@@ -113,8 +132,7 @@ pub fn run_object(
     let scene = Scene::new(mesh, &Selection::default())?;
     let force_us = force_step_median(&scene, 20_000);
     let (lo, hi) = scene.mesh.bounds();
-    let centre = (lo + hi) * 0.5;
-    let radius = 0.25 * (hi.x - lo.x);
+    let radius = path_radius(lo, hi);
     let secs = opts.seconds;
     let (mut writer, mut reader) = bc_channel();
     let done = AtomicBool::new(false);
@@ -124,8 +142,10 @@ pub fn run_object(
         let scene_ref = &scene;
         let done_ref = &done;
         let h = sc.spawn(move || {
-            let mut dev = ScriptedDevice::new(move |t| finger_path(centre, hi.z, radius, t, secs));
-            let stats = run_loop(
+            let surf = &scene_ref.surface;
+            let mut dev = ScriptedDevice::new(move |t| finger_path(surf, lo, hi, radius, t, secs));
+            let realtime = crate::haptics::try_realtime_priority();
+            let mut stats = run_loop(
                 &scene_ref.surface,
                 &scene_ref.compliance,
                 &mut dev,
@@ -134,13 +154,14 @@ pub fn run_object(
                 &mut writer,
             );
             done_ref.store(true, Ordering::Release);
+            stats.realtime = realtime;
             stats
         });
         let t0 = Instant::now();
         let mut result = Ok(());
         while !done.load(Ordering::Acquire) {
-            let bc = *reader.read();
-            match frame(&scene, &bc, frames) {
+            let sample = *reader.read();
+            match frame(&scene, &sample, frames) {
                 Ok(us) => disp_us.push(us),
                 Err(e) => {
                     result = Err(e);

@@ -150,16 +150,40 @@ pub struct HapticStats {
     pub ticks: u64,
     /// Largest force sent, N.
     pub max_force_n: f64,
+    /// Whether the loop ran at real-time priority.
+    pub realtime: bool,
 }
 
-/// The writer end of the lock-free force boundary condition channel (haptic side).
-pub type BcWriter = triple_buffer::Input<ForceBc>;
-/// The reader end (visual side): always sees the latest complete boundary condition.
-pub type BcReader = triple_buffer::Output<ForceBc>;
+/// What the haptic path publishes each tick for the visual path.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct HapticSample {
+    /// The force boundary condition.
+    pub bc: ForceBc,
+    /// The finger position, m.
+    pub finger: DVec3,
+    /// The god-object, m, when touching.
+    pub proxy: Option<DVec3>,
+}
+
+impl Finger {
+    /// This tick's sample for the visual path.
+    pub fn sample(&self, finger: DVec3) -> HapticSample {
+        HapticSample {
+            bc: self.bc,
+            finger,
+            proxy: self.contact.map(|c| c.proxy),
+        }
+    }
+}
+
+/// The writer end of the lock-free channel (haptic side).
+pub type BcWriter = triple_buffer::Input<HapticSample>;
+/// The reader end (visual side): always sees the latest complete sample.
+pub type BcReader = triple_buffer::Output<HapticSample>;
 
 /// A wait-free single-producer single-consumer channel for the latest boundary condition.
 pub fn bc_channel() -> (BcWriter, BcReader) {
-    triple_buffer::triple_buffer(&ForceBc::default())
+    triple_buffer::triple_buffer(&HapticSample::default())
 }
 
 /// Runs the haptic loop for `seconds` at `cfg.rate_hz` on the calling thread: reads the device,
@@ -200,7 +224,7 @@ pub fn run_loop(
         let x = device.position(t);
         let f = finger.step(surface, compliance, x, cfg.model, cfg.max_force_n);
         device.set_force(f);
-        publish.write(finger.bc);
+        publish.write(finger.sample(x));
         max_force = max_force.max(f.length());
         let end = Instant::now();
         step_ns.push((end - start).as_nanos() as u64);
@@ -232,6 +256,25 @@ pub fn run_loop(
         step_us_median: step_ns.get(step_ns.len() / 2).copied().unwrap_or(0) as f64 / 1e3,
         ticks: starts.len() as u64,
         max_force_n: max_force,
+        realtime: false,
+    }
+}
+
+/// Asks the OS to run the calling thread at real-time priority (Linux `SCHED_FIFO`, priority
+/// 80), so the 1 kHz loop keeps its rate whatever the visual path does. Returns false (and
+/// changes nothing) where that is not permitted or not supported.
+pub fn try_realtime_priority() -> bool {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: plain FFI calls on the current thread with a fully initialised parameter.
+        unsafe {
+            let param = libc::sched_param { sched_priority: 80 };
+            libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) == 0
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        false
     }
 }
 

@@ -36,7 +36,7 @@ impl Default for LoadOptions {
 }
 
 /// The names of the bundled meshes.
-pub const BUNDLED: &[&str] = &["cube"];
+pub const BUNDLED: &[&str] = &["cube", "mouse"];
 
 /// Loads a bundled mesh by name (`cube`) or a mesh file by path, applies material overrides and
 /// clamps the fixed group. Returns the mesh and the length unit its coordinates are given in on
@@ -45,6 +45,11 @@ pub fn load_mesh(spec: &str, opts: &LoadOptions) -> Result<(Mesh, LengthUnit), E
     let (mut mesh, unit) = match spec {
         "cube" => {
             let mut m = mesh::cube();
+            m.set_fixed_group(&opts.fixed_group)?;
+            (m, LengthUnit::Millimetre)
+        }
+        "mouse" => {
+            let mut m = mesh::mouse();
             m.set_fixed_group(&opts.fixed_group)?;
             (m, LengthUnit::Millimetre)
         }

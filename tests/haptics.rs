@@ -62,7 +62,7 @@ fn the_force_step_allocates_nothing() {
         let mut touching = 0;
         for i in 0..=n {
             let force = f.step(&s, &c, path(i, n), model, 8.5);
-            w.write(f.bc);
+            w.write(f.sample(path(i, n)));
             touching += f.contact.is_some() as usize;
             std::hint::black_box(force);
         }
@@ -72,7 +72,7 @@ fn the_force_step_allocates_nothing() {
             touching > n / 2,
             "the path must press the surface ({touching} ticks)"
         );
-        assert_eq!(*r.read(), f.bc);
+        assert_eq!(r.read().bc, f.bc);
     }
 }
 
@@ -122,7 +122,9 @@ fn the_loop_runs_every_tick_and_publishes_the_latest_condition() {
     assert!(dev.max_force <= 5.0);
     assert!(stats.haptic_rate_hz.is_finite() && stats.period_error_us_p999.is_finite());
     // The reader sees a complete boundary condition: its forces balance the last sent force.
-    let bc = *r.read();
+    let sample = *r.read();
+    assert!(sample.proxy.is_some() && sample.finger.is_finite());
+    let bc = sample.bc;
     assert!(!bc.is_empty() && dev.last_force.length() > 0.05);
     let sum: DVec3 = bc.entries().iter().map(|e| e.1).sum();
     assert!((sum + dev.last_force).length() < 1e-9);

@@ -9,7 +9,7 @@
 mod cube;
 pub mod io;
 
-pub use cube::{cube, cube_with, grid_raw, CUBE_EDGE_MM};
+pub use cube::{cube, cube_with, grid_raw, mouse, CUBE_EDGE_MM};
 
 use glam::DVec3;
 use std::collections::{BTreeMap, HashMap};
@@ -86,7 +86,7 @@ pub enum MeshError {
         available: String,
     },
     /// A bundled mesh name that does not exist.
-    #[error("unknown bundled mesh '{0}' (bundled: cube) and no such file")]
+    #[error("unknown bundled mesh '{0}' (bundled: cube, mouse) and no such file")]
     UnknownBundled(String),
 }
 

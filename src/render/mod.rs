@@ -320,6 +320,19 @@ impl Renderer {
             &DeformerOptions::default(),
         )?;
         deformer.set_forces(queue, scene.forces)?;
+        self.render_with(device, queue, &deformer, scene)
+    }
+
+    /// Renders with a caller-kept [`Deformer`] (built for `scene`'s mesh and compliance) whose
+    /// forces the caller has already set: the visual loop's per-frame call. `scene.forces` is
+    /// not used here.
+    pub fn render_with(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        deformer: &Deformer,
+        scene: &Scene<'_>,
+    ) -> Result<image::RgbaImage, RenderError> {
         let (min, max) = bounds(&scene.mesh.nodes);
         let [w, h] = self.size;
         let aspect = f64::from(w) / f64::from(h);
