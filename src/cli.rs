@@ -119,12 +119,34 @@ pub struct PokeArgs {
     /// Write a VTK XML unstructured grid with displacement, force and fixed arrays.
     #[arg(long)]
     pub vtu: Option<PathBuf>,
+    /// Render the poke (deformed surface, finger and god-object) to this PNG (GPU; lavapipe
+    /// works).
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// Image size for --png, WxH pixels.
+    #[arg(long, default_value = "640x480", value_parser = parse_size)]
+    pub size: [u32; 2],
     /// Keep the precomputed compliance in this cache file (recomputed if stale or corrupt).
     #[arg(long)]
     pub cache: Option<PathBuf>,
     /// Haptic ticks over which the finger moves.
     #[arg(long, default_value_t = 50)]
     pub steps: usize,
+}
+
+/// Parses "WxH" into an image size.
+pub fn parse_size(s: &str) -> Result<[u32; 2], String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected WxH, got '{s}'"))?;
+    let p = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|&n| (1..=16384).contains(&n))
+            .ok_or_else(|| format!("'{v}' is not a size in 1..=16384"))
+    };
+    Ok([p(w)?, p(h)?])
 }
 
 /// Parses "x,y,z" into a finite vector.
@@ -394,6 +416,19 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
             f[n as usize] += v;
         }
         crate::vtu::write_vtu(path, &scene.mesh, &u, &f)?;
+    }
+    if let Some(path) = &a.png {
+        let (f32s, n) = p.bc.to_f32();
+        let scene_r = crate::render::Scene {
+            mesh: &scene.mesh,
+            compliance: &scene.compliance,
+            forces: &f32s[..n],
+            finger: Some(p.touch_point + a.push * s),
+            proxy: p.contact.map(|c| c.proxy),
+            wireframe: true,
+        };
+        crate::render::render_png(path, a.size, &scene_r)
+            .map_err(|e| Error::Input(e.to_string()))?;
     }
     let diff = (p.feedback_paper - p.feedback_exact).length();
     if a.json {

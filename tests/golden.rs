@@ -188,3 +188,63 @@ fn goldens_distinguish_pushes() {
         "re-render differs: {again}"
     );
 }
+
+/// The bundled mouse and its compliance, shared by the mouse goldens.
+fn mouse_scene() -> &'static touchfem::scene::Scene {
+    static S: OnceLock<touchfem::scene::Scene> = OnceLock::new();
+    S.get_or_init(|| {
+        touchfem::scene::Scene::new(touchfem::mesh::mouse(), &Selection::default())
+            .expect("mouse compliance")
+    })
+}
+
+/// The mouse at rest, or pressed 10 mm on its back through the whole haptic pipeline
+/// (god-object + the paper's force), optionally without the finger and god-object spheres.
+fn render_mouse(pressed: bool, spheres: bool) -> image::RgbaImage {
+    let f = fixture();
+    let s = mouse_scene();
+    let (forces, finger, proxy) = if pressed {
+        let at = DVec3::new(-0.01, 0.0, 0.06);
+        let push = DVec3::new(0.0, 0.0, -0.01);
+        let p = s
+            .poke(at, push, touchfem::force::ForceModel::Paper, 50)
+            .expect("poke");
+        let c = p.contact.expect("the finger presses the mouse's back");
+        let (f32s, n) = p.bc.to_f32();
+        (f32s[..n].to_vec(), Some(c.finger), Some(c.proxy))
+    } else {
+        (vec![], None, None)
+    };
+    let scene = Scene {
+        mesh: &s.mesh,
+        compliance: &s.compliance,
+        forces: &forces,
+        finger: finger.filter(|_| spheres),
+        proxy: proxy.filter(|_| spheres),
+        wireframe: true,
+    };
+    f.renderer
+        .render(&f.gpu.device, &f.gpu.queue, &scene)
+        .expect("render")
+}
+
+#[test]
+fn golden_mouse_rest() {
+    check_golden("mouse_rest", &render_mouse(false, true));
+}
+
+#[test]
+fn golden_mouse_pressed() {
+    check_golden("mouse_pressed", &render_mouse(true, true));
+}
+
+/// The dent alone (no spheres drawn) is visible to the metric.
+#[test]
+fn mouse_dent_is_visible_without_the_spheres() {
+    let (mean, _) = flip(&render_mouse(false, false), &render_mouse(true, false));
+    eprintln!("mouse rest vs pressed, no spheres: mean FLIP {mean:.5}");
+    assert!(
+        mean > 2.0 * MEAN_FLIP_THRESHOLD,
+        "the dent changes the mouse frame by only {mean:.5}"
+    );
+}

@@ -254,3 +254,12 @@ fn nearly_incompressible_material_stays_accurate() {
         );
     }
 }
+
+#[test]
+fn mouse_compliance_is_accurate_and_symmetric() {
+    let m = touchfem::mesh::mouse();
+    let c = Compliance::compute(&m, &Selection::default()).unwrap();
+    assert_eq!((c.rows().len(), c.cols().len()), (1169, 1029));
+    assert!(c.stats.residual < 1e-11, "residual {:e}", c.stats.residual);
+    assert!(c.stats.symmetry < 1e-12, "symmetry {:e}", c.stats.symmetry);
+}

@@ -133,6 +133,33 @@ mod tests {
     }
 
     #[test]
+    fn mouse_table1_counts_and_pads() {
+        let m = mouse();
+        let t = m.table1();
+        assert_eq!(
+            (
+                t.nodes,
+                t.surface_nodes,
+                t.free_surface_nodes,
+                t.surface_triangles,
+                t.tets
+            ),
+            (1699, 1169, 1029, 2334, 6139)
+        );
+        assert_eq!((t.young_pa, t.poisson), (1000.0, 0.3));
+        assert_eq!(m.fixed_count(), 140);
+        // The pads stand on z = 0; the mouse is about 120 mm long along x.
+        assert!(m
+            .nodes
+            .iter()
+            .zip(&m.fixed)
+            .all(|(p, &f)| !f || p.z.abs() < 1e-12));
+        let (lo, hi) = m.bounds();
+        assert!(lo.z.abs() < 1e-12 && (0.11..0.13).contains(&(hi.x - lo.x)));
+        assert!(m.report.is_clean());
+    }
+
+    #[test]
     fn cube_volume_is_exact() {
         let m = cube();
         let v: f64 = m
