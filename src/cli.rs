@@ -184,9 +184,19 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
     } else {
         (200, &[3, 9, 90, 900])
     };
+    let gpu = match crate::gpu::Gpu::new_headless() {
+        Ok(g) => Some(g),
+        Err(e) => {
+            eprintln!("warning: {e}; no gpu-f32 rows");
+            None
+        }
+    };
     let mut rows = Vec::new();
     for (name, scene) in bench_scenes()? {
         rows.extend(cpu_rows(&name, &scene, active, reps)?);
+        if let Some(g) = &gpu {
+            rows.extend(crate::tradeoff::gpu_rows(&name, &scene, g, active, reps)?);
+        }
     }
     println!(
         "{:<14} {:<6} {:>6} {:>7} {:>12} {:>11}",

@@ -84,9 +84,14 @@ pub fn cpu_rows(
     let stiff = crate::fem::Stiffness::assemble(&scene.mesh)?;
     let factor = stiff.factorize()?;
     let l32 = c.l_f32();
+    let mut seen = Vec::new();
     for &k in active {
         let forces = spread_forces(c, k);
         let k = forces.len();
+        if seen.contains(&k) {
+            continue;
+        }
+        seen.push(k);
         let mut reference = vec![DVec3::ZERO; nr];
         let t64 = median_us(reps, || c.displace(&forces, &mut reference));
         rows.push(Row {
@@ -153,15 +158,26 @@ pub fn cpu_rows(
 
 /// Force-step rows: time per haptic step and how far the contact point misses the finger.
 fn force_rows(name: &str, scene: &Scene, reps: usize) -> Result<Vec<Row>, crate::Error> {
+    // A circle pressed 1 mm into the rest surface below it (the demo's path, frozen at full
+    // depth and radius).
     let (lo, hi) = scene.mesh.bounds();
-    let centre = (lo + hi) * 0.5;
-    let r = 0.3 * (hi.x - lo.x);
+    let r = 0.2 * (hi.x - lo.x).min(hi.y - lo.y);
+    let c0 = (lo + hi) * 0.5;
     let path: Vec<DVec3> = (0..256)
-        .map(|i| {
+        .filter_map(|i| {
             let a = i as f64 / 256.0 * std::f64::consts::TAU;
-            DVec3::new(centre.x + r * a.cos(), centre.y + r * a.sin(), hi.z - 1e-3)
+            let (x, y) = (c0.x + r * a.cos(), c0.y + r * a.sin());
+            let hit = scene
+                .surface
+                .first_entry(DVec3::new(x, y, hi.z + 0.01), DVec3::new(x, y, lo.z - 0.01))?;
+            Some(hit.1 - DVec3::new(0.0, 0.0, 1e-3))
         })
         .collect();
+    if path.len() < 128 {
+        return Err(crate::Error::Input(format!(
+            "{name}: no surface under the benchmark path"
+        )));
+    }
     let c = &scene.compliance;
     let mut out = Vec::new();
     let mut u = vec![DVec3::ZERO; c.rows().len()];
@@ -213,7 +229,7 @@ pub fn box_2k() -> Mesh {
     .expect("valid box")
 }
 
-/// The meshes `touchfem bench` runs: the paper's cube and a ~2k-node box.
+/// The meshes `touchfem bench` runs: the paper's cube and mouse, and a ~2k-node box.
 pub fn bench_scenes() -> Result<Vec<(String, Scene)>, crate::Error> {
     Ok(vec![
         (
@@ -221,8 +237,82 @@ pub fn bench_scenes() -> Result<Vec<(String, Scene)>, crate::Error> {
             Scene::new(crate::mesh::cube(), &Selection::default())?,
         ),
         (
+            "mouse".to_string(),
+            Scene::new(crate::mesh::mouse(), &Selection::default())?,
+        ),
+        (
             "box2k".to_string(),
             Scene::new(box_2k(), &Selection::default())?,
         ),
     ])
+}
+
+/// The GPU pass's rows for one mesh: `set_forces` + `encode` + submit + wait, and the error of
+/// the read-back positions against the f64 CPU product, relative to max |u|.
+pub fn gpu_rows(
+    name: &str,
+    scene: &Scene,
+    gpu: &crate::gpu::Gpu,
+    active: &[usize],
+    reps: usize,
+) -> Result<Vec<Row>, crate::Error> {
+    let c = &scene.compliance;
+    let gerr = |e: crate::gpu::GpuError| crate::Error::Input(e.to_string());
+    let mut d = crate::gpu::Deformer::new(
+        &gpu.device,
+        &gpu.queue,
+        c,
+        &scene.mesh.nodes,
+        &scene.mesh.surface,
+        &crate::gpu::DeformerOptions::default(),
+    )
+    .map_err(gerr)?;
+    let mut rows = Vec::new();
+    let mut seen = Vec::new();
+    for &k in active {
+        let forces = spread_forces(c, k);
+        if seen.contains(&forces.len()) {
+            continue;
+        }
+        seen.push(forces.len());
+        let f32s: Vec<(u32, [f32; 3])> = forces
+            .iter()
+            .map(|&(col, f)| (col, f.as_vec3().to_array()))
+            .collect();
+        let mut failed = None;
+        let t = median_us(reps.clamp(5, 50), || {
+            let r = d.set_forces(&gpu.queue, &f32s).map_err(gerr).and_then(|_| {
+                let mut enc = gpu.device.create_command_encoder(&Default::default());
+                d.encode(&mut enc);
+                gpu.queue.submit([enc.finish()]);
+                gpu.device
+                    .poll(wgpu::PollType::wait_indefinitely())
+                    .map(|_| ())
+                    .map_err(|e| crate::Error::Input(format!("GPU poll: {e}")))
+            });
+            if let Err(e) = r {
+                failed = Some(e);
+            }
+        });
+        if let Some(e) = failed {
+            return Err(e);
+        }
+        let (pos, _) = d.read_back(&gpu.device, &gpu.queue).map_err(gerr)?;
+        let mut reference = vec![DVec3::ZERO; c.rows().len()];
+        c.displace(&forces, &mut reference);
+        let got: Vec<DVec3> = pos
+            .iter()
+            .zip(c.rows())
+            .map(|(p, &node)| glam::Vec3::from(*p).as_dvec3() - scene.mesh.nodes[node as usize])
+            .collect();
+        rows.push(Row {
+            method: "gpu-f32".into(),
+            mesh: name.into(),
+            nodes: scene.mesh.nodes.len(),
+            active_columns: forces.len(),
+            time_us: t,
+            rel_error: rel_err(&got, &reference),
+        });
+    }
+    Ok(rows)
 }

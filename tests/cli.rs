@@ -205,3 +205,42 @@ fn poke_cache_is_written_reused_and_a_corrupt_one_recomputed() {
     assert!(p["residual"].as_f64().unwrap() < 1e-12);
     assert_eq!(p["cols"], 73);
 }
+
+#[test]
+fn bench_json_has_the_contract_keys_and_sane_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bench.json");
+    let (code, _, err) = touchfem(&["bench", "--quick", "--json", path.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    let v = json(&std::fs::read_to_string(&path).unwrap());
+    let rows = v["rows"].as_array().unwrap();
+    let find = |method: &str, mesh: &str| {
+        rows.iter()
+            .find(|r| r["method"] == method && r["mesh"] == mesh)
+            .unwrap_or_else(|| panic!("no {method} row for {mesh}"))
+    };
+    for r in rows {
+        for key in [
+            "method",
+            "mesh",
+            "nodes",
+            "active_columns",
+            "time_us",
+            "rel_error",
+        ] {
+            assert!(!r[key].is_null(), "{key} missing in {r}");
+        }
+        assert!(r["time_us"].as_f64().unwrap() > 0.0);
+    }
+    for mesh in ["cube", "mouse"] {
+        assert_eq!(find("cpu-f64", mesh)["rel_error"], 0.0);
+        assert!(find("cpu-f32", mesh)["rel_error"].as_f64().unwrap() < 1e-5);
+        assert!(find("direct-sparse", mesh)["rel_error"].as_f64().unwrap() < 1e-12);
+        assert!(find("gpu-f32", mesh)["rel_error"].as_f64().unwrap() < 1e-5);
+        assert!(find("force-exact", mesh)["rel_error"].as_f64().unwrap() < 1e-12);
+        // The paper's interpolation misses the finger inside triangles by tens of percent.
+        let paper = find("force-paper", mesh)["rel_error"].as_f64().unwrap();
+        assert!(paper > 0.05 && paper < 1.0, "{paper}");
+    }
+    assert_eq!(find("cpu-f64", "mouse")["nodes"], 1699);
+}
