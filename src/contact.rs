@@ -148,24 +148,11 @@ impl Surface {
             })
             .collect();
         let n = nodes.len();
-        let mut count = vec![0u32; n + 1];
-        for t in &tris {
-            for &v in t {
-                count[v as usize + 1] += 1;
-            }
-        }
-        for i in 0..n {
-            count[i + 1] += count[i];
-        }
-        let vt_start = count.clone();
-        let mut fill = count;
-        let mut vt = vec![0u32; tris.len() * 3];
+        let (vt_start, vt) = crate::mesh::vertex_triangles(n, &tris);
         let mut vertex_normal = vec![DVec3::ZERO; n];
         for (ti, t) in tris.iter().enumerate() {
             for k in 0..3 {
                 let v = t[k] as usize;
-                vt[fill[v] as usize] = ti as u32;
-                fill[v] += 1;
                 let p = nodes[v];
                 let e1 = (nodes[t[(k + 1) % 3] as usize] - p).normalize_or_zero();
                 let e2 = (nodes[t[(k + 2) % 3] as usize] - p).normalize_or_zero();

@@ -306,24 +306,9 @@ impl Deformer {
             }
             tris.push(out);
         }
-        let mut adj = vec![0u32; nr + 1];
-        for tri in &tris {
-            for &v in tri {
-                adj[v as usize + 1] += 1;
-            }
-        }
-        for i in 0..nr {
-            adj[i + 1] += adj[i];
-        }
-        let mut fill = adj.clone();
-        adj.resize(nr + 1 + 3 * tris.len(), 0);
-        for (t, tri) in tris.iter().enumerate() {
-            for &v in tri {
-                let slot = &mut fill[v as usize];
-                adj[nr + 1 + *slot as usize] = t as u32;
-                *slot += 1;
-            }
-        }
+        // The shader reads offsets[0..=nr] followed by the triangle ids, in one buffer.
+        let (mut adj, list) = crate::mesh::vertex_triangles(nr, &tris);
+        adj.extend_from_slice(&list);
         check("triangle list", 12 * tris.len() as u64)?;
         check("vertex-triangle adjacency", 4 * adj.len() as u64)?;
 

@@ -147,6 +147,30 @@ pub fn tet_volume(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
     (b - a).cross(c - a).dot(d - a) / 6.0
 }
 
+/// The triangles around each vertex as a CSR list: the triangles of vertex `v` are
+/// `list[start[v]..start[v + 1]]`, in triangle order. `n` is the vertex count; every index in
+/// `tris` must be below it.
+pub fn vertex_triangles(n: usize, tris: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let mut start = vec![0u32; n + 1];
+    for t in tris {
+        for &v in t {
+            start[v as usize + 1] += 1;
+        }
+    }
+    for i in 0..n {
+        start[i + 1] += start[i];
+    }
+    let mut fill = start.clone();
+    let mut list = vec![0u32; 3 * tris.len()];
+    for (ti, t) in tris.iter().enumerate() {
+        for &v in t {
+            list[fill[v as usize] as usize] = ti as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    (start, list)
+}
+
 /// Below this |6V| / (longest edge)³ a tet is degenerate (a regular tet has ≈ 0.118).
 pub const DEGENERATE_QUALITY: f64 = 1e-8;
 
