@@ -14,6 +14,15 @@ fn touchfem(args: &[&str]) -> (i32, String, String) {
     )
 }
 
+/// A JSON array of numbers.
+fn numbers(v: &serde_json::Value) -> Vec<f64> {
+    v.as_array()
+        .unwrap_or_else(|| panic!("not an array: {v}"))
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect()
+}
+
 fn json(s: &str) -> serde_json::Value {
     serde_json::from_str(s.trim()).unwrap_or_else(|e| panic!("not JSON ({e}): {s}"))
 }
@@ -49,12 +58,7 @@ fn poke_top_centre_matches_eq_7_and_writes_a_vtu() {
     ]);
     assert_eq!(code, 0, "{err}");
     let v = json(&out);
-    let f: Vec<f64> = v["force"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_f64().unwrap())
-        .collect();
+    let f = numbers(&v["force"]);
     // The top centre is a node: the force is L_ii⁻¹·u there, pushing the finger back up, and
     // by the cube's symmetry about x = 15 and y = 15 mm it has no sideways part.
     assert!(f[2] > 0.1 && f[2] < 10.0, "{f:?}");
@@ -103,12 +107,7 @@ fn poke_side_face_pushes_back_along_x() {
     ]);
     assert_eq!(code, 0, "{err}");
     let v = json(&out);
-    let f: Vec<f64> = v["force"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_f64().unwrap())
-        .collect();
+    let f = numbers(&v["force"]);
     assert!(f[0] < -0.1, "{f:?}");
     assert!(f[1].abs() < 1e-9 * f[0].abs());
     // Paper and exact differ off the nodes; --exact is selectable.
