@@ -1,10 +1,15 @@
-//! The visual loop's `u = L·F`: the GPU pass (set_forces + encode + submit + wait) against the
-//! f64 CPU reference `Compliance::displace`, in the same run.
+//! The visual loop's `u = L·F` (+ vertex normals): the GPU pass (set_forces + encode + submit +
+//! wait) in both layouts of `L` against the f64 CPU reference `Compliance::displace`, and the
+//! driver's floor (one empty dispatch with its 16-byte upload, submit, wait), in the same run.
+//!
+//! Active columns are counted as **scalar columns of L**: one contact triangle (the paper's
+//! eq. 8, three nodes with a 3-vector force each) is 9 columns. IDs read `9c_3n`: 9 scalar
+//! columns on 3 column nodes.
 //!
 //! Cases (random compliances on box meshes' surfaces, so no FEM solve is needed):
-//! * `mouse`: a 14³-cell box, 1178 displayed vertices (the paper's mouse has 1713 nodes), all
-//!   free surface nodes touchable; 9, 90 and 900 active columns;
-//! * `large`: a 29³-cell box, 5048 displayed vertices, 500 touchable columns; 9 and 90 active.
+//! * `mouse`: a 14³-cell box, 1178 displayed vertices (the paper's mouse shows 1175), all
+//!   free surface nodes touchable; 9, 27, 90 and 900 active columns;
+//! * `large`: a 29³-cell box, 5048 displayed vertices, 500 touchable nodes; 9 and 90 active.
 //!
 //! ```sh
 //! WGPU_BACKEND=vulkan CARGO_BUILD_JOBS=1 cargo bench --bench deform -- --warm-up-time 1 --measurement-time 3
@@ -13,7 +18,7 @@
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use glam::DVec3;
 use touchfem::compliance::Compliance;
-use touchfem::gpu::{Deformer, DeformerOptions, Gpu};
+use touchfem::gpu::{Deformer, DeformerOptions, Gpu, LStorage, OutputTarget};
 use touchfem::mesh::{cube_with, Mesh};
 use touchfem::units::Material;
 use touchfem::wgpu;
@@ -73,50 +78,140 @@ fn forces(c: &Compliance, n: usize) -> Vec<(u32, [f32; 3])> {
         .collect()
 }
 
+/// One frame: upload the forces, record, submit, wait for completion.
+fn frame(gpu: &Gpu, d: &mut Deformer, f: &[(u32, [f32; 3])]) {
+    d.set_forces(&gpu.queue, f).unwrap();
+    let mut enc = gpu
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor::default());
+    d.encode(&mut enc);
+    gpu.queue.submit([enc.finish()]);
+    gpu.device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .unwrap();
+}
+
+/// The least a frame can cost on this driver: a 16-byte `write_buffer`, one dispatch of an
+/// empty shader over the same workgroups, submit, wait.
+fn floor(gpu: &Gpu, rows: u32) -> impl FnMut() + '_ {
+    let module = gpu
+        .device
+        .create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("empty"),
+            source: wgpu::ShaderSource::Wgsl(
+                "@group(0) @binding(0) var<uniform> n: vec4<u32>;
+                 @compute @workgroup_size(64)
+                 fn main(@builtin(global_invocation_id) g: vec3<u32>) { if g.x > n.x { return; } }"
+                    .into(),
+            ),
+        });
+    let pipeline = gpu
+        .device
+        .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("empty"),
+            layout: None,
+            module: &module,
+            entry_point: Some("main"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+    let buf = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("empty"),
+        size: 16,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("empty"),
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &[wgpu::BindGroupEntry {
+            binding: 0,
+            resource: buf.as_entire_binding(),
+        }],
+    });
+    move || {
+        gpu.queue
+            .write_buffer(&buf, 0, bytemuck::cast_slice(&[rows, 0, 0, 0]));
+        let mut enc = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups(rows.div_ceil(64), 1, 1);
+        }
+        gpu.queue.submit([enc.finish()]);
+        gpu.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .unwrap();
+    }
+}
+
 fn bench_case(
     crit: &mut Criterion,
     gpu: &Gpu,
     name: &str,
     cells: usize,
     cols: usize,
-    actives: &[usize],
+    nodes: &[usize],
 ) {
     let (mesh, c) = case(cells, cols);
-    let mut d = Deformer::new(
-        &gpu.device,
-        &gpu.queue,
-        &c,
-        &mesh.nodes,
-        &mesh.surface,
-        &DeformerOptions::default(),
-    )
-    .expect("deformer");
-    let mut group = crit.benchmark_group(format!(
-        "{name}_{}rows_{}cols",
-        c.rows().len(),
-        c.cols().len()
-    ));
-    let mut out = vec![DVec3::ZERO; c.rows().len()];
-    for &n in actives {
+    let nr = c.rows().len();
+    let deformer = |storage, output| {
+        Deformer::new(
+            &gpu.device,
+            &gpu.queue,
+            &c,
+            &mesh.nodes,
+            &mesh.surface,
+            &DeformerOptions {
+                storage,
+                output,
+                ..Default::default()
+            },
+        )
+        .expect("deformer")
+    };
+    let positions_only = OutputTarget {
+        buffer: gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("positions only"),
+            size: 16 * nr as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::VERTEX,
+            mapped_at_creation: false,
+        }),
+        offset: 0,
+        stride: 16,
+        normal_offset: None,
+    };
+    let mut texture = deformer(LStorage::Texture, None);
+    let mut texture_no_normals = deformer(LStorage::Texture, Some(positions_only));
+    let mut buffers = deformer(LStorage::Buffers, None);
+    let mut group = crit.benchmark_group(format!("{name}_{nr}rows_{}cols", c.cols().len()));
+    group.sample_size(30);
+    group.bench_function("gpu_floor_empty_dispatch", |b| {
+        b.iter(floor(gpu, nr as u32))
+    });
+    let mut out = vec![DVec3::ZERO; nr];
+    for &n in nodes {
         let f = forces(&c, n);
         let f64s: Vec<(u32, DVec3)> = f
             .iter()
             .map(|&(col, v)| (col, DVec3::from(v.map(f64::from))))
             .collect();
-        group.bench_with_input(BenchmarkId::new("gpu", n), &f, |b, f| {
-            b.iter(|| {
-                d.set_forces(&gpu.queue, f).unwrap();
-                let mut enc = gpu
-                    .device
-                    .create_command_encoder(&wgpu::CommandEncoderDescriptor::default());
-                d.encode(&mut enc);
-                gpu.queue.submit([enc.finish()]);
-                gpu.device
-                    .poll(wgpu::PollType::wait_indefinitely())
-                    .unwrap();
-            })
+        let id = format!("{}c_{n}n", 3 * n);
+        group.bench_with_input(BenchmarkId::new("gpu_texture", &id), &f, |b, f| {
+            b.iter(|| frame(gpu, &mut texture, f))
         });
-        group.bench_with_input(BenchmarkId::new("cpu_f64", n), &f64s, |b, f| {
+        group.bench_with_input(
+            BenchmarkId::new("gpu_texture_no_normals", &id),
+            &f,
+            |b, f| b.iter(|| frame(gpu, &mut texture_no_normals, f)),
+        );
+        group.bench_with_input(BenchmarkId::new("gpu_buffers", &id), &f, |b, f| {
+            b.iter(|| frame(gpu, &mut buffers, f))
+        });
+        group.bench_with_input(BenchmarkId::new("cpu_f64", &id), &f64s, |b, f| {
             b.iter(|| {
                 c.displace(f, &mut out);
                 std::hint::black_box(&out);
@@ -129,8 +224,8 @@ fn bench_case(
 fn benches(crit: &mut Criterion) {
     let gpu = Gpu::new_headless().unwrap_or_else(|e| panic!("{e}"));
     eprintln!("adapter: {}", gpu.adapter.get_info().name);
-    bench_case(crit, &gpu, "mouse", 14, usize::MAX, &[9, 90, 900]);
-    bench_case(crit, &gpu, "large", 29, 500, &[9, 90]);
+    bench_case(crit, &gpu, "mouse", 14, usize::MAX, &[3, 9, 30, 300]);
+    bench_case(crit, &gpu, "large", 29, 500, &[3, 30]);
 }
 
 criterion_group!(deform, benches);

@@ -187,7 +187,7 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
     let gpu = match crate::gpu::Gpu::new_headless() {
         Ok(g) => Some(g),
         Err(e) => {
-            eprintln!("warning: {e}; no gpu-f32 rows");
+            eprintln!("warning: {e}; no gpu-f32-* rows");
             None
         }
     };

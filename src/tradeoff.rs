@@ -247,9 +247,32 @@ pub fn bench_scenes() -> Result<Vec<(String, Scene)>, crate::Error> {
     ])
 }
 
-/// The GPU pass's rows for one mesh: `set_forces` + `encode` + submit + wait, and the error of
-/// the read-back positions against the f64 CPU product, relative to max |u|.
+/// The GPU pass's rows for one mesh, for both layouts of `L` (`gpu-f32-texture`,
+/// `gpu-f32-buffers`): `set_forces` + `encode` + submit + wait, and the error of the read-back
+/// positions against the f64 CPU product, relative to max |u|.
 pub fn gpu_rows(
+    name: &str,
+    scene: &Scene,
+    gpu: &crate::gpu::Gpu,
+    active: &[usize],
+    reps: usize,
+) -> Result<Vec<Row>, crate::Error> {
+    use crate::gpu::LStorage;
+    let mut rows = Vec::new();
+    for (method, storage) in [
+        ("gpu-f32-texture", LStorage::Texture),
+        ("gpu-f32-buffers", LStorage::Buffers),
+    ] {
+        rows.extend(gpu_layout_rows(
+            method, storage, name, scene, gpu, active, reps,
+        )?);
+    }
+    Ok(rows)
+}
+
+fn gpu_layout_rows(
+    method: &str,
+    storage: crate::gpu::LStorage,
     name: &str,
     scene: &Scene,
     gpu: &crate::gpu::Gpu,
@@ -264,7 +287,10 @@ pub fn gpu_rows(
         c,
         &scene.mesh.nodes,
         &scene.mesh.surface,
-        &crate::gpu::DeformerOptions::default(),
+        &crate::gpu::DeformerOptions {
+            storage,
+            ..Default::default()
+        },
     )
     .map_err(gerr)?;
     let mut rows = Vec::new();
@@ -306,7 +332,7 @@ pub fn gpu_rows(
             .map(|(p, &node)| glam::Vec3::from(*p).as_dvec3() - scene.mesh.nodes[node as usize])
             .collect();
         rows.push(Row {
-            method: "gpu-f32".into(),
+            method: method.into(),
             mesh: name.into(),
             nodes: scene.mesh.nodes.len(),
             active_columns: forces.len(),

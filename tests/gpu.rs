@@ -10,10 +10,20 @@ use std::sync::OnceLock;
 use glam::DVec3;
 use touchfem::compliance::{Compliance, Selection};
 use touchfem::gpu::{
-    AdapterSelection, Deformer, DeformerOptions, Gpu, GpuError, OutputTarget, MAX_ACTIVE,
+    AdapterSelection, Deformer, DeformerOptions, Gpu, GpuError, LStorage, OutputTarget, MAX_ACTIVE,
 };
 use touchfem::mesh::{cube, Mesh};
 use touchfem::wgpu;
+
+/// Both layouts of `L`; every test below runs on each.
+const LAYOUTS: [LStorage; 2] = [LStorage::Buffers, LStorage::Texture];
+
+fn layout(storage: LStorage) -> DeformerOptions {
+    DeformerOptions {
+        storage,
+        ..Default::default()
+    }
+}
 
 fn gpu() -> &'static Gpu {
     static GPU: OnceLock<Gpu> = OnceLock::new();
@@ -136,7 +146,12 @@ fn check(
 
 fn new_deformer(c: &Compliance, mesh: &Mesh, opts: &DeformerOptions) -> Deformer {
     let g = gpu();
-    Deformer::new(&g.device, &g.queue, c, &mesh.nodes, &mesh.surface, opts).expect("deformer")
+    let d =
+        Deformer::new(&g.device, &g.queue, c, &mesh.nodes, &mesh.surface, opts).expect("deformer");
+    if opts.storage != LStorage::Auto {
+        assert_eq!(d.storage(), opts.storage);
+    }
+    d
 }
 
 /// F = L_ii⁻¹·u at one node (eq. 7), as f32.
@@ -171,11 +186,13 @@ fn an_adapter_exists() {
 #[test]
 fn cube_rest_pose_with_no_active_columns() {
     let k = cube_case();
-    let d = new_deformer(&k.c, &k.mesh, &DeformerOptions::default());
-    assert_eq!(d.vertex_count() as usize, k.c.rows().len());
-    assert_eq!(d.chunk_count(), 1);
-    let umax = check(&k.c, &k.mesh.nodes, &[], &d, true);
-    assert_eq!(umax, 0.0);
+    for storage in LAYOUTS {
+        let d = new_deformer(&k.c, &k.mesh, &layout(storage));
+        assert_eq!(d.vertex_count() as usize, k.c.rows().len());
+        assert_eq!(d.chunk_count(), 1);
+        let umax = check(&k.c, &k.mesh.nodes, &[], &d, true);
+        assert_eq!(umax, 0.0);
+    }
 }
 
 #[test]
@@ -185,17 +202,19 @@ fn cube_push_top_centre_5mm() {
     let col = k.c.col_of(node).expect("touchable");
     let u = DVec3::new(0.0, 0.0, -5e-3);
     let forces = [(col as u32, force_for(&k.c, col, u))];
-    let mut d = new_deformer(&k.c, &k.mesh, &DeformerOptions::default());
-    d.set_forces(&gpu().queue, &forces).unwrap();
-    let umax = check(&k.c, &k.mesh.nodes, &forces, &d, true);
-    assert!(
-        (umax - 5e-3).abs() < 1e-4,
-        "the pushed node moves 5 mm: {umax}"
-    );
-    // The pushed node itself lands 5 mm down.
-    let (pos, _) = run(&d);
-    let r = k.c.row_of(node).unwrap();
-    assert!((f64::from(pos[r][2]) - 0.025).abs() < 1e-7, "{:?}", pos[r]);
+    for storage in LAYOUTS {
+        let mut d = new_deformer(&k.c, &k.mesh, &layout(storage));
+        d.set_forces(&gpu().queue, &forces).unwrap();
+        let umax = check(&k.c, &k.mesh.nodes, &forces, &d, true);
+        assert!(
+            (umax - 5e-3).abs() < 1e-4,
+            "the pushed node moves 5 mm: {umax}"
+        );
+        // The pushed node itself lands 5 mm down.
+        let (pos, _) = run(&d);
+        let r = k.c.row_of(node).unwrap();
+        assert!((f64::from(pos[r][2]) - 0.025).abs() < 1e-7, "{:?}", pos[r]);
+    }
 }
 
 #[test]
@@ -217,59 +236,65 @@ fn cube_three_node_force_and_sideways_push() {
             (col as u32, force_for(&k.c, col, u * a))
         })
         .collect();
-    let mut d = new_deformer(&k.c, &k.mesh, &DeformerOptions::default());
-    d.set_forces(&gpu().queue, &forces).unwrap();
-    check(&k.c, &k.mesh.nodes, &forces, &d, true);
-    // Next frame: the sideways push of the golden test, replacing the previous forces.
     let node = node_at(&k.mesh, [0.0, 15.0, 15.0]);
     let col = k.c.col_of(node).unwrap();
     let side = [(col as u32, force_for(&k.c, col, DVec3::new(5e-3, 0.0, 0.0)))];
-    d.set_forces(&gpu().queue, &side).unwrap();
-    check(&k.c, &k.mesh.nodes, &side, &d, true);
+    for storage in LAYOUTS {
+        let mut d = new_deformer(&k.c, &k.mesh, &layout(storage));
+        d.set_forces(&gpu().queue, &forces).unwrap();
+        check(&k.c, &k.mesh.nodes, &forces, &d, true);
+        // Next frame: the sideways push of the golden test, replacing the previous forces.
+        d.set_forces(&gpu().queue, &side).unwrap();
+        check(&k.c, &k.mesh.nodes, &side, &d, true);
+    }
 }
 
 #[test]
 fn cube_many_active_columns() {
     let k = cube_case();
     let nc = k.c.cols().len();
-    let mut rng = Rng(7);
-    let mut d = new_deformer(&k.c, &k.mesh, &DeformerOptions::default());
-    // Every column once, then MAX_ACTIVE entries with repeats (their forces add).
-    for n in [nc, 900, MAX_ACTIVE] {
-        let forces: Vec<(u32, [f32; 3])> = (0..n)
-            .map(|i| ((i % nc) as u32, (rng.vec() * 0.02).as_vec3().to_array()))
-            .collect();
-        d.set_forces(&gpu().queue, &forces).unwrap();
-        check(&k.c, &k.mesh.nodes, &forces, &d, true);
+    for storage in LAYOUTS {
+        let mut rng = Rng(7);
+        let mut d = new_deformer(&k.c, &k.mesh, &layout(storage));
+        // Every column once, then MAX_ACTIVE entries with repeats (their forces add).
+        for n in [nc, 900, MAX_ACTIVE] {
+            let forces: Vec<(u32, [f32; 3])> = (0..n)
+                .map(|i| ((i % nc) as u32, (rng.vec() * 0.02).as_vec3().to_array()))
+                .collect();
+            d.set_forces(&gpu().queue, &forces).unwrap();
+            check(&k.c, &k.mesh.nodes, &forces, &d, true);
+        }
+        // Back to rest.
+        d.set_forces(&gpu().queue, &[]).unwrap();
+        assert_eq!(check(&k.c, &k.mesh.nodes, &[], &d, true), 0.0);
     }
-    // Back to rest.
-    d.set_forces(&gpu().queue, &[]).unwrap();
-    assert_eq!(check(&k.c, &k.mesh.nodes, &[], &d, true), 0.0);
 }
 
 #[test]
 fn bad_force_lists_are_typed_errors_and_change_nothing() {
     let k = cube_case();
     let nc = k.c.cols().len();
-    let mut d = new_deformer(&k.c, &k.mesh, &DeformerOptions::default());
-    let good = [(3u32, [0.01f32, 0.0, -0.02])];
-    d.set_forces(&gpu().queue, &good).unwrap();
-    let too_many = vec![(0u32, [0.0f32; 3]); MAX_ACTIVE + 1];
-    assert!(matches!(
-        d.set_forces(&gpu().queue, &too_many),
-        Err(GpuError::TooManyActive { count, max }) if count == MAX_ACTIVE + 1 && max == MAX_ACTIVE
-    ));
-    assert!(matches!(
-        d.set_forces(&gpu().queue, &[(nc as u32, [0.0; 3])]),
-        Err(GpuError::ColumnOutOfRange { col, n_cols }) if col == nc as u32 && n_cols == nc
-    ));
-    for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+    for storage in LAYOUTS {
+        let mut d = new_deformer(&k.c, &k.mesh, &layout(storage));
+        let good = [(3u32, [0.01f32, 0.0, -0.02])];
+        d.set_forces(&gpu().queue, &good).unwrap();
+        let too_many = vec![(0u32, [0.0f32; 3]); MAX_ACTIVE + 1];
         assert!(matches!(
-            d.set_forces(&gpu().queue, &[(1, [0.0, bad, 0.0])]),
-            Err(GpuError::NonFiniteForce { col: 1, .. })
+            d.set_forces(&gpu().queue, &too_many),
+            Err(GpuError::TooManyActive { count, max }) if count == MAX_ACTIVE + 1 && max == MAX_ACTIVE
         ));
+        assert!(matches!(
+            d.set_forces(&gpu().queue, &[(nc as u32, [0.0; 3])]),
+            Err(GpuError::ColumnOutOfRange { col, n_cols }) if col == nc as u32 && n_cols == nc
+        ));
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            assert!(matches!(
+                d.set_forces(&gpu().queue, &[(1, [0.0, bad, 0.0])]),
+                Err(GpuError::NonFiniteForce { col: 1, .. })
+            ));
+        }
+        check(&k.c, &k.mesh.nodes, &good, &d, true);
     }
-    check(&k.c, &k.mesh.nodes, &good, &d, true);
 }
 
 #[test]
@@ -279,29 +304,43 @@ fn forced_split_across_chunks_matches() {
     let nc = k.c.cols().len();
     let opts = DeformerOptions {
         max_binding_bytes: Some(36 * nr * 10 + 20),
+        storage: LStorage::Buffers,
         ..Default::default()
     };
-    let mut d = new_deformer(&k.c, &k.mesh, &opts);
-    assert_eq!(d.columns_per_chunk(), 10);
-    assert_eq!(d.chunk_count(), nc.div_ceil(10));
-    let mut rng = Rng(11);
-    // Forces only in a later chunk (chunk 0 still starts from rest), then in every chunk,
-    // unsorted and with repeats, then fewer again.
-    let frames: Vec<Vec<u32>> = vec![
-        vec![35],
-        (0..nc as u32)
-            .rev()
-            .chain([5, 5, 72.min(nc as u32 - 1)])
-            .collect(),
-        vec![12, 61],
-    ];
-    for cols in frames {
-        let forces: Vec<(u32, [f32; 3])> = cols
-            .iter()
-            .map(|&c| (c, (rng.vec() * 0.05).as_vec3().to_array()))
-            .collect();
-        d.set_forces(&gpu().queue, &forces).unwrap();
-        check(&k.c, &k.mesh.nodes, &forces, &d, true);
+    let buffers = new_deformer(&k.c, &k.mesh, &opts);
+    assert_eq!(buffers.columns_per_chunk(), Some(10));
+    assert_eq!(buffers.chunk_count(), nc.div_ceil(10));
+    // Texture layers of 4 rows of 1024 texels (16 B each); L has 3·C·R texels.
+    let opts = DeformerOptions {
+        max_binding_bytes: Some(16 * 1024 * 4 + 100),
+        storage: LStorage::Texture,
+        ..Default::default()
+    };
+    let texture = new_deformer(&k.c, &k.mesh, &opts);
+    let texels = 3 * nc * nr as usize;
+    assert_eq!(texture.columns_per_chunk(), None);
+    assert_eq!(texture.chunk_count(), texels.div_ceil(1024).div_ceil(4));
+    assert!(texture.chunk_count() >= 5);
+    for mut d in [buffers, texture] {
+        let mut rng = Rng(11);
+        // Forces only in a later chunk (chunk 0 still starts from rest), then in every chunk,
+        // unsorted and with repeats, then fewer again.
+        let frames: Vec<Vec<u32>> = vec![
+            vec![35],
+            (0..nc as u32)
+                .rev()
+                .chain([5, 5, 72.min(nc as u32 - 1)])
+                .collect(),
+            vec![12, 61],
+        ];
+        for cols in frames {
+            let forces: Vec<(u32, [f32; 3])> = cols
+                .iter()
+                .map(|&c| (c, (rng.vec() * 0.05).as_vec3().to_array()))
+                .collect();
+            d.set_forces(&gpu().queue, &forces).unwrap();
+            check(&k.c, &k.mesh.nodes, &forces, &d, true);
+        }
     }
 }
 
@@ -312,96 +351,99 @@ fn caller_supplied_buffer_with_offset_and_stride() {
     let nr = k.c.rows().len() as u64;
     let (offset, stride, normal_offset) = (272u64, 40u64, 16u64);
     let size = offset + nr * stride + 64;
-    let buffer = g.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("caller vertices"),
-        size,
-        usage: wgpu::BufferUsages::STORAGE
-            | wgpu::BufferUsages::VERTEX
-            | wgpu::BufferUsages::COPY_SRC
-            | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    g.queue
-        .write_buffer(&buffer, 0, &vec![0xABu8; size as usize]);
-    let target = OutputTarget {
-        buffer: buffer.clone(),
-        offset,
-        stride,
-        normal_offset: Some(normal_offset),
-    };
-    let mut d = new_deformer(
-        &k.c,
-        &k.mesh,
-        &DeformerOptions {
-            output: Some(target),
-            ..Default::default()
-        },
-    );
-    let node = node_at(&k.mesh, [15.0, 15.0, 30.0]);
-    let col = k.c.col_of(node).unwrap();
-    let forces = [(
-        col as u32,
-        force_for(&k.c, col, DVec3::new(0.0, 0.0, -5e-3)),
-    )];
-    d.set_forces(&g.queue, &forces).unwrap();
-    check(&k.c, &k.mesh.nodes, &forces, &d, true);
-    // Bytes outside positions and normals are untouched.
-    let bytes = touchfem::gpu::read_buffer(&g.device, &g.queue, &buffer, 0, size).unwrap();
-    for (i, b) in bytes.iter().enumerate() {
-        let i = i as u64;
-        let written = i >= offset && i < offset + nr * stride && {
-            let w = (i - offset) % stride;
-            w < 12 || (normal_offset..normal_offset + 12).contains(&w)
+    for storage in LAYOUTS {
+        let buffer = g.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("caller vertices"),
+            size,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::VERTEX
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        g.queue
+            .write_buffer(&buffer, 0, &vec![0xABu8; size as usize]);
+        let target = OutputTarget {
+            buffer: buffer.clone(),
+            offset,
+            stride,
+            normal_offset: Some(normal_offset),
         };
-        if !written {
-            assert_eq!(*b, 0xAB, "byte {i} was overwritten");
-        }
-    }
-    // Unusable targets are typed errors.
-    let no_storage = g.device.create_buffer(&wgpu::BufferDescriptor {
-        label: None,
-        size,
-        usage: wgpu::BufferUsages::VERTEX,
-        mapped_at_creation: false,
-    });
-    for t in [
-        OutputTarget {
-            buffer: no_storage,
-            offset: 0,
-            stride: 32,
-            normal_offset: None,
-        },
-        OutputTarget {
-            buffer: buffer.clone(),
-            offset: 2,
-            stride: 32,
-            normal_offset: None,
-        },
-        OutputTarget {
-            buffer: buffer.clone(),
-            offset: 0,
-            stride: 16,
-            normal_offset: Some(8),
-        },
-        OutputTarget {
-            buffer,
-            offset: size - 64,
-            stride: 32,
-            normal_offset: None,
-        },
-    ] {
-        let r = Deformer::new(
-            &g.device,
-            &g.queue,
+        let mut d = new_deformer(
             &k.c,
-            &k.mesh.nodes,
-            &k.mesh.surface,
+            &k.mesh,
             &DeformerOptions {
-                output: Some(t),
+                output: Some(target),
+                storage,
                 ..Default::default()
             },
         );
-        assert!(matches!(r, Err(GpuError::BadOutput(_))), "{r:?}");
+        let node = node_at(&k.mesh, [15.0, 15.0, 30.0]);
+        let col = k.c.col_of(node).unwrap();
+        let forces = [(
+            col as u32,
+            force_for(&k.c, col, DVec3::new(0.0, 0.0, -5e-3)),
+        )];
+        d.set_forces(&g.queue, &forces).unwrap();
+        check(&k.c, &k.mesh.nodes, &forces, &d, true);
+        // Bytes outside positions and normals are untouched.
+        let bytes = touchfem::gpu::read_buffer(&g.device, &g.queue, &buffer, 0, size).unwrap();
+        for (i, b) in bytes.iter().enumerate() {
+            let i = i as u64;
+            let written = i >= offset && i < offset + nr * stride && {
+                let w = (i - offset) % stride;
+                w < 12 || (normal_offset..normal_offset + 12).contains(&w)
+            };
+            if !written {
+                assert_eq!(*b, 0xAB, "byte {i} was overwritten ({storage:?})");
+            }
+        }
+        // Unusable targets are typed errors.
+        let no_storage = g.device.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size,
+            usage: wgpu::BufferUsages::VERTEX,
+            mapped_at_creation: false,
+        });
+        for t in [
+            OutputTarget {
+                buffer: no_storage,
+                offset: 0,
+                stride: 32,
+                normal_offset: None,
+            },
+            OutputTarget {
+                buffer: buffer.clone(),
+                offset: 2,
+                stride: 32,
+                normal_offset: None,
+            },
+            OutputTarget {
+                buffer: buffer.clone(),
+                offset: 0,
+                stride: 16,
+                normal_offset: Some(8),
+            },
+            OutputTarget {
+                buffer,
+                offset: size - 64,
+                stride: 32,
+                normal_offset: None,
+            },
+        ] {
+            let r = Deformer::new(
+                &g.device,
+                &g.queue,
+                &k.c,
+                &k.mesh.nodes,
+                &k.mesh.surface,
+                &DeformerOptions {
+                    output: Some(t),
+                    ..Default::default()
+                },
+            );
+            assert!(matches!(r, Err(GpuError::BadOutput(_))), "{r:?}");
+        }
     }
 }
 
@@ -442,19 +484,20 @@ fn large_random_compliance_needs_the_split() {
     );
     let bytes = 36 * R as u64 * C as u64;
     assert!(bytes > 128 << 20);
+    // The split under the storage binding limit is the buffer layout's.
     let d = Deformer::new(
         &g.device,
         &g.queue,
         &c,
         &rest,
         &tris,
-        &DeformerOptions::default(),
+        &layout(LStorage::Buffers),
     )
     .expect("large deformer");
     let lim = g.device.limits();
     let max = lim.max_storage_buffer_binding_size.min(lim.max_buffer_size);
     let cpc = (max / (36 * R as u64)) as usize;
-    assert_eq!(d.columns_per_chunk(), cpc);
+    assert_eq!(d.columns_per_chunk(), Some(cpc));
     assert_eq!(d.chunk_count(), C.div_ceil(cpc));
     if max < bytes {
         assert!(d.chunk_count() >= 2);
@@ -498,17 +541,74 @@ fn deformer_rejects_inconsistent_input() {
     // Too few rest positions.
     let r = Deformer::new(&g.device, &g.queue, &k.c, &k.mesh.nodes[..10], &[], &opts);
     assert!(matches!(r, Err(GpuError::BadInput(_))), "{r:?}");
-    // A chunk cap below one column node.
-    let r = Deformer::new(
-        &g.device,
-        &g.queue,
-        &k.c,
-        &k.mesh.nodes,
-        &k.mesh.surface,
-        &DeformerOptions {
-            max_binding_bytes: Some(64),
-            ..Default::default()
-        },
-    );
-    assert!(matches!(r, Err(GpuError::BufferTooLarge { .. })), "{r:?}");
+    // A cap below one column node (buffers) or one texel row (texture).
+    for storage in LAYOUTS {
+        let r = Deformer::new(
+            &g.device,
+            &g.queue,
+            &k.c,
+            &k.mesh.nodes,
+            &k.mesh.surface,
+            &DeformerOptions {
+                max_binding_bytes: Some(64),
+                storage,
+                ..Default::default()
+            },
+        );
+        assert!(matches!(r, Err(GpuError::BufferTooLarge { .. })), "{r:?}");
+    }
+}
+
+#[test]
+fn auto_layout_is_the_texture_on_cpu_adapters_only() {
+    let k = cube_case();
+    let d = new_deformer(&k.c, &k.mesh, &DeformerOptions::default());
+    let cpu = gpu().adapter.get_info().device_type == wgpu::DeviceType::Cpu;
+    let want = if cpu {
+        LStorage::Texture
+    } else {
+        LStorage::Buffers
+    };
+    assert_eq!(d.storage(), want);
+}
+
+/// The two layouts against each other on a rectangular random compliance (rows ≠ columns, a
+/// row count that is not a multiple of the workgroup or of the texture row), many forces.
+#[test]
+fn layouts_agree_on_a_random_compliance() {
+    const R: usize = 1111;
+    const C: usize = 57;
+    let g = gpu();
+    let mut rng = Rng(99);
+    let rows: Vec<u32> = (0..R as u32).collect();
+    let cols: Vec<u32> = (0..C as u32).map(|i| i * 19).collect();
+    let mut l: Vec<f64> = (0..9 * R * C).map(|_| rng.next() * 1e-4).collect();
+    for (ci, &r) in cols.iter().enumerate() {
+        for a in 0..3 {
+            l[(3 * ci + a) * 3 * R + 3 * r as usize + a] += 1e-2;
+        }
+    }
+    let c = Compliance::from_dense(rows, cols, l, R).expect("random compliance");
+    let rest: Vec<DVec3> = (0..R).map(|_| rng.vec() * 0.05).collect();
+    let tris: Vec<[u32; 3]> = (0..R as u32 - 2).map(|i| [i, i + 1, i + 2]).collect();
+    let forces: Vec<(u32, [f32; 3])> = (0..40)
+        .map(|i| ((i * 13 % C) as u32, rng.vec().as_vec3().to_array()))
+        .collect();
+    let mut out = Vec::new();
+    for storage in LAYOUTS {
+        let mut d = Deformer::new(&g.device, &g.queue, &c, &rest, &tris, &layout(storage))
+            .expect("deformer");
+        d.set_forces(&g.queue, &forces).unwrap();
+        check(&c, &rest, &forces, &d, true);
+        out.push(run(&d));
+    }
+    let (pb, nb) = &out[0];
+    let (pt, nt) = &out[1];
+    for i in 0..R {
+        for a in 0..3 {
+            assert!((pb[i][a] - pt[i][a]).abs() <= 1e-6, "position {i}");
+            let (x, y) = (nb.as_ref().unwrap()[i][a], nt.as_ref().unwrap()[i][a]);
+            assert!((x - y).abs() <= 1e-5, "normal {i}: {x} vs {y}");
+        }
+    }
 }

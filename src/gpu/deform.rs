@@ -4,7 +4,9 @@ use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 use wgpu::util::DeviceExt;
 
-use super::{GpuError, DEFORM_WGSL};
+use super::buffer_path::BufferPath;
+use super::texture_path::TexturePath;
+use super::GpuError;
 use crate::compliance::Compliance;
 
 /// Most entries a force boundary condition may have per frame (the active-list buffer's size).
@@ -17,8 +19,8 @@ pub const VERTEX_STRIDE: u64 = std::mem::size_of::<Vertex>() as u64;
 /// `normal_offset` value in the shader meaning "write no normals".
 pub const NO_NORMALS: u32 = u32::MAX;
 
-const WORKGROUP: u32 = 64;
-const CHUNK_PARAM_BYTES: u64 = 16;
+/// Invocations per workgroup of every deformer pass (the shaders' `@workgroup_size`).
+pub(super) const WORKGROUP: u32 = 64;
 
 /// One vertex of the deformer's own vertex buffer: 32 bytes, interleaved.
 ///
@@ -94,74 +96,104 @@ pub struct OutputTarget {
     pub normal_offset: Option<u64>,
 }
 
+/// How `L` is stored on the device. Both layouts compute the same `u = L·F` (to f32 rounding)
+/// and write the same vertices.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LStorage {
+    /// [`Texture`](Self::Texture) on CPU adapters (software rasterisers such as lavapipe),
+    /// [`Buffers`](Self::Buffers) on everything else.
+    #[default]
+    Auto,
+    /// Storage buffers, split by column nodes under `max_storage_buffer_binding_size`:
+    /// coalesced reads on hardware GPUs; `9·R·C` floats.
+    Buffers,
+    /// A 2D texture array read with `textureLoad`: vector gathers on software rasterisers,
+    /// about 4× faster than storage buffers on lavapipe; `12·R·C` floats (one pad per three).
+    Texture,
+}
+
 /// Options for [`Deformer::new`].
 #[derive(Clone, Debug, Default)]
 pub struct DeformerOptions {
-    /// Cap on the bytes of one `L` chunk binding, below the device's
-    /// `max_storage_buffer_binding_size` and `max_buffer_size` (mainly to test the split).
+    /// Cap on the bytes of one `L` storage buffer ([`LStorage::Buffers`]) or texture layer
+    /// ([`LStorage::Texture`]), below the device's limits (mainly to test the split).
     pub max_binding_bytes: Option<u64>,
     /// Write into this buffer instead of a new one with the [`Vertex`] layout.
     pub output: Option<OutputTarget>,
+    /// How to store `L`.
+    pub storage: LStorage,
 }
 
+/// The fixed part of the pass parameters, common to both layouts.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-struct FrameGpu {
-    n_rows: u32,
-    out_offset: u32,
-    out_stride: u32,
-    normal_offset: u32,
+pub(super) struct FrameGpu {
+    pub n_rows: u32,
+    pub out_offset: u32,
+    pub out_stride: u32,
+    pub normal_offset: u32,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-struct ActiveGpu {
-    force: [f32; 3],
-    col: u32,
+/// What [`Deformer::new`] hands to a layout: validated input, in row indices.
+pub(super) struct Shared<'a> {
+    pub device: &'a wgpu::Device,
+    pub queue: &'a wgpu::Queue,
+    /// Column-major f32 `L` ([`DeformerInput::l`]).
+    pub l: &'a [f32],
+    pub nr: usize,
+    pub nc: usize,
+    /// Rest positions per row, metres, `w = 1`.
+    pub rest_rows: &'a [[f32; 4]],
+    /// Surface triangles in row indices.
+    pub tris: &'a [[u32; 3]],
+    /// The triangles as `u32` words (`STORAGE | INDEX`), and how many words to bind.
+    pub index_buffer: &'a wgpu::Buffer,
+    pub index_words: u64,
+    pub frame: FrameGpu,
+    /// Output buffer, binding start and size in bytes.
+    pub out: (&'a wgpu::Buffer, u64, u64),
+    /// Byte cap of one `L` buffer or texture layer.
+    pub max_chunk: u64,
+    /// `min(max_storage_buffer_binding_size, max_buffer_size)`.
+    pub max_binding: u64,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-struct ChunkGpu {
-    first: u32,
-    count: u32,
-    init: u32,
-    _pad: u32,
+impl Shared<'_> {
+    /// `BufferTooLarge` if a binding of `bytes` exceeds the device's storage binding limit.
+    pub(super) fn check(&self, what: &'static str, bytes: u64) -> Result<(), GpuError> {
+        if bytes > self.max_binding {
+            Err(GpuError::BufferTooLarge {
+                what,
+                bytes,
+                limit: self.max_binding,
+            })
+        } else {
+            Ok(())
+        }
+    }
 }
 
-struct Chunk {
-    /// Holds this chunk's L columns (kept alive by the bind group too).
-    _l: wgpu::Buffer,
-    bind_group: wgpu::BindGroup,
-    /// Active entries this frame.
-    count: u32,
+enum Path {
+    Buffers(BufferPath),
+    Texture(TexturePath),
 }
 
 /// Evaluates the deformation `x = x_rest + Σ_active L[:, c]·F_c` and the vertex normals of the
 /// deformed surface on the GPU, writing straight into a vertex buffer.
 ///
-/// `L` is uploaded once (f32), split by column nodes into chunks no larger than the device's
-/// storage binding limit. Per frame, [`set_forces`](Self::set_forces) writes only the active
-/// columns and forces (16 bytes each) and one 16-byte record per chunk;
-/// [`encode`](Self::encode) records one compute pass into the caller's encoder: one dispatch
-/// per chunk with active columns (chunk 0 always), then the normal pass, which gathers over a
-/// precomputed vertex → triangle CSR list (WGSL has no float atomics).
+/// `L` is uploaded once (f32) in the [`LStorage`] layout. Per frame,
+/// [`set_forces`](Self::set_forces) writes only the active columns and forces (16 bytes each,
+/// plus a 16-byte record per buffer or header); [`encode`](Self::encode) records one compute
+/// pass into the caller's encoder: the deformation dispatch(es), then the normal pass, which
+/// gathers over a precomputed per-vertex list of incident triangles (WGSL has no float atomics).
 pub struct Deformer {
     n_rows: u32,
     n_cols: usize,
-    cols_per_chunk: usize,
-    chunks: Vec<Chunk>,
-    chunk_param_stride: u64,
-    chunk_params: wgpu::Buffer,
-    active: wgpu::Buffer,
-    bind_group: wgpu::BindGroup,
-    deform_pipeline: wgpu::ComputePipeline,
-    normals_pipeline: wgpu::ComputePipeline,
+    path: Path,
     target: OutputTarget,
     write_normals: bool,
     index_buffer: wgpu::Buffer,
     triangles: Vec<[u32; 3]>,
-    scratch: Vec<ActiveGpu>,
 }
 
 impl std::fmt::Debug for Deformer {
@@ -169,52 +201,10 @@ impl std::fmt::Debug for Deformer {
         f.debug_struct("Deformer")
             .field("n_rows", &self.n_rows)
             .field("n_cols", &self.n_cols)
-            .field("cols_per_chunk", &self.cols_per_chunk)
-            .field("chunks", &self.chunks.len())
+            .field("storage", &self.storage())
+            .field("chunks", &self.chunk_count())
             .field("target", &self.target)
             .finish_non_exhaustive()
-    }
-}
-
-fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only },
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    }
-}
-
-fn uniform_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Uniform,
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    }
-}
-
-fn binding(
-    binding: u32,
-    buffer: &wgpu::Buffer,
-    offset: u64,
-    size: u64,
-) -> wgpu::BindGroupEntry<'_> {
-    wgpu::BindGroupEntry {
-        binding,
-        resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-            buffer,
-            offset,
-            size: wgpu::BufferSize::new(size),
-        }),
     }
 }
 
@@ -262,17 +252,6 @@ impl Deformer {
                 limit: max_groups * u64::from(WORKGROUP),
             });
         }
-        let check = |what: &'static str, bytes: u64| {
-            if bytes > max_binding {
-                Err(GpuError::BufferTooLarge {
-                    what,
-                    bytes,
-                    limit: max_binding,
-                })
-            } else {
-                Ok(())
-            }
-        };
 
         // Rest positions, per row.
         let mut rest_rows = Vec::with_capacity(nr);
@@ -285,9 +264,8 @@ impl Deformer {
             })?;
             rest_rows.push([p.x as f32, p.y as f32, p.z as f32, 1.0]);
         }
-        check("rest positions", 16 * nr as u64)?;
 
-        // Triangles in row indices, and the vertex → triangle CSR list.
+        // Triangles in row indices.
         let max_node = input.rows.iter().copied().max().unwrap_or(0) as usize;
         let mut row_of = vec![u32::MAX; max_node + 1];
         for (i, &node) in input.rows.iter().enumerate() {
@@ -306,11 +284,6 @@ impl Deformer {
             }
             tris.push(out);
         }
-        // The shader reads offsets[0..=nr] followed by the triangle ids, in one buffer.
-        let (mut adj, list) = crate::mesh::vertex_triangles(nr, &tris);
-        adj.extend_from_slice(&list);
-        check("triangle list", 12 * tris.len() as u64)?;
-        check("vertex-triangle adjacency", 4 * adj.len() as u64)?;
 
         // Output target.
         let target = match &options.output {
@@ -323,7 +296,14 @@ impl Deformer {
                         normal: [0.0, 0.0, 1.0, 0.0],
                     })
                     .collect();
-                check("vertex buffer", VERTEX_STRIDE * nr as u64)?;
+                let bytes = VERTEX_STRIDE * nr as u64;
+                if bytes > max_binding {
+                    return Err(GpuError::BufferTooLarge {
+                        what: "vertex buffer",
+                        bytes,
+                        limit: max_binding,
+                    });
+                }
                 OutputTarget {
                     buffer: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                         label: Some("touchfem vertices"),
@@ -341,45 +321,7 @@ impl Deformer {
         };
         let (out_start, out_size, out_word, normal_word) =
             validate_target(&target, nr as u64, &limits)?;
-        check("output binding", out_size)?;
 
-        // L, chunked by column nodes.
-        let bytes_per_col = 36 * nr as u64;
-        let cols_per_chunk = (max_chunk / bytes_per_col) as usize;
-        if cols_per_chunk == 0 {
-            return Err(GpuError::BufferTooLarge {
-                what: "one column node of L",
-                bytes: bytes_per_col,
-                limit: max_chunk,
-            });
-        }
-        let n_chunks = nc.div_ceil(cols_per_chunk).max(1);
-        let chunk_param_stride =
-            u64::from(limits.min_uniform_buffer_offset_alignment).max(CHUNK_PARAM_BYTES);
-
-        let usage_ro = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
-        let frame = FrameGpu {
-            n_rows: nr as u32,
-            out_offset: out_word,
-            out_stride: (target.stride / 4) as u32,
-            normal_offset: normal_word,
-        };
-        let frame_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("touchfem frame"),
-            contents: bytemuck::bytes_of(&frame),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
-        let active = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("touchfem active columns"),
-            size: (MAX_ACTIVE * std::mem::size_of::<ActiveGpu>()) as u64,
-            usage: usage_ro,
-            mapped_at_creation: false,
-        });
-        let rest_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("touchfem rest positions"),
-            contents: bytemuck::cast_slice(&rest_rows),
-            usage: wgpu::BufferUsages::STORAGE,
-        });
         let mut tri_words: Vec<u32> = tris.iter().flatten().copied().collect();
         let n_tri_words = tri_words.len().max(1);
         tri_words.resize(n_tri_words.max(4), 0);
@@ -388,127 +330,47 @@ impl Deformer {
             contents: bytemuck::cast_slice(&tri_words),
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDEX,
         });
-        let adj_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("touchfem vertex-triangle CSR"),
-            contents: bytemuck::cast_slice(&adj),
-            usage: wgpu::BufferUsages::STORAGE,
-        });
-        let chunk_params = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("touchfem chunk params"),
-            size: chunk_param_stride * n_chunks as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
 
-        let layout0 = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("touchfem deform group 0"),
-            entries: &[
-                uniform_entry(0),
-                storage_entry(1, true),
-                storage_entry(2, true),
-                storage_entry(3, false),
-                storage_entry(4, true),
-                storage_entry(5, true),
-            ],
-        });
-        let layout1 = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("touchfem deform group 1 (L chunk)"),
-            entries: &[uniform_entry(0), storage_entry(1, true)],
-        });
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("touchfem deform group 0"),
-            layout: &layout0,
-            entries: &[
-                binding(0, &frame_buf, 0, 16),
-                binding(1, &active, 0, active.size()),
-                binding(2, &rest_buf, 0, 16 * nr as u64),
-                binding(3, &target.buffer, out_start, out_size),
-                binding(4, &index_buffer, 0, 4 * tri_words.len() as u64),
-                binding(5, &adj_buf, 0, 4 * adj.len() as u64),
-            ],
-        });
-
-        let mut chunks = Vec::with_capacity(n_chunks);
-        let col_len = 9 * nr;
-        for k in 0..n_chunks {
-            let c0 = (k * cols_per_chunk).min(nc);
-            let c1 = ((k + 1) * cols_per_chunk).min(nc);
-            let data = &input.l[c0 * col_len..c1 * col_len];
-            let size = (4 * data.len() as u64).max(16);
-            let l = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("touchfem L chunk"),
-                size,
-                usage: usage_ro,
-                mapped_at_creation: false,
-            });
-            if !data.is_empty() {
-                queue.write_buffer(&l, 0, bytemuck::cast_slice(data));
-                // Flush each chunk's staging copy so that peak memory stays near one chunk.
-                queue.submit([]);
-            }
-            let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("touchfem L chunk"),
-                layout: &layout1,
-                entries: &[
-                    binding(
-                        0,
-                        &chunk_params,
-                        k as u64 * chunk_param_stride,
-                        CHUNK_PARAM_BYTES,
-                    ),
-                    binding(1, &l, 0, size),
-                ],
-            });
-            chunks.push(Chunk {
-                _l: l,
-                bind_group,
-                count: 0,
-            });
-        }
-
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("touchfem deform.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(DEFORM_WGSL.into()),
-        });
-        let pl_deform = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("touchfem deform"),
-            bind_group_layouts: &[Some(&layout0), Some(&layout1)],
-            immediate_size: 0,
-        });
-        let pl_normals = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("touchfem normals"),
-            bind_group_layouts: &[Some(&layout0)],
-            immediate_size: 0,
-        });
-        let pipeline = |layout: &wgpu::PipelineLayout, entry: &str| {
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: Some(layout),
-                module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
+        let shared = Shared {
+            device,
+            queue,
+            l: input.l,
+            nr,
+            nc,
+            rest_rows: &rest_rows,
+            tris: &tris,
+            index_buffer: &index_buffer,
+            index_words: tri_words.len() as u64,
+            frame: FrameGpu {
+                n_rows: nr as u32,
+                out_offset: out_word,
+                out_stride: (target.stride / 4) as u32,
+                normal_offset: normal_word,
+            },
+            out: (&target.buffer, out_start, out_size),
+            max_chunk,
+            max_binding,
         };
-        let deform_pipeline = pipeline(&pl_deform, "deform");
-        let normals_pipeline = pipeline(&pl_normals, "normals");
+        shared.check("output binding", out_size)?;
+        let texture = match options.storage {
+            LStorage::Texture => true,
+            LStorage::Buffers => false,
+            LStorage::Auto => device.adapter_info().device_type == wgpu::DeviceType::Cpu,
+        };
+        let path = if texture {
+            Path::Texture(TexturePath::new(&shared)?)
+        } else {
+            Path::Buffers(BufferPath::new(&shared)?)
+        };
 
         let mut d = Deformer {
             n_rows: nr as u32,
             n_cols: nc,
-            cols_per_chunk,
-            chunks,
-            chunk_param_stride,
-            chunk_params,
-            active,
-            bind_group,
-            deform_pipeline,
-            normals_pipeline,
+            path,
             write_normals: target.normal_offset.is_some(),
             target,
             index_buffer,
             triangles: tris,
-            scratch: Vec::with_capacity(MAX_ACTIVE),
         };
         d.set_forces(queue, &[])?;
         Ok(d)
@@ -542,43 +404,9 @@ impl Deformer {
                 return Err(GpuError::NonFiniteForce { col, force });
             }
         }
-        // Group the entries by chunk (counting sort), columns local to their chunk.
-        let cpc = self.cols_per_chunk;
-        for ch in &mut self.chunks {
-            ch.count = 0;
-        }
-        for &(col, _) in forces {
-            self.chunks[col as usize / cpc].count += 1;
-        }
-        let mut first = Vec::with_capacity(self.chunks.len());
-        let mut acc = 0u32;
-        for (k, ch) in self.chunks.iter().enumerate() {
-            first.push(acc);
-            let p = ChunkGpu {
-                first: acc,
-                count: ch.count,
-                init: u32::from(k == 0),
-                _pad: 0,
-            };
-            queue.write_buffer(
-                &self.chunk_params,
-                k as u64 * self.chunk_param_stride,
-                bytemuck::bytes_of(&p),
-            );
-            acc += ch.count;
-        }
-        self.scratch.clear();
-        self.scratch.resize(forces.len(), ActiveGpu::default());
-        for &(col, force) in forces {
-            let k = col as usize / cpc;
-            self.scratch[first[k] as usize] = ActiveGpu {
-                force,
-                col: (col as usize - k * cpc) as u32,
-            };
-            first[k] += 1;
-        }
-        if !self.scratch.is_empty() {
-            queue.write_buffer(&self.active, 0, bytemuck::cast_slice(&self.scratch));
+        match &mut self.path {
+            Path::Buffers(p) => p.set_forces(queue, forces),
+            Path::Texture(p) => p.set_forces(queue, forces),
         }
         Ok(())
     }
@@ -586,23 +414,13 @@ impl Deformer {
     /// Records the deformation and normal passes (one compute pass) into `encoder`. Draw from
     /// [`vertex_buffer`](Self::vertex_buffer) in a later pass of the same or a later submission.
     pub fn encode(&self, encoder: &mut wgpu::CommandEncoder) {
-        let groups = self.n_rows.div_ceil(WORKGROUP);
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("touchfem deform"),
             timestamp_writes: None,
         });
-        pass.set_pipeline(&self.deform_pipeline);
-        pass.set_bind_group(0, &self.bind_group, &[]);
-        for (k, ch) in self.chunks.iter().enumerate() {
-            if k == 0 || ch.count > 0 {
-                pass.set_bind_group(1, &ch.bind_group, &[]);
-                pass.dispatch_workgroups(groups, 1, 1);
-            }
-        }
-        if self.write_normals {
-            pass.set_pipeline(&self.normals_pipeline);
-            pass.set_bind_group(0, &self.bind_group, &[]);
-            pass.dispatch_workgroups(groups, 1, 1);
+        match &self.path {
+            Path::Buffers(p) => p.record(&mut pass, self.n_rows, self.write_normals),
+            Path::Texture(p) => p.record(&mut pass, self.n_rows, self.write_normals),
         }
     }
 
@@ -643,14 +461,30 @@ impl Deformer {
         self.n_cols
     }
 
-    /// Number of storage buffers `L` is split into.
-    pub fn chunk_count(&self) -> usize {
-        self.chunks.len()
+    /// The layout `L` is stored in ([`LStorage::Auto`] resolved).
+    pub fn storage(&self) -> LStorage {
+        match self.path {
+            Path::Buffers(_) => LStorage::Buffers,
+            Path::Texture(_) => LStorage::Texture,
+        }
     }
 
-    /// Column nodes per chunk.
-    pub fn columns_per_chunk(&self) -> usize {
-        self.cols_per_chunk
+    /// Number of storage buffers ([`LStorage::Buffers`]) or texture array layers
+    /// ([`LStorage::Texture`]) `L` is split into.
+    pub fn chunk_count(&self) -> usize {
+        match &self.path {
+            Path::Buffers(p) => p.chunk_count(),
+            Path::Texture(p) => p.layer_count(),
+        }
+    }
+
+    /// Column nodes per storage buffer ([`LStorage::Buffers`]); `None` for the texture layout,
+    /// which splits `L` by texel rows instead.
+    pub fn columns_per_chunk(&self) -> Option<usize> {
+        match &self.path {
+            Path::Buffers(p) => Some(p.cols_per_chunk()),
+            Path::Texture(_) => None,
+        }
     }
 
     /// Reads the vertices back (waits for the GPU): positions, and normals if written. The

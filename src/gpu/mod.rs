@@ -11,17 +11,25 @@
 //!
 //! Use the re-exported [`crate::wgpu`] so that your wgpu version matches ours.
 
+mod bind;
+mod buffer_path;
 mod deform;
+mod texture_path;
 
 pub use deform::{
-    Deformer, DeformerInput, DeformerOptions, OutputTarget, Vertex, MAX_ACTIVE, NO_NORMALS,
-    VERTEX_STRIDE,
+    Deformer, DeformerInput, DeformerOptions, LStorage, OutputTarget, Vertex, MAX_ACTIVE,
+    NO_NORMALS, VERTEX_STRIDE,
 };
 
 use thiserror::Error;
 
-/// The WGSL source of the deformation and normal passes (`shaders/deform.wgsl`).
+/// The WGSL source of the deformation and normal passes, storage-buffer layout
+/// (`shaders/deform.wgsl`).
 pub const DEFORM_WGSL: &str = include_str!("../../shaders/deform.wgsl");
+
+/// The WGSL source of the deformation and normal passes, texture layout
+/// (`shaders/deform_texture.wgsl`).
+pub const DEFORM_TEXTURE_WGSL: &str = include_str!("../../shaders/deform_texture.wgsl");
 
 /// Everything that can go wrong on the GPU side.
 #[derive(Debug, Error)]
@@ -275,16 +283,19 @@ mod tests {
             n += 1;
         }
         assert!(
-            n >= 2,
-            "expected at least deform.wgsl and render.wgsl, found {n}"
+            n >= 3,
+            "expected deform.wgsl, deform_texture.wgsl and render.wgsl, found {n}"
         );
     }
 
     #[test]
-    fn embedded_shader_is_the_file() {
-        let file =
-            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/shaders/deform.wgsl"))
-                .unwrap();
-        assert_eq!(file, super::DEFORM_WGSL);
+    fn embedded_shaders_are_the_files() {
+        for (name, embedded) in [
+            ("deform.wgsl", super::DEFORM_WGSL),
+            ("deform_texture.wgsl", super::DEFORM_TEXTURE_WGSL),
+        ] {
+            let path = format!("{}/shaders/{name}", env!("CARGO_MANIFEST_DIR"));
+            assert_eq!(std::fs::read_to_string(path).unwrap(), embedded, "{name}");
+        }
     }
 }

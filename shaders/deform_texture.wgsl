@@ -1,0 +1,120 @@
+// touchfem deformation passes, texture layout: the same maths as deform.wgsl (u = L·F over the
+// active columns, then area-weighted vertex normals), with L, the rest pose, the deformed
+// positions and the adjacency read through textureLoad instead of storage buffers.
+//
+// Why: on software rasterisers (Mesa's lavapipe/llvmpipe), a storage-buffer load whose address
+// differs per invocation is scalarised lane by lane, while a texel fetch is a vector gather;
+// measured on lavapipe 22.3 a texel (4 floats) costs about what one scalar storage load does.
+// Used by `touchfem::gpu::Deformer` with `LStorage::Texture` (the default on CPU adapters).
+//
+// Layouts (all linear indices t map to texels with W = 1024 texels a row):
+//   x = t & (W − 1), y = (t >> 10) & (2^log_h − 1), layer = t >> (10 + log_h)
+// * L: texel t = c_s·R + r holds (L[3r, c_s], L[3r+1, c_s], L[3r+2, c_s], 0) for scalar column
+//   c_s = 3c + b: exactly the f32 column-major L with a zero after every third entry.
+// * rest, pos: texel r = vertex r (metres, w = 1); pos is written by `deform`, read by `normals`.
+// * ring: texel v = (first, count) into pairs; pairs: texel i = (a, b), the other two corners
+//   of an incident triangle, so that cross(p_a − p_v, p_b − p_v) is twice its area times its
+//   outward normal.
+// All counts come from uniforms: nothing relies on arrayLength (VERTEX buffers are padded).
+
+const LOG_W: u32 = 10u;
+const W_MASK: u32 = 1023u;
+
+struct Frame {
+    // Displayed vertices (rows of L).
+    n_rows: u32,
+    // Output: first f32 word of vertex 0 in `out`, and the vertex stride in f32 words.
+    out_offset: u32,
+    out_stride: u32,
+    // Normal's first word relative to the vertex start; 0xffffffff: no normals written.
+    normal_offset: u32,
+    // log2 of the rows per layer of the L texture.
+    log_h: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+// One active column node of the force boundary condition: F_c (newtons) and c.
+struct Active {
+    force: vec3<f32>,
+    col: u32,
+}
+
+struct ActiveList {
+    count: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+    entries: array<Active>,
+}
+
+@group(0) @binding(0) var<uniform> frame: Frame;
+@group(0) @binding(1) var<storage, read> forces: ActiveList;
+@group(0) @binding(2) var<storage, read_write> out: array<f32>;
+@group(0) @binding(3) var l_tex: texture_2d_array<f32>;
+@group(0) @binding(4) var rest_tex: texture_2d<f32>;
+@group(0) @binding(5) var pos_out: texture_storage_2d<rgba32float, write>;
+@group(0) @binding(6) var pos_tex: texture_2d<f32>;
+@group(0) @binding(7) var ring_tex: texture_2d<u32>;
+@group(0) @binding(8) var pairs_tex: texture_2d<u32>;
+
+fn xy(t: u32) -> vec2<u32> {
+    return vec2<u32>(t & W_MASK, t >> LOG_W);
+}
+
+fn load_l(t: u32) -> vec3<f32> {
+    let y = t >> LOG_W;
+    let h_mask = (1u << frame.log_h) - 1u;
+    return textureLoad(l_tex, vec2<u32>(t & W_MASK, y & h_mask), y >> frame.log_h, 0).xyz;
+}
+
+@compute @workgroup_size(64)
+fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let r = gid.x;
+    if r >= frame.n_rows {
+        return;
+    }
+    let nr = frame.n_rows;
+    var u = vec3<f32>(0.0);
+    for (var k = 0u; k < forces.count; k += 1u) {
+        let a = forces.entries[k];
+        // Scalar columns 3c, 3c + 1, 3c + 2: texels (3c + b)·R + r.
+        let t = 3u * a.col * nr + r;
+        u += load_l(t) * a.force.x + load_l(t + nr) * a.force.y + load_l(t + 2u * nr) * a.force.z;
+    }
+    let p = textureLoad(rest_tex, xy(r), 0).xyz + u;
+    let o = frame.out_offset + r * frame.out_stride;
+    out[o] = p.x;
+    out[o + 1u] = p.y;
+    out[o + 2u] = p.z;
+    if frame.normal_offset != 0xffffffffu {
+        textureStore(pos_out, xy(r), vec4<f32>(p, 1.0));
+    }
+}
+
+@compute @workgroup_size(64)
+fn normals(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let v = gid.x;
+    if v >= frame.n_rows || frame.normal_offset == 0xffffffffu {
+        return;
+    }
+    let ring = textureLoad(ring_tex, xy(v), 0).xy;
+    let p = textureLoad(pos_tex, xy(v), 0).xyz;
+    var n = vec3<f32>(0.0);
+    for (var i = ring.x; i < ring.x + ring.y; i += 1u) {
+        let ab = textureLoad(pairs_tex, xy(i), 0).xy;
+        let pa = textureLoad(pos_tex, xy(ab.x), 0).xyz - p;
+        let pb = textureLoad(pos_tex, xy(ab.y), 0).xyz - p;
+        // |cross| is twice the area: the sum is area-weighted.
+        n += cross(pa, pb);
+    }
+    let len = length(n);
+    if len > 0.0 {
+        n = n / len;
+    }
+    let o = frame.out_offset + v * frame.out_stride + frame.normal_offset;
+    out[o] = n.x;
+    out[o + 1u] = n.y;
+    out[o + 2u] = n.z;
+}

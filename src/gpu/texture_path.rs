@@ -1,0 +1,336 @@
+//! The texture layout of `L` (`shaders/deform_texture.wgsl`): `L`, the rest pose, the deformed
+//! positions and the surface adjacency live in textures read with `textureLoad`; one dispatch
+//! for `u = L·F`, one for the normals.
+//!
+//! The layout for software rasterisers. Mesa's lavapipe (llvmpipe) scalarises a storage-buffer
+//! load whose address differs per invocation, lane by lane, while a texel fetch is one vector
+//! gather of four floats: on lavapipe 22.3 this path is about four times faster than
+//! [`super::buffer_path`] on the mouse-sized case (see the `deform` benchmark). It costs a
+//! quarter more memory for `L` (one padding float per three).
+
+use bytemuck::{Pod, Zeroable};
+use wgpu::util::DeviceExt;
+
+use super::bind::{
+    buffer, compute_pipeline, storage_entry, storage_texture_entry, texture_entry, uniform_entry,
+    view,
+};
+use super::deform::{Shared, MAX_ACTIVE, WORKGROUP};
+use super::{GpuError, DEFORM_TEXTURE_WGSL};
+
+/// Texels per texture row (the shader's `LOG_W`).
+const LOG_W: u32 = 10;
+const W: u64 = 1 << LOG_W;
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct FrameGpu {
+    n_rows: u32,
+    out_offset: u32,
+    out_stride: u32,
+    normal_offset: u32,
+    log_h: u32,
+    _pad: [u32; 3],
+}
+
+/// `L` and the pose in textures, and the passes that read them.
+pub(super) struct TexturePath {
+    layers: u32,
+    active: wgpu::Buffer,
+    deform_group: wgpu::BindGroup,
+    normals_group: wgpu::BindGroup,
+    deform: wgpu::ComputePipeline,
+    normals: wgpu::ComputePipeline,
+    /// Header `[count, 0, 0, 0]` then one `[fx, fy, fz, col]` per entry (bit patterns).
+    scratch: Vec<[u32; 4]>,
+}
+
+/// Width and height of a 2D texture holding `n` texels linearly (`W` a row).
+fn extent_2d(n: u64) -> (u32, u32) {
+    let n = n.max(1);
+    (n.min(W) as u32, n.div_ceil(W) as u32)
+}
+
+impl TexturePath {
+    pub(super) fn new(sh: &Shared<'_>) -> Result<TexturePath, GpuError> {
+        let (device, queue, nr, nc) = (sh.device, sh.queue, sh.nr as u64, sh.nc as u64);
+        let limits = device.limits();
+        let max_dim = u64::from(limits.max_texture_dimension_2d);
+        let tb = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST;
+
+        // A 2D texture of `n` texels from `data` (texels of `texel` bytes), zero-padded.
+        let texture_2d = |what: &'static str,
+                          format: wgpu::TextureFormat,
+                          usage: wgpu::TextureUsages,
+                          n: u64,
+                          data: &[u8]|
+         -> Result<wgpu::Texture, GpuError> {
+            let (w, h) = extent_2d(n);
+            if u64::from(h) > max_dim {
+                return Err(GpuError::BufferTooLarge {
+                    what,
+                    bytes: 16 * n,
+                    limit: 16 * W * max_dim,
+                });
+            }
+            let texel = format.block_copy_size(None).unwrap_or(16) as usize;
+            let mut bytes = data.to_vec();
+            bytes.resize(texel * w as usize * h as usize, 0);
+            Ok(device.create_texture_with_data(
+                queue,
+                &wgpu::TextureDescriptor {
+                    label: Some(what),
+                    size: wgpu::Extent3d {
+                        width: w,
+                        height: h,
+                        depth_or_array_layers: 1,
+                    },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format,
+                    usage,
+                    view_formats: &[],
+                },
+                wgpu::util::TextureDataOrder::LayerMajor,
+                &bytes,
+            ))
+        };
+
+        // Rest pose and the deformed positions (written by `deform`, read by `normals`).
+        let rgba = wgpu::TextureFormat::Rgba32Float;
+        let rest_bytes: &[u8] = bytemuck::cast_slice(sh.rest_rows);
+        let rest = texture_2d("touchfem rest positions", rgba, tb, nr, rest_bytes)?;
+        let pos = texture_2d(
+            "touchfem deformed positions",
+            rgba,
+            tb | wgpu::TextureUsages::STORAGE_BINDING,
+            nr,
+            rest_bytes,
+        )?;
+
+        // Per vertex (first, count) into the incident triangles' other two corners.
+        let (offsets, list) = crate::mesh::vertex_triangles(sh.nr, sh.tris);
+        let ring: Vec<[u32; 2]> = offsets.windows(2).map(|o| [o[0], o[1] - o[0]]).collect();
+        let mut pairs = Vec::with_capacity(list.len());
+        for (v, o) in offsets.windows(2).enumerate() {
+            for &t in &list[o[0] as usize..o[1] as usize] {
+                let tri = sh.tris[t as usize];
+                let k = tri.iter().position(|&i| i as usize == v).unwrap_or(0);
+                pairs.push([tri[(k + 1) % 3], tri[(k + 2) % 3]]);
+            }
+        }
+        let rg = wgpu::TextureFormat::Rg32Uint;
+        let ring_tex = texture_2d(
+            "touchfem vertex rings",
+            rg,
+            tb,
+            nr,
+            bytemuck::cast_slice(&ring),
+        )?;
+        let pairs_tex = texture_2d(
+            "touchfem incident triangle corners",
+            rg,
+            tb,
+            pairs.len() as u64,
+            bytemuck::cast_slice(&pairs),
+        )?;
+
+        // L: texel t = (3c + b)·R + r, W texels a row, 2^log_h rows a layer.
+        let texels = 3 * nc * nr;
+        let rows = texels.div_ceil(W).max(1);
+        let cap_rows = (sh.max_chunk / (16 * W)).min(max_dim);
+        if cap_rows == 0 {
+            return Err(GpuError::BufferTooLarge {
+                what: "one row of the L texture",
+                bytes: 16 * W,
+                limit: sh.max_chunk,
+            });
+        }
+        let log_h = 63 - cap_rows.leading_zeros();
+        let per_layer = 1u64 << log_h;
+        let layers = rows.div_ceil(per_layer);
+        if layers > u64::from(limits.max_texture_array_layers) || texels > u64::from(u32::MAX) {
+            return Err(GpuError::BufferTooLarge {
+                what: "L as a texture array",
+                bytes: 16 * texels,
+                limit: 16 * W * per_layer * u64::from(limits.max_texture_array_layers),
+            });
+        }
+        let (width, height) = if layers == 1 {
+            (texels.clamp(1, W), rows)
+        } else {
+            (W, per_layer)
+        };
+        let l_tex = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("touchfem L"),
+            size: wgpu::Extent3d {
+                width: width as u32,
+                height: height as u32,
+                depth_or_array_layers: layers as u32,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: rgba,
+            usage: tb,
+            view_formats: &[],
+        });
+        let layer_texels = (width * height) as usize;
+        let mut staging: Vec<[f32; 4]> = Vec::with_capacity(layer_texels);
+        for k in 0..layers as usize {
+            let t0 = (k * layer_texels).min(texels as usize);
+            let t1 = ((k + 1) * layer_texels).min(texels as usize);
+            staging.clear();
+            staging.extend(
+                sh.l[3 * t0..3 * t1]
+                    .chunks_exact(3)
+                    .map(|v| [v[0], v[1], v[2], 0.0]),
+            );
+            staging.resize(layer_texels, [0.0; 4]);
+            queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &l_tex,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d {
+                        x: 0,
+                        y: 0,
+                        z: k as u32,
+                    },
+                    aspect: wgpu::TextureAspect::All,
+                },
+                bytemuck::cast_slice(&staging),
+                wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(16 * width as u32),
+                    rows_per_image: Some(height as u32),
+                },
+                wgpu::Extent3d {
+                    width: width as u32,
+                    height: height as u32,
+                    depth_or_array_layers: 1,
+                },
+            );
+            // Flush each layer's staging copy so that peak memory stays near one layer.
+            queue.submit([]);
+        }
+
+        let frame = FrameGpu {
+            n_rows: sh.frame.n_rows,
+            out_offset: sh.frame.out_offset,
+            out_stride: sh.frame.out_stride,
+            normal_offset: sh.frame.normal_offset,
+            log_h,
+            _pad: [0; 3],
+        };
+        let frame_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("touchfem frame"),
+            contents: bytemuck::bytes_of(&frame),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let active = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("touchfem active columns"),
+            size: 16 * (MAX_ACTIVE as u64 + 1),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+
+        let float = wgpu::TextureSampleType::Float { filterable: false };
+        let uint = wgpu::TextureSampleType::Uint;
+        let d2 = wgpu::TextureViewDimension::D2;
+        let deform_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("touchfem deform (texture)"),
+            entries: &[
+                uniform_entry(0),
+                storage_entry(1, true),
+                storage_entry(2, false),
+                texture_entry(3, float, wgpu::TextureViewDimension::D2Array),
+                texture_entry(4, float, d2),
+                storage_texture_entry(5),
+            ],
+        });
+        let normals_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("touchfem normals (texture)"),
+            entries: &[
+                uniform_entry(0),
+                storage_entry(2, false),
+                texture_entry(6, float, d2),
+                texture_entry(7, uint, d2),
+                texture_entry(8, uint, d2),
+            ],
+        });
+        let l_view = l_tex.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
+        let v = |t: &wgpu::Texture| t.create_view(&Default::default());
+        let (rest_view, pos_view) = (v(&rest), v(&pos));
+        let (ring_view, pairs_view) = (v(&ring_tex), v(&pairs_tex));
+        let (out, out_start, out_size) = sh.out;
+        let deform_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("touchfem deform (texture)"),
+            layout: &deform_layout,
+            entries: &[
+                buffer(0, &frame_buf, 0, 32),
+                buffer(1, &active, 0, active.size()),
+                buffer(2, out, out_start, out_size),
+                view(3, &l_view),
+                view(4, &rest_view),
+                view(5, &pos_view),
+            ],
+        });
+        let normals_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("touchfem normals (texture)"),
+            layout: &normals_layout,
+            entries: &[
+                buffer(0, &frame_buf, 0, 32),
+                buffer(2, out, out_start, out_size),
+                view(6, &pos_view),
+                view(7, &ring_view),
+                view(8, &pairs_view),
+            ],
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("touchfem deform_texture.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(DEFORM_TEXTURE_WGSL.into()),
+        });
+        Ok(TexturePath {
+            layers: layers as u32,
+            active,
+            deform: compute_pipeline(device, &module, "deform", &[&deform_layout]),
+            normals: compute_pipeline(device, &module, "normals", &[&normals_layout]),
+            deform_group,
+            normals_group,
+            scratch: Vec::with_capacity(MAX_ACTIVE + 1),
+        })
+    }
+
+    /// Writes the header and the active list in one `write_buffer`. `forces` is validated.
+    pub(super) fn set_forces(&mut self, queue: &wgpu::Queue, forces: &[(u32, [f32; 3])]) {
+        self.scratch.clear();
+        self.scratch.push([forces.len() as u32, 0, 0, 0]);
+        self.scratch.extend(
+            forces
+                .iter()
+                .map(|&(col, f)| [f[0].to_bits(), f[1].to_bits(), f[2].to_bits(), col]),
+        );
+        queue.write_buffer(&self.active, 0, bytemuck::cast_slice(&self.scratch));
+    }
+
+    /// Records the deformation dispatch, then the normal pass.
+    pub(super) fn record(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32, normals: bool) {
+        let groups = n_rows.div_ceil(WORKGROUP);
+        pass.set_pipeline(&self.deform);
+        pass.set_bind_group(0, &self.deform_group, &[]);
+        pass.dispatch_workgroups(groups, 1, 1);
+        if normals {
+            pass.set_pipeline(&self.normals);
+            pass.set_bind_group(0, &self.normals_group, &[]);
+            pass.dispatch_workgroups(groups, 1, 1);
+        }
+    }
+
+    pub(super) fn layer_count(&self) -> usize {
+        self.layers as usize
+    }
+}
