@@ -32,7 +32,9 @@ struct Chunk {
 }
 
 @group(0) @binding(0) var<uniform> frame: Frame;
-@group(0) @binding(1) var<storage, read> active_list: array<Active>;
+// Uniform, not storage: every invocation reads the same entry, and llvmpipe (lavapipe) turns a
+// storage load into per-lane loads even then. 1024 = touchfem::gpu::MAX_ACTIVE.
+@group(0) @binding(1) var<uniform> active_list: array<Active, 1024>;
 @group(0) @binding(2) var<storage, read> rest: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> out: array<f32>;
 // Surface triangles as row indices, 3 per triangle.

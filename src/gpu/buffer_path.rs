@@ -83,7 +83,7 @@ impl BufferPath {
         let active = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("touchfem active columns"),
             size: (MAX_ACTIVE * std::mem::size_of::<ActiveGpu>()) as u64,
-            usage: usage_ro,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         let rest_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -107,7 +107,7 @@ impl BufferPath {
             label: Some("touchfem deform group 0"),
             entries: &[
                 uniform_entry(0),
-                storage_entry(1, true),
+                uniform_entry(1),
                 storage_entry(2, true),
                 storage_entry(3, false),
                 storage_entry(4, true),

@@ -288,6 +288,15 @@ mod tests {
         );
     }
 
+    /// The shaders' fixed-size active lists hold exactly `MAX_ACTIVE` entries.
+    #[test]
+    fn shaders_active_lists_match_max_active() {
+        let decl = format!("array<Active, {}>", super::MAX_ACTIVE);
+        for src in [super::DEFORM_WGSL, super::DEFORM_TEXTURE_WGSL] {
+            assert!(src.contains(&decl), "{decl} not found");
+        }
+    }
+
     #[test]
     fn embedded_shaders_are_the_files() {
         for (name, embedded) in [

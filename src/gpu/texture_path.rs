@@ -231,7 +231,7 @@ impl TexturePath {
         let active = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("touchfem active columns"),
             size: 16 * (MAX_ACTIVE as u64 + 1),
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
 
@@ -242,7 +242,7 @@ impl TexturePath {
             label: Some("touchfem deform (texture)"),
             entries: &[
                 uniform_entry(0),
-                storage_entry(1, true),
+                uniform_entry(1),
                 storage_entry(2, false),
                 texture_entry(3, float, wgpu::TextureViewDimension::D2Array),
                 texture_entry(4, float, d2),
