@@ -1,9 +1,10 @@
 // touchfem deformation passes, texture layout: the same maths as deform.wgsl (u = L·F over the
 // active columns, then area-weighted vertex normals), with L, the rest pose, the deformed
-// positions and the adjacency read through textureLoad instead of storage buffers.
+// positions and the adjacency read with textureLoad from read-only storage textures instead of
+// storage buffers.
 //
 // Why: on software rasterisers (Mesa's lavapipe/llvmpipe), a storage-buffer load whose address
-// differs per invocation is scalarised lane by lane, while a texel fetch is a vector gather;
+// differs per invocation is scalarised lane by lane, while an image load is a vector gather;
 // measured on lavapipe 22.3 a texel (4 floats) costs about what one scalar storage load does.
 // Used by `touchfem::gpu::Deformer` with `LStorage::Texture` (the default on CPU adapters).
 //
@@ -55,12 +56,12 @@ struct ActiveList {
 // storage load into per-lane loads even then (measured: 2.3× slower at 90 active columns).
 @group(0) @binding(1) var<uniform> forces: ActiveList;
 @group(0) @binding(2) var<storage, read_write> out: array<f32>;
-@group(0) @binding(3) var l_tex: texture_2d_array<f32>;
-@group(0) @binding(4) var rest_tex: texture_2d<f32>;
+@group(0) @binding(3) var l_tex: texture_storage_2d_array<rgba32float, read>;
+@group(0) @binding(4) var rest_tex: texture_storage_2d<rgba32float, read>;
 @group(0) @binding(5) var pos_out: texture_storage_2d<rgba32float, write>;
-@group(0) @binding(6) var pos_tex: texture_2d<f32>;
-@group(0) @binding(7) var ring_tex: texture_2d<u32>;
-@group(0) @binding(8) var pairs_tex: texture_2d<u32>;
+@group(0) @binding(6) var pos_tex: texture_storage_2d<rgba32float, read>;
+@group(0) @binding(7) var ring_tex: texture_storage_2d<rg32uint, read>;
+@group(0) @binding(8) var pairs_tex: texture_storage_2d<rg32uint, read>;
 
 fn xy(t: u32) -> vec2<u32> {
     return vec2<u32>(t & W_MASK, t >> LOG_W);
@@ -69,7 +70,7 @@ fn xy(t: u32) -> vec2<u32> {
 fn load_l(t: u32) -> vec3<f32> {
     let y = t >> LOG_W;
     let h_mask = (1u << frame.log_h) - 1u;
-    return textureLoad(l_tex, vec2<u32>(t & W_MASK, y & h_mask), y >> frame.log_h, 0).xyz;
+    return textureLoad(l_tex, vec2<u32>(t & W_MASK, y & h_mask), y >> frame.log_h).xyz;
 }
 
 @compute @workgroup_size(64)
@@ -86,7 +87,7 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
         let t = 3u * a.col * nr + r;
         u += load_l(t) * a.force.x + load_l(t + nr) * a.force.y + load_l(t + 2u * nr) * a.force.z;
     }
-    let p = textureLoad(rest_tex, xy(r), 0).xyz + u;
+    let p = textureLoad(rest_tex, xy(r)).xyz + u;
     let o = frame.out_offset + r * frame.out_stride;
     out[o] = p.x;
     out[o + 1u] = p.y;
@@ -102,13 +103,13 @@ fn normals(@builtin(global_invocation_id) gid: vec3<u32>) {
     if v >= frame.n_rows || frame.normal_offset == 0xffffffffu {
         return;
     }
-    let ring = textureLoad(ring_tex, xy(v), 0).xy;
-    let p = textureLoad(pos_tex, xy(v), 0).xyz;
+    let ring = textureLoad(ring_tex, xy(v)).xy;
+    let p = textureLoad(pos_tex, xy(v)).xyz;
     var n = vec3<f32>(0.0);
     for (var i = ring.x; i < ring.x + ring.y; i += 1u) {
-        let ab = textureLoad(pairs_tex, xy(i), 0).xy;
-        let pa = textureLoad(pos_tex, xy(ab.x), 0).xyz - p;
-        let pb = textureLoad(pos_tex, xy(ab.y), 0).xyz - p;
+        let ab = textureLoad(pairs_tex, xy(i)).xy;
+        let pa = textureLoad(pos_tex, xy(ab.x)).xyz - p;
+        let pb = textureLoad(pos_tex, xy(ab.y)).xyz - p;
         // |cross| is twice the area: the sum is area-weighted.
         n += cross(pa, pb);
     }

@@ -24,30 +24,20 @@ pub(super) fn uniform_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
     )
 }
 
-/// A compute-visible sampled-texture entry read with `textureLoad` only (never filtered).
-pub(super) fn texture_entry(
+/// A compute-visible storage texture entry. Read-only access is guaranteed for the 32-bit
+/// formats used here (`rgba32float`, `rg32uint`) on every wgpu backend.
+pub(super) fn storage_texture_entry(
     binding: u32,
-    sample_type: wgpu::TextureSampleType,
+    access: wgpu::StorageTextureAccess,
+    format: wgpu::TextureFormat,
     view_dimension: wgpu::TextureViewDimension,
 ) -> wgpu::BindGroupLayoutEntry {
     entry(
         binding,
-        wgpu::BindingType::Texture {
-            sample_type,
-            view_dimension,
-            multisampled: false,
-        },
-    )
-}
-
-/// A compute-visible write-only `rgba32float` 2D storage texture entry.
-pub(super) fn storage_texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
-    entry(
-        binding,
         wgpu::BindingType::StorageTexture {
-            access: wgpu::StorageTextureAccess::WriteOnly,
-            format: wgpu::TextureFormat::Rgba32Float,
-            view_dimension: wgpu::TextureViewDimension::D2,
+            access,
+            format,
+            view_dimension,
         },
     )
 }

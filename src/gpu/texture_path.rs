@@ -1,19 +1,20 @@
 //! The texture layout of `L` (`shaders/deform_texture.wgsl`): `L`, the rest pose, the deformed
-//! positions and the surface adjacency live in textures read with `textureLoad`; one dispatch
-//! for `u = L·F`, one for the normals.
+//! positions and the surface adjacency live in read-only storage textures read with
+//! `textureLoad`; one dispatch for `u = L·F`, one for the normals.
 //!
 //! The layout for software rasterisers. Mesa's lavapipe (llvmpipe) scalarises a storage-buffer
-//! load whose address differs per invocation, lane by lane, while a texel fetch is one vector
-//! gather of four floats: on lavapipe 22.3 this path is about four times faster than
-//! [`super::buffer_path`] on the mouse-sized case (see the `deform` benchmark). It costs a
-//! quarter more memory for `L` (one padding float per three).
+//! load whose address differs per invocation, lane by lane, while an image load is one vector
+//! gather of four floats: on lavapipe 22.3 this path is 5–7× faster than [`super::buffer_path`]
+//! on the mouse-sized case (see the `deform` benchmark). Storage rather than sampled textures:
+//! the deformed positions stay in the `GENERAL` layout between the two dispatches (no layout
+//! transition each frame), and `L` loads measured faster. `L` costs a third more memory (one
+//! padding float per three).
 
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
 use super::bind::{
-    buffer, compute_pipeline, storage_entry, storage_texture_entry, texture_entry, uniform_entry,
-    view,
+    buffer, compute_pipeline, storage_entry, storage_texture_entry, uniform_entry, view,
 };
 use super::deform::{Shared, MAX_ACTIVE, WORKGROUP};
 use super::{GpuError, DEFORM_TEXTURE_WGSL};
@@ -56,7 +57,7 @@ impl TexturePath {
         let (device, queue, nr, nc) = (sh.device, sh.queue, sh.nr as u64, sh.nc as u64);
         let limits = device.limits();
         let max_dim = u64::from(limits.max_texture_dimension_2d);
-        let tb = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST;
+        let tb = wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_DST;
 
         // A 2D texture of `n` texels from `data` (texels of `texel` bytes), zero-padded.
         let texture_2d = |what: &'static str,
@@ -101,13 +102,7 @@ impl TexturePath {
         let rgba = wgpu::TextureFormat::Rgba32Float;
         let rest_bytes: &[u8] = bytemuck::cast_slice(sh.rest_rows);
         let rest = texture_2d("touchfem rest positions", rgba, tb, nr, rest_bytes)?;
-        let pos = texture_2d(
-            "touchfem deformed positions",
-            rgba,
-            tb | wgpu::TextureUsages::STORAGE_BINDING,
-            nr,
-            rest_bytes,
-        )?;
+        let pos = texture_2d("touchfem deformed positions", rgba, tb, nr, rest_bytes)?;
 
         // Per vertex (first, count) into the incident triangles' other two corners.
         let (offsets, list) = crate::mesh::vertex_triangles(sh.nr, sh.tris);
@@ -235,18 +230,21 @@ impl TexturePath {
             mapped_at_creation: false,
         });
 
-        let float = wgpu::TextureSampleType::Float { filterable: false };
-        let uint = wgpu::TextureSampleType::Uint;
+        let (read, write) = (
+            wgpu::StorageTextureAccess::ReadOnly,
+            wgpu::StorageTextureAccess::WriteOnly,
+        );
         let d2 = wgpu::TextureViewDimension::D2;
+        let d2a = wgpu::TextureViewDimension::D2Array;
         let deform_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("touchfem deform (texture)"),
             entries: &[
                 uniform_entry(0),
                 uniform_entry(1),
                 storage_entry(2, false),
-                texture_entry(3, float, wgpu::TextureViewDimension::D2Array),
-                texture_entry(4, float, d2),
-                storage_texture_entry(5),
+                storage_texture_entry(3, read, rgba, d2a),
+                storage_texture_entry(4, read, rgba, d2),
+                storage_texture_entry(5, write, rgba, d2),
             ],
         });
         let normals_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -254,9 +252,9 @@ impl TexturePath {
             entries: &[
                 uniform_entry(0),
                 storage_entry(2, false),
-                texture_entry(6, float, d2),
-                texture_entry(7, uint, d2),
-                texture_entry(8, uint, d2),
+                storage_texture_entry(6, read, rgba, d2),
+                storage_texture_entry(7, read, rg, d2),
+                storage_texture_entry(8, read, rg, d2),
             ],
         });
         let l_view = l_tex.create_view(&wgpu::TextureViewDescriptor {
