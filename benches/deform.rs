@@ -1,6 +1,7 @@
 //! The visual loop's `u = L·F` (+ vertex normals): the GPU pass (set_forces + encode + submit +
 //! wait) in both layouts of `L` against the f64 CPU reference `Compliance::displace`, and the
-//! driver's floor (one empty dispatch with its 16-byte upload, submit, wait), in the same run.
+//! driver's floor (submit + wait alone; with a 16-byte upload; with one and two empty
+//! dispatches), in the same run.
 //!
 //! Active columns are counted as **scalar columns of L**: one contact triangle (the paper's
 //! eq. 8, three nodes with a 3-vector force each) is 9 columns. IDs read `9c_3n`: 9 scalar
@@ -91,9 +92,9 @@ fn frame(gpu: &Gpu, d: &mut Deformer, f: &[(u32, [f32; 3])]) {
         .unwrap();
 }
 
-/// The least a frame can cost on this driver: a 16-byte `write_buffer`, one dispatch of an
-/// empty shader over the same workgroups, submit, wait.
-fn floor(gpu: &Gpu, rows: u32) -> impl FnMut() + '_ {
+/// What a frame costs on this driver before any work: a 16-byte `write_buffer` (if `upload`),
+/// `dispatches` dispatches of an empty shader over the same workgroups, submit, wait.
+fn floor(gpu: &Gpu, rows: u32, upload: bool, dispatches: u32) -> impl FnMut() + '_ {
     let module = gpu
         .device
         .create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -129,17 +130,23 @@ fn floor(gpu: &Gpu, rows: u32) -> impl FnMut() + '_ {
             resource: buf.as_entire_binding(),
         }],
     });
+    gpu.queue
+        .write_buffer(&buf, 0, bytemuck::cast_slice(&[rows, 0, 0, 0]));
     move || {
-        gpu.queue
-            .write_buffer(&buf, 0, bytemuck::cast_slice(&[rows, 0, 0, 0]));
+        if upload {
+            gpu.queue
+                .write_buffer(&buf, 0, bytemuck::cast_slice(&[rows, 0, 0, 0]));
+        }
         let mut enc = gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor::default());
-        {
+        if dispatches > 0 {
             let mut pass = enc.begin_compute_pass(&Default::default());
             pass.set_pipeline(&pipeline);
             pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups(rows.div_ceil(64), 1, 1);
+            for _ in 0..dispatches {
+                pass.dispatch_workgroups(rows.div_ceil(64), 1, 1);
+            }
         }
         gpu.queue.submit([enc.finish()]);
         gpu.device
@@ -189,9 +196,15 @@ fn bench_case(
     let mut buffers = deformer(LStorage::Buffers, None);
     let mut group = crit.benchmark_group(format!("{name}_{nr}rows_{}cols", c.cols().len()));
     group.sample_size(30);
-    group.bench_function("gpu_floor_empty_dispatch", |b| {
-        b.iter(floor(gpu, nr as u32))
-    });
+    // The driver's fixed costs, for comparison with the frames below.
+    for (id, upload, dispatches) in [
+        ("gpu_floor_submit", false, 0),
+        ("gpu_floor_upload", true, 0),
+        ("gpu_floor_empty_dispatch", true, 1),
+        ("gpu_floor_two_empty_dispatches", true, 2),
+    ] {
+        group.bench_function(id, |b| b.iter(floor(gpu, nr as u32, upload, dispatches)));
+    }
     let mut out = vec![DVec3::ZERO; nr];
     for &n in nodes {
         let f = forces(&c, n);
