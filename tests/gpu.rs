@@ -447,6 +447,22 @@ fn caller_supplied_buffer_with_offset_and_stride() {
     }
 }
 
+/// A random `R`-row compliance with `C` columns at rows `0, step, 2·step, …` (dominant diagonal
+/// blocks, so that `L_ii` is invertible), and random rest positions within 5 cm.
+fn random_compliance(rng: &mut Rng, r: usize, c: usize, step: u32) -> (Compliance, Vec<DVec3>) {
+    let rows: Vec<u32> = (0..r as u32).collect();
+    let cols: Vec<u32> = (0..c as u32).map(|i| i * step).collect();
+    let mut l: Vec<f64> = (0..9 * r * c).map(|_| rng.next() * 1e-4).collect();
+    for (ci, &row) in cols.iter().enumerate() {
+        for a in 0..3 {
+            l[(3 * ci + a) * 3 * r + 3 * row as usize + a] += 1e-2;
+        }
+    }
+    let compliance = Compliance::from_dense(rows, cols, l, r).expect("random compliance");
+    let rest = (0..r).map(|_| rng.vec() * 0.05).collect();
+    (compliance, rest)
+}
+
 /// A random compliance whose f32 `L` exceeds 128 MiB, so that it needs several bindings on
 /// devices with the WebGPU default `max_storage_buffer_binding_size` (lavapipe included).
 #[test]
@@ -456,17 +472,7 @@ fn large_random_compliance_needs_the_split() {
     let g = gpu();
     let t0 = std::time::Instant::now();
     let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
-    let rows: Vec<u32> = (0..R as u32).collect();
-    let cols: Vec<u32> = (0..C as u32).map(|i| i * 4).collect();
-    let mut l: Vec<f64> = (0..9 * R * C).map(|_| rng.next() * 1e-4).collect();
-    // Dominant diagonal blocks so that L_ii is invertible.
-    for (ci, &r) in cols.iter().enumerate() {
-        for a in 0..3 {
-            l[(3 * ci + a) * 3 * R + 3 * r as usize + a] += 1e-2;
-        }
-    }
-    let c = Compliance::from_dense(rows, cols, l, R).expect("random compliance");
-    let rest: Vec<DVec3> = (0..R).map(|_| rng.vec() * 0.05).collect();
+    let (c, rest) = random_compliance(&mut rng, R, C, 4);
     // A strip of triangles over the rows, to exercise the normal pass too.
     let tris: Vec<[u32; 3]> = (0..R as u32 - 2)
         .map(|i| {
@@ -580,16 +586,7 @@ fn layouts_agree_on_a_random_compliance() {
     const C: usize = 57;
     let g = gpu();
     let mut rng = Rng(99);
-    let rows: Vec<u32> = (0..R as u32).collect();
-    let cols: Vec<u32> = (0..C as u32).map(|i| i * 19).collect();
-    let mut l: Vec<f64> = (0..9 * R * C).map(|_| rng.next() * 1e-4).collect();
-    for (ci, &r) in cols.iter().enumerate() {
-        for a in 0..3 {
-            l[(3 * ci + a) * 3 * R + 3 * r as usize + a] += 1e-2;
-        }
-    }
-    let c = Compliance::from_dense(rows, cols, l, R).expect("random compliance");
-    let rest: Vec<DVec3> = (0..R).map(|_| rng.vec() * 0.05).collect();
+    let (c, rest) = random_compliance(&mut rng, R, C, 19);
     let tris: Vec<[u32; 3]> = (0..R as u32 - 2).map(|i| [i, i + 1, i + 2]).collect();
     let forces: Vec<(u32, [f32; 3])> = (0..40)
         .map(|i| ((i * 13 % C) as u32, rng.vec().as_vec3().to_array()))
