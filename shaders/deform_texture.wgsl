@@ -31,9 +31,10 @@ struct Frame {
     normal_offset: u32,
     // log2 of the rows per layer of the L texture.
     log_h: u32,
+    // Entries of `forces` this frame (written per frame).
+    n_active: u32,
     _pad0: u32,
     _pad1: u32,
-    _pad2: u32,
 }
 
 // One active column node of the force boundary condition: F_c (newtons) and c.
@@ -42,19 +43,12 @@ struct Active {
     col: u32,
 }
 
-struct ActiveList {
-    count: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
-    // 1024 = touchfem::gpu::MAX_ACTIVE.
-    entries: array<Active, 1024>,
-}
 
 @group(0) @binding(0) var<uniform> frame: Frame;
 // Uniform, not storage: every invocation reads the same entry, and llvmpipe (lavapipe) turns a
 // storage load into per-lane loads even then (measured: 2.3× slower at 90 active columns).
-@group(0) @binding(1) var<uniform> forces: ActiveList;
+// 1024 = touchfem::gpu::MAX_ACTIVE: 16 KiB, the smallest uniform binding every device allows.
+@group(0) @binding(1) var<uniform> forces: array<Active, 1024>;
 @group(0) @binding(2) var<storage, read_write> out: array<f32>;
 @group(0) @binding(3) var l_tex: texture_storage_2d_array<rgba32float, read>;
 @group(0) @binding(4) var rest_tex: texture_storage_2d<rgba32float, read>;
@@ -81,8 +75,8 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let nr = frame.n_rows;
     var u = vec3<f32>(0.0);
-    for (var k = 0u; k < forces.count; k += 1u) {
-        let a = forces.entries[k];
+    for (var k = 0u; k < frame.n_active; k += 1u) {
+        let a = forces[k];
         // Scalar columns 3c, 3c + 1, 3c + 2: texels (3c + b)·R + r.
         let t = 3u * a.col * nr + r;
         u += load_l(t) * a.force.x + load_l(t + nr) * a.force.y + load_l(t + 2u * nr) * a.force.z;

@@ -609,3 +609,52 @@ fn layouts_agree_on_a_random_compliance() {
         }
     }
 }
+
+/// A device created with limits below what a layout needs: `LStorage::Texture` is a typed
+/// error and `Auto` falls back to storage buffers; a uniform binding too small for the active
+/// list is a typed error in both layouts. Nothing panics.
+#[test]
+fn limited_devices_get_typed_errors_or_the_buffer_layout() {
+    let k = cube_case();
+    let adapter = &gpu().adapter;
+    let device_with = |limits: wgpu::Limits| {
+        pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("limited"),
+            required_features: wgpu::Features::empty(),
+            required_limits: limits,
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .expect("a device with lower limits")
+    };
+    let new = |device: &wgpu::Device, queue: &wgpu::Queue, storage| {
+        Deformer::new(
+            device,
+            queue,
+            &k.c,
+            &k.mesh.nodes,
+            &k.mesh.surface,
+            &layout(storage),
+        )
+    };
+    let (device, queue) = device_with(wgpu::Limits {
+        max_storage_textures_per_shader_stage: 2,
+        ..adapter.limits()
+    });
+    let r = new(&device, &queue, LStorage::Texture);
+    assert!(matches!(r, Err(GpuError::Unsupported(_))), "{r:?}");
+    let d = new(&device, &queue, LStorage::Auto).expect("Auto falls back");
+    assert_eq!(d.storage(), LStorage::Buffers);
+    let (device, queue) = device_with(wgpu::Limits {
+        max_uniform_buffer_binding_size: 8 << 10,
+        ..adapter.limits()
+    });
+    for storage in LAYOUTS {
+        let r = new(&device, &queue, storage);
+        assert!(
+            matches!(r, Err(GpuError::BufferTooLarge { bytes: 16384, .. })),
+            "{r:?}"
+        );
+    }
+}

@@ -100,8 +100,8 @@ pub struct OutputTarget {
 /// and write the same vertices.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum LStorage {
-    /// [`Texture`](Self::Texture) on CPU adapters (software rasterisers such as lavapipe),
-    /// [`Buffers`](Self::Buffers) on everything else.
+    /// [`Texture`](Self::Texture) on CPU adapters (software rasterisers such as lavapipe) that
+    /// allow three storage textures per stage, [`Buffers`](Self::Buffers) on everything else.
     #[default]
     Auto,
     /// Storage buffers, split by column nodes under `max_storage_buffer_binding_size`:
@@ -244,6 +244,14 @@ impl Deformer {
         let max_chunk = options
             .max_binding_bytes
             .map_or(max_binding, |m| m.min(max_binding));
+        let list_bytes = 16 * MAX_ACTIVE as u64;
+        if limits.max_uniform_buffer_binding_size < list_bytes {
+            return Err(GpuError::BufferTooLarge {
+                what: "the active-column list (one uniform binding)",
+                bytes: list_bytes,
+                limit: limits.max_uniform_buffer_binding_size,
+            });
+        }
         let max_groups = u64::from(limits.max_compute_workgroups_per_dimension);
         if (nr as u64).div_ceil(u64::from(WORKGROUP)) > max_groups {
             return Err(GpuError::BufferTooLarge {
@@ -352,10 +360,21 @@ impl Deformer {
             max_binding,
         };
         shared.check("output binding", out_size)?;
+        // The texture passes bind three storage textures each.
+        let textures_ok = limits.max_storage_textures_per_shader_stage >= 3;
         let texture = match options.storage {
+            LStorage::Texture if !textures_ok => {
+                return Err(GpuError::Unsupported(format!(
+                    "LStorage::Texture: it needs 3 storage textures per shader stage, the \
+                     device allows {}",
+                    limits.max_storage_textures_per_shader_stage
+                )))
+            }
             LStorage::Texture => true,
             LStorage::Buffers => false,
-            LStorage::Auto => device.adapter_info().device_type == wgpu::DeviceType::Cpu,
+            LStorage::Auto => {
+                textures_ok && device.adapter_info().device_type == wgpu::DeviceType::Cpu
+            }
         };
         let path = if texture {
             Path::Texture(TexturePath::new(&shared)?)

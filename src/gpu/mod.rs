@@ -85,6 +85,9 @@ pub enum GpuError {
         /// The device limit it exceeds.
         limit: u64,
     },
+    /// The device lacks a capability the requested option needs.
+    #[error("the device does not support {0}")]
+    Unsupported(String),
     /// The compliance, rest positions or triangles are inconsistent.
     #[error("invalid deformer input: {0}")]
     BadInput(String),

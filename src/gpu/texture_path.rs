@@ -31,8 +31,12 @@ struct FrameGpu {
     out_stride: u32,
     normal_offset: u32,
     log_h: u32,
-    _pad: [u32; 3],
+    n_active: u32,
+    _pad: [u32; 2],
 }
+
+/// Byte offset of `n_active` in [`FrameGpu`].
+const N_ACTIVE_OFFSET: u64 = 20;
 
 /// `L` and the pose in textures, and the passes that read them.
 pub(super) struct TexturePath {
@@ -42,7 +46,9 @@ pub(super) struct TexturePath {
     normals_group: wgpu::BindGroup,
     deform: wgpu::ComputePipeline,
     normals: wgpu::ComputePipeline,
-    /// Header `[count, 0, 0, 0]` then one `[fx, fy, fz, col]` per entry (bit patterns).
+    /// The pass parameters (`n_active` changes per frame).
+    frame: wgpu::Buffer,
+    /// One `[fx, fy, fz, col]` per entry (bit patterns).
     scratch: Vec<[u32; 4]>,
 }
 
@@ -216,16 +222,17 @@ impl TexturePath {
             out_stride: sh.frame.out_stride,
             normal_offset: sh.frame.normal_offset,
             log_h,
-            _pad: [0; 3],
+            n_active: 0,
+            _pad: [0; 2],
         };
         let frame_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("touchfem frame"),
             contents: bytemuck::bytes_of(&frame),
-            usage: wgpu::BufferUsages::UNIFORM,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
         });
         let active = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("touchfem active columns"),
-            size: 16 * (MAX_ACTIVE as u64 + 1),
+            size: 16 * MAX_ACTIVE as u64,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -299,20 +306,25 @@ impl TexturePath {
             normals: compute_pipeline(device, &module, "normals", &[&normals_layout]),
             deform_group,
             normals_group,
-            scratch: Vec::with_capacity(MAX_ACTIVE + 1),
+            frame: frame_buf,
+            scratch: Vec::with_capacity(MAX_ACTIVE),
         })
     }
 
-    /// Writes the header and the active list in one `write_buffer`. `forces` is validated.
+    /// Writes the entry count into the frame uniform and the active list. `forces` is
+    /// validated.
     pub(super) fn set_forces(&mut self, queue: &wgpu::Queue, forces: &[(u32, [f32; 3])]) {
         self.scratch.clear();
-        self.scratch.push([forces.len() as u32, 0, 0, 0]);
         self.scratch.extend(
             forces
                 .iter()
                 .map(|&(col, f)| [f[0].to_bits(), f[1].to_bits(), f[2].to_bits(), col]),
         );
-        queue.write_buffer(&self.active, 0, bytemuck::cast_slice(&self.scratch));
+        let n = forces.len() as u32;
+        queue.write_buffer(&self.frame, N_ACTIVE_OFFSET, bytemuck::bytes_of(&n));
+        if !self.scratch.is_empty() {
+            queue.write_buffer(&self.active, 0, bytemuck::cast_slice(&self.scratch));
+        }
     }
 
     /// Records the deformation dispatch, then the normal pass.
