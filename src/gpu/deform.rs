@@ -107,8 +107,9 @@ pub enum LStorage {
     /// Storage buffers, split by column nodes under `max_storage_buffer_binding_size`:
     /// coalesced reads on hardware GPUs; `9·R·C` floats.
     Buffers,
-    /// A 2D texture array read with `textureLoad`: vector gathers on software rasterisers,
-    /// about 4× faster than storage buffers on lavapipe; `12·R·C` floats (one pad per three).
+    /// Read-only storage textures (a 2D array for `L`) read with `textureLoad`: vector gathers
+    /// on software rasterisers, 5–7× faster than storage buffers on lavapipe; `12·R·C` floats
+    /// (one pad per three).
     Texture,
 }
 
@@ -183,7 +184,7 @@ enum Path {
 ///
 /// `L` is uploaded once (f32) in the [`LStorage`] layout. Per frame,
 /// [`set_forces`](Self::set_forces) writes only the active columns and forces (16 bytes each,
-/// plus a 16-byte record per buffer or header); [`encode`](Self::encode) records one compute
+/// plus a 16-byte record per `L` buffer, or the 4-byte count for the texture layout); [`encode`](Self::encode) records one compute
 /// pass into the caller's encoder: the deformation dispatch(es), then the normal pass, which
 /// gathers over a precomputed per-vertex list of incident triangles (WGSL has no float atomics).
 pub struct Deformer {
