@@ -13,13 +13,20 @@
 // * L: texel t = c_s·R + r holds (L[3r, c_s], L[3r+1, c_s], L[3r+2, c_s], 0) for scalar column
 //   c_s = 3c + b: exactly the f32 column-major L with a zero after every third entry.
 // * rest, pos: texel r = vertex r (metres, w = 1); pos is written by `deform`, read by `normals`.
-// * ring: texel v = (first, count) into pairs; pairs: texel i = (a, b), the other two corners
-//   of an incident triangle, so that cross(p_a − p_v, p_b − p_v) is twice its area times its
-//   outward normal.
+// * ring: texel v = (first texel, entry count) into fan; fan: 4 entries a texel, vertex v's
+//   neighbours as chains (touchfem::mesh::vertex_fans): an entry with FAN_START begins a chain,
+//   and consecutive entries a, b of a chain are one incident triangle (v, a, b), so that
+//   cross(p_a − p_v, p_b − p_v) is twice its area times its outward normal. One position load
+//   per neighbour (a closed fan of k triangles is k + 1 entries), not two per triangle.
 // All counts come from uniforms: nothing relies on arrayLength (VERTEX buffers are padded).
+//
+// This file is completed by one of two preludes that say where the active list lives and
+// define active_count() and active_entry(k): active_uniform.wgsl (the uniform buffer `forces`)
+// or active_immediate.wgsl (immediates, when the device has them: small lists need no upload).
 
 const LOG_W: u32 = 10u;
 const W_MASK: u32 = 1023u;
+const FAN_START: u32 = 0x80000000u;
 
 struct Frame {
     // Displayed vertices (rows of L).
@@ -31,7 +38,7 @@ struct Frame {
     normal_offset: u32,
     // log2 of the rows per layer of the L texture.
     log_h: u32,
-    // Entries of `forces` this frame (written per frame).
+    // Entries of `forces` this frame (written per frame; unused with active_immediate.wgsl).
     n_active: u32,
     _pad0: u32,
     _pad1: u32,
@@ -55,7 +62,7 @@ struct Active {
 @group(0) @binding(5) var pos_out: texture_storage_2d<rgba32float, write>;
 @group(0) @binding(6) var pos_tex: texture_storage_2d<rgba32float, read>;
 @group(0) @binding(7) var ring_tex: texture_storage_2d<rg32uint, read>;
-@group(0) @binding(8) var pairs_tex: texture_storage_2d<rg32uint, read>;
+@group(0) @binding(8) var fan_tex: texture_storage_2d<rgba32uint, read>;
 
 fn xy(t: u32) -> vec2<u32> {
     return vec2<u32>(t & W_MASK, t >> LOG_W);
@@ -75,8 +82,9 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let nr = frame.n_rows;
     var u = vec3<f32>(0.0);
-    for (var k = 0u; k < frame.n_active; k += 1u) {
-        let a = forces[k];
+    let n_active = active_count();
+    for (var k = 0u; k < n_active; k += 1u) {
+        let a = active_entry(k);
         // Scalar columns 3c, 3c + 1, 3c + 2: texels (3c + b)·R + r.
         let t = 3u * a.col * nr + r;
         u += load_l(t) * a.force.x + load_l(t + nr) * a.force.y + load_l(t + 2u * nr) * a.force.z;
@@ -91,6 +99,16 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
 }
 
+// One fan entry: the neighbour's edge vector from v; closes a triangle with the previous one
+// unless it starts a chain. |cross| is twice the area: the sum is area-weighted.
+fn fan_step(e: u32, p: vec3<f32>, prev: ptr<function, vec3<f32>>, n: ptr<function, vec3<f32>>) {
+    let q = textureLoad(pos_tex, xy(e & ~FAN_START)).xyz - p;
+    if (e & FAN_START) == 0u {
+        *n += cross(*prev, q);
+    }
+    *prev = q;
+}
+
 @compute @workgroup_size(64)
 fn normals(@builtin(global_invocation_id) gid: vec3<u32>) {
     let v = gid.x;
@@ -100,12 +118,19 @@ fn normals(@builtin(global_invocation_id) gid: vec3<u32>) {
     let ring = textureLoad(ring_tex, xy(v)).xy;
     let p = textureLoad(pos_tex, xy(v)).xyz;
     var n = vec3<f32>(0.0);
-    for (var i = ring.x; i < ring.x + ring.y; i += 1u) {
-        let ab = textureLoad(pairs_tex, xy(i)).xy;
-        let pa = textureLoad(pos_tex, xy(ab.x)).xyz - p;
-        let pb = textureLoad(pos_tex, xy(ab.y)).xyz - p;
-        // |cross| is twice the area: the sum is area-weighted.
-        n += cross(pa, pb);
+    var prev = vec3<f32>(0.0);
+    for (var i = 0u; i < ring.y; i += 4u) {
+        let e = textureLoad(fan_tex, xy(ring.x + (i >> 2u)));
+        fan_step(e.x, p, &prev, &n);
+        if i + 1u < ring.y {
+            fan_step(e.y, p, &prev, &n);
+        }
+        if i + 2u < ring.y {
+            fan_step(e.z, p, &prev, &n);
+        }
+        if i + 3u < ring.y {
+            fan_step(e.w, p, &prev, &n);
+        }
     }
     let len = length(n);
     if len > 0.0 {

@@ -658,3 +658,45 @@ fn limited_devices_get_typed_errors_or_the_buffer_layout() {
         );
     }
 }
+
+/// The texture layout's two ways of passing the active list — immediates (inline up to
+/// `INLINE_ACTIVE` entries, the uniform list beyond) and the uniform list alone — give the
+/// same vertices, against the f64 reference, through a sequence of frames that crosses the
+/// inline limit both ways (no stale entries or counts survive a switch).
+#[test]
+fn immediates_and_uniform_list_agree() {
+    let k = cube_case();
+    let g = gpu();
+    let nc = k.c.cols().len();
+    let has = g.device.features().contains(wgpu::Features::IMMEDIATES);
+    let mut with = new_deformer(&k.c, &k.mesh, &layout(LStorage::Texture));
+    assert_eq!(
+        with.uses_immediates(),
+        has,
+        "Gpu::new requests IMMEDIATES where offered"
+    );
+    let mut without = new_deformer(
+        &k.c,
+        &k.mesh,
+        &DeformerOptions {
+            storage: LStorage::Texture,
+            no_immediates: true,
+            ..Default::default()
+        },
+    );
+    assert!(!without.uses_immediates());
+    assert!(!new_deformer(&k.c, &k.mesh, &layout(LStorage::Buffers)).uses_immediates());
+    let mut rng = Rng(11);
+    let inline = touchfem::gpu::INLINE_ACTIVE;
+    for n in [3, inline, inline + 1, 1, 40, 0, inline, 2] {
+        let forces: Vec<(u32, [f32; 3])> = (0..n)
+            .map(|i| ((i * 5 % nc) as u32, (rng.vec() * 0.02).as_vec3().to_array()))
+            .collect();
+        with.set_forces(&g.queue, &forces).unwrap();
+        without.set_forces(&g.queue, &forces).unwrap();
+        let umax = check(&k.c, &k.mesh.nodes, &forces, &with, true);
+        assert_eq!(umax > 0.0, n > 0);
+        check(&k.c, &k.mesh.nodes, &forces, &without, true);
+        assert_eq!(run(&with), run(&without), "{n} entries");
+    }
+}

@@ -76,18 +76,20 @@ pub(super) fn view(binding: u32, view: &wgpu::TextureView) -> wgpu::BindGroupEnt
     }
 }
 
-/// A compute pipeline for `entry` of `module` with an explicit layout of `groups`.
+/// A compute pipeline for `entry` of `module` with an explicit layout of `groups` and
+/// `immediate_size` bytes of immediates.
 pub(super) fn compute_pipeline(
     device: &wgpu::Device,
     module: &wgpu::ShaderModule,
     entry: &str,
     groups: &[&wgpu::BindGroupLayout],
+    immediate_size: u32,
 ) -> wgpu::ComputePipeline {
     let groups: Vec<Option<&wgpu::BindGroupLayout>> = groups.iter().map(|g| Some(*g)).collect();
     let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
         label: Some(entry),
         bind_group_layouts: &groups,
-        immediate_size: 0,
+        immediate_size,
     });
     device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
         label: Some(entry),

@@ -182,8 +182,8 @@ impl BufferPath {
             chunk_params,
             active,
             bind_group,
-            deform: compute_pipeline(device, &module, "deform", &[&layout0, &layout1]),
-            normals: compute_pipeline(device, &module, "normals", &[&layout0]),
+            deform: compute_pipeline(device, &module, "deform", &[&layout0, &layout1], 0),
+            normals: compute_pipeline(device, &module, "normals", &[&layout0], 0),
             scratch: Vec::with_capacity(MAX_ACTIVE),
         })
     }

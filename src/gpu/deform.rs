@@ -123,6 +123,10 @@ pub struct DeformerOptions {
     pub output: Option<OutputTarget>,
     /// How to store `L`.
     pub storage: LStorage,
+    /// Never pass the active list as immediates, even where the device has
+    /// [`wgpu::Features::IMMEDIATES`] (the texture layout uses them by default; see
+    /// [`Deformer::uses_immediates`]).
+    pub no_immediates: bool,
 }
 
 /// The fixed part of the pass parameters, common to both layouts.
@@ -157,6 +161,8 @@ pub(super) struct Shared<'a> {
     pub max_chunk: u64,
     /// `min(max_storage_buffer_binding_size, max_buffer_size)`.
     pub max_binding: u64,
+    /// Pass the active list as immediates ([`super::IMMEDIATE_BYTES`] of them).
+    pub immediates: bool,
 }
 
 impl Shared<'_> {
@@ -359,6 +365,9 @@ impl Deformer {
             out: (&target.buffer, out_start, out_size),
             max_chunk,
             max_binding,
+            immediates: !options.no_immediates
+                && device.features().contains(wgpu::Features::IMMEDIATES)
+                && limits.max_immediate_size >= super::IMMEDIATE_BYTES,
         };
         shared.check("output binding", out_size)?;
         // The texture passes bind three storage textures each.
@@ -398,7 +407,8 @@ impl Deformer {
 
     /// Sets this frame's force boundary condition: `(column index, force in newtons)` pairs.
     /// Columns may repeat (their forces add). Writes `16·forces.len()` bytes plus 16 bytes per
-    /// chunk; takes effect for the next [`encode`](Self::encode)d pass submitted after it.
+    /// chunk, or nothing when the list fits the immediates ([`uses_immediates`](Self::uses_immediates));
+    /// takes effect for the next [`encode`](Self::encode)d pass submitted after it.
     ///
     /// Errors (and then changes nothing): more than [`MAX_ACTIVE`] entries, a column out of
     /// range, a non-finite force.
@@ -486,6 +496,19 @@ impl Deformer {
         match self.path {
             Path::Buffers(_) => LStorage::Buffers,
             Path::Texture(_) => LStorage::Texture,
+        }
+    }
+
+    /// Whether the active list travels as immediates (Vulkan push constants): the texture
+    /// layout on a device with [`wgpu::Features::IMMEDIATES`] and 128 bytes of them, unless
+    /// [`DeformerOptions::no_immediates`]. Then a frame with at most
+    /// [`INLINE_ACTIVE`](super::INLINE_ACTIVE) entries (two contact triangles' nodes) uploads
+    /// nothing; [`set_forces`](Self::set_forces) keeps the list for the next
+    /// [`encode`](Self::encode).
+    pub fn uses_immediates(&self) -> bool {
+        match &self.path {
+            Path::Buffers(_) => false,
+            Path::Texture(p) => p.uses_immediates(),
         }
     }
 

@@ -27,9 +27,36 @@ use thiserror::Error;
 /// (`shaders/deform.wgsl`).
 pub const DEFORM_WGSL: &str = include_str!("../../shaders/deform.wgsl");
 
-/// The WGSL source of the deformation and normal passes, texture layout
-/// (`shaders/deform_texture.wgsl`).
+/// The WGSL body of the deformation and normal passes, texture layout
+/// (`shaders/deform_texture.wgsl`); complete it with [`deform_texture_source`].
 pub const DEFORM_TEXTURE_WGSL: &str = include_str!("../../shaders/deform_texture.wgsl");
+
+/// Prelude of [`DEFORM_TEXTURE_WGSL`]: the active list in a uniform buffer
+/// (`shaders/active_uniform.wgsl`).
+pub const ACTIVE_UNIFORM_WGSL: &str = include_str!("../../shaders/active_uniform.wgsl");
+
+/// Prelude of [`DEFORM_TEXTURE_WGSL`]: the active list's length, and short lists, as immediates
+/// (`shaders/active_immediate.wgsl`; needs [`wgpu::Features::IMMEDIATES`]).
+pub const ACTIVE_IMMEDIATE_WGSL: &str = include_str!("../../shaders/active_immediate.wgsl");
+
+/// Bytes of immediates the texture layout's deformation pass uses when the device has
+/// [`wgpu::Features::IMMEDIATES`] and at least this `max_immediate_size`.
+pub const IMMEDIATE_BYTES: u32 = 128;
+
+/// Most active entries that travel inline in the immediates (a 16-byte header and 16 bytes an
+/// entry fill [`IMMEDIATE_BYTES`]); longer lists are uploaded to the uniform buffer.
+pub const INLINE_ACTIVE: usize = 7;
+
+/// The complete texture-layout shader: [`DEFORM_TEXTURE_WGSL`] with the prelude that reads
+/// the active list from immediates (`immediates`) or from the uniform buffer.
+pub fn deform_texture_source(immediates: bool) -> String {
+    let prelude = if immediates {
+        ACTIVE_IMMEDIATE_WGSL
+    } else {
+        ACTIVE_UNIFORM_WGSL
+    };
+    format!("{DEFORM_TEXTURE_WGSL}\n{prelude}")
+}
 
 /// Everything that can go wrong on the GPU side.
 #[derive(Debug, Error)]
@@ -206,7 +233,8 @@ impl Gpu {
         let (device, queue) =
             pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
                 label: Some("touchfem"),
-                required_features: wgpu::Features::empty(),
+                // Immediates let the texture layout skip the per-frame upload.
+                required_features: adapter.features() & wgpu::Features::IMMEDIATES,
                 required_limits: adapter.limits(),
                 experimental_features: wgpu::ExperimentalFeatures::disabled(),
                 memory_hints: wgpu::MemoryHints::Performance,
@@ -264,30 +292,52 @@ pub(crate) fn map_read(device: &wgpu::Device, staging: &wgpu::Buffer) -> Result<
 
 #[cfg(test)]
 mod tests {
-    /// Every shader in `shaders/` parses and validates with naga (no GPU needed).
+    fn validate(name: &str, src: &str, caps: naga::valid::Capabilities) {
+        let module = naga::front::wgsl::parse_str(src)
+            .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(src)));
+        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), caps)
+            .validate(&module)
+            .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(src)));
+    }
+
+    /// Every shader in `shaders/` parses and validates with naga (no GPU needed): the
+    /// stand-alone ones as they are, the texture layout's body with each of its preludes.
     #[test]
     fn shaders_validate_with_naga() {
+        use naga::valid::Capabilities;
         let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/shaders");
+        let parts = [
+            "deform_texture.wgsl",
+            "active_uniform.wgsl",
+            "active_immediate.wgsl",
+        ];
         let mut n = 0;
         for entry in std::fs::read_dir(dir).expect("shaders/ exists") {
             let path = entry.unwrap().path();
             if path.extension().and_then(|e| e.to_str()) != Some("wgsl") {
                 continue;
             }
-            let src = std::fs::read_to_string(&path).unwrap();
-            let module = naga::front::wgsl::parse_str(&src)
-                .unwrap_or_else(|e| panic!("{}: {}", path.display(), e.emit_to_string(&src)));
-            naga::valid::Validator::new(
-                naga::valid::ValidationFlags::all(),
-                naga::valid::Capabilities::empty(),
-            )
-            .validate(&module)
-            .unwrap_or_else(|e| panic!("{}: {}", path.display(), e.emit_to_string(&src)));
             n += 1;
+            let name = path.file_name().unwrap().to_str().unwrap().to_string();
+            if parts.contains(&name.as_str()) {
+                continue;
+            }
+            let src = std::fs::read_to_string(&path).unwrap();
+            validate(&name, &src, Capabilities::empty());
         }
         assert!(
-            n >= 3,
-            "expected deform.wgsl, deform_texture.wgsl and render.wgsl, found {n}"
+            n >= 5,
+            "expected deform.wgsl, render.wgsl and the texture layout's three parts, found {n}"
+        );
+        validate(
+            "deform_texture + active_uniform",
+            &super::deform_texture_source(false),
+            Capabilities::empty(),
+        );
+        validate(
+            "deform_texture + active_immediate",
+            &super::deform_texture_source(true),
+            Capabilities::IMMEDIATES,
         );
     }
 
@@ -298,6 +348,17 @@ mod tests {
         for src in [super::DEFORM_WGSL, super::DEFORM_TEXTURE_WGSL] {
             assert!(src.contains(&decl), "{decl} not found");
         }
+        let inline = super::INLINE_ACTIVE;
+        assert_eq!(16 + 16 * inline as u32, super::IMMEDIATE_BYTES);
+        for decl in [
+            format!("array<Active, {inline}>"),
+            format!("min(k, {}u)", inline - 1),
+        ] {
+            assert!(
+                super::ACTIVE_IMMEDIATE_WGSL.contains(&decl),
+                "{decl} not found"
+            );
+        }
     }
 
     #[test]
@@ -305,6 +366,8 @@ mod tests {
         for (name, embedded) in [
             ("deform.wgsl", super::DEFORM_WGSL),
             ("deform_texture.wgsl", super::DEFORM_TEXTURE_WGSL),
+            ("active_uniform.wgsl", super::ACTIVE_UNIFORM_WGSL),
+            ("active_immediate.wgsl", super::ACTIVE_IMMEDIATE_WGSL),
         ] {
             let path = format!("{}/shaders/{name}", env!("CARGO_MANIFEST_DIR"));
             assert_eq!(std::fs::read_to_string(path).unwrap(), embedded, "{name}");

@@ -1,6 +1,9 @@
 //! The texture layout of `L` (`shaders/deform_texture.wgsl`): `L`, the rest pose, the deformed
 //! positions and the surface adjacency live in read-only storage textures read with
-//! `textureLoad`; one dispatch for `u = L·F`, one for the normals.
+//! `textureLoad`; one dispatch for `u = L·F`, one for the normals (a gather over triangle
+//! fans, one position load per neighbour). The active list's length, and the list itself when
+//! short, travel as immediates where the device has them, so a one-finger frame uploads
+//! nothing.
 //!
 //! The layout for software rasterisers. Mesa's lavapipe (llvmpipe) scalarises a storage-buffer
 //! load whose address differs per invocation, lane by lane, while an image load is one vector
@@ -17,7 +20,7 @@ use super::bind::{
     buffer, compute_pipeline, storage_entry, storage_texture_entry, uniform_entry, view,
 };
 use super::deform::{Shared, MAX_ACTIVE, WORKGROUP};
-use super::{GpuError, DEFORM_TEXTURE_WGSL};
+use super::{deform_texture_source, GpuError, IMMEDIATE_BYTES, INLINE_ACTIVE};
 
 /// Texels per texture row (the shader's `LOG_W`).
 const LOG_W: u32 = 10;
@@ -50,7 +53,13 @@ pub(super) struct TexturePath {
     frame: wgpu::Buffer,
     /// One `[fx, fy, fz, col]` per entry (bit patterns).
     scratch: Vec<[u32; 4]>,
+    /// The immediates (`shaders/active_immediate.wgsl`'s `Immediates`), if the device has
+    /// them: count, inline flag, two pads, then up to [`INLINE_ACTIVE`] entries.
+    immediates: Option<[u32; IMMEDIATE_WORDS]>,
 }
+
+/// 32-bit words of immediates.
+const IMMEDIATE_WORDS: usize = IMMEDIATE_BYTES as usize / 4;
 
 /// Width and height of a 2D texture holding `n` texels linearly (`W` a row).
 fn extent_2d(n: u64) -> (u32, u32) {
@@ -110,17 +119,13 @@ impl TexturePath {
         let rest = texture_2d("touchfem rest positions", rgba, tb, nr, rest_bytes)?;
         let pos = texture_2d("touchfem deformed positions", rgba, tb, nr, rest_bytes)?;
 
-        // Per vertex (first, count) into the incident triangles' other two corners.
-        let (offsets, list) = crate::mesh::vertex_triangles(sh.nr, sh.tris);
-        let ring: Vec<[u32; 2]> = offsets.windows(2).map(|o| [o[0], o[1] - o[0]]).collect();
-        let mut pairs = Vec::with_capacity(list.len());
-        for (v, o) in offsets.windows(2).enumerate() {
-            for &t in &list[o[0] as usize..o[1] as usize] {
-                let tri = sh.tris[t as usize];
-                let k = tri.iter().position(|&i| i as usize == v).unwrap_or(0);
-                pairs.push([tri[(k + 1) % 3], tri[(k + 2) % 3]]);
-            }
-        }
+        // Per vertex (first texel, entry count) into its triangle fans, 4 entries a texel.
+        let (ranges, mut fans) = crate::mesh::vertex_fans(sh.nr, sh.tris, true);
+        let ring: Vec<[u32; 2]> = ranges.iter().map(|&[f, c]| [f / 4, c]).collect();
+        fans.resize(
+            fans.len().next_multiple_of(4).max(4),
+            crate::mesh::FAN_START,
+        );
         let rg = wgpu::TextureFormat::Rg32Uint;
         let ring_tex = texture_2d(
             "touchfem vertex rings",
@@ -129,12 +134,12 @@ impl TexturePath {
             nr,
             bytemuck::cast_slice(&ring),
         )?;
-        let pairs_tex = texture_2d(
-            "touchfem incident triangle corners",
-            rg,
+        let fan_tex = texture_2d(
+            "touchfem vertex fans",
+            wgpu::TextureFormat::Rgba32Uint,
             tb,
-            pairs.len() as u64,
-            bytemuck::cast_slice(&pairs),
+            fans.len() as u64 / 4,
+            bytemuck::cast_slice(&fans),
         )?;
 
         // L: texel t = (3c + b)·R + r, W texels a row, 2^log_h rows a layer.
@@ -261,7 +266,7 @@ impl TexturePath {
                 storage_entry(2, false),
                 storage_texture_entry(6, read, rgba, d2),
                 storage_texture_entry(7, read, rg, d2),
-                storage_texture_entry(8, read, rg, d2),
+                storage_texture_entry(8, read, wgpu::TextureFormat::Rgba32Uint, d2),
             ],
         });
         let l_view = l_tex.create_view(&wgpu::TextureViewDescriptor {
@@ -270,7 +275,7 @@ impl TexturePath {
         });
         let v = |t: &wgpu::Texture| t.create_view(&Default::default());
         let (rest_view, pos_view) = (v(&rest), v(&pos));
-        let (ring_view, pairs_view) = (v(&ring_tex), v(&pairs_tex));
+        let (ring_view, fan_view) = (v(&ring_tex), v(&fan_tex));
         let (out, out_start, out_size) = sh.out;
         let deform_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("touchfem deform (texture)"),
@@ -292,39 +297,57 @@ impl TexturePath {
                 buffer(2, out, out_start, out_size),
                 view(6, &pos_view),
                 view(7, &ring_view),
-                view(8, &pairs_view),
+                view(8, &fan_view),
             ],
         });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("touchfem deform_texture.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(DEFORM_TEXTURE_WGSL.into()),
+            source: wgpu::ShaderSource::Wgsl(deform_texture_source(sh.immediates).into()),
         });
+        let imm_bytes = if sh.immediates { IMMEDIATE_BYTES } else { 0 };
         Ok(TexturePath {
             layers: layers as u32,
             active,
-            deform: compute_pipeline(device, &module, "deform", &[&deform_layout]),
-            normals: compute_pipeline(device, &module, "normals", &[&normals_layout]),
+            deform: compute_pipeline(device, &module, "deform", &[&deform_layout], imm_bytes),
+            normals: compute_pipeline(device, &module, "normals", &[&normals_layout], 0),
             deform_group,
             normals_group,
             frame: frame_buf,
             scratch: Vec::with_capacity(MAX_ACTIVE),
+            immediates: sh.immediates.then_some([0; IMMEDIATE_WORDS]),
         })
     }
 
-    /// Writes the entry count into the frame uniform and the active list. `forces` is
-    /// validated.
+    /// Takes this frame's active list (`forces` is validated). With immediates, the count goes
+    /// into them, and so do the entries if there are at most [`INLINE_ACTIVE`]: nothing is
+    /// uploaded. Otherwise the entries are written to the uniform list (and, without
+    /// immediates, the count to the frame uniform).
     pub(super) fn set_forces(&mut self, queue: &wgpu::Queue, forces: &[(u32, [f32; 3])]) {
-        self.scratch.clear();
-        self.scratch.extend(
-            forces
-                .iter()
-                .map(|&(col, f)| [f[0].to_bits(), f[1].to_bits(), f[2].to_bits(), col]),
-        );
+        let entry =
+            |&(col, f): &(u32, [f32; 3])| [f[0].to_bits(), f[1].to_bits(), f[2].to_bits(), col];
         let n = forces.len() as u32;
-        queue.write_buffer(&self.frame, N_ACTIVE_OFFSET, bytemuck::bytes_of(&n));
+        if let Some(imm) = &mut self.immediates {
+            let is_inline = forces.len() <= INLINE_ACTIVE;
+            imm[..4].copy_from_slice(&[n, u32::from(is_inline), 0, 0]);
+            if is_inline {
+                for (k, e) in forces.iter().map(entry).enumerate() {
+                    imm[4 + 4 * k..8 + 4 * k].copy_from_slice(&e);
+                }
+                return;
+            }
+        } else {
+            queue.write_buffer(&self.frame, N_ACTIVE_OFFSET, bytemuck::bytes_of(&n));
+        }
+        self.scratch.clear();
+        self.scratch.extend(forces.iter().map(entry));
         if !self.scratch.is_empty() {
             queue.write_buffer(&self.active, 0, bytemuck::cast_slice(&self.scratch));
         }
+    }
+
+    /// Whether the active list travels as immediates.
+    pub(super) fn uses_immediates(&self) -> bool {
+        self.immediates.is_some()
     }
 
     /// Records the deformation dispatch, then the normal pass.
@@ -332,6 +355,9 @@ impl TexturePath {
         let groups = n_rows.div_ceil(WORKGROUP);
         pass.set_pipeline(&self.deform);
         pass.set_bind_group(0, &self.deform_group, &[]);
+        if let Some(imm) = &self.immediates {
+            pass.set_immediates(0, bytemuck::cast_slice(imm));
+        }
         pass.dispatch_workgroups(groups, 1, 1);
         if normals {
             pass.set_pipeline(&self.normals);

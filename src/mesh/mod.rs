@@ -171,6 +171,64 @@ pub fn vertex_triangles(n: usize, tris: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
     (start, list)
 }
 
+/// Marks the first entry of a chain in [`vertex_fans`].
+pub const FAN_START: u32 = 1 << 31;
+
+/// The triangles around each vertex as chains of its neighbours (triangle fans), for gathering
+/// vertex normals with one position load per neighbour instead of two per triangle.
+///
+/// Returns `(ranges, list)`: vertex `v`'s entries are `list[first..first + count]` with
+/// `[first, count] = ranges[v]`. Each entry is a neighbour index; an entry with [`FAN_START`]
+/// set begins a chain. Consecutive entries `a, b` inside a chain stand for one triangle
+/// `(v, a, b)`, counter-clockwise as in `tris`, and every triangle of `v` appears exactly once,
+/// so `Σ cross(p_a − p_v, p_b − p_v)` over consecutive pairs is the area-weighted normal. A
+/// closed (manifold) fan of k triangles is one chain of k + 1 entries that ends where it
+/// began; open or non-manifold fans split into several chains. With `pad4`, every `first` is a
+/// multiple of 4 (the padding between ranges is never part of one). Indices must be below `n`,
+/// and `n` below `FAN_START`.
+pub fn vertex_fans(n: usize, tris: &[[u32; 3]], pad4: bool) -> (Vec<[u32; 2]>, Vec<u32>) {
+    let (start, list) = vertex_triangles(n, tris);
+    let mut ranges = Vec::with_capacity(n);
+    let mut out = Vec::with_capacity(4 * tris.len() + 4 * n);
+    // Directed pairs (a, b) of the current vertex's triangles, and whether each is used.
+    let mut pairs: Vec<(u32, u32)> = Vec::new();
+    let mut used: Vec<bool> = Vec::new();
+    for v in 0..n {
+        if pad4 {
+            out.resize(out.len().next_multiple_of(4), FAN_START);
+        }
+        let first = out.len() as u32;
+        pairs.clear();
+        for &t in &list[start[v] as usize..start[v + 1] as usize] {
+            let tri = tris[t as usize];
+            let k = tri.iter().position(|&i| i as usize == v).unwrap_or(0);
+            pairs.push((tri[(k + 1) % 3], tri[(k + 2) % 3]));
+        }
+        used.clear();
+        used.resize(pairs.len(), false);
+        let mut left = pairs.len();
+        while left > 0 {
+            // Start an open chain where no pair ends in its first corner; else anywhere.
+            let open = (0..pairs.len())
+                .find(|&i| !used[i] && !pairs.iter().any(|&(_, b)| b == pairs[i].0));
+            let mut i = open.unwrap_or_else(|| used.iter().position(|&u| !u).unwrap_or(0));
+            out.push(FAN_START | pairs[i].0);
+            loop {
+                used[i] = true;
+                left -= 1;
+                let b = pairs[i].1;
+                out.push(b);
+                match (0..pairs.len()).find(|&j| !used[j] && pairs[j].0 == b) {
+                    Some(j) => i = j,
+                    None => break,
+                }
+            }
+        }
+        ranges.push([first, out.len() as u32 - first]);
+    }
+    (ranges, out)
+}
+
 /// Below this |6V| / (longest edge)³ a tet is degenerate (a regular tet has ≈ 0.118).
 pub const DEGENERATE_QUALITY: f64 = 1e-8;
 
@@ -428,6 +486,71 @@ mod tests {
             tets: vec![[0, 1, 2, 3]],
             node_groups: BTreeMap::new(),
         }
+    }
+
+    /// Area-weighted normals from the fans equal those summed over triangles, on a closed
+    /// surface (one chain per vertex), an open strip and a non-manifold bow tie.
+    #[test]
+    fn fans_cover_every_triangle_once() {
+        let cube = cube();
+        // A jittered copy of the cube's nodes, so no two normals are trivially equal.
+        let p: Vec<DVec3> = cube
+            .nodes
+            .iter()
+            .enumerate()
+            .map(|(i, q)| *q + DVec3::splat(1e-3 * ((i * 37 % 11) as f64)))
+            .collect();
+        let n = p.len();
+        let strip: Vec<[u32; 3]> = vec![[0, 1, 2], [2, 1, 3], [2, 3, 4]];
+        let bow: Vec<[u32; 3]> = vec![[0, 1, 2], [0, 3, 4]];
+        let cases: [(&[[u32; 3]], usize); 3] = [(&cube.surface, 1), (&strip, 0), (&bow, 0)];
+        for (tris, chains_each) in cases {
+            for pad4 in [false, true] {
+                let (ranges, list) = vertex_fans(n, tris, pad4);
+                assert_eq!(ranges.len(), n);
+                let mut by_tri = vec![DVec3::ZERO; n];
+                for t in tris {
+                    let [a, b, c] = t.map(|i| p[i as usize]);
+                    let f = (b - a).cross(c - a);
+                    for &v in t {
+                        by_tri[v as usize] += f;
+                    }
+                }
+                for v in 0..n {
+                    let [first, count] = ranges[v];
+                    if pad4 {
+                        assert_eq!(first % 4, 0);
+                    }
+                    let e = &list[first as usize..(first + count) as usize];
+                    let mut sum = DVec3::ZERO;
+                    let mut prev = DVec3::ZERO;
+                    let mut chains = 0;
+                    for &x in e {
+                        let q = p[(x & !FAN_START) as usize] - p[v];
+                        if x & FAN_START != 0 {
+                            chains += 1;
+                        } else {
+                            sum += prev.cross(q);
+                        }
+                        prev = q;
+                    }
+                    assert!((sum - by_tri[v]).length() <= 1e-15, "vertex {v}");
+                    let incident = tris.iter().filter(|t| t.contains(&(v as u32))).count();
+                    assert_eq!(count as usize, incident + chains, "vertex {v}");
+                    if chains_each > 0 && incident > 0 {
+                        assert_eq!(chains, chains_each, "closed fan at {v}");
+                    }
+                }
+            }
+        }
+        // The bow tie's centre has two chains; the strip's corner vertex 1 one open chain.
+        let (r, _) = vertex_fans(5, &bow, false);
+        assert_eq!(r[0][1], 4);
+        let (r, l) = vertex_fans(5, &strip, false);
+        assert_eq!(
+            &l[r[1][0] as usize..(r[1][0] + r[1][1]) as usize],
+            &[3 | FAN_START, 2, 0]
+        );
     }
 
     #[test]
