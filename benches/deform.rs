@@ -1,7 +1,10 @@
 //! The visual loop's `u = L·F` (+ vertex normals): the GPU pass (set_forces + encode + submit +
 //! wait) in both layouts of `L` against the f64 CPU reference `Compliance::displace`, and the
 //! driver's floor (submit + wait alone; with a 16-byte upload; with one and two empty
-//! dispatches), in the same run.
+//! dispatches), in the same run. On lavapipe every texture-layout frame and floor is measured
+//! twice: with llvmpipe's worker threads (the driver's default) and with `LP_NUM_THREADS=0`
+//! (`_inline`); the inline texture frame also without immediates (`_uniform_list`: the active
+//! list uploaded with `write_buffer`) and without normals.
 //!
 //! Active columns are counted as **scalar columns of L**: one contact triangle (the paper's
 //! eq. 8, three nodes with a 3-vector force each) is 9 columns. IDs read `9c_3n`: 9 scalar
@@ -155,9 +158,35 @@ fn floor(gpu: &Gpu, rows: u32, upload: bool, dispatches: u32) -> impl FnMut() + 
     }
 }
 
+/// The contexts a run compares: the driver as configured (`threads`), and on CPU adapters also
+/// lavapipe with `LP_NUM_THREADS=0` (`inline`: llvmpipe runs compute on the submitting queue
+/// thread instead of waking its worker pool, one handoff fewer per dispatch). Both are created
+/// in this process, so every number below comes from one run.
+struct Contexts {
+    threads: Gpu,
+    inline: Option<Gpu>,
+}
+
+fn contexts() -> Contexts {
+    let threads = Gpu::new_headless().unwrap_or_else(|e| panic!("{e}"));
+    eprintln!("adapter: {}", threads.adapter.get_info().name);
+    let inline = (threads.adapter.get_info().device_type == wgpu::DeviceType::Cpu).then(|| {
+        // llvmpipe reads LP_NUM_THREADS when an instance creates its screen; restore it after.
+        let old = std::env::var_os("LP_NUM_THREADS");
+        std::env::set_var("LP_NUM_THREADS", "0");
+        let g = Gpu::new_headless().unwrap_or_else(|e| panic!("{e}"));
+        match old {
+            Some(v) => std::env::set_var("LP_NUM_THREADS", v),
+            None => std::env::remove_var("LP_NUM_THREADS"),
+        }
+        g
+    });
+    Contexts { threads, inline }
+}
+
 fn bench_case(
     crit: &mut Criterion,
-    gpu: &Gpu,
+    ctx: &Contexts,
     name: &str,
     cells: usize,
     cols: usize,
@@ -165,7 +194,7 @@ fn bench_case(
 ) {
     let (mesh, c) = case(cells, cols);
     let nr = c.rows().len();
-    let deformer = |storage, output| {
+    let deformer = |gpu: &Gpu, storage, output, no_immediates| {
         Deformer::new(
             &gpu.device,
             &gpu.queue,
@@ -175,12 +204,13 @@ fn bench_case(
             &DeformerOptions {
                 storage,
                 output,
+                no_immediates,
                 ..Default::default()
             },
         )
         .expect("deformer")
     };
-    let positions_only = OutputTarget {
+    let positions_only = |gpu: &Gpu| OutputTarget {
         buffer: gpu.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("positions only"),
             size: 16 * nr as u64,
@@ -191,19 +221,52 @@ fn bench_case(
         stride: 16,
         normal_offset: None,
     };
-    let mut texture = deformer(LStorage::Texture, None);
-    let mut texture_no_normals = deformer(LStorage::Texture, Some(positions_only));
-    let mut buffers = deformer(LStorage::Buffers, None);
+    // (id, context, deformer): every GPU variant of a frame.
+    let mut variants: Vec<(&str, &Gpu, Deformer)> = vec![
+        (
+            "gpu_texture",
+            &ctx.threads,
+            deformer(&ctx.threads, LStorage::Texture, None, false),
+        ),
+        (
+            "gpu_buffers",
+            &ctx.threads,
+            deformer(&ctx.threads, LStorage::Buffers, None, false),
+        ),
+    ];
+    if let Some(g) = &ctx.inline {
+        variants.push((
+            "gpu_texture_inline",
+            g,
+            deformer(g, LStorage::Texture, None, false),
+        ));
+        variants.push((
+            "gpu_texture_inline_uniform_list",
+            g,
+            deformer(g, LStorage::Texture, None, true),
+        ));
+        variants.push((
+            "gpu_texture_inline_no_normals",
+            g,
+            deformer(g, LStorage::Texture, Some(positions_only(g)), false),
+        ));
+    }
     let mut group = crit.benchmark_group(format!("{name}_{nr}rows_{}cols", c.cols().len()));
     group.sample_size(30);
     // The driver's fixed costs, for comparison with the frames below.
-    for (id, upload, dispatches) in [
-        ("gpu_floor_submit", false, 0),
-        ("gpu_floor_upload", true, 0),
-        ("gpu_floor_empty_dispatch", true, 1),
-        ("gpu_floor_two_empty_dispatches", true, 2),
-    ] {
-        group.bench_function(id, |b| b.iter(floor(gpu, nr as u32, upload, dispatches)));
+    let floors = [("", Some(&ctx.threads)), ("_inline", ctx.inline.as_ref())];
+    for (suffix, gpu) in floors {
+        let Some(gpu) = gpu else { continue };
+        for (id, upload, dispatches) in [
+            ("gpu_floor_submit", false, 0),
+            ("gpu_floor_upload", true, 0),
+            ("gpu_floor_empty_dispatch", true, 1),
+            ("gpu_floor_two_empty_dispatches", true, 2),
+        ] {
+            group.bench_function(format!("{id}{suffix}"), |b| {
+                b.iter(floor(gpu, nr as u32, upload, dispatches))
+            });
+        }
     }
     let mut out = vec![DVec3::ZERO; nr];
     for &n in nodes {
@@ -213,17 +276,11 @@ fn bench_case(
             .map(|&(col, v)| (col, DVec3::from(v.map(f64::from))))
             .collect();
         let id = format!("{}c_{n}n", 3 * n);
-        group.bench_with_input(BenchmarkId::new("gpu_texture", &id), &f, |b, f| {
-            b.iter(|| frame(gpu, &mut texture, f))
-        });
-        group.bench_with_input(
-            BenchmarkId::new("gpu_texture_no_normals", &id),
-            &f,
-            |b, f| b.iter(|| frame(gpu, &mut texture_no_normals, f)),
-        );
-        group.bench_with_input(BenchmarkId::new("gpu_buffers", &id), &f, |b, f| {
-            b.iter(|| frame(gpu, &mut buffers, f))
-        });
+        for (vid, gpu, d) in &mut variants {
+            group.bench_with_input(BenchmarkId::new(*vid, &id), &f, |b, f| {
+                b.iter(|| frame(gpu, d, f))
+            });
+        }
         group.bench_with_input(BenchmarkId::new("cpu_f64", &id), &f64s, |b, f| {
             b.iter(|| {
                 c.displace(f, &mut out);
@@ -235,10 +292,9 @@ fn bench_case(
 }
 
 fn benches(crit: &mut Criterion) {
-    let gpu = Gpu::new_headless().unwrap_or_else(|e| panic!("{e}"));
-    eprintln!("adapter: {}", gpu.adapter.get_info().name);
-    bench_case(crit, &gpu, "mouse", 14, usize::MAX, &[3, 9, 30, 300]);
-    bench_case(crit, &gpu, "large", 29, 500, &[3, 30]);
+    let ctx = contexts();
+    bench_case(crit, &ctx, "mouse", 14, usize::MAX, &[3, 9, 30, 300]);
+    bench_case(crit, &ctx, "large", 29, 500, &[3, 30]);
 }
 
 criterion_group!(deform, benches);

@@ -237,12 +237,19 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
     let opts = DemoOptions {
         seconds: a.seconds,
         out: a.out.clone(),
+        placement: crate::threads::VisualPlacement::split(),
     };
-    // Leave a core to the haptic loop: lavapipe (software Vulkan) would otherwise use them all.
+    // The visual loop and lavapipe (software Vulkan) share one core and the haptic loop has
+    // another: lavapipe runs compute and rasterisation on its queue thread (no worker pool),
+    // and that thread starts on the visual core because it is created while this thread is
+    // pinned there (see `threads`).
     if std::env::var_os("LP_NUM_THREADS").is_none() {
-        std::env::set_var("LP_NUM_THREADS", "1");
+        std::env::set_var("LP_NUM_THREADS", "0");
     }
-    let gpu = match crate::gpu::Gpu::new_headless() {
+    opts.placement.enter_visual();
+    let gpu = crate::gpu::Gpu::new_headless();
+    opts.placement.leave();
+    let gpu = match gpu {
         Ok(g) => Some(g),
         Err(e) => {
             eprintln!("warning: {e}; the visual loop falls back to the CPU and draws no frames");

@@ -68,6 +68,8 @@ pub struct DemoOptions {
     pub seconds: f64,
     /// Where frames go.
     pub out: PathBuf,
+    /// Which cores the visual and haptic loops run on.
+    pub placement: crate::threads::VisualPlacement,
 }
 
 /// The scripted finger: comes down on the object's top at the centre of its bounds, presses
@@ -144,6 +146,7 @@ pub fn run_object(
         let h = sc.spawn(move || {
             let surf = &scene_ref.surface;
             let mut dev = ScriptedDevice::new(move |t| finger_path(surf, lo, hi, radius, t, secs));
+            opts.placement.enter_haptic();
             let realtime = crate::haptics::try_realtime_priority();
             let mut stats = run_loop(
                 &scene_ref.surface,
@@ -157,6 +160,8 @@ pub fn run_object(
             stats.realtime = realtime;
             stats
         });
+        // The visual loop shares a core with the GPU driver's threads (see `threads`).
+        opts.placement.enter_visual();
         let t0 = Instant::now();
         let mut result = Ok(());
         while !done.load(Ordering::Acquire) {
@@ -171,6 +176,7 @@ pub fn run_object(
             frames += 1;
         }
         let elapsed = t0.elapsed().as_secs_f64();
+        opts.placement.leave();
         let stats = h
             .join()
             .map_err(|_| Error::Input("the haptic thread panicked".into()))?;

@@ -11,8 +11,9 @@
 //!
 //! Data flows one way:
 //! * precompute: [`mesh`] → [`fem`] (sparse K, Cholesky) → [`compliance`] (L, L_ii⁻¹) → [`cache`]
-//! * haptic path: [`contact`] (god-object) → [`force`] (eq. 9–12) → [`[`haptics`] (lock-free publish)
-//! * visual path: [`compliance::Compliance::displace`] on the CPU (f64 reference) or the GPU pass.
+//! * haptic path: [`contact`] (god-object) → [`force`] (eq. 9–12) → [`haptics`] (lock-free publish)
+//! * visual path: [`compliance::Compliance::displace`] on the CPU (f64 reference) or the GPU pass
+//!   ([`gpu`], [`render`]); [`threads`] places the two loops on their own cores.
 
 #![warn(missing_docs)]
 
@@ -29,6 +30,7 @@ pub mod haptics;
 pub mod mesh;
 pub mod render;
 pub mod scene;
+pub mod threads;
 pub mod tradeoff;
 pub mod units;
 pub mod vtu;
