@@ -1,10 +1,10 @@
 //! The visual loop's `u = L·F` (+ vertex normals): the GPU pass (set_forces + encode + submit +
 //! wait) in both layouts of `L` against the f64 CPU reference `Compliance::displace`, and the
 //! driver's floor (submit + wait alone; with a 16-byte upload; with one and two empty
-//! dispatches), in the same run. On lavapipe every texture-layout frame and floor is measured
-//! twice: with llvmpipe's worker threads (the driver's default) and with `LP_NUM_THREADS=0`
-//! (`_inline`); the inline texture frame also without immediates (`_uniform_list`: the active
-//! list uploaded with `write_buffer`) and without normals.
+//! dispatches), in the same run. On lavapipe the floors and frames are measured twice: with the
+//! driver's threads where the OS puts them (its default), and `_pinned` (see [`Contexts`]); the
+//! pinned texture frame also without immediates (`_uniform_list`: the active list uploaded with
+//! `write_buffer`) and without normals.
 //!
 //! Active columns are counted as **scalar columns of L**: one contact triangle (the paper's
 //! eq. 8, three nodes with a 3-vector force each) is 9 columns. IDs read `9c_3n`: 9 scalar
@@ -24,6 +24,7 @@ use glam::DVec3;
 use touchfem::compliance::Compliance;
 use touchfem::gpu::{Deformer, DeformerOptions, Gpu, LStorage, OutputTarget};
 use touchfem::mesh::{cube_with, Mesh};
+use touchfem::threads::VisualPlacement;
 use touchfem::units::Material;
 use touchfem::wgpu;
 
@@ -158,30 +159,52 @@ fn floor(gpu: &Gpu, rows: u32, upload: bool, dispatches: u32) -> impl FnMut() + 
     }
 }
 
-/// The contexts a run compares: the driver as configured (`threads`), and on CPU adapters also
-/// lavapipe with `LP_NUM_THREADS=0` (`inline`: llvmpipe runs compute on the submitting queue
-/// thread instead of waking its worker pool, one handoff fewer per dispatch). Both are created
-/// in this process, so every number below comes from one run.
+/// The contexts a run compares: the driver as configured, threads where the OS puts them
+/// (`threads`); and on CPU adapters also lavapipe pinned (`pinned`): created while this thread
+/// is pinned to one core, so the driver's queue thread starts there too, with
+/// `LP_NUM_THREADS=0` (llvmpipe runs compute on that queue thread, no worker pool) — the
+/// demo's setting (`touchfem::threads`). Both live in this process, so every number below
+/// comes from one run; this thread is pinned while it measures `pinned` and free otherwise.
 struct Contexts {
     threads: Gpu,
-    inline: Option<Gpu>,
+    pinned: Option<Gpu>,
+    placement: VisualPlacement,
+}
+
+impl Contexts {
+    /// Puts this thread where `gpu`'s frames should be submitted from.
+    fn enter(&self, gpu: &Gpu) {
+        if self.pinned.as_ref().is_some_and(|p| std::ptr::eq(p, gpu)) {
+            self.placement.enter_visual();
+        } else {
+            self.placement.leave();
+        }
+    }
 }
 
 fn contexts() -> Contexts {
     let threads = Gpu::new_headless().unwrap_or_else(|e| panic!("{e}"));
     eprintln!("adapter: {}", threads.adapter.get_info().name);
-    let inline = (threads.adapter.get_info().device_type == wgpu::DeviceType::Cpu).then(|| {
+    let placement = VisualPlacement::split();
+    let cpu = threads.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
+    let pinned = (cpu && placement.visual.is_some()).then(|| {
         // llvmpipe reads LP_NUM_THREADS when an instance creates its screen; restore it after.
         let old = std::env::var_os("LP_NUM_THREADS");
         std::env::set_var("LP_NUM_THREADS", "0");
+        placement.enter_visual();
         let g = Gpu::new_headless().unwrap_or_else(|e| panic!("{e}"));
+        placement.leave();
         match old {
             Some(v) => std::env::set_var("LP_NUM_THREADS", v),
             None => std::env::remove_var("LP_NUM_THREADS"),
         }
         g
     });
-    Contexts { threads, inline }
+    Contexts {
+        threads,
+        pinned,
+        placement,
+    }
 }
 
 fn bench_case(
@@ -234,27 +257,32 @@ fn bench_case(
             deformer(&ctx.threads, LStorage::Buffers, None, false),
         ),
     ];
-    if let Some(g) = &ctx.inline {
+    if let Some(g) = &ctx.pinned {
         variants.push((
-            "gpu_texture_inline",
+            "gpu_texture_pinned",
             g,
             deformer(g, LStorage::Texture, None, false),
         ));
         variants.push((
-            "gpu_texture_inline_uniform_list",
+            "gpu_texture_pinned_uniform_list",
             g,
             deformer(g, LStorage::Texture, None, true),
         ));
         variants.push((
-            "gpu_texture_inline_no_normals",
+            "gpu_texture_pinned_no_normals",
             g,
             deformer(g, LStorage::Texture, Some(positions_only(g)), false),
+        ));
+        variants.push((
+            "gpu_buffers_pinned",
+            g,
+            deformer(g, LStorage::Buffers, None, false),
         ));
     }
     let mut group = crit.benchmark_group(format!("{name}_{nr}rows_{}cols", c.cols().len()));
     group.sample_size(30);
     // The driver's fixed costs, for comparison with the frames below.
-    let floors = [("", Some(&ctx.threads)), ("_inline", ctx.inline.as_ref())];
+    let floors = [("", Some(&ctx.threads)), ("_pinned", ctx.pinned.as_ref())];
     for (suffix, gpu) in floors {
         let Some(gpu) = gpu else { continue };
         for (id, upload, dispatches) in [
@@ -263,6 +291,7 @@ fn bench_case(
             ("gpu_floor_empty_dispatch", true, 1),
             ("gpu_floor_two_empty_dispatches", true, 2),
         ] {
+            ctx.enter(gpu);
             group.bench_function(format!("{id}{suffix}"), |b| {
                 b.iter(floor(gpu, nr as u32, upload, dispatches))
             });
@@ -277,10 +306,12 @@ fn bench_case(
             .collect();
         let id = format!("{}c_{n}n", 3 * n);
         for (vid, gpu, d) in &mut variants {
+            ctx.enter(gpu);
             group.bench_with_input(BenchmarkId::new(*vid, &id), &f, |b, f| {
                 b.iter(|| frame(gpu, d, f))
             });
         }
+        ctx.placement.leave();
         group.bench_with_input(BenchmarkId::new("cpu_f64", &id), &f64s, |b, f| {
             b.iter(|| {
                 c.displace(f, &mut out);

@@ -17,13 +17,19 @@ struct Immediates {
 
 var<immediate> imm: Immediates;
 
-fn active_count() -> u32 {
-    return imm.n_active;
-}
-
-fn active_entry(k: u32) -> Active {
+// u at row r: Σ over the active entries of L[r, c]·F_c. Two loops, so that neither tests
+// where the entries are on every iteration.
+fn displacement(r: u32, nr: u32) -> vec3<f32> {
+    let n = imm.n_active;
+    var u = vec3<f32>(0.0);
     if imm.is_inline != 0u {
-        return imm.entries[min(k, 6u)];
+        for (var k = 0u; k < n; k += 1u) {
+            u += column_term(imm.entries[min(k, 6u)], r, nr);
+        }
+    } else {
+        for (var k = 0u; k < n; k += 1u) {
+            u += column_term(forces[k], r, nr);
+        }
     }
-    return forces[k];
+    return u;
 }

@@ -21,8 +21,9 @@
 // All counts come from uniforms: nothing relies on arrayLength (VERTEX buffers are padded).
 //
 // This file is completed by one of two preludes that say where the active list lives and
-// define active_count() and active_entry(k): active_uniform.wgsl (the uniform buffer `forces`)
-// or active_immediate.wgsl (immediates, when the device has them: small lists need no upload).
+// define displacement(r, nr), the sum of column_term over the active entries:
+// active_uniform.wgsl (the uniform buffer `forces`) or active_immediate.wgsl (immediates, when
+// the device has them: short lists need no upload).
 
 const LOG_W: u32 = 10u;
 const W_MASK: u32 = 1023u;
@@ -74,6 +75,12 @@ fn load_l(t: u32) -> vec3<f32> {
     return textureLoad(l_tex, vec2<u32>(t & W_MASK, y & h_mask), y >> frame.log_h).xyz;
 }
 
+// F_c's contribution at row r: scalar columns 3c, 3c + 1, 3c + 2 are texels (3c + b)·R + r.
+fn column_term(a: Active, r: u32, nr: u32) -> vec3<f32> {
+    let t = 3u * a.col * nr + r;
+    return load_l(t) * a.force.x + load_l(t + nr) * a.force.y + load_l(t + 2u * nr) * a.force.z;
+}
+
 @compute @workgroup_size(64)
 fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
     let r = gid.x;
@@ -81,14 +88,7 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let nr = frame.n_rows;
-    var u = vec3<f32>(0.0);
-    let n_active = active_count();
-    for (var k = 0u; k < n_active; k += 1u) {
-        let a = active_entry(k);
-        // Scalar columns 3c, 3c + 1, 3c + 2: texels (3c + b)·R + r.
-        let t = 3u * a.col * nr + r;
-        u += load_l(t) * a.force.x + load_l(t + nr) * a.force.y + load_l(t + 2u * nr) * a.force.z;
-    }
+    let u = displacement(r, nr);
     let p = textureLoad(rest_tex, xy(r)).xyz + u;
     let o = frame.out_offset + r * frame.out_stride;
     out[o] = p.x;

@@ -177,6 +177,18 @@ pub fn run(cli: Cli) -> Result<(), Error> {
     }
 }
 
+/// The visual loop and lavapipe (software Vulkan) share one core and the haptic loop has
+/// another: with `LP_NUM_THREADS=0` lavapipe runs compute and rasterisation on its queue thread
+/// (no worker pool to wake), and that thread starts on the visual core because the context is
+/// made while this thread is pinned there (`Gpu::new_headless_placed`, `threads`). Measured on
+/// the 2-core development VM: mouse displacement in the demo 0.50 → 0.20 ms. A value the user
+/// set is kept. Call before any thread is spawned.
+fn lavapipe_inline() {
+    if std::env::var_os("LP_NUM_THREADS").is_none() {
+        std::env::set_var("LP_NUM_THREADS", "0");
+    }
+}
+
 fn bench(a: &BenchArgs) -> Result<(), Error> {
     use crate::tradeoff::{bench_scenes, cpu_rows};
     let (reps, active): (usize, &[usize]) = if a.quick {
@@ -184,7 +196,9 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
     } else {
         (200, &[3, 9, 90, 900])
     };
-    let gpu = match crate::gpu::Gpu::new_headless() {
+    lavapipe_inline();
+    let placement = crate::threads::VisualPlacement::split();
+    let gpu = match crate::gpu::Gpu::new_headless_placed(&placement) {
         Ok(g) => Some(g),
         Err(e) => {
             eprintln!("warning: {e}; no gpu-f32-* rows");
@@ -195,7 +209,11 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
     for (name, scene) in bench_scenes()? {
         rows.extend(cpu_rows(&name, &scene, active, reps)?);
         if let Some(g) = &gpu {
-            rows.extend(crate::tradeoff::gpu_rows(&name, &scene, g, active, reps)?);
+            // Submit from the core the driver's threads started on (as the demo does).
+            placement.enter_visual();
+            let gpu_rows = crate::tradeoff::gpu_rows(&name, &scene, g, active, reps);
+            placement.leave();
+            rows.extend(gpu_rows?);
         }
     }
     println!(
@@ -239,17 +257,8 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
         out: a.out.clone(),
         placement: crate::threads::VisualPlacement::split(),
     };
-    // The visual loop and lavapipe (software Vulkan) share one core and the haptic loop has
-    // another: lavapipe runs compute and rasterisation on its queue thread (no worker pool),
-    // and that thread starts on the visual core because it is created while this thread is
-    // pinned there (see `threads`).
-    if std::env::var_os("LP_NUM_THREADS").is_none() {
-        std::env::set_var("LP_NUM_THREADS", "0");
-    }
-    opts.placement.enter_visual();
-    let gpu = crate::gpu::Gpu::new_headless();
-    opts.placement.leave();
-    let gpu = match gpu {
+    lavapipe_inline();
+    let gpu = match crate::gpu::Gpu::new_headless_placed(&opts.placement) {
         Ok(g) => Some(g),
         Err(e) => {
             eprintln!("warning: {e}; the visual loop falls back to the CPU and draws no frames");

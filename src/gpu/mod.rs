@@ -198,6 +198,23 @@ impl Gpu {
         Gpu::new(&AdapterSelection::from_env())
     }
 
+    /// [`new_headless`](Self::new_headless), created while the calling thread is pinned to
+    /// `placement`'s visual core, so that a software driver's threads (lavapipe's queue
+    /// thread) start on that core; the calling thread's affinity is restored afterwards. Submit
+    /// from a thread pinned to the same core ([`VisualPlacement::enter_visual`]) and every
+    /// submit's hand-offs stay on one core. See [`crate::threads`]; with lavapipe also set
+    /// `LP_NUM_THREADS=0` before the first context is created.
+    ///
+    /// [`VisualPlacement::enter_visual`]: crate::threads::VisualPlacement::enter_visual
+    pub fn new_headless_placed(
+        placement: &crate::threads::VisualPlacement,
+    ) -> Result<Gpu, GpuError> {
+        placement.enter_visual();
+        let g = Gpu::new_headless();
+        placement.leave();
+        g
+    }
+
     /// A headless context on the adapter `sel` names.
     pub fn new(sel: &AdapterSelection) -> Result<Gpu, GpuError> {
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
