@@ -13,11 +13,13 @@
 // * L: texel t = c_s·R + r holds (L[3r, c_s], L[3r+1, c_s], L[3r+2, c_s], 0) for scalar column
 //   c_s = 3c + b: exactly the f32 column-major L with a zero after every third entry.
 // * rest, pos: texel r = vertex r (metres, w = 1); pos is written by `deform`, read by `normals`.
-// * ring: texel v = (first texel, entry count) into fan; fan: 4 entries a texel, vertex v's
-//   neighbours as chains (touchfem::mesh::vertex_fans): an entry with FAN_START begins a chain,
-//   and consecutive entries a, b of a chain are one incident triangle (v, a, b), so that
-//   cross(p_a − p_v, p_b − p_v) is twice its area times its outward normal. One position load
-//   per neighbour (a closed fan of k triangles is k + 1 entries), not two per triangle.
+// * fan: vertex v's neighbours as chains (touchfem::mesh::vertex_fans): an entry with FAN_START
+//   begins a chain, and consecutive entries a, b of a chain are one incident triangle (v, a, b),
+//   so that cross(p_a − p_v, p_b − p_v) is twice its area times its outward normal. One
+//   position load per neighbour (a closed fan of k triangles is k + 1 entries), not two per
+//   triangle. Texels 2v and 2v + 1: slot 0 = (t << 8) | k, k more entries from texel t on;
+//   slots 1..8 = the first 7 entries, padded with FAN_START | v (adds nothing), read without a
+//   count (touchfem::gpu's fan_slots).
 // All counts come from uniforms: nothing relies on arrayLength (VERTEX buffers are padded).
 //
 // This file is completed by one of two preludes that say where the active list lives and
@@ -62,7 +64,6 @@ struct Active {
 @group(0) @binding(4) var rest_tex: texture_storage_2d<rgba32float, read>;
 @group(0) @binding(5) var pos_out: texture_storage_2d<rgba32float, write>;
 @group(0) @binding(6) var pos_tex: texture_storage_2d<rgba32float, read>;
-@group(0) @binding(7) var ring_tex: texture_storage_2d<rg32uint, read>;
 @group(0) @binding(8) var fan_tex: texture_storage_2d<rgba32uint, read>;
 
 fn xy(t: u32) -> vec2<u32> {
@@ -115,20 +116,32 @@ fn normals(@builtin(global_invocation_id) gid: vec3<u32>) {
     if v >= frame.n_rows || frame.normal_offset == 0xffffffffu {
         return;
     }
-    let ring = textureLoad(ring_tex, xy(v)).xy;
+    let f0 = textureLoad(fan_tex, xy(2u * v));
+    let f1 = textureLoad(fan_tex, xy(2u * v + 1u));
     let p = textureLoad(pos_tex, xy(v)).xyz;
     var n = vec3<f32>(0.0);
     var prev = vec3<f32>(0.0);
-    for (var i = 0u; i < ring.y; i += 4u) {
-        let e = textureLoad(fan_tex, xy(ring.x + (i >> 2u)));
+    // The first 7 entries, straight-line (padding adds nothing).
+    fan_step(f0.y, p, &prev, &n);
+    fan_step(f0.z, p, &prev, &n);
+    fan_step(f0.w, p, &prev, &n);
+    fan_step(f1.x, p, &prev, &n);
+    fan_step(f1.y, p, &prev, &n);
+    fan_step(f1.z, p, &prev, &n);
+    fan_step(f1.w, p, &prev, &n);
+    // The rest, if any (vertices of valence 7 and up).
+    let extra = f0.x & 0xffu;
+    let first = f0.x >> 8u;
+    for (var i = 0u; i < extra; i += 4u) {
+        let e = textureLoad(fan_tex, xy(first + (i >> 2u)));
         fan_step(e.x, p, &prev, &n);
-        if i + 1u < ring.y {
+        if i + 1u < extra {
             fan_step(e.y, p, &prev, &n);
         }
-        if i + 2u < ring.y {
+        if i + 2u < extra {
             fan_step(e.z, p, &prev, &n);
         }
-        if i + 3u < ring.y {
+        if i + 3u < extra {
             fan_step(e.w, p, &prev, &n);
         }
     }

@@ -688,7 +688,8 @@ fn immediates_and_uniform_list_agree() {
     assert!(!new_deformer(&k.c, &k.mesh, &layout(LStorage::Buffers)).uses_immediates());
     let mut rng = Rng(11);
     let inline = touchfem::gpu::INLINE_ACTIVE;
-    for n in [3, inline, inline + 1, 1, 40, 0, inline, 2] {
+    // Every inline count (each has its own specialised pipeline), and switches both ways.
+    for n in [3, inline, inline + 1, 1, 40, 0, inline, 2, 4, 5, 6, 9, 3] {
         let forces: Vec<(u32, [f32; 3])> = (0..n)
             .map(|i| ((i * 5 % nc) as u32, (rng.vec() * 0.02).as_vec3().to_array()))
             .collect();
@@ -698,5 +699,44 @@ fn immediates_and_uniform_list_agree() {
         assert_eq!(umax > 0.0, n > 0);
         check(&k.c, &k.mesh.nodes, &forces, &without, true);
         assert_eq!(run(&with), run(&without), "{n} entries");
+    }
+}
+
+/// Normals where the triangle fans overflow the 7 inline slots per vertex: a closed cone of 20
+/// triangles around an apex (21 fan entries), a wheel sharing its rim, and a non-manifold bow
+/// tie, with forces on the hub; against the f64 reference in both layouts.
+#[test]
+fn normals_of_high_valence_and_non_manifold_vertices() {
+    const RIM: u32 = 20;
+    let g = gpu();
+    let mut rng = Rng(5);
+    // Rows: 0 = apex, 1 = hub (below), 2..22 = rim, 22..26 = a bow tie touching the rim.
+    let r = 2 + RIM as usize + 4;
+    let (c, mut rest) = random_compliance(&mut rng, r, 6, 4);
+    for k in 0..RIM {
+        let a = std::f64::consts::TAU * f64::from(k) / f64::from(RIM);
+        rest[2 + k as usize] = DVec3::new(a.cos(), a.sin(), 0.0) * 0.02;
+    }
+    rest[0] = DVec3::new(0.0, 0.0, 0.01);
+    rest[1] = DVec3::new(0.0, 0.0, -0.01);
+    let mut tris: Vec<[u32; 3]> = Vec::new();
+    for k in 0..RIM {
+        let (a, b) = (2 + k, 2 + (k + 1) % RIM);
+        tris.push([0, a, b]);
+        tris.push([1, b, a]);
+    }
+    // Bow tie: two triangles meeting only at rim vertex 2.
+    tris.push([2, 22, 23]);
+    tris.push([2, 24, 25]);
+    let forces: Vec<(u32, [f32; 3])> = (0..6)
+        .map(|i| (i, (rng.vec() * 0.3).as_vec3().to_array()))
+        .collect();
+    for storage in LAYOUTS {
+        let mut d = Deformer::new(&g.device, &g.queue, &c, &rest, &tris, &layout(storage))
+            .expect("deformer");
+        for n in [0, 1, 3, 6] {
+            d.set_forces(&g.queue, &forces[..n]).unwrap();
+            check(&c, &rest, &forces[..n], &d, true);
+        }
     }
 }

@@ -85,6 +85,18 @@ pub(super) fn compute_pipeline(
     groups: &[&wgpu::BindGroupLayout],
     immediate_size: u32,
 ) -> wgpu::ComputePipeline {
+    specialised_pipeline(device, module, entry, groups, immediate_size, &[])
+}
+
+/// [`compute_pipeline`] with values for the shader's `override` constants.
+pub(super) fn specialised_pipeline(
+    device: &wgpu::Device,
+    module: &wgpu::ShaderModule,
+    entry: &str,
+    groups: &[&wgpu::BindGroupLayout],
+    immediate_size: u32,
+    constants: &[(&str, f64)],
+) -> wgpu::ComputePipeline {
     let groups: Vec<Option<&wgpu::BindGroupLayout>> = groups.iter().map(|g| Some(*g)).collect();
     let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
         label: Some(entry),
@@ -96,7 +108,10 @@ pub(super) fn compute_pipeline(
         layout: Some(&layout),
         module,
         entry_point: Some(entry),
-        compilation_options: Default::default(),
+        compilation_options: wgpu::PipelineCompilationOptions {
+            constants,
+            ..Default::default()
+        },
         cache: None,
     })
 }

@@ -369,7 +369,8 @@ mod tests {
         assert_eq!(16 + 16 * inline as u32, super::IMMEDIATE_BYTES);
         for decl in [
             format!("array<Active, {inline}>"),
-            format!("min(k, {}u)", inline - 1),
+            format!("imm.entries[{}]", inline - 1),
+            format!("ACTIVE_INLINE > {}u", inline - 1),
         ] {
             assert!(
                 super::ACTIVE_IMMEDIATE_WGSL.contains(&decl),

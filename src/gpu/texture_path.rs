@@ -17,7 +17,8 @@ use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
 use super::bind::{
-    buffer, compute_pipeline, storage_entry, storage_texture_entry, uniform_entry, view,
+    buffer, compute_pipeline, specialised_pipeline, storage_entry, storage_texture_entry,
+    uniform_entry, view,
 };
 use super::deform::{Shared, MAX_ACTIVE, WORKGROUP};
 use super::{deform_texture_source, GpuError, IMMEDIATE_BYTES, INLINE_ACTIVE};
@@ -47,7 +48,9 @@ pub(super) struct TexturePath {
     active: wgpu::Buffer,
     deform_group: wgpu::BindGroup,
     normals_group: wgpu::BindGroup,
-    deform: wgpu::ComputePipeline,
+    /// The deformation pipeline; with immediates one per inline entry count
+    /// (0..=[`INLINE_ACTIVE`]) and a last one for uploaded lists.
+    deform: Vec<wgpu::ComputePipeline>,
     normals: wgpu::ComputePipeline,
     /// The pass parameters (`n_active` changes per frame).
     frame: wgpu::Buffer,
@@ -65,6 +68,49 @@ const IMMEDIATE_WORDS: usize = IMMEDIATE_BYTES as usize / 4;
 fn extent_2d(n: u64) -> (u32, u32) {
     let n = n.max(1);
     (n.min(W) as u32, n.div_ceil(W) as u32)
+}
+
+/// Inline fan entries per vertex (slots 1..8 of its two texels).
+const FAN_INLINE: usize = 7;
+
+/// The normal pass's adjacency: vertex `v`'s triangle fans ([`crate::mesh::vertex_fans`]) in
+/// texels `2v` and `2v + 1` (four `u32` slots each). Slot 0 is a header, `(t << 8) | k`: `k`
+/// entries beyond the first [`FAN_INLINE`] continue at texel `t` (after the `2R` fixed
+/// texels). Slots 1..8 hold the first entries, padded with `FAN_START | v` — the vertex
+/// itself starting a chain, which adds nothing to the normal — so the shader reads them
+/// without a count: fixed, straight-line work per vertex, which llvmpipe runs much faster
+/// than a loop whose trip count differs between lanes.
+fn fan_slots(nr: usize, tris: &[[u32; 3]]) -> Result<Vec<u32>, GpuError> {
+    let (ranges, list) = crate::mesh::vertex_fans(nr, tris, false);
+    let start = crate::mesh::FAN_START;
+    let mut slots = vec![0u32; 8 * nr];
+    let mut extra: Vec<u32> = Vec::new();
+    for (v, &[first, count]) in ranges.iter().enumerate() {
+        let e = &list[first as usize..(first + count) as usize];
+        let (inline, rest) = e.split_at(e.len().min(FAN_INLINE));
+        let s = &mut slots[8 * v..8 * v + 8];
+        for (k, slot) in s[1..].iter_mut().enumerate() {
+            *slot = inline.get(k).copied().unwrap_or(start | v as u32);
+        }
+        if !rest.is_empty() {
+            let texel = 2 * nr + extra.len() / 4;
+            if rest.len() > 255 || texel >= 1 << 24 {
+                return Err(GpuError::BadInput(format!(
+                    "vertex {v} has {} triangle-fan entries; at most {} are supported",
+                    e.len(),
+                    FAN_INLINE + 255
+                )));
+            }
+            s[0] = ((texel as u32) << 8) | rest.len() as u32;
+            extra.extend_from_slice(rest);
+            extra.resize(extra.len().next_multiple_of(4), start);
+        }
+    }
+    slots.extend(extra);
+    if slots.is_empty() {
+        slots.resize(4, start);
+    }
+    Ok(slots)
 }
 
 impl TexturePath {
@@ -119,21 +165,8 @@ impl TexturePath {
         let rest = texture_2d("touchfem rest positions", rgba, tb, nr, rest_bytes)?;
         let pos = texture_2d("touchfem deformed positions", rgba, tb, nr, rest_bytes)?;
 
-        // Per vertex (first texel, entry count) into its triangle fans, 4 entries a texel.
-        let (ranges, mut fans) = crate::mesh::vertex_fans(sh.nr, sh.tris, true);
-        let ring: Vec<[u32; 2]> = ranges.iter().map(|&[f, c]| [f / 4, c]).collect();
-        fans.resize(
-            fans.len().next_multiple_of(4).max(4),
-            crate::mesh::FAN_START,
-        );
-        let rg = wgpu::TextureFormat::Rg32Uint;
-        let ring_tex = texture_2d(
-            "touchfem vertex rings",
-            rg,
-            tb,
-            nr,
-            bytemuck::cast_slice(&ring),
-        )?;
+        // Per vertex, its triangle fans in two texels of 4 slots (see `fan_slots`).
+        let fans = fan_slots(sh.nr, sh.tris)?;
         let fan_tex = texture_2d(
             "touchfem vertex fans",
             wgpu::TextureFormat::Rgba32Uint,
@@ -265,7 +298,6 @@ impl TexturePath {
                 uniform_entry(0),
                 storage_entry(2, false),
                 storage_texture_entry(6, read, rgba, d2),
-                storage_texture_entry(7, read, rg, d2),
                 storage_texture_entry(8, read, wgpu::TextureFormat::Rgba32Uint, d2),
             ],
         });
@@ -275,7 +307,7 @@ impl TexturePath {
         });
         let v = |t: &wgpu::Texture| t.create_view(&Default::default());
         let (rest_view, pos_view) = (v(&rest), v(&pos));
-        let (ring_view, fan_view) = (v(&ring_tex), v(&fan_tex));
+        let fan_view = v(&fan_tex);
         let (out, out_start, out_size) = sh.out;
         let deform_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("touchfem deform (texture)"),
@@ -296,7 +328,6 @@ impl TexturePath {
                 buffer(0, &frame_buf, 0, 32),
                 buffer(2, out, out_start, out_size),
                 view(6, &pos_view),
-                view(7, &ring_view),
                 view(8, &fan_view),
             ],
         });
@@ -308,7 +339,29 @@ impl TexturePath {
         Ok(TexturePath {
             layers: layers as u32,
             active,
-            deform: compute_pipeline(device, &module, "deform", &[&deform_layout], imm_bytes),
+            deform: if sh.immediates {
+                // ACTIVE_INLINE = 0..=INLINE_ACTIVE (inline), then INLINE_ACTIVE + 1 (uploaded).
+                (0..=INLINE_ACTIVE + 1)
+                    .map(|k| {
+                        specialised_pipeline(
+                            device,
+                            &module,
+                            "deform",
+                            &[&deform_layout],
+                            imm_bytes,
+                            &[("ACTIVE_INLINE", k as f64)],
+                        )
+                    })
+                    .collect()
+            } else {
+                vec![compute_pipeline(
+                    device,
+                    &module,
+                    "deform",
+                    &[&deform_layout],
+                    0,
+                )]
+            },
             normals: compute_pipeline(device, &module, "normals", &[&normals_layout], 0),
             deform_group,
             normals_group,
@@ -353,7 +406,13 @@ impl TexturePath {
     /// Records the deformation dispatch, then the normal pass.
     pub(super) fn record(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32, normals: bool) {
         let groups = n_rows.div_ceil(WORKGROUP);
-        pass.set_pipeline(&self.deform);
+        // With immediates: the pipeline specialised for this many inline entries, or the last
+        // one (uploaded list).
+        let which = match &self.immediates {
+            Some(imm) if imm[1] != 0 => imm[0] as usize,
+            _ => self.deform.len() - 1,
+        };
+        pass.set_pipeline(&self.deform[which.min(self.deform.len() - 1)]);
         pass.set_bind_group(0, &self.deform_group, &[]);
         if let Some(imm) = &self.immediates {
             pass.set_immediates(0, bytemuck::cast_slice(imm));
@@ -368,5 +427,43 @@ impl TexturePath {
 
     pub(super) fn layer_count(&self) -> usize {
         self.layers as usize
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::FAN_START;
+
+    /// Decoding the slots as the shader does visits each vertex's fan entries in order: the
+    /// 7 inline ones, padding that restarts a chain at the vertex itself, then the overflow.
+    #[test]
+    fn fan_slots_round_trip() {
+        // A cone of 12 triangles (apex fan of 13 entries), a lone triangle, an unused vertex.
+        let mut tris: Vec<[u32; 3]> = (0..12).map(|k| [0, 1 + k, 1 + (k + 1) % 12]).collect();
+        tris.push([13, 14, 15]);
+        let n = 17;
+        let slots = fan_slots(n, &tris).unwrap();
+        let (ranges, list) = crate::mesh::vertex_fans(n, &tris, false);
+        for v in 0..n {
+            let s = &slots[8 * v..8 * v + 8];
+            let (extra, first) = ((s[0] & 0xff) as usize, (s[0] >> 8) as usize);
+            let mut seen: Vec<u32> = s[1..].to_vec();
+            seen.extend_from_slice(&slots[4 * first..4 * first + extra]);
+            let [f, c] = ranges[v];
+            let want = &list[f as usize..(f + c) as usize];
+            let (real, pad) = seen.split_at(want.len().min(FAN_INLINE));
+            assert_eq!(real, &want[..real.len()], "vertex {v}");
+            let pad_len = FAN_INLINE.saturating_sub(want.len());
+            assert!(pad[..pad_len].iter().all(|&e| e == FAN_START | v as u32));
+            assert_eq!(&pad[pad_len..], &want[real.len()..], "vertex {v} overflow");
+            assert_eq!(extra, want.len().saturating_sub(FAN_INLINE));
+        }
+        assert_eq!(slots[0] & 0xff, 13 - 7, "the apex overflows by 6");
+        assert_eq!(
+            slots[0] >> 8,
+            2 * n as u32,
+            "overflow starts after the fixed texels"
+        );
     }
 }
