@@ -22,10 +22,13 @@
 //   count (touchfem::gpu's fan_slots).
 // All counts come from uniforms: nothing relies on arrayLength (VERTEX buffers are padded).
 //
-// This file is completed by one of two preludes that say where the active list lives and
-// define displacement(r, nr), the sum of column_term over the active entries:
-// active_uniform.wgsl (the uniform buffer `forces`) or active_immediate.wgsl (immediates, when
-// the device has them: short lists need no upload).
+// This file is completed by two preludes (touchfem::gpu::deform_texture_source):
+// * where the active list lives, defining displacement(r, nr), the sum of column_term over the
+//   active entries: active_uniform.wgsl (the uniform buffer `forces`) or active_immediate.wgsl
+//   (immediates, when the device has them: short lists need no upload);
+// * how vertices are written, defining `out` (binding 2), store_position and store_normal:
+//   output_words.wgsl (any offset and stride, word by word) or output_vertex.wgsl (the
+//   deformer's own 32-byte Vertex layout, one vec4 store each).
 
 const LOG_W: u32 = 10u;
 const W_MASK: u32 = 1023u;
@@ -59,7 +62,6 @@ struct Active {
 // storage load into per-lane loads even then (measured: 2.3× slower at 90 active columns).
 // 1024 = touchfem::gpu::MAX_ACTIVE: 16 KiB, the smallest uniform binding every device allows.
 @group(0) @binding(1) var<uniform> forces: array<Active, 1024>;
-@group(0) @binding(2) var<storage, read_write> out: array<f32>;
 @group(0) @binding(3) var l_tex: texture_storage_2d_array<rgba32float, read>;
 @group(0) @binding(4) var rest_tex: texture_storage_2d<rgba32float, read>;
 @group(0) @binding(5) var pos_out: texture_storage_2d<rgba32float, write>;
@@ -91,10 +93,7 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
     let nr = frame.n_rows;
     let u = displacement(r, nr);
     let p = textureLoad(rest_tex, xy(r)).xyz + u;
-    let o = frame.out_offset + r * frame.out_stride;
-    out[o] = p.x;
-    out[o + 1u] = p.y;
-    out[o + 2u] = p.z;
+    store_position(r, p);
     if frame.normal_offset != 0xffffffffu {
         textureStore(pos_out, xy(r), vec4<f32>(p, 1.0));
     }
@@ -149,8 +148,5 @@ fn normals(@builtin(global_invocation_id) gid: vec3<u32>) {
     if len > 0.0 {
         n = n / len;
     }
-    let o = frame.out_offset + v * frame.out_stride + frame.normal_offset;
-    out[o] = n.x;
-    out[o + 1u] = n.y;
-    out[o + 2u] = n.z;
+    store_normal(v, n);
 }

@@ -740,3 +740,36 @@ fn normals_of_high_valence_and_non_manifold_vertices() {
         }
     }
 }
+
+/// The deformer's own buffer holds whole `Vertex`es after a frame, in both layouts: position
+/// `w = 1`, normal `w = 0` (the texture layout stores each as one vec4), xyz as `read_back`.
+#[test]
+fn own_vertex_buffer_has_the_documented_layout() {
+    let k = cube_case();
+    let g = gpu();
+    for storage in LAYOUTS {
+        let mut d = new_deformer(&k.c, &k.mesh, &layout(storage));
+        d.set_forces(&g.queue, &[(4, [0.01, -0.02, 0.03])]).unwrap();
+        let (pos, nrm) = run(&d);
+        let nrm = nrm.expect("normals");
+        let n = d.vertex_count() as usize;
+        let bytes = touchfem::gpu::read_buffer(
+            &g.device,
+            &g.queue,
+            d.vertex_buffer(),
+            0,
+            touchfem::gpu::VERTEX_STRIDE * n as u64,
+        )
+        .unwrap();
+        let v: Vec<touchfem::gpu::Vertex> = bytemuck::pod_collect_to_vec(&bytes);
+        assert_eq!(v.len(), n);
+        for i in 0..n {
+            assert_eq!(v[i].position[3], 1.0, "{storage:?} vertex {i}");
+            assert_eq!(v[i].normal[3], 0.0, "{storage:?} vertex {i}");
+            assert_eq!(&v[i].position[..3], &pos[i][..]);
+            assert_eq!(&v[i].normal[..3], &nrm[i][..]);
+            let len: f32 = v[i].normal[..3].iter().map(|x| x * x).sum::<f32>().sqrt();
+            assert!((len - 1.0).abs() < 1e-5, "unit normal {i}: {len}");
+        }
+    }
+}

@@ -163,6 +163,9 @@ pub(super) struct Shared<'a> {
     pub max_binding: u64,
     /// Pass the active list as immediates ([`super::IMMEDIATE_BYTES`] of them).
     pub immediates: bool,
+    /// The output is the deformer's own buffer of [`Vertex`]es (offset 0, stride 32, `w`
+    /// components defined), bound whole.
+    pub vertex_layout: bool,
 }
 
 impl Shared<'_> {
@@ -334,8 +337,14 @@ impl Deformer {
                 }
             }
         };
-        let (out_start, out_size, out_word, normal_word) =
+        let (out_start, mut out_size, out_word, normal_word) =
             validate_target(&target, nr as u64, &limits)?;
+        // The deformer's own buffer holds whole `Vertex`es: the texture layout writes them one
+        // vec4 at a time and binds all of it.
+        let vertex_layout = options.output.is_none();
+        if vertex_layout {
+            out_size = VERTEX_STRIDE * nr as u64;
+        }
 
         let mut tri_words: Vec<u32> = tris.iter().flatten().copied().collect();
         let n_tri_words = tri_words.len().max(1);
@@ -365,6 +374,7 @@ impl Deformer {
             out: (&target.buffer, out_start, out_size),
             max_chunk,
             max_binding,
+            vertex_layout,
             immediates: !options.no_immediates
                 && device.features().contains(wgpu::Features::IMMEDIATES)
                 && limits.max_immediate_size >= super::IMMEDIATE_BYTES,

@@ -39,6 +39,14 @@ pub const ACTIVE_UNIFORM_WGSL: &str = include_str!("../../shaders/active_uniform
 /// (`shaders/active_immediate.wgsl`; needs [`wgpu::Features::IMMEDIATES`]).
 pub const ACTIVE_IMMEDIATE_WGSL: &str = include_str!("../../shaders/active_immediate.wgsl");
 
+/// Prelude of [`DEFORM_TEXTURE_WGSL`]: vertices written word by word at any offset and stride
+/// (`shaders/output_words.wgsl`).
+pub const OUTPUT_WORDS_WGSL: &str = include_str!("../../shaders/output_words.wgsl");
+
+/// Prelude of [`DEFORM_TEXTURE_WGSL`]: vertices written as [`Vertex`]es, one `vec4` store each
+/// (`shaders/output_vertex.wgsl`).
+pub const OUTPUT_VERTEX_WGSL: &str = include_str!("../../shaders/output_vertex.wgsl");
+
 /// Bytes of immediates the texture layout's deformation pass uses when the device has
 /// [`wgpu::Features::IMMEDIATES`] and at least this `max_immediate_size`.
 pub const IMMEDIATE_BYTES: u32 = 128;
@@ -48,14 +56,20 @@ pub const IMMEDIATE_BYTES: u32 = 128;
 pub const INLINE_ACTIVE: usize = 7;
 
 /// The complete texture-layout shader: [`DEFORM_TEXTURE_WGSL`] with the prelude that reads
-/// the active list from immediates (`immediates`) or from the uniform buffer.
-pub fn deform_texture_source(immediates: bool) -> String {
-    let prelude = if immediates {
+/// the active list from immediates (`immediates`) or from the uniform buffer, and the one that
+/// writes [`Vertex`]es (`vertex_layout`) or words at any offset and stride.
+pub fn deform_texture_source(immediates: bool, vertex_layout: bool) -> String {
+    let active = if immediates {
         ACTIVE_IMMEDIATE_WGSL
     } else {
         ACTIVE_UNIFORM_WGSL
     };
-    format!("{DEFORM_TEXTURE_WGSL}\n{prelude}")
+    let output = if vertex_layout {
+        OUTPUT_VERTEX_WGSL
+    } else {
+        OUTPUT_WORDS_WGSL
+    };
+    format!("{DEFORM_TEXTURE_WGSL}\n{active}\n{output}")
 }
 
 /// Everything that can go wrong on the GPU side.
@@ -327,6 +341,8 @@ mod tests {
             "deform_texture.wgsl",
             "active_uniform.wgsl",
             "active_immediate.wgsl",
+            "output_words.wgsl",
+            "output_vertex.wgsl",
         ];
         let mut n = 0;
         for entry in std::fs::read_dir(dir).expect("shaders/ exists") {
@@ -343,19 +359,23 @@ mod tests {
             validate(&name, &src, Capabilities::empty());
         }
         assert!(
-            n >= 5,
-            "expected deform.wgsl, render.wgsl and the texture layout's three parts, found {n}"
+            n >= 7,
+            "expected deform.wgsl, render.wgsl and the texture layout's five parts, found {n}"
         );
-        validate(
-            "deform_texture + active_uniform",
-            &super::deform_texture_source(false),
-            Capabilities::empty(),
-        );
-        validate(
-            "deform_texture + active_immediate",
-            &super::deform_texture_source(true),
-            Capabilities::IMMEDIATES,
-        );
+        for immediates in [false, true] {
+            for vertex in [false, true] {
+                let caps = if immediates {
+                    Capabilities::IMMEDIATES
+                } else {
+                    Capabilities::empty()
+                };
+                validate(
+                    &format!("deform_texture (immediates {immediates}, vertex layout {vertex})"),
+                    &super::deform_texture_source(immediates, vertex),
+                    caps,
+                );
+            }
+        }
     }
 
     /// The shaders' fixed-size active lists hold exactly `MAX_ACTIVE` entries.
@@ -386,6 +406,8 @@ mod tests {
             ("deform_texture.wgsl", super::DEFORM_TEXTURE_WGSL),
             ("active_uniform.wgsl", super::ACTIVE_UNIFORM_WGSL),
             ("active_immediate.wgsl", super::ACTIVE_IMMEDIATE_WGSL),
+            ("output_words.wgsl", super::OUTPUT_WORDS_WGSL),
+            ("output_vertex.wgsl", super::OUTPUT_VERTEX_WGSL),
         ] {
             let path = format!("{}/shaders/{name}", env!("CARGO_MANIFEST_DIR"));
             assert_eq!(std::fs::read_to_string(path).unwrap(), embedded, "{name}");

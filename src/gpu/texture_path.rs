@@ -333,7 +333,9 @@ impl TexturePath {
         });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("touchfem deform_texture.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(deform_texture_source(sh.immediates).into()),
+            source: wgpu::ShaderSource::Wgsl(
+                deform_texture_source(sh.immediates, sh.vertex_layout).into(),
+            ),
         });
         let imm_bytes = if sh.immediates { IMMEDIATE_BYTES } else { 0 };
         Ok(TexturePath {
