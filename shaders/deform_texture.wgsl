@@ -17,9 +17,9 @@
 //   begins a chain, and consecutive entries a, b of a chain are one incident triangle (v, a, b),
 //   so that cross(p_a − p_v, p_b − p_v) is twice its area times its outward normal. One
 //   position load per neighbour (a closed fan of k triangles is k + 1 entries), not two per
-//   triangle. Texels 2v and 2v + 1: slot 0 = (t << 8) | k, k more entries from texel t on;
-//   slots 1..8 = the first 7 entries, padded with FAN_START | v (adds nothing), read without a
-//   count (touchfem::gpu's fan_slots).
+//   triangle. Texels 2v and 2v + 1: 8 slots read without a count, padded with FAN_START | v
+//   (adds nothing); a longer fan's last slot is FAN_MORE | t: at texel t a count k, then the
+//   remaining k entries (touchfem::gpu's fan_slots).
 // All counts come from uniforms: nothing relies on arrayLength (VERTEX buffers are padded).
 //
 // This file is completed by two preludes (touchfem::gpu::deform_texture_source):
@@ -33,6 +33,7 @@
 const LOG_W: u32 = 10u;
 const W_MASK: u32 = 1023u;
 const FAN_START: u32 = 0x80000000u;
+const FAN_MORE: u32 = 0x40000000u;
 
 struct Frame {
     // Displayed vertices (rows of L).
@@ -120,28 +121,23 @@ fn normals(@builtin(global_invocation_id) gid: vec3<u32>) {
     let p = textureLoad(pos_tex, xy(v)).xyz;
     var n = vec3<f32>(0.0);
     var prev = vec3<f32>(0.0);
-    // The first 7 entries, straight-line (padding adds nothing).
+    // Eight slots, straight-line (padding adds nothing); a long fan's eighth continues
+    // elsewhere.
+    fan_step(f0.x, p, &prev, &n);
     fan_step(f0.y, p, &prev, &n);
     fan_step(f0.z, p, &prev, &n);
     fan_step(f0.w, p, &prev, &n);
     fan_step(f1.x, p, &prev, &n);
     fan_step(f1.y, p, &prev, &n);
     fan_step(f1.z, p, &prev, &n);
-    fan_step(f1.w, p, &prev, &n);
-    // The rest, if any (vertices of valence 7 and up).
-    let extra = f0.x & 0xffu;
-    let first = f0.x >> 8u;
-    for (var i = 0u; i < extra; i += 4u) {
-        let e = textureLoad(fan_tex, xy(first + (i >> 2u)));
-        fan_step(e.x, p, &prev, &n);
-        if i + 1u < extra {
-            fan_step(e.y, p, &prev, &n);
-        }
-        if i + 2u < extra {
-            fan_step(e.z, p, &prev, &n);
-        }
-        if i + 3u < extra {
-            fan_step(e.w, p, &prev, &n);
+    if (f1.w & FAN_MORE) == 0u {
+        fan_step(f1.w, p, &prev, &n);
+    } else {
+        let t = f1.w & ~FAN_MORE;
+        let k = textureLoad(fan_tex, xy(t)).x;
+        for (var i = 0u; i < k; i += 1u) {
+            let j = t * 4u + 1u + i;
+            fan_step(textureLoad(fan_tex, xy(j >> 2u))[j & 3u], p, &prev, &n);
         }
     }
     let len = length(n);

@@ -70,41 +70,51 @@ fn extent_2d(n: u64) -> (u32, u32) {
     (n.min(W) as u32, n.div_ceil(W) as u32)
 }
 
-/// Inline fan entries per vertex (slots 1..8 of its two texels).
-const FAN_INLINE: usize = 7;
+/// Fan slots per vertex: two texels of four `u32`.
+const FAN_SLOTS: usize = 8;
+
+/// Marks the last slot of a vertex whose fan has more than [`FAN_SLOTS`] entries: the rest
+/// of the slot is the texel where the fan continues.
+const FAN_MORE: u32 = 1 << 30;
 
 /// The normal pass's adjacency: vertex `v`'s triangle fans ([`crate::mesh::vertex_fans`]) in
-/// texels `2v` and `2v + 1` (four `u32` slots each). Slot 0 is a header, `(t << 8) | k`: `k`
-/// entries beyond the first [`FAN_INLINE`] continue at texel `t` (after the `2R` fixed
-/// texels). Slots 1..8 hold the first entries, padded with `FAN_START | v` — the vertex
-/// itself starting a chain, which adds nothing to the normal — so the shader reads them
-/// without a count: fixed, straight-line work per vertex, which llvmpipe runs much faster
-/// than a loop whose trip count differs between lanes.
+/// texels `2v` and `2v + 1`, [`FAN_SLOTS`] `u32` slots, read without a count: fixed,
+/// straight-line work per vertex, which llvmpipe runs much faster than a loop whose trip count
+/// differs between lanes. Short fans are padded with `FAN_START | v` — the vertex itself
+/// starting a chain, which adds nothing to the normal. A longer fan (valence 8 and up; 1.5 % of
+/// the mouse's vertices) keeps its first 7 entries and ends in `FAN_MORE | t`: at texel `t`
+/// (after the `2R` fixed texels) a count `k`, then the remaining `k` entries.
 fn fan_slots(nr: usize, tris: &[[u32; 3]]) -> Result<Vec<u32>, GpuError> {
     let (ranges, list) = crate::mesh::vertex_fans(nr, tris, false);
     let start = crate::mesh::FAN_START;
-    let mut slots = vec![0u32; 8 * nr];
+    if nr as u64 >= u64::from(FAN_MORE) {
+        return Err(GpuError::BadInput(format!(
+            "{nr} displayed vertices; the texture layout's normal pass takes at most {FAN_MORE}"
+        )));
+    }
+    let mut slots = vec![0u32; FAN_SLOTS * nr];
     let mut extra: Vec<u32> = Vec::new();
     for (v, &[first, count]) in ranges.iter().enumerate() {
         let e = &list[first as usize..(first + count) as usize];
-        let (inline, rest) = e.split_at(e.len().min(FAN_INLINE));
-        let s = &mut slots[8 * v..8 * v + 8];
-        for (k, slot) in s[1..].iter_mut().enumerate() {
-            *slot = inline.get(k).copied().unwrap_or(start | v as u32);
-        }
-        if !rest.is_empty() {
-            let texel = 2 * nr + extra.len() / 4;
-            if rest.len() > 255 || texel >= 1 << 24 {
-                return Err(GpuError::BadInput(format!(
-                    "vertex {v} has {} triangle-fan entries; at most {} are supported",
-                    e.len(),
-                    FAN_INLINE + 255
-                )));
+        let s = &mut slots[FAN_SLOTS * v..FAN_SLOTS * (v + 1)];
+        if e.len() <= FAN_SLOTS {
+            for (k, slot) in s.iter_mut().enumerate() {
+                *slot = e.get(k).copied().unwrap_or(start | v as u32);
             }
-            s[0] = ((texel as u32) << 8) | rest.len() as u32;
-            extra.extend_from_slice(rest);
-            extra.resize(extra.len().next_multiple_of(4), start);
+            continue;
         }
+        let texel = 2 * nr + extra.len() / 4;
+        if texel as u64 >= u64::from(FAN_MORE) {
+            return Err(GpuError::BadInput(format!(
+                "the triangle fans need {texel} texels; at most {FAN_MORE} are supported"
+            )));
+        }
+        s[..FAN_SLOTS - 1].copy_from_slice(&e[..FAN_SLOTS - 1]);
+        s[FAN_SLOTS - 1] = FAN_MORE | texel as u32;
+        let rest = &e[FAN_SLOTS - 1..];
+        extra.push(rest.len() as u32);
+        extra.extend_from_slice(rest);
+        extra.resize(extra.len().next_multiple_of(4), start);
     }
     slots.extend(extra);
     if slots.is_empty() {
@@ -437,8 +447,9 @@ mod tests {
     use super::*;
     use crate::mesh::FAN_START;
 
-    /// Decoding the slots as the shader does visits each vertex's fan entries in order: the
-    /// 7 inline ones, padding that restarts a chain at the vertex itself, then the overflow.
+    /// Decoding the slots as the shader does visits each vertex's fan entries in order: up to
+    /// 8 inline, padding that restarts a chain at the vertex itself, or 7 inline and the rest
+    /// behind `FAN_MORE`.
     #[test]
     fn fan_slots_round_trip() {
         // A cone of 12 triangles (apex fan of 13 entries), a lone triangle, an unused vertex.
@@ -449,23 +460,29 @@ mod tests {
         let (ranges, list) = crate::mesh::vertex_fans(n, &tris, false);
         for v in 0..n {
             let s = &slots[8 * v..8 * v + 8];
-            let (extra, first) = ((s[0] & 0xff) as usize, (s[0] >> 8) as usize);
-            let mut seen: Vec<u32> = s[1..].to_vec();
-            seen.extend_from_slice(&slots[4 * first..4 * first + extra]);
+            let mut seen: Vec<u32> = s[..7].to_vec();
+            if s[7] & FAN_MORE != 0 {
+                let t = (s[7] & !FAN_MORE) as usize;
+                let k = slots[4 * t] as usize;
+                seen.extend_from_slice(&slots[4 * t + 1..4 * t + 1 + k]);
+            } else {
+                seen.push(s[7]);
+            }
             let [f, c] = ranges[v];
             let want = &list[f as usize..(f + c) as usize];
-            let (real, pad) = seen.split_at(want.len().min(FAN_INLINE));
-            assert_eq!(real, &want[..real.len()], "vertex {v}");
-            let pad_len = FAN_INLINE.saturating_sub(want.len());
-            assert!(pad[..pad_len].iter().all(|&e| e == FAN_START | v as u32));
-            assert_eq!(&pad[pad_len..], &want[real.len()..], "vertex {v} overflow");
-            assert_eq!(extra, want.len().saturating_sub(FAN_INLINE));
+            assert_eq!(&seen[..want.len()], want, "vertex {v}");
+            assert!(
+                seen[want.len()..]
+                    .iter()
+                    .all(|&e| e == FAN_START | v as u32),
+                "vertex {v}: padding"
+            );
         }
-        assert_eq!(slots[0] & 0xff, 13 - 7, "the apex overflows by 6");
         assert_eq!(
-            slots[0] >> 8,
-            2 * n as u32,
-            "overflow starts after the fixed texels"
+            slots[7],
+            FAN_MORE | (2 * n as u32),
+            "the apex continues after the fixed texels"
         );
+        assert_eq!(slots[8 * n], 13 - 7, "with the 6 entries left");
     }
 }
