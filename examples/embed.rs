@@ -54,6 +54,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     .map_err(|e| format!("no GPU adapter (try WGPU_BACKEND=vulkan): {e}"))?;
     let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
         label: Some("embed"),
+        // Optional: with immediates the deformer's short force lists need no upload.
+        required_features: adapter.features() & wgpu::Features::IMMEDIATES,
         required_limits: adapter.limits(),
         ..Default::default()
     }))?;
@@ -70,6 +72,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         &mesh.surface,
         &DeformerOptions::default(),
     )?;
+    println!(
+        "deformer: {:?} layout, immediates: {}",
+        deformer.storage(),
+        deformer.uses_immediates()
+    );
     // Push the top-centre node 5 mm down: F = L_ii⁻¹·u (eq. 7).
     let top = DVec3::new(0.015, 0.015, 0.03);
     let node = (0..mesh.nodes.len())
