@@ -306,7 +306,27 @@ fn gpu_layout_rows(
             .map(|&(col, f)| (col, f.as_vec3().to_array()))
             .collect();
         let mut failed = None;
-        let t = median_us(reps.clamp(5, 50), || {
+        // Frames for about 0.3 s (at least 5, at most 2000, fewer with --quick), after a few
+        // warm-up frames: each frame is timed on its own, so the median is a typical frame's.
+        let mut frame_us = 0.0;
+        let mut reps = reps;
+        for warm in 0..3 {
+            let s = Instant::now();
+            d.set_forces(&gpu.queue, &f32s).map_err(gerr)?;
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            d.encode(&mut enc);
+            gpu.queue.submit([enc.finish()]);
+            gpu.device
+                .poll(wgpu::PollType::wait_indefinitely())
+                .map_err(|e| crate::Error::Input(format!("GPU poll: {e}")))?;
+            if warm == 2 {
+                frame_us = s.elapsed().as_secs_f64() * 1e6;
+            }
+        }
+        if reps >= 200 {
+            reps = ((0.3e6 / frame_us.max(1.0)) as usize).clamp(5, 2000);
+        }
+        let t = median_us(reps.clamp(5, 2000), || {
             let r = d.set_forces(&gpu.queue, &f32s).map_err(gerr).and_then(|_| {
                 let mut enc = gpu.device.create_command_encoder(&Default::default());
                 d.encode(&mut enc);
