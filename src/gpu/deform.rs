@@ -193,9 +193,12 @@ enum Path {
 ///
 /// `L` is uploaded once (f32) in the [`LStorage`] layout. Per frame,
 /// [`set_forces`](Self::set_forces) writes only the active columns and forces (16 bytes each,
-/// plus a 16-byte record per `L` buffer, or the 4-byte count for the texture layout); [`encode`](Self::encode) records one compute
-/// pass into the caller's encoder: the deformation dispatch(es), then the normal pass, which
-/// gathers over a precomputed per-vertex list of incident triangles (WGSL has no float atomics).
+/// plus a 16-byte record per `L` buffer, or the 4-byte count for the texture layout — nothing
+/// at all for a short list passed as immediates, see [`uses_immediates`](Self::uses_immediates));
+/// [`encode`](Self::encode) records one compute pass into the caller's encoder: the
+/// deformation dispatch(es), then the normal pass, which gathers over precomputed per-vertex
+/// adjacency (incident triangles, or triangle fans in the texture layout; WGSL has no float
+/// atomics).
 pub struct Deformer {
     n_rows: u32,
     n_cols: usize,
