@@ -312,13 +312,7 @@ fn gpu_layout_rows(
         let mut reps = reps;
         for warm in 0..3 {
             let s = Instant::now();
-            d.set_forces(&gpu.queue, &f32s).map_err(gerr)?;
-            let mut enc = gpu.device.create_command_encoder(&Default::default());
-            d.encode(&mut enc);
-            gpu.queue.submit([enc.finish()]);
-            gpu.device
-                .poll(wgpu::PollType::wait_indefinitely())
-                .map_err(|e| crate::Error::Input(format!("GPU poll: {e}")))?;
+            gpu_frame(gpu, &mut d, &f32s)?;
             if warm == 2 {
                 frame_us = s.elapsed().as_secs_f64() * 1e6;
             }
@@ -327,16 +321,7 @@ fn gpu_layout_rows(
             reps = ((0.3e6 / frame_us.max(1.0)) as usize).clamp(5, 2000);
         }
         let t = median_us(reps.clamp(5, 2000), || {
-            let r = d.set_forces(&gpu.queue, &f32s).map_err(gerr).and_then(|_| {
-                let mut enc = gpu.device.create_command_encoder(&Default::default());
-                d.encode(&mut enc);
-                gpu.queue.submit([enc.finish()]);
-                gpu.device
-                    .poll(wgpu::PollType::wait_indefinitely())
-                    .map(|_| ())
-                    .map_err(|e| crate::Error::Input(format!("GPU poll: {e}")))
-            });
-            if let Err(e) = r {
+            if let Err(e) = gpu_frame(gpu, &mut d, &f32s) {
                 failed = Some(e);
             }
         });
@@ -361,4 +346,21 @@ fn gpu_layout_rows(
         });
     }
     Ok(rows)
+}
+
+/// One GPU frame: upload the forces, record, submit, wait for completion.
+fn gpu_frame(
+    gpu: &crate::gpu::Gpu,
+    d: &mut crate::gpu::Deformer,
+    forces: &[(u32, [f32; 3])],
+) -> Result<(), crate::Error> {
+    d.set_forces(&gpu.queue, forces)
+        .map_err(|e| crate::Error::Input(e.to_string()))?;
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    d.encode(&mut enc);
+    gpu.queue.submit([enc.finish()]);
+    gpu.device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map(|_| ())
+        .map_err(|e| crate::Error::Input(format!("GPU poll: {e}")))
 }
