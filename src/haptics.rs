@@ -12,43 +12,7 @@ use crate::compliance::Compliance;
 use crate::contact::{ContactPoint, GodObject, Surface};
 use crate::force::{finger_force, saturate, ForceBc, ForceModel};
 
-/// A force-feedback device: where the finger is, and the force to push it with.
-pub trait HapticDevice: Send {
-    /// The finger position in metres, in the object's frame, at `t` seconds since start.
-    fn position(&mut self, t: f64) -> DVec3;
-    /// Sends the force (newtons) the device should render.
-    fn set_force(&mut self, f: DVec3);
-}
-
-/// A device that follows a scripted path (for the demo, tests and benchmarks).
-pub struct ScriptedDevice<F: FnMut(f64) -> DVec3 + Send> {
-    path: F,
-    /// The last force sent, N.
-    pub last_force: DVec3,
-    /// The largest force magnitude sent, N.
-    pub max_force: f64,
-}
-
-impl<F: FnMut(f64) -> DVec3 + Send> ScriptedDevice<F> {
-    /// A device whose finger is at `path(t)`.
-    pub fn new(path: F) -> Self {
-        ScriptedDevice {
-            path,
-            last_force: DVec3::ZERO,
-            max_force: 0.0,
-        }
-    }
-}
-
-impl<F: FnMut(f64) -> DVec3 + Send> HapticDevice for ScriptedDevice<F> {
-    fn position(&mut self, t: f64) -> DVec3 {
-        (self.path)(t)
-    }
-    fn set_force(&mut self, f: DVec3) {
-        self.last_force = f;
-        self.max_force = self.max_force.max(f.length());
-    }
-}
+pub use crate::devices::{HapticDevice, ScriptedDevice};
 
 /// Settings of the haptic loop.
 #[derive(Clone, Copy, Debug)]

@@ -1,0 +1,9 @@
+//! The runtime: the two loops of the paper's prototype. The haptic loop ([`haptic`]) runs every
+//! finger of a scene at 1 kHz on its own core; the visual loop reads the latest [`WorldSample`]
+//! through a wait-free triple buffer and draws asynchronously.
+
+mod sample;
+
+pub use sample::{
+    sample_channel, FingerView, LiveStatus, SampleReader, SampleWriter, WorldSample, MAX_OBJECTS,
+};
