@@ -11,6 +11,9 @@ use crate::mesh::{self, Mesh, MeshError};
 use crate::units::{LengthUnit, Material};
 use crate::Error;
 
+mod world;
+pub use world::{DeviceSpec, FingerSpec, HapticSettings, Object, World};
+
 /// How to load a mesh given on the command line.
 #[derive(Clone, Debug)]
 pub struct LoadOptions {

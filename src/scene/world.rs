@@ -1,0 +1,91 @@
+//! A loaded scene: its objects (each with mesh, rest surface and the compliance the scene
+//! needs), its fingers and the haptic loop's settings, all in SI units in the scene's frame.
+
+use glam::DVec3;
+
+use super::Scene;
+use crate::force::ForceModel;
+use crate::units::LengthUnit;
+
+/// One object of a scene.
+pub struct Object {
+    /// Its name (scene file `name`, else the mesh's name or file stem).
+    pub name: String,
+    /// Mesh, rest surface and compliance, in the object's own frame (metres).
+    pub scene: Scene,
+    /// Where the mesh's origin sits in the scene, metres.
+    pub offset: DVec3,
+}
+
+/// Which device drives a finger.
+#[derive(Clone, Debug, PartialEq)]
+pub enum DeviceSpec {
+    /// Keyframes `(t, position)`, metres and seconds, strictly increasing in time.
+    Script(Vec<(f64, DVec3)>),
+    /// The `view` window's pointer.
+    Pointer,
+    /// A UDP device (`touchfem serve`).
+    Udp,
+    /// Positions from a recorded session.
+    Replay,
+}
+
+/// One finger of a scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FingerSpec {
+    /// Its device.
+    pub device: DeviceSpec,
+    /// The force formula for a single contact (several fingers on one object are always
+    /// solved together; see `runtime`).
+    pub model: ForceModel,
+}
+
+/// The haptic loop's settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HapticSettings {
+    /// Loop rate, Hz.
+    pub rate_hz: f64,
+    /// The largest force sent to a finger, N.
+    pub max_force_n: f64,
+}
+
+impl Default for HapticSettings {
+    fn default() -> Self {
+        HapticSettings {
+            rate_hz: 1000.0,
+            max_force_n: 8.5,
+        }
+    }
+}
+
+/// A scene ready to run.
+pub struct World {
+    /// The scene's name (file stem or bundled name).
+    pub name: String,
+    /// The unit the scene file's coordinates were given in.
+    pub unit: LengthUnit,
+    /// Its objects (at most [`crate::runtime::MAX_OBJECTS`]).
+    pub objects: Vec<Object>,
+    /// Its fingers (at most [`crate::force::MAX_FINGERS`]).
+    pub fingers: Vec<FingerSpec>,
+    /// The haptic loop's settings.
+    pub haptics: HapticSettings,
+    /// The scene file's text (for session files).
+    pub source: String,
+    /// xxh3 of the scene file's text and of every object's compliance cache key.
+    pub hash: u64,
+}
+
+impl World {
+    /// The bounds of every object at rest, scene frame, metres.
+    pub fn bounds(&self) -> (DVec3, DVec3) {
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        for o in &self.objects {
+            let (a, b) = o.scene.mesh.bounds();
+            lo = lo.min(a + o.offset);
+            hi = hi.max(b + o.offset);
+        }
+        (lo, hi)
+    }
+}
