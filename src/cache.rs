@@ -80,6 +80,35 @@ pub enum CacheOutcome {
     Hit,
     /// The file could not be used (the reason), so L was recomputed and the file rewritten.
     Recomputed(CacheError),
+    /// L was computed (the first error says why the file could not be used) but the file could
+    /// not be written (the second): the compliance is kept in memory and the session goes on.
+    NotSaved(CacheError, CacheError),
+}
+
+impl CacheOutcome {
+    /// A one-line note (`note: …`) or warning (`warning: …`) for the user; `None` on a hit.
+    pub fn message(&self) -> Option<String> {
+        match self {
+            CacheOutcome::Hit => None,
+            CacheOutcome::Recomputed(why) => Some(format!("note: compliance recomputed ({why})")),
+            CacheOutcome::NotSaved(_, e) => Some(format!(
+                "warning: the compliance cache could not be written ({e}); going on with the computed compliance"
+            )),
+        }
+    }
+}
+
+/// A temporary file name next to `path`, unique to this process, thread and call.
+fn unique_tmp(path: &Path) -> std::path::PathBuf {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static N: AtomicU64 = AtomicU64::new(0);
+    let n = N.fetch_add(1, Ordering::Relaxed);
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos());
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(format!(".{}.{n}.{nanos:08x}.tmp", std::process::id()));
+    path.with_file_name(name)
 }
 
 /// The hash that a cache file must match: mesh geometry and topology, material, clamp set and
@@ -154,14 +183,20 @@ pub fn save(path: &Path, c: &Compliance, key: u64, n_nodes: usize) -> Result<(),
             std::fs::create_dir_all(dir).map_err(io)?;
         }
     }
-    let tmp = path.with_extension("tmp");
-    let mut f = std::fs::File::create(&tmp).map_err(io)?;
-    f.write_all(&head).map_err(io)?;
-    f.write_all(&payload).map_err(io)?;
-    f.write_all(&xxh3_64(&payload).to_le_bytes()).map_err(io)?;
-    f.sync_all().map_err(io)?;
-    drop(f);
-    std::fs::rename(&tmp, path).map_err(io)
+    let tmp = unique_tmp(path);
+    let written = (|| {
+        let mut f = std::fs::File::create_new(&tmp)?;
+        f.write_all(&head)?;
+        f.write_all(&payload)?;
+        f.write_all(&xxh3_64(&payload).to_le_bytes())?;
+        f.sync_all()?;
+        drop(f);
+        std::fs::rename(&tmp, path)
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written.map_err(io)
 }
 
 fn u32_at(b: &[u8], o: usize) -> u32 {
@@ -246,7 +281,9 @@ pub fn load(path: &Path, expected_key: u64, n_nodes: usize) -> Result<Compliance
 }
 
 /// Loads the compliance from `path` if it is valid for this mesh and selection; otherwise
-/// computes it and (re)writes the file. Never uses a stale, truncated or corrupt file.
+/// computes it and (re)writes the file. Never uses a stale, truncated or corrupt file; a file
+/// that cannot be written never throws the computed compliance away
+/// ([`CacheOutcome::NotSaved`]).
 pub fn load_or_compute(
     path: &Path,
     mesh: &Mesh,
@@ -257,8 +294,10 @@ pub fn load_or_compute(
         Ok(c) => Ok((c, CacheOutcome::Hit)),
         Err(why) => {
             let c = Compliance::compute(mesh, sel)?;
-            save(path, &c, k, mesh.nodes.len())?;
-            Ok((c, CacheOutcome::Recomputed(why)))
+            match save(path, &c, k, mesh.nodes.len()) {
+                Ok(()) => Ok((c, CacheOutcome::Recomputed(why))),
+                Err(e) => Ok((c, CacheOutcome::NotSaved(why, e))),
+            }
         }
     }
 }

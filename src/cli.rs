@@ -418,8 +418,8 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
     let compliance = match &a.cache {
         Some(path) => {
             let (c, outcome) = crate::cache::load_or_compute(path, &mesh, &sel)?;
-            if let crate::cache::CacheOutcome::Recomputed(why) = outcome {
-                eprintln!("note: compliance recomputed ({why})");
+            if let Some(m) = outcome.message() {
+                eprintln!("{m}");
             }
             c
         }

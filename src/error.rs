@@ -14,6 +14,15 @@ pub enum Error {
     /// Reading or writing the compliance cache.
     #[error(transparent)]
     Cache(#[from] crate::cache::CacheError),
+    /// The haptic loop's thread ended by a panic (the message).
+    #[error("the haptic thread panicked: {0}")]
+    HapticThread(String),
+    /// A scene file is invalid (the message names the file, line and key).
+    #[error("{0}")]
+    Scene(String),
+    /// A session file is invalid, or does not match its scene.
+    #[error("{0}")]
+    Session(String),
     /// Bad input that is none of the above (a flag, a coordinate).
     #[error("{0}")]
     Input(String),

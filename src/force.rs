@@ -188,6 +188,50 @@ pub fn coupled_force(
     if m > MAX_FINGERS || out.len() < m {
         return false;
     }
+    let mut g = [DVec3::ZERO; MAX_FINGERS];
+    if !coupled_point_forces(c, contacts, 0.0, &mut g) {
+        out[..m].iter_mut().for_each(|o| *o = DVec3::ZERO);
+        return false;
+    }
+    for k in 0..m {
+        add_point_force(c, &contacts[k], g[k], bc);
+        out[k] = -g[k];
+    }
+    true
+}
+
+/// Adds the nodal forces `F_i = α_i G` of a point force `G` at a contact to `bc` (columns only:
+/// a clamped vertex takes its share into the clamp). Returns false when `bc` is full.
+#[inline]
+pub fn add_point_force(c: &Compliance, contact: &ContactPoint, g: DVec3, bc: &mut ForceBc) -> bool {
+    let mut ok = true;
+    for i in 0..3 {
+        let alpha = contact.alpha[i];
+        if alpha != 0.0 {
+            if let Some(col) = c.col_of(contact.nodes[i]) {
+                ok &= bc.add(col as u32, g * alpha);
+            }
+        }
+    }
+    ok
+}
+
+/// The point forces `G_k` (newtons, on the object) that move each contact point by its
+/// displacement when applied together: `Σ_l W_kl G_l = u_k`. `skin` adds a fingertip
+/// compliance of `skin · tr(W_kk)/3` to each diagonal block, which keeps the system positive
+/// definite when two fingers touch the same point (0 gives the exact coupled solve). Writes
+/// `g[..contacts.len()]`; returns false (all zero) if there are more than [`MAX_FINGERS`]
+/// contacts or the system is not positive definite. Allocates nothing.
+pub fn coupled_point_forces(
+    c: &Compliance,
+    contacts: &[ContactPoint],
+    skin: f64,
+    g: &mut [DVec3],
+) -> bool {
+    let m = contacts.len();
+    if m > MAX_FINGERS || g.len() < m {
+        return false;
+    }
     const N: usize = 3 * MAX_FINGERS;
     let mut a = [[0.0f64; N]; N];
     let mut rhs = [0.0f64; N];
@@ -202,6 +246,10 @@ pub fn coupled_force(
                     }
                 }
             }
+            if k == l && skin > 0.0 {
+                let tr = w.x_axis.x + w.y_axis.y + w.z_axis.z;
+                w += DMat3::from_diagonal(DVec3::splat(skin * tr / 3.0));
+            }
             for r in 0..3 {
                 for q in 0..3 {
                     a[3 * k + r][3 * l + q] = w.col(q)[r];
@@ -215,8 +263,8 @@ pub fn coupled_force(
     // Cholesky in place on the leading n×n block (W is symmetric positive definite).
     for j in 0..n {
         let d = a[j][j] - a[j][..j].iter().map(|v| v * v).sum::<f64>();
-        if d.is_nan() || d <= 0.0 || !d.is_finite() {
-            out[..m].iter_mut().for_each(|o| *o = DVec3::ZERO);
+        if !d.is_finite() || d <= 0.0 {
+            g[..m].iter_mut().for_each(|o| *o = DVec3::ZERO);
             return false;
         }
         let d = d.sqrt();
@@ -241,18 +289,9 @@ pub fn coupled_force(
         rhs[i] = s / a[i][i];
     }
     for k in 0..m {
-        let g = DVec3::new(rhs[3 * k], rhs[3 * k + 1], rhs[3 * k + 2]);
-        for i in 0..3 {
-            let alpha = contacts[k].alpha[i];
-            if alpha != 0.0 {
-                if let Some(col) = c.col_of(contacts[k].nodes[i]) {
-                    bc.add(col as u32, g * alpha);
-                }
-            }
-        }
-        out[k] = -g;
+        g[k] = DVec3::new(rhs[3 * k], rhs[3 * k + 1], rhs[3 * k + 2]);
     }
-    true
+    g[..m].iter().all(|v| v.is_finite())
 }
 
 /// Limits a force to a finite vector of at most `max_n` newtons, keeping its direction.

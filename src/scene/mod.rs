@@ -11,7 +11,9 @@ use crate::mesh::{self, Mesh, MeshError};
 use crate::units::{LengthUnit, Material};
 use crate::Error;
 
+pub mod file;
 mod world;
+pub use file::{SceneSource, BUNDLED_SCENES};
 pub use world::{DeviceSpec, FingerSpec, HapticSettings, Object, World};
 
 /// How to load a mesh given on the command line.

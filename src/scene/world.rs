@@ -72,6 +72,8 @@ pub struct World {
     pub haptics: HapticSettings,
     /// The scene file's text (for session files).
     pub source: String,
+    /// The directory relative mesh paths are resolved from.
+    pub dir: std::path::PathBuf,
     /// xxh3 of the scene file's text and of every object's compliance cache key.
     pub hash: u64,
 }

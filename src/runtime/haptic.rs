@@ -1,0 +1,197 @@
+//! One haptic tick for every finger of a scene: god-objects, the force solve (one finger alone,
+//! or all fingers on an object solved together), bounded forces, and the boundary conditions
+//! for the visual path. Allocates nothing after [`HapticWorld::new`].
+//!
+//! # Rules
+//! * **Each finger has its own god-object on each object** (in that object's frame). A finger
+//!   touches at most one object at a time: the first, in scene order, whose god-object reports
+//!   a contact.
+//! * **One contact on an object**: the finger's force model (the paper's eq. 9–12, or exact).
+//!   **Several contacts on one object** are solved together
+//!   ([`force::coupled_point_forces`]): the contact points move by their displacements under
+//!   all the point forces at once. A fingertip compliance of [`SKIN`] × the point's own
+//!   compliance keeps the system well posed when two fingers touch the same triangle, or the
+//!   same point (they then share the load).
+//! * **Bounded**: each finger's force is saturated at the scene's `max_force_n`, and the nodal
+//!   forces it causes are scaled by the same factor, so the visual path shows what the finger
+//!   feels.
+//! * **A finger that starts inside an object** — or reappears there after a tick without a
+//!   valid position (NaN from the device, or the window's pointer being lifted) — is attached
+//!   to the nearest point of that object's surface, as if it had pressed in from there, and
+//!   its force is ramped in linearly over [`RAMP_S`] so the device does not jolt.
+//! * **No valid position** (NaN or infinite): zero force for that finger, no contact.
+
+use glam::DVec3;
+
+use super::sample::{FingerView, WorldSample, MAX_OBJECTS};
+use crate::contact::{ContactPoint, GodObject};
+use crate::force::{
+    add_point_force, coupled_point_forces, finger_force, saturate, ForceBc, ForceModel,
+    MAX_FINGERS,
+};
+use crate::scene::World;
+
+/// Fingertip compliance of the coupled solve, relative to each contact point's own compliance.
+pub const SKIN: f64 = 1e-3;
+/// Seconds over which the force of a finger attached from inside is ramped in.
+pub const RAMP_S: f64 = 0.1;
+
+#[derive(Clone, Copy, Debug)]
+struct FingerState {
+    gods: [GodObject; MAX_OBJECTS],
+    /// True until a valid position has been seen (and after an invalid one).
+    absent: bool,
+    /// Force ramp, 0..=1.
+    ramp: f64,
+    model: ForceModel,
+}
+
+/// The haptic state of a scene: every finger's god-objects and ramp. See the module docs.
+pub struct HapticWorld<'w> {
+    world: &'w World,
+    fingers: [FingerState; MAX_FINGERS],
+    n_fingers: usize,
+    ramp_step: f64,
+    max_force: f64,
+}
+
+impl<'w> HapticWorld<'w> {
+    /// The haptic state of `world`, every finger absent (its first valid position places it).
+    pub fn new(world: &'w World) -> HapticWorld<'w> {
+        let absent = FingerState {
+            gods: [GodObject::new(DVec3::NAN); MAX_OBJECTS],
+            absent: true,
+            ramp: 1.0,
+            model: ForceModel::Paper,
+        };
+        let mut fingers = [absent; MAX_FINGERS];
+        let n_fingers = world.fingers.len().min(MAX_FINGERS);
+        for (f, spec) in fingers.iter_mut().zip(&world.fingers) {
+            f.model = spec.model;
+        }
+        HapticWorld {
+            world,
+            fingers,
+            n_fingers,
+            ramp_step: 1.0 / (RAMP_S * world.haptics.rate_hz).max(1.0),
+            max_force: world.haptics.max_force_n,
+        }
+    }
+
+    /// Number of fingers.
+    pub fn fingers(&self) -> usize {
+        self.n_fingers
+    }
+
+    /// One tick: `positions[i]` is finger i's device position (metres, scene frame). Writes the
+    /// force for each finger's device into `forces[i]` and the tick's boundary conditions and
+    /// finger views into `sample`. Allocates nothing.
+    pub fn step(&mut self, positions: &[DVec3], forces: &mut [DVec3], sample: &mut WorldSample) {
+        let objects = &self.world.objects;
+        let n_obj = objects.len().min(MAX_OBJECTS);
+        let n = self.n_fingers.min(positions.len()).min(forces.len());
+        sample.n_objects = n_obj;
+        sample.n_fingers = n;
+        for bc in &mut sample.bcs {
+            bc.clear();
+        }
+        // God-objects: which object each finger touches, and where.
+        let mut touch: [Option<(usize, ContactPoint)>; MAX_FINGERS] = [None; MAX_FINGERS];
+        for i in 0..n {
+            let x = positions[i];
+            let f = &mut self.fingers[i];
+            if !x.is_finite() {
+                f.absent = true;
+                continue;
+            }
+            if f.absent {
+                f.absent = false;
+                f.ramp = 1.0;
+                for (o, obj) in objects.iter().take(n_obj).enumerate() {
+                    let local = x - obj.offset;
+                    let surf = &obj.scene.surface;
+                    f.gods[o] = if surf.contains(local) {
+                        f.ramp = 0.0;
+                        GodObject::touching(surf.closest_global(local).0)
+                    } else {
+                        GodObject::new(local)
+                    };
+                }
+            }
+            for (o, obj) in objects.iter().take(n_obj).enumerate() {
+                let c = f.gods[o].update(&obj.scene.surface, x - obj.offset);
+                if touch[i].is_none() {
+                    touch[i] = c.map(|c| (o, c));
+                }
+            }
+            if touch[i].is_some() {
+                f.ramp = (f.ramp + self.ramp_step).min(1.0);
+            }
+        }
+        // Forces, object by object.
+        for i in 0..n {
+            forces[i] = DVec3::ZERO;
+        }
+        for (o, obj) in objects.iter().take(n_obj).enumerate() {
+            let comp = &obj.scene.compliance;
+            let mut who = [0usize; MAX_FINGERS];
+            let mut contacts = [None::<ContactPoint>; MAX_FINGERS];
+            let mut m = 0;
+            for i in 0..n {
+                if let Some((oi, c)) = touch[i] {
+                    if oi == o {
+                        who[m] = i;
+                        contacts[m] = Some(c);
+                        m += 1;
+                    }
+                }
+            }
+            if m == 0 {
+                continue;
+            }
+            let mut list = [ContactPoint::default(); MAX_FINGERS];
+            for k in 0..m {
+                list[k] = contacts[k].unwrap_or_default();
+            }
+            let mut own = [ForceBc::default(); MAX_FINGERS];
+            let mut feedback = [DVec3::ZERO; MAX_FINGERS];
+            if m == 1 {
+                feedback[0] =
+                    finger_force(comp, &list[0], self.fingers[who[0]].model, &mut own[0]).feedback;
+            } else {
+                let mut g = [DVec3::ZERO; MAX_FINGERS];
+                if coupled_point_forces(comp, &list[..m], SKIN, &mut g) {
+                    for k in 0..m {
+                        add_point_force(comp, &list[k], g[k], &mut own[k]);
+                        feedback[k] = -g[k];
+                    }
+                }
+            }
+            for k in 0..m {
+                let i = who[k];
+                let f = feedback[k];
+                let out = saturate(f, self.max_force) * self.fingers[i].ramp;
+                let len = f.length();
+                let scale = if len > 0.0 && out.is_finite() {
+                    out.length() / len
+                } else {
+                    0.0
+                };
+                for &(col, v) in own[k].entries() {
+                    sample.bcs[o].add(col, v * scale);
+                }
+                forces[i] = if out.is_finite() { out } else { DVec3::ZERO };
+            }
+        }
+        for i in 0..n {
+            let x = positions[i];
+            sample.fingers[i] = FingerView {
+                position: x,
+                proxy: touch[i].map(|(o, c)| c.proxy + objects[o].offset),
+                object: touch[i].map(|(o, _)| o as u8),
+                force: forces[i],
+            };
+        }
+        sample.tick += 1;
+    }
+}

@@ -1,0 +1,104 @@
+//! The haptic loop on its thread: devices → [`HapticWorld`] → devices, the sample published
+//! lock-free, the tick recorded lock-free, and the thread's end (normal or by a panic) made
+//! visible to the visual loop.
+
+use glam::DVec3;
+use std::sync::atomic::Ordering;
+
+use super::haptic::HapticWorld;
+use super::pacer::Pacer;
+use super::sample::{LiveStatus, SampleWriter, WorldSample, MAX_OBJECTS};
+use super::session::{Recorder, TickRecord};
+use crate::devices::HapticDevice;
+use crate::force::MAX_FINGERS;
+use crate::haptics::HapticStats;
+use crate::scene::World;
+use crate::Error;
+
+/// What a haptic run measured.
+#[derive(Clone, Debug, Default)]
+pub struct HapticRun {
+    /// Timing and largest force.
+    pub stats: HapticStats,
+    /// Per object, the most fingers touching it at once.
+    pub max_contacts: [usize; MAX_OBJECTS],
+    /// Ticks whose record did not fit the recorder's ring (0 unless the disk stalled).
+    pub records_dropped: u64,
+}
+
+/// Runs the haptic loop on the calling thread at the scene's rate until `seconds` have passed
+/// (`None`: until `status.stop`). Each tick reads every finger's device, steps the god-objects
+/// and forces, sends each device its force, publishes the [`WorldSample`] and, if recording,
+/// queues the tick's positions and forces. Allocates nothing per tick.
+pub fn run_haptic(
+    world: &World,
+    devices: &mut [Box<dyn HapticDevice + '_>],
+    seconds: Option<f64>,
+    publish: &mut SampleWriter,
+    status: &LiveStatus,
+    mut recorder: Option<&mut Recorder>,
+) -> HapticRun {
+    let mut hw = HapticWorld::new(world);
+    let n = hw.fingers().min(devices.len());
+    let rate = world.haptics.rate_hz;
+    let limit = seconds.map(|s| (s * rate).ceil().max(1.0) as u64);
+    let mut pacer = Pacer::new(rate);
+    let mut sample = WorldSample::default();
+    let mut pos = [DVec3::ZERO; MAX_FINGERS];
+    let mut force = [DVec3::ZERO; MAX_FINGERS];
+    let mut out = HapticRun::default();
+    let mut max_force: f64 = 0.0;
+    while limit.is_none_or(|l| pacer.ticks() < l) && !status.stop.load(Ordering::Relaxed) {
+        let (start, t) = pacer.wait();
+        for (p, d) in pos.iter_mut().zip(devices.iter_mut()).take(n) {
+            *p = d.position(t);
+        }
+        hw.step(&pos[..n], &mut force[..n], &mut sample);
+        for (f, d) in force.iter().zip(devices.iter_mut()).take(n) {
+            d.set_force(*f);
+            max_force = max_force.max(f.length());
+        }
+        publish.write(sample);
+        for (o, m) in out.max_contacts.iter_mut().enumerate().take(sample.n_objects) {
+            *m = (*m).max(sample.contacts(o));
+        }
+        if let Some(r) = recorder.as_deref_mut() {
+            r.push(&TickRecord::new(&pos[..n], &force[..n]));
+        }
+        pacer.end(start);
+        status.ticks.store(pacer.ticks(), Ordering::Relaxed);
+        status
+            .elapsed_ns
+            .store(pacer.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        status.missed.store(pacer.missed(), Ordering::Relaxed);
+    }
+    out.stats = pacer.stats();
+    out.stats.max_force_n = max_force;
+    out.records_dropped = recorder.map_or(0, |r| r.dropped());
+    out
+}
+
+/// Marks `status` done when dropped — also when the haptic thread unwinds from a panic, which
+/// it then records, so a visual loop waiting on `status.done` never spins forever.
+pub struct DoneGuard<'a>(pub &'a LiveStatus);
+
+impl Drop for DoneGuard<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0.panicked.store(true, Ordering::Release);
+        }
+        self.0.done.store(true, Ordering::Release);
+    }
+}
+
+/// Joins a haptic thread, turning a panic into [`Error::HapticThread`].
+pub fn join_haptic<T>(h: std::thread::ScopedJoinHandle<'_, T>) -> Result<T, Error> {
+    h.join().map_err(|p| {
+        let msg = p
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| p.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown panic".into());
+        Error::HapticThread(msg)
+    })
+}
