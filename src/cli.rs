@@ -36,9 +36,12 @@ pub enum Command {
     },
     /// Touch the surface at the point nearest --at, push by --push, print the force fed back.
     Poke(PokeArgs),
-    /// The main job: the bundled scenes headless with the 1 kHz haptic loop and the visual loop,
-    /// frames and the paper's Table 2.
+    /// The main job: scenes headless (the bundled ones by default) with the 1 kHz haptic loop
+    /// and the visual loop; frames, GIF, force traces, the session and the paper's Table 2.
     Demo(DemoArgs),
+    /// Run a recorded session's finger positions through the haptic path again and compare
+    /// the forces with the recorded ones.
+    Replay(ReplayArgs),
     /// Speed against error: every method on the same meshes in one run.
     Bench(BenchArgs),
 }
@@ -54,12 +57,27 @@ pub struct BenchArgs {
     pub json: Option<PathBuf>,
 }
 
+/// `touchfem replay` flags.
+#[derive(Args, Debug)]
+pub struct ReplayArgs {
+    /// The session file (`--record` of `demo` or `view`).
+    pub file: PathBuf,
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
 /// `touchfem demo` flags.
 #[derive(Args, Debug)]
 pub struct DemoArgs {
-    /// Seconds of haptic + visual loop per object.
+    /// Scene files or bundled scene names (fig1, fig2, pinch); none: every bundled scene.
+    pub scenes: Vec<String>,
+    /// Seconds of haptic + visual loop per scene (scripted paths are stretched to fit).
     #[arg(long, default_value_t = 3.0)]
     pub seconds: f64,
+    /// Record each scene's session here (several scenes: FILE.SCENE.EXT).
+    #[arg(long)]
+    pub record: Option<PathBuf>,
     /// Write the report as JSON here.
     #[arg(long)]
     pub report: Option<PathBuf>,
@@ -173,6 +191,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Info { mesh, load, json } => info(&mesh, &load, json),
         Command::Poke(args) => poke(&args),
         Command::Demo(args) => demo(&args),
+        Command::Replay(args) => replay(&args),
         Command::Bench(args) => bench(&args),
     }
 }
@@ -240,25 +259,76 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
     Ok(())
 }
 
+fn replay(a: &ReplayArgs) -> Result<(), Error> {
+    use crate::runtime::session;
+    let sess = session::read(&a.file)?;
+    let h = &sess.header;
+    let src = crate::scene::SceneSource {
+        name: h.scene_name.clone(),
+        text: h.scene_toml.clone(),
+        dir: h.scene_dir.clone(),
+        label: format!("the scene recorded in {}", a.file.display()),
+    };
+    let world = crate::scene::World::from_source(&src)?;
+    let r = session::replay(&world, &sess)?;
+    if a.json {
+        let mut v = serde_json::to_value(&r).expect("serialisable");
+        v["scene"] = serde_json::json!(h.scene_name);
+        v["trailing_bytes"] = serde_json::json!(sess.trailing_bytes);
+        println!("{v}");
+    } else {
+        println!(
+            "replayed {} ticks of scene '{}': max |ΔF| = {:.3e} N (at tick {}), largest recorded force {:.4} N",
+            r.ticks, h.scene_name, r.max_force_diff_n, r.worst_tick, r.max_force_n
+        );
+        if sess.trailing_bytes > 0 {
+            eprintln!(
+                "note: {} bytes at the end make no whole tick (the recording was cut off)",
+                sess.trailing_bytes
+            );
+        }
+    }
+    Ok(())
+}
+
 fn demo(a: &DemoArgs) -> Result<(), Error> {
-    use crate::demo::{machine, run_object, worst, DemoOptions, DemoReport};
+    use crate::demo::{machine, record_path_for, run_scene, worst, DemoOptions, DemoReport};
     if !(a.seconds.is_finite() && a.seconds > 0.0 && a.seconds <= 3600.0) {
         return Err(Error::Input(format!(
             "--seconds must be in (0, 3600], got {}",
             a.seconds
         )));
     }
+    let specs: Vec<String> = if a.scenes.is_empty() {
+        crate::scene::BUNDLED_SCENES
+            .iter()
+            .map(|(n, _)| n.to_string())
+            .collect()
+    } else {
+        a.scenes.clone()
+    };
+    // Load every scene first: a bad scene file fails before anything runs.
+    let mut worlds = Vec::new();
+    for spec in &specs {
+        if crate::scene::SceneSource::find(spec)?.is_none() {
+            return Err(Error::Scene(format!(
+                "'{spec}' is neither a bundled scene ({}) nor a .toml scene file",
+                crate::scene::BUNDLED_SCENES
+                    .iter()
+                    .map(|(n, _)| *n)
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )));
+        }
+        worlds.push(crate::scene::World::load(spec, "script")?);
+    }
     std::fs::create_dir_all(&a.out).map_err(|source| Error::Write {
         path: a.out.clone(),
         source,
     })?;
-    let opts = DemoOptions {
-        seconds: a.seconds,
-        out: a.out.clone(),
-        placement: crate::threads::VisualPlacement::split(),
-    };
+    let placement = crate::threads::VisualPlacement::split();
     lavapipe_inline();
-    let gpu = match crate::gpu::Gpu::new_headless_placed(&opts.placement) {
+    let gpu = match crate::gpu::Gpu::new_headless_placed(&placement) {
         Ok(g) => Some(g),
         Err(e) => {
             eprintln!("warning: {e}; the visual loop falls back to the CPU and draws no frames");
@@ -274,84 +344,46 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
         None => None,
     };
     let mut objects: Vec<crate::demo::ObjectReport> = Vec::new();
-    for name in crate::scene::BUNDLED {
-        let mut u = Vec::new();
-        let mut deformer: Option<crate::gpu::Deformer> = None;
-        let mut saved = 0usize;
-        let mut next_save = std::time::Instant::now();
-        let out_dir = a.out.clone();
-        let mut frame =
-            |scene: &Scene, s: &crate::haptics::HapticSample, _i: u64| -> Result<f64, Error> {
-                let gerr = |e: crate::gpu::GpuError| Error::Input(e.to_string());
-                let (Some(g), Some(r)) = (&gpu, &renderer) else {
-                    if u.len() != scene.compliance.rows().len() {
-                        u = vec![DVec3::ZERO; scene.compliance.rows().len()];
-                    }
-                    let t = std::time::Instant::now();
-                    scene.compliance.displace(s.bc.entries(), &mut u);
-                    return Ok(t.elapsed().as_secs_f64() * 1e6);
-                };
-                if deformer.is_none() {
-                    deformer = Some(
-                        crate::gpu::Deformer::new(
-                            &g.device,
-                            &g.queue,
-                            &scene.compliance,
-                            &scene.mesh.nodes,
-                            &scene.mesh.surface,
-                            &crate::gpu::DeformerOptions::default(),
-                        )
-                        .map_err(gerr)?,
-                    );
-                }
-                let d = deformer.as_mut().expect("just made");
-                let (f32s, n) = s.bc.to_f32();
-                // The displacement update alone, submit to completion.
-                let t = std::time::Instant::now();
-                d.set_forces(&g.queue, &f32s[..n]).map_err(gerr)?;
-                let mut enc = g.device.create_command_encoder(&Default::default());
-                d.encode(&mut enc);
-                g.queue.submit([enc.finish()]);
-                g.device
-                    .poll(wgpu::PollType::wait_indefinitely())
-                    .map_err(|e| Error::Input(format!("GPU poll: {e}")))?;
-                let us = t.elapsed().as_secs_f64() * 1e6;
-                // Then the frame: deform + draw + read back, as a headless client would.
-                let forces: Vec<(u32, [f32; 3])> = f32s[..n].to_vec();
-                let rs = crate::render::Scene {
-                    mesh: &scene.mesh,
-                    compliance: &scene.compliance,
-                    forces: &forces,
-                    finger: Some(s.finger),
-                    proxy: s.proxy,
-                    wireframe: true,
-                };
-                let img = r
-                    .render_with(&g.device, &g.queue, d, &rs)
-                    .map_err(|e| Error::Input(e.to_string()))?;
-                if std::time::Instant::now() >= next_save && saved < 12 {
-                    let path = out_dir.join(format!("{name}_{saved:02}.png"));
-                    img.save(&path)
-                        .map_err(|e| Error::Input(format!("{}: {e}", path.display())))?;
-                    saved += 1;
-                    next_save = std::time::Instant::now()
-                        + std::time::Duration::from_secs_f64(a.seconds / 12.0);
-                }
-                Ok(us)
-            };
-        let backend = if gpu.is_some() { "gpu" } else { "cpu-f64" };
-        let (r, _scene) = run_object(name, &opts, &mut frame, backend)?;
-        eprintln!(
-            "{:<6} nodes {:>5}  force {:>6.2} µs  displacement {:>8.1} µs ({})  draw {:>6.1} Hz  haptic {:.1} Hz, p99.9 period error {:.1} µs, {} missed",
-            r.name, r.nodes, r.force_us_median, r.displacement_us_median, r.displacement_backend, r.draw_hz,
-            r.haptic.haptic_rate_hz, r.haptic.period_error_us_p999, r.haptic.missed_deadlines
-        );
-        objects.push(r);
+    let mut floors = Vec::new();
+    let mut haptics = Vec::new();
+    for world in &worlds {
+        let opts = DemoOptions {
+            seconds: a.seconds,
+            out: a.out.clone(),
+            placement: placement.clone(),
+            record: a
+                .record
+                .as_ref()
+                .map(|r| record_path_for(r, &world.name, worlds.len() > 1)),
+            size,
+        };
+        let rows = run_scene(world, &opts, gpu.as_ref(), renderer.as_ref())?;
+        if let Some(r) = rows.first() {
+            floors.push(r.floor.clone());
+            haptics.push(r.haptic.clone());
+            eprintln!(
+                "{:<6} haptic {:.1} Hz, p99.9 period error {:.1} µs, {} missed (floor: {:.1} µs, {} missed)",
+                world.name,
+                r.haptic.haptic_rate_hz,
+                r.haptic.period_error_us_p999,
+                r.haptic.missed_deadlines,
+                r.floor.period_error_us_p999,
+                r.floor.missed_deadlines
+            );
+        }
+        for r in &rows {
+            eprintln!(
+                "  {:<8} nodes {:>5}  rows {:>5} cols {:>5}  force {:>6.2} µs  displacement {:>8.1} µs ({})  draw {:>6.1} Hz  max contacts {}",
+                r.name, r.nodes, r.rows, r.cols, r.force_us_median, r.displacement_us_median,
+                r.displacement_backend, r.draw_hz, r.max_contacts
+            );
+        }
+        objects.extend(rows);
     }
-    let haptic = worst(&objects.iter().map(|o| o.haptic.clone()).collect::<Vec<_>>());
     let report = DemoReport {
         objects,
-        haptic,
+        haptic: worst(&haptics),
+        floor: worst(&floors),
         machine: machine(),
     };
     let json = serde_json::to_string_pretty(&report).expect("serialisable");

@@ -19,7 +19,11 @@ impl Default for PointerShared {
     fn default() -> Self {
         let nan = f64::NAN.to_bits();
         PointerShared {
-            xyz: [AtomicU64::new(nan), AtomicU64::new(nan), AtomicU64::new(nan)],
+            xyz: [
+                AtomicU64::new(nan),
+                AtomicU64::new(nan),
+                AtomicU64::new(nan),
+            ],
             force: [AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0)],
         }
     }
@@ -34,7 +38,11 @@ impl PointerShared {
     }
     /// The finger position last set.
     pub fn position(&self) -> DVec3 {
-        DVec3::from_array(self.xyz.each_ref().map(|a| f64::from_bits(a.load(Ordering::Relaxed))))
+        DVec3::from_array(
+            self.xyz
+                .each_ref()
+                .map(|a| f64::from_bits(a.load(Ordering::Relaxed))),
+        )
     }
     /// The force the haptic loop last sent, N.
     pub fn force(&self) -> DVec3 {

@@ -26,8 +26,7 @@ use glam::DVec3;
 use super::sample::{FingerView, WorldSample, MAX_OBJECTS};
 use crate::contact::{ContactPoint, GodObject};
 use crate::force::{
-    add_point_force, coupled_point_forces, finger_force, saturate, ForceBc, ForceModel,
-    MAX_FINGERS,
+    add_point_force, coupled_point_forces, finger_force, saturate, ForceBc, ForceModel, MAX_FINGERS,
 };
 use crate::scene::World;
 
@@ -129,16 +128,14 @@ impl<'w> HapticWorld<'w> {
             }
         }
         // Forces, object by object.
-        for i in 0..n {
-            forces[i] = DVec3::ZERO;
-        }
+        forces[..n].fill(DVec3::ZERO);
         for (o, obj) in objects.iter().take(n_obj).enumerate() {
             let comp = &obj.scene.compliance;
             let mut who = [0usize; MAX_FINGERS];
             let mut contacts = [None::<ContactPoint>; MAX_FINGERS];
             let mut m = 0;
-            for i in 0..n {
-                if let Some((oi, c)) = touch[i] {
+            for (i, t) in touch.iter().enumerate().take(n) {
+                if let Some((oi, c)) = *t {
                     if oi == o {
                         who[m] = i;
                         contacts[m] = Some(c);

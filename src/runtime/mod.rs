@@ -7,9 +7,11 @@ pub mod pacer;
 mod run;
 mod sample;
 pub mod session;
+pub mod visual;
 
 pub use haptic::HapticWorld;
 pub use run::{join_haptic, run_haptic, DoneGuard, HapticRun};
+pub use visual::Visual;
 
 pub use sample::{
     sample_channel, FingerView, LiveStatus, SampleReader, SampleWriter, WorldSample, MAX_OBJECTS,

@@ -59,7 +59,12 @@ pub fn run_haptic(
             max_force = max_force.max(f.length());
         }
         publish.write(sample);
-        for (o, m) in out.max_contacts.iter_mut().enumerate().take(sample.n_objects) {
+        for (o, m) in out
+            .max_contacts
+            .iter_mut()
+            .enumerate()
+            .take(sample.n_objects)
+        {
             *m = (*m).max(sample.contacts(o));
         }
         if let Some(r) = recorder.as_deref_mut() {

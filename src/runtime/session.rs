@@ -204,8 +204,8 @@ pub fn read(path: &Path) -> Result<Session, Error> {
         )));
     }
     let (c, d) = line(b + 1).ok_or_else(|| bad("truncated header".into()))?;
-    let header: SessionHeader = serde_json::from_slice(&bytes[c..d])
-        .map_err(|e| bad(format!("bad header: {e}")))?;
+    let header: SessionHeader =
+        serde_json::from_slice(&bytes[c..d]).map_err(|e| bad(format!("bad header: {e}")))?;
     let n = header.fingers;
     if header.version != 1 || n == 0 || n > MAX_FINGERS || header.record_bytes != 48 * n {
         return Err(bad(format!(
@@ -278,8 +278,8 @@ pub fn replay(world: &World, session: &Session) -> Result<ReplayReport, Error> {
     };
     for (i, t) in session.ticks.iter().enumerate() {
         hw.step(&t.positions[..n], &mut forces[..n], &mut sample);
-        for k in 0..n {
-            let d = (forces[k] - t.forces[k]).length();
+        for (k, f) in forces.iter().enumerate().take(n) {
+            let d = (*f - t.forces[k]).length();
             // NaN differences count as infinitely large.
             let d = if d.is_nan() { f64::INFINITY } else { d };
             if d > rep.max_force_diff_n {

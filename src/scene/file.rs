@@ -307,15 +307,12 @@ impl World {
                     }
                     _ => "mesh",
                 };
-                at(
-                    key_span(key).unwrap_or(o.mesh.span()),
-                    key,
-                    e.to_string(),
-                )
+                at(key_span(key).unwrap_or(o.mesh.span()), key, e.to_string())
             })?;
-            let offset = o.offset.as_ref().map_or(DVec3::ZERO, |v| {
-                DVec3::from_array(*v.get_ref()) * s
-            });
+            let offset = o
+                .offset
+                .as_ref()
+                .map_or(DVec3::ZERO, |v| DVec3::from_array(*v.get_ref()) * s);
             if !offset.is_finite() {
                 let span = o.offset.as_ref().map(|v| v.span()).unwrap_or(o.mesh.span());
                 return Err(at(span, "offset", "not finite".into()));

@@ -1,0 +1,377 @@
+//! `touchfem demo`: scenes run headless with both loops, as in the paper's prototype — the
+//! haptic loop on its own core at the scene's rate, the visual loop asynchronously — with the
+//! paper's Table 2 measured on this machine, frames, an animated GIF of the press, each
+//! object's force trace (CSV and plot) and the recorded session.
+//!
+//! Each scene first runs the *floor* (a bare paced loop on the haptic core, no work) for the
+//! run's length while the visual loop draws, then the haptic loop for the same length: the
+//! report holds both, so the haptic loop's timing is judged against what this machine gives a
+//! loop that does nothing.
+
+pub mod trace;
+
+use glam::DVec3;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU8, Ordering};
+use std::time::Instant;
+
+use crate::devices::{HapticDevice, KeyframePath};
+use crate::force::MAX_FINGERS;
+use crate::gpu::Gpu;
+use crate::haptics::{percentile, HapticStats};
+use crate::runtime::pacer::run_floor;
+use crate::runtime::{
+    join_haptic, run_haptic, sample_channel, session, DoneGuard, HapticWorld, LiveStatus, Visual,
+    WorldSample,
+};
+use crate::scene::{DeviceSpec, World};
+use crate::Error;
+
+/// One object's row of the paper's Table 2.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ObjectReport {
+    /// The scene it belongs to.
+    pub scene: String,
+    /// The object's name.
+    pub name: String,
+    /// All nodes.
+    pub nodes: usize,
+    /// Displayed nodes (rows of the precomputed compliance).
+    pub rows: usize,
+    /// Touchable nodes (columns).
+    pub cols: usize,
+    /// Precompute time, s (0 when loaded from the cache: see `precompute_cached`).
+    pub precompute_s: f64,
+    /// max |K·L − I| of the precompute.
+    pub residual: f64,
+    /// Median haptic step of the scene (every finger: god-objects and force solve), µs,
+    /// measured outside the loop over the scene's own finger paths.
+    pub force_us_median: f64,
+    /// Median displacement update `u = L·F` of the scene's objects, µs (submit to completion).
+    pub displacement_us_median: f64,
+    /// Where the displacement ran.
+    pub displacement_backend: String,
+    /// Frames drawn per second while the haptic loop ran.
+    pub draw_hz: f64,
+    /// Frames drawn.
+    pub frames: u64,
+    /// Most fingers touching this object at once.
+    pub max_contacts: usize,
+    /// The haptic loop's timing in this scene.
+    pub haptic: HapticStats,
+    /// The bare loop's timing in this scene (same core, same length, visual loop running).
+    pub floor: HapticStats,
+}
+
+/// The demo report (`--report FILE.json`).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct DemoReport {
+    /// One entry per object of every scene.
+    pub objects: Vec<ObjectReport>,
+    /// The haptic loop's timing over all scenes (the worst numbers).
+    pub haptic: HapticStats,
+    /// The bare loop's timing over all scenes (the worst numbers).
+    pub floor: HapticStats,
+    /// Machine description.
+    pub machine: String,
+}
+
+/// Options of the demo.
+#[derive(Clone, Debug)]
+pub struct DemoOptions {
+    /// Seconds of haptic + visual loop per scene (scripted paths are stretched to fit).
+    pub seconds: f64,
+    /// Where frames, traces, plots and GIFs go.
+    pub out: PathBuf,
+    /// Which cores the visual and haptic loops run on.
+    pub placement: crate::threads::VisualPlacement,
+    /// Record the session here (else `OUT/SCENE.tfsession`).
+    pub record: Option<PathBuf>,
+    /// Image size of frames.
+    pub size: [u32; 2],
+}
+
+/// A scripted finger stretched in time to fit a run.
+struct Stretched {
+    path: KeyframePath,
+    k: f64,
+}
+
+impl HapticDevice for Stretched {
+    fn position(&mut self, t: f64) -> DVec3 {
+        self.path.at(t * self.k)
+    }
+    fn set_force(&mut self, _f: DVec3) {}
+}
+
+/// The scene's scripted fingers as devices, stretched so the longest path lasts `seconds`.
+/// Returns an error for a finger the demo cannot drive (pointer, udp, replay).
+pub fn scripted_devices(world: &World, seconds: f64) -> Result<Vec<Box<dyn HapticDevice>>, Error> {
+    let mut paths = Vec::new();
+    for (i, f) in world.fingers.iter().enumerate() {
+        match &f.device {
+            DeviceSpec::Script(keys) => paths.push(
+                KeyframePath::new(keys.clone())
+                    .ok_or_else(|| Error::Scene(format!("finger {}: bad path", i + 1)))?,
+            ),
+            other => {
+                return Err(Error::Scene(format!(
+                    "scene '{}': finger {} uses device {other:?}; the demo drives scripted fingers only (use `view` or `serve`)",
+                    world.name,
+                    i + 1
+                )))
+            }
+        }
+    }
+    let longest = paths.iter().map(KeyframePath::duration).fold(0.0, f64::max);
+    let k = if longest > 0.0 {
+        longest / seconds
+    } else {
+        1.0
+    };
+    Ok(paths
+        .into_iter()
+        .map(|path| Box::new(Stretched { path, k }) as Box<dyn HapticDevice>)
+        .collect())
+}
+
+/// Median haptic step (µs) of a scene over its scripted paths, outside the loop.
+pub fn step_median(world: &World, samples: usize) -> Result<f64, Error> {
+    let mut devs = scripted_devices(world, 1.0)?;
+    let n = devs.len().min(MAX_FINGERS);
+    let mut hw = HapticWorld::new(world);
+    let mut s = WorldSample::default();
+    let mut pos = [DVec3::ZERO; MAX_FINGERS];
+    let mut f = [DVec3::ZERO; MAX_FINGERS];
+    let mut times = Vec::with_capacity(samples);
+    for i in 0..samples {
+        let t = i as f64 / samples as f64;
+        for (p, d) in pos.iter_mut().zip(devs.iter_mut()) {
+            *p = d.position(t);
+        }
+        let t0 = Instant::now();
+        hw.step(&pos[..n], &mut f[..n], &mut s);
+        times.push(t0.elapsed().as_secs_f64() * 1e6);
+        std::hint::black_box(&s);
+    }
+    times.sort_by(|a, b| a.total_cmp(b));
+    Ok(percentile(&times, 0.5))
+}
+
+/// Draws one frame of every object (the first object's deformer carries the fingers).
+fn draw(
+    gpu: &Gpu,
+    renderer: &crate::render::Renderer,
+    world: &World,
+    visual: &Visual<'_>,
+    sample: &WorldSample,
+) -> Result<Option<image::RgbaImage>, Error> {
+    let Some(deformers) = visual.deformers() else {
+        return Ok(None);
+    };
+    let o = &world.objects[0];
+    let finger = sample.fingers().first();
+    let rs = crate::render::Scene {
+        mesh: &o.scene.mesh,
+        compliance: &o.scene.compliance,
+        forces: &[],
+        finger: finger.map(|f| f.position - o.offset),
+        proxy: finger.and_then(|f| f.proxy).map(|p| p - o.offset),
+        wireframe: true,
+    };
+    renderer
+        .render_with(&gpu.device, &gpu.queue, &deformers[0], &rs)
+        .map(Some)
+        .map_err(|e| Error::Input(e.to_string()))
+}
+
+/// Runs one scene: floor, then haptic loop, with the visual loop drawing throughout; writes
+/// frames, GIF, traces, plots and the session under `opts.out`.
+pub fn run_scene(
+    world: &World,
+    opts: &DemoOptions,
+    gpu: Option<&Gpu>,
+    renderer: Option<&crate::render::Renderer>,
+) -> Result<Vec<ObjectReport>, Error> {
+    let secs = opts.seconds;
+    let mut devices = scripted_devices(world, secs)?;
+    let force_us = step_median(world, 20_000)?;
+    let session_path = opts
+        .record
+        .clone()
+        .unwrap_or_else(|| opts.out.join(format!("{}.tfsession", world.name)));
+    let (mut recorder, writer) = session::record(&session_path, world)?;
+    let (mut publish, mut reader) = sample_channel();
+    let status = LiveStatus::default();
+    let phase = AtomicU8::new(0);
+    let mut visual = Visual::new(world, gpu);
+    let mut disp_us = Vec::new();
+    let mut frames = 0u64;
+    let mut gif = Vec::new();
+    let mut saved = 0usize;
+    let mut next_save = Instant::now();
+    let mut next_gif = Instant::now();
+    let mut draw_t0 = None;
+    let mut draw_t1 = Instant::now();
+    let (floor, run, visual_result) = std::thread::scope(|sc| {
+        let h = sc.spawn(|| {
+            let _done = DoneGuard(&status);
+            opts.placement.enter_haptic();
+            let realtime = crate::haptics::try_realtime_priority();
+            let mut floor = run_floor(world.haptics.rate_hz, secs, &status.stop);
+            floor.realtime = realtime;
+            phase.store(1, Ordering::Release);
+            let mut run = run_haptic(
+                world,
+                &mut devices,
+                Some(secs),
+                &mut publish,
+                &status,
+                Some(&mut recorder),
+            );
+            run.stats.realtime = realtime;
+            drop(recorder);
+            (floor, run)
+        });
+        opts.placement.enter_visual();
+        let result = (|| -> Result<(), Error> {
+            while !status.done.load(Ordering::Acquire) {
+                let sample = *reader.read();
+                let us = visual.update(&sample);
+                let img = match (gpu, renderer) {
+                    (Some(g), Some(r)) => draw(g, r, world, &visual, &sample)?,
+                    _ => None,
+                };
+                if phase.load(Ordering::Acquire) == 1 {
+                    let now = Instant::now();
+                    draw_t0.get_or_insert(now);
+                    draw_t1 = now;
+                    disp_us.push(us);
+                    frames += 1;
+                    if let Some(img) = img {
+                        if now >= next_save && saved < 12 {
+                            let path = opts.out.join(format!("{}_{saved:02}.png", world.name));
+                            img.save(&path)
+                                .map_err(|e| Error::Input(format!("{}: {e}", path.display())))?;
+                            saved += 1;
+                            next_save = now + std::time::Duration::from_secs_f64(secs / 12.0);
+                        }
+                        if now >= next_gif && gif.len() < 40 {
+                            gif.push(image::imageops::thumbnail(
+                                &img,
+                                img.width() / 2,
+                                img.height() / 2,
+                            ));
+                            next_gif = now + std::time::Duration::from_secs_f64(secs / 40.0);
+                        }
+                    }
+                }
+            }
+            Ok(())
+        })();
+        if result.is_err() {
+            status.stop.store(true, Ordering::Relaxed);
+        }
+        opts.placement.leave();
+        let joined = join_haptic(h);
+        match joined {
+            Ok((floor, run)) => Ok((floor, run, result)),
+            Err(e) => Err(e),
+        }
+    })?;
+    visual_result?;
+    let recorded = writer
+        .join()
+        .map_err(|_| Error::Input("the session writer panicked".into()))??;
+    if !gif.is_empty() {
+        trace::write_gif(&opts.out.join(format!("{}.gif", world.name)), &gif, 100)?;
+    }
+    let sess = session::read(&session_path)?;
+    debug_assert_eq!(sess.ticks.len() as u64, recorded);
+    let traces = trace::traces(world, &sess);
+    for (o, tr) in world.objects.iter().zip(&traces) {
+        let stem = format!("{}_{}_force", world.name, o.name);
+        trace::write_csv(&opts.out.join(format!("{stem}.csv")), tr)?;
+        trace::write_plot(
+            &opts.out.join(format!("{stem}.png")),
+            &format!("{} / {}: force on the finger(s)", world.name, o.name),
+            tr,
+        )?;
+    }
+    let span = draw_t0.map_or(0.0, |t0| (draw_t1 - t0).as_secs_f64());
+    let draw_hz = if span > 0.0 && frames > 1 {
+        (frames - 1) as f64 / span
+    } else {
+        0.0
+    };
+    disp_us.sort_by(|a, b| a.total_cmp(b));
+    Ok(world
+        .objects
+        .iter()
+        .enumerate()
+        .map(|(i, o)| ObjectReport {
+            scene: world.name.clone(),
+            name: o.name.clone(),
+            nodes: o.scene.mesh.nodes.len(),
+            rows: o.scene.compliance.rows().len(),
+            cols: o.scene.compliance.cols().len(),
+            precompute_s: o.scene.compliance.stats.seconds,
+            residual: o.scene.compliance.stats.residual,
+            force_us_median: force_us,
+            displacement_us_median: percentile(&disp_us, 0.5),
+            displacement_backend: visual.backend(),
+            draw_hz,
+            frames,
+            max_contacts: run.max_contacts[i],
+            haptic: run.stats.clone(),
+            floor: floor.clone(),
+        })
+        .collect())
+}
+
+/// The session path for scene `name` when several scenes share one `--record FILE`:
+/// `FILE` with `.name` before its extension.
+pub fn record_path_for(base: &Path, name: &str, several: bool) -> PathBuf {
+    if !several {
+        return base.to_path_buf();
+    }
+    let stem = base
+        .file_stem()
+        .map_or("session".into(), |s| s.to_string_lossy().into_owned());
+    let ext = base
+        .extension()
+        .map_or("tfsession".into(), |s| s.to_string_lossy().into_owned());
+    base.with_file_name(format!("{stem}.{name}.{ext}"))
+}
+
+/// A short description of this machine for reports.
+pub fn machine() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|s| s.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    let cores = std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1);
+    format!("{cpu}, {cores} cores")
+}
+
+/// The worst haptic numbers over runs; missed deadlines, ticks and seconds are totals.
+pub fn worst(stats: &[HapticStats]) -> HapticStats {
+    let mut w = stats.first().cloned().unwrap_or_default();
+    for s in stats {
+        w.haptic_rate_hz = w.haptic_rate_hz.min(s.haptic_rate_hz);
+        w.period_error_us_p999 = w.period_error_us_p999.max(s.period_error_us_p999);
+        w.step_us_median = w.step_us_median.max(s.step_us_median);
+        w.max_force_n = w.max_force_n.max(s.max_force_n);
+    }
+    w.seconds = stats.iter().map(|s| s.seconds).sum();
+    w.ticks = stats.iter().map(|s| s.ticks).sum();
+    w.missed_deadlines = stats.iter().map(|s| s.missed_deadlines).sum();
+    w
+}
