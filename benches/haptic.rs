@@ -100,5 +100,63 @@ fn precompute(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, force_step, displacement_cpu, precompute);
+
+/// The scene's whole tick (every finger's god-objects and the force solve) with one finger
+/// pressing the cube's top, and with two fingers squeezing it (the coupled solve), side by side.
+fn scene_tick(c: &mut Criterion) {
+    use touchfem::runtime::{HapticWorld, WorldSample};
+    std::env::set_var("TOUCHFEM_CACHE_DIR", "");
+    let mut g = c.benchmark_group("scene_tick");
+    let one = touchfem::scene::World::load("fig1", "script").unwrap();
+    let two = touchfem::scene::World::load("pinch", "script").unwrap();
+    let mm = 1e-3;
+    let cases: [(&str, &touchfem::scene::World, Vec<Vec<DVec3>>); 2] = [
+        (
+            "one_finger",
+            &one,
+            (0..4096)
+                .map(|i| {
+                    let a = i as f64 / 4096.0 * std::f64::consts::TAU;
+                    vec![DVec3::new(15.0 + 6.0 * a.cos(), 15.0 + 6.0 * a.sin(), 27.0) * mm]
+                })
+                .collect(),
+        ),
+        (
+            "two_fingers_coupled",
+            &two,
+            (0..4096)
+                .map(|i| {
+                    let a = i as f64 / 4096.0 * std::f64::consts::TAU;
+                    let (y, z) = (15.0 + 3.0 * a.cos(), 18.0 + 3.0 * a.sin());
+                    vec![DVec3::new(3.0, y, z) * mm, DVec3::new(27.0, y, z) * mm]
+                })
+                .collect(),
+        ),
+    ];
+    for (name, world, path) in &cases {
+        let mut hw = HapticWorld::new(world);
+        let mut s = WorldSample::default();
+        let n = path[0].len();
+        let mut f = [DVec3::ZERO; 4];
+        // Enter from outside, then stay in contact along the path.
+        let out: Vec<DVec3> = path[0]
+            .iter()
+            .map(|p| *p + (*p - DVec3::splat(15.0 * mm)).normalize() * 10.0 * mm)
+            .collect();
+        hw.step(&out, &mut f[..n], &mut s);
+        hw.step(&path[0], &mut f[..n], &mut s);
+        let mut i = 0usize;
+        g.bench_function(*name, |b| {
+            b.iter(|| {
+                i = (i + 1) & 4095;
+                hw.step(black_box(&path[i]), &mut f[..n], &mut s);
+                black_box(&f);
+            })
+        });
+        assert_eq!(s.contacts(0), n, "{name}: every finger must stay in contact");
+    }
+    g.finish();
+}
+
+criterion_group!(benches, force_step, scene_tick, displacement_cpu, precompute);
 criterion_main!(benches);

@@ -129,3 +129,41 @@ fn the_loop_runs_every_tick_and_publishes_the_latest_condition() {
     let sum: DVec3 = bc.entries().iter().map(|e| e.1).sum();
     assert!((sum + dev.last_force).length() < 1e-9);
 }
+
+#[test]
+fn the_multi_finger_tick_and_its_recording_allocate_nothing() {
+    use touchfem::runtime::{sample_channel, session, HapticWorld, WorldSample};
+    std::env::set_var("TOUCHFEM_CACHE_DIR", "");
+    let world = touchfem::scene::World::load("pinch", "script").unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let (mut rec, writer) = session::record(&dir.path().join("s.tfsession"), &world).unwrap();
+    let (mut w, mut r) = sample_channel();
+    let mut hw = HapticWorld::new(&world);
+    let mut sample = WorldSample::default();
+    let mut f = [DVec3::ZERO; 2];
+    let n = 3000;
+    let mut both = 0;
+    ALLOCS.store(0, Ordering::SeqCst);
+    ARMED.with(|a| a.set(true));
+    for i in 0..=n {
+        let t = i as f64 / n as f64;
+        let d = 14e-3 * (std::f64::consts::PI * t).sin();
+        let mut pos = [
+            DVec3::new(-0.010 + d, 0.015, 0.018),
+            DVec3::new(0.040 - d, 0.015, 0.018),
+        ];
+        if i == n / 2 {
+            pos[0] = DVec3::NAN; // a glitch: the finger reappears inside next tick
+        }
+        hw.step(&pos, &mut f, &mut sample);
+        rec.push(&session::TickRecord::new(&pos, &f));
+        w.write(sample);
+        both += (sample.contacts(0) == 2) as usize;
+    }
+    ARMED.with(|a| a.set(false));
+    assert_eq!(ALLOCS.load(Ordering::SeqCst), 0, "the tick allocated");
+    assert!(both > n / 3, "both fingers pressed ({both} ticks)");
+    assert_eq!(r.read().tick, sample.tick);
+    drop(rec);
+    assert_eq!(writer.join().unwrap().unwrap(), n as u64 + 1);
+}

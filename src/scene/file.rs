@@ -113,9 +113,11 @@ impl SceneSource {
         if path.extension().is_some_and(|e| e == "toml") {
             let text = std::fs::read_to_string(path)
                 .map_err(|e| Error::Scene(format!("{spec}: cannot read the scene file: {e}")))?;
+            // Absolute, so a recorded session replays from any directory.
             let dir = path
                 .parent()
-                .map(Path::to_path_buf)
+                .map(|p| if p.as_os_str().is_empty() { Path::new(".") } else { p })
+                .and_then(|p| p.canonicalize().ok())
                 .unwrap_or_else(|| PathBuf::from("."));
             let name = path
                 .file_stem()
