@@ -100,7 +100,6 @@ fn precompute(c: &mut Criterion) {
     g.finish();
 }
 
-
 /// The scene's whole tick (every finger's god-objects and the force solve) with one finger
 /// pressing the cube's top, and with two fingers squeezing it (the coupled solve), side by side.
 fn scene_tick(c: &mut Criterion) {
@@ -153,10 +152,20 @@ fn scene_tick(c: &mut Criterion) {
                 black_box(&f);
             })
         });
-        assert_eq!(s.contacts(0), n, "{name}: every finger must stay in contact");
+        assert_eq!(
+            s.contacts(0),
+            n,
+            "{name}: every finger must stay in contact"
+        );
     }
     g.finish();
 }
 
-criterion_group!(benches, force_step, scene_tick, displacement_cpu, precompute);
+criterion_group!(
+    benches,
+    force_step,
+    scene_tick,
+    displacement_cpu,
+    precompute
+);
 criterion_main!(benches);

@@ -64,7 +64,10 @@ fn the_bundled_scenes_load_with_only_what_they_need() {
     assert_eq!(pinch.fingers.len(), 2);
     let fig2 = World::load("fig2", "script").unwrap();
     assert_eq!(fig2.objects[0].scene.mesh.nodes.len(), 1699);
-    assert_ne!(fig1.hash, pinch.hash, "the selection is part of the scene hash");
+    assert_ne!(
+        fig1.hash, pinch.hash,
+        "the selection is part of the scene hash"
+    );
 }
 
 #[test]
@@ -75,7 +78,10 @@ fn the_cache_key_includes_the_selection() {
         rows: NodeSet::Surface,
         cols: NodeSet::Nodes(m.free_surface_nodes()[..5].to_vec()),
     };
-    assert_ne!(touchfem::cache::key(&m, &all), touchfem::cache::key(&m, &some));
+    assert_ne!(
+        touchfem::cache::key(&m, &all),
+        touchfem::cache::key(&m, &some)
+    );
 }
 
 #[test]
@@ -112,7 +118,8 @@ path = [[0, 0.115, 0.015, 0.040], [1, 0.115, 0.015, 0.025]]
         m.objects[0].scene.compliance.cols()
     );
     assert_eq!(m.fingers[0].model, ForceModel::Exact);
-    let (DeviceSpec::Script(a), DeviceSpec::Script(b)) = (&mm.fingers[0].device, &m.fingers[0].device)
+    let (DeviceSpec::Script(a), DeviceSpec::Script(b)) =
+        (&mm.fingers[0].device, &m.fingers[0].device)
     else {
         panic!()
     };

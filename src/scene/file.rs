@@ -116,7 +116,13 @@ impl SceneSource {
             // Absolute, so a recorded session replays from any directory.
             let dir = path
                 .parent()
-                .map(|p| if p.as_os_str().is_empty() { Path::new(".") } else { p })
+                .map(|p| {
+                    if p.as_os_str().is_empty() {
+                        Path::new(".")
+                    } else {
+                        p
+                    }
+                })
                 .and_then(|p| p.canonicalize().ok())
                 .unwrap_or_else(|| PathBuf::from("."));
             let name = path
