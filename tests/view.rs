@@ -16,12 +16,26 @@ use glam::DVec3;
 
 const SIZE: [u32; 2] = [640, 480];
 
-/// Kills and reaps a child process when dropped (also on a failed assertion).
+/// Ends and reaps a child process when dropped (also on a failed assertion): SIGTERM first, so
+/// that Xvfb removes its lock file and socket, then SIGKILL after 3 s.
 struct KillOnDrop(Child);
 
 impl Drop for KillOnDrop {
     fn drop(&mut self) {
-        let _ = self.0.kill();
+        if let Ok(None) = self.0.try_wait() {
+            // SAFETY: kill(2) on our own child's pid, which has not been reaped yet.
+            unsafe {
+                libc::kill(self.0.id() as libc::pid_t, libc::SIGTERM);
+            }
+            let t0 = Instant::now();
+            while t0.elapsed() < Duration::from_secs(3) {
+                if let Ok(Some(_)) = self.0.try_wait() {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            let _ = self.0.kill();
+        }
         let _ = self.0.wait();
     }
 }
@@ -305,7 +319,7 @@ fn view_window_presses_the_cube_with_the_pointer() {
     let lines = read_log(&log);
     let max_force = lines
         .iter()
-        .filter_map(|l| l["force_n"].as_f64())
+        .filter_map(|l| l["force_n"].as_f64().or(l["max_force_n"].as_f64()))
         .fold(0.0, f64::max);
     let summary = lines
         .iter()
@@ -318,4 +332,88 @@ fn view_window_presses_the_cube_with_the_pointer() {
     );
     assert!(max_force > 0.05, "the drag pressed with only {max_force} N");
     assert!(haptic > 500.0, "haptic rate {haptic} Hz");
+}
+
+/// `Renderer::render_frame` draws several objects, each at its offset, with 1 and 4 samples;
+/// with one object it is `render_with`'s image, bit for bit. Needs a GPU adapter (no X).
+#[test]
+fn render_frame_draws_objects_at_their_offsets() {
+    use touchfem::compliance::{Compliance, Selection};
+    use touchfem::gpu::{Deformer, DeformerOptions, Gpu};
+    use touchfem::render::{FrameObject, RenderOptions, Renderer, Scene, COLOR_FORMAT};
+    let gpu = Gpu::new_headless().expect("a GPU adapter (WGPU_BACKEND=vulkan with lavapipe)");
+    let mesh = touchfem::mesh::cube();
+    let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
+    let d = Deformer::new(
+        &gpu.device,
+        &gpu.queue,
+        &c,
+        &mesh.nodes,
+        &mesh.surface,
+        &DeformerOptions::default(),
+    )
+    .unwrap();
+    let size = [400, 200];
+    let one = [FrameObject {
+        deformer: &d,
+        offset: DVec3::ZERO,
+        bounds: mesh.bounds(),
+        edges: None,
+    }];
+    let r4 = Renderer::new(&gpu.device, size).unwrap();
+    let a = r4
+        .render_frame(&gpu.device, &gpu.queue, &one, &[], &[], true)
+        .unwrap();
+    let scene = Scene {
+        wireframe: true,
+        ..Scene::at_rest(&mesh, &c)
+    };
+    let b = r4.render_with(&gpu.device, &gpu.queue, &d, &scene).unwrap();
+    assert!(
+        a == b,
+        "render_frame of one object differs from render_with"
+    );
+
+    let two = [
+        one[0],
+        FrameObject {
+            offset: DVec3::new(0.06, 0.0, 0.0),
+            ..one[0]
+        },
+    ];
+    for samples in [1, 4] {
+        let r = Renderer::with_options(
+            &gpu.device,
+            size,
+            RenderOptions {
+                samples,
+                format: COLOR_FORMAT,
+            },
+        )
+        .unwrap();
+        let img = r
+            .render_frame(&gpu.device, &gpu.queue, &two, &[], &[], false)
+            .unwrap();
+        img.save(out_dir().join(format!("two_cubes_{samples}.png")))
+            .unwrap();
+        let bg = *img.get_pixel(0, 0);
+        // Two objects side by side: the columns that show something form two runs, each a
+        // good part of the image.
+        let shows = |x: u32| (0..size[1]).any(|y| differs(img.get_pixel(x, y), &bg, 12));
+        let mut runs = Vec::new();
+        let mut start = None;
+        for x in 0..=size[0] {
+            match (x < size[0] && shows(x), start) {
+                (true, None) => start = Some(x),
+                (false, Some(s)) => {
+                    runs.push((s, x));
+                    start = None;
+                }
+                _ => {}
+            }
+        }
+        eprintln!("{samples} samples: object columns {runs:?}");
+        assert_eq!(runs.len(), 2, "{samples} samples: object columns {runs:?}");
+        assert!(runs.iter().all(|(a, b)| b - a > size[0] / 8), "{runs:?}");
+    }
 }
