@@ -432,7 +432,7 @@ impl<'a> App<'a> {
                 t
             }
             wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => {
-                g.window.request_redraw();
+                // Skip this frame; `about_to_wait` asks again shortly.
                 return Ok(());
             }
             wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
@@ -603,7 +603,7 @@ impl ApplicationHandler for App<'_> {
 
     fn window_event(&mut self, el: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
         match event {
-            WindowEvent::CloseRequested => self.quit(el),
+            WindowEvent::CloseRequested | WindowEvent::Destroyed => self.quit(el),
             WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
                 match event.logical_key.as_ref() {
                     Key::Named(NamedKey::Escape) => self.quit(el),
@@ -661,6 +661,16 @@ impl ApplicationHandler for App<'_> {
                 self.quit(el);
             }
             return;
+        }
+        // A skipped frame (timeout, occluded window) is retried here rather than at once.
+        if let Some(g) = &self.gfx {
+            let stale = self
+                .stats
+                .last_present
+                .is_none_or(|t| t.elapsed() >= Duration::from_millis(50));
+            if stale {
+                g.window.request_redraw();
+            }
         }
         el.set_control_flow(ControlFlow::WaitUntil(
             Instant::now() + Duration::from_millis(50),
