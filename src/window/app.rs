@@ -494,7 +494,10 @@ impl<'a> App<'a> {
         s.first.get_or_insert(now);
         if let Some(prev) = s.last_present {
             let ms = (now - prev).as_secs_f64() * 1e3;
-            s.intervals_ms.push(ms);
+            // The whole run's median is taken over the first million frames (8 MB).
+            if s.intervals_ms.len() < 1_000_000 {
+                s.intervals_ms.push(ms);
+            }
             s.second_intervals_ms.push(ms);
         }
         s.last_present = Some(now);
