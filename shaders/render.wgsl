@@ -1,4 +1,4 @@
-// touchfem offscreen renderer: the deformed surface (Blinn-Phong, two-sided), an optional
+// touchfem renderer: the deformed surface (Blinn-Phong, two-sided), an optional
 // wireframe (line list over the surface edges, pulled slightly towards the eye), and the finger
 // and god-object spheres (opaque where visible, ghosted where hidden behind the surface).
 
@@ -12,6 +12,9 @@ struct Camera {
     base_color: vec4<f32>,
     // Wireframe colour (linear RGB, a = 1).
     line_color: vec4<f32>,
+    // The drawn object's offset in the scene (xyz, m): its vertices are in its own frame.
+    // Zero for the spheres, which are given in the scene frame.
+    offset: vec4<f32>,
 }
 
 @group(0) @binding(0) var<uniform> cam: Camera;
@@ -41,8 +44,9 @@ struct SurfaceOut {
 @vertex
 fn vs_surface(@location(0) pos: vec4<f32>, @location(1) normal: vec4<f32>) -> SurfaceOut {
     var out: SurfaceOut;
-    out.clip = cam.view_proj * vec4<f32>(pos.xyz, 1.0);
-    out.world = pos.xyz;
+    let world = pos.xyz + cam.offset.xyz;
+    out.clip = cam.view_proj * vec4<f32>(world, 1.0);
+    out.world = world;
     out.normal = normal.xyz;
     return out;
 }
@@ -64,8 +68,9 @@ fn fs_surface(in: SurfaceOut) -> @location(0) vec4<f32> {
 
 @vertex
 fn vs_line(@location(0) pos: vec4<f32>) -> @builtin(position) vec4<f32> {
-    let towards_eye = normalize(cam.eye.xyz - pos.xyz);
-    return cam.view_proj * vec4<f32>(pos.xyz + towards_eye * cam.eye.w, 1.0);
+    let world = pos.xyz + cam.offset.xyz;
+    let towards_eye = normalize(cam.eye.xyz - world);
+    return cam.view_proj * vec4<f32>(world + towards_eye * cam.eye.w, 1.0);
 }
 
 @fragment

@@ -44,6 +44,22 @@ pub enum Command {
     Replay(ReplayArgs),
     /// Speed against error: every method on the same meshes in one run.
     Bench(BenchArgs),
+    /// An interactive window: a left drag presses the pointer into the object, a right drag
+    /// orbits, the wheel zooms, Esc quits.
+    View(ViewArgs),
+}
+
+/// `touchfem view` flags.
+#[derive(Args, Debug)]
+pub struct ViewArgs {
+    /// Scene file, bundled scene, mesh file or bundled mesh (cube, mouse).
+    pub scene: String,
+    /// Window size, WxH pixels.
+    #[arg(long, default_value = "640x480", value_parser = parse_size)]
+    pub size: [u32; 2],
+    /// Record the session to this file.
+    #[arg(long)]
+    pub record: Option<PathBuf>,
 }
 
 /// `touchfem bench` flags.
@@ -193,6 +209,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Demo(args) => demo(&args),
         Command::Replay(args) => replay(&args),
         Command::Bench(args) => bench(&args),
+        Command::View(args) => crate::window::view_command(&args),
     }
 }
 

@@ -36,6 +36,7 @@ pub mod threads;
 pub mod tradeoff;
 pub mod units;
 pub mod vtu;
+pub mod window;
 
 pub use error::Error;
 pub use mesh::{Mesh, MeshError, RawMesh};

@@ -1,4 +1,5 @@
-//! The fixed 3/4 view camera.
+//! The cameras: the fixed 3/4 view ([`Camera::framing`]), an orbit/zoom camera ([`Orbit`]),
+//! and the ray through a pixel ([`Camera::ray`]) for picking.
 
 use glam::camera::rh::{proj::directx::perspective, view::look_at_mat4};
 use glam::{DVec3, Mat4, Vec3};
@@ -60,5 +61,170 @@ impl Camera {
     /// Unit direction towards the key light: above, slightly towards the viewer's left.
     pub fn light_dir(&self) -> Vec3 {
         Vec3::new(-0.3, -0.6, 1.0).normalize()
+    }
+}
+
+impl Camera {
+    /// The unit forward direction (eye → target).
+    pub fn forward(&self) -> DVec3 {
+        (self.target - self.eye).normalize()
+    }
+
+    /// The ray through window position `pixel` (x right, y down, in pixels, `(0, 0)` the
+    /// top-left corner of the top-left pixel) of a `size` (width, height) image: the eye and the
+    /// unit direction. The inverse of [`project`](Self::project).
+    pub fn ray(&self, pixel: [f64; 2], size: [u32; 2]) -> (DVec3, DVec3) {
+        let (w, h) = (f64::from(size[0].max(1)), f64::from(size[1].max(1)));
+        let aspect = w / h;
+        let f = self.forward();
+        let right = f.cross(self.up).normalize();
+        let up = right.cross(f);
+        let t = (0.5 * self.fov_y_deg).to_radians().tan();
+        let ndc_x = 2.0 * pixel[0] / w - 1.0;
+        let ndc_y = 1.0 - 2.0 * pixel[1] / h;
+        let d = f + right * (ndc_x * t * aspect) + up * (ndc_y * t);
+        (self.eye, d.normalize())
+    }
+
+    /// Where the point `p` (m) appears in a `size` image, in the pixel coordinates of
+    /// [`ray`](Self::ray); `None` behind the eye.
+    pub fn project(&self, p: DVec3, size: [u32; 2]) -> Option<[f64; 2]> {
+        let (w, h) = (f64::from(size[0].max(1)), f64::from(size[1].max(1)));
+        let f = self.forward();
+        let right = f.cross(self.up).normalize();
+        let up = right.cross(f);
+        let v = p - self.eye;
+        let z = v.dot(f);
+        if z <= 0.0 {
+            return None;
+        }
+        let t = (0.5 * self.fov_y_deg).to_radians().tan();
+        let ndc_x = v.dot(right) / (z * t * (w / h));
+        let ndc_y = v.dot(up) / (z * t);
+        Some([0.5 * (ndc_x + 1.0) * w, 0.5 * (1.0 - ndc_y) * h])
+    }
+
+    /// The camera of an [`Orbit`].
+    pub fn orbit(orbit: &Orbit) -> Camera {
+        let dir = orbit.direction();
+        let d = orbit.distance;
+        let r = orbit.radius.max(1e-9);
+        Camera {
+            eye: orbit.target + dir * d,
+            target: orbit.target,
+            up: DVec3::Z,
+            fov_y_deg: orbit.fov_y_deg,
+            near: (d - 2.0 * r).max(0.01 * d),
+            far: d + 4.0 * r,
+        }
+    }
+}
+
+/// An orbit/zoom camera: the eye on a sphere around `target`, z up. Turn it with
+/// [`rotate`](Self::rotate) (a right drag), move it in and out with [`zoom`](Self::zoom) (the
+/// wheel), and get the [`Camera`] with [`camera`](Self::camera).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Orbit {
+    /// The point orbited (m).
+    pub target: DVec3,
+    /// Azimuth of the eye around +z from +x, radians.
+    pub yaw: f64,
+    /// Elevation of the eye above the xy plane, radians (kept within ±[`Orbit::MAX_PITCH`]).
+    pub pitch: f64,
+    /// Eye-to-target distance (m).
+    pub distance: f64,
+    /// Radius of the scene's bounding sphere (m): sets the clip planes and the zoom range.
+    pub radius: f64,
+    /// Vertical field of view, degrees.
+    pub fov_y_deg: f64,
+}
+
+impl Orbit {
+    /// Largest |pitch|, radians (just short of the poles, where z-up is undefined).
+    pub const MAX_PITCH: f64 = 1.55;
+    /// Radians turned per pixel dragged.
+    pub const RADIANS_PER_PIXEL: f64 = 0.008;
+
+    /// The view of [`Camera::framing`]: from [`VIEW_DIR`], the box's bounding sphere fitting the
+    /// image at `aspect` with a 10 % margin.
+    pub fn framing(min: DVec3, max: DVec3, aspect: f64) -> Orbit {
+        let c = Camera::framing(min, max, aspect);
+        let v = c.eye - c.target;
+        let distance = v.length();
+        Orbit {
+            target: c.target,
+            yaw: v.y.atan2(v.x),
+            pitch: (v.z / distance).asin(),
+            distance,
+            radius: (0.5 * (max - min).length()).max(1e-9),
+            fov_y_deg: c.fov_y_deg,
+        }
+    }
+
+    /// Unit direction from the target towards the eye.
+    pub fn direction(&self) -> DVec3 {
+        let (sy, cy) = self.yaw.sin_cos();
+        let (sp, cp) = self.pitch.sin_cos();
+        DVec3::new(cp * cy, cp * sy, sp)
+    }
+
+    /// Turns by a drag of (`dx`, `dy`) pixels: right drags the scene right (the eye goes left
+    /// around +z), down tilts the eye up.
+    pub fn rotate(&mut self, dx: f64, dy: f64) {
+        self.yaw -= dx * Self::RADIANS_PER_PIXEL;
+        self.pitch =
+            (self.pitch + dy * Self::RADIANS_PER_PIXEL).clamp(-Self::MAX_PITCH, Self::MAX_PITCH);
+    }
+
+    /// Zooms by `steps` wheel notches (positive: closer), 10 % each, keeping the eye between
+    /// 0.6 and 40 scene radii from the target.
+    pub fn zoom(&mut self, steps: f64) {
+        let r = self.radius.max(1e-9);
+        self.distance = (self.distance * 0.9f64.powf(steps)).clamp(0.6 * r, 40.0 * r);
+    }
+
+    /// The camera.
+    pub fn camera(&self) -> Camera {
+        Camera::orbit(self)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The orbit's framing is the fixed 3/4 view; rotating keeps the distance and target,
+    /// clamps the pitch, and zooming moves the eye along the view direction within bounds.
+    #[test]
+    fn orbit_camera() {
+        let (lo, hi) = (DVec3::ZERO, DVec3::splat(0.03));
+        let fixed = Camera::framing(lo, hi, 4.0 / 3.0);
+        let mut o = Orbit::framing(lo, hi, 4.0 / 3.0);
+        let c = o.camera();
+        assert!(
+            c.eye.distance(fixed.eye) < 1e-12,
+            "{} vs {}",
+            c.eye,
+            fixed.eye
+        );
+        assert_eq!(c.target, fixed.target);
+        assert!(c.near > 0.0 && c.near < c.far);
+        o.rotate(100.0, 0.0);
+        let r = o.camera();
+        assert!(((r.eye - r.target).length() - o.distance).abs() < 1e-12);
+        assert!((r.eye.z - c.eye.z).abs() < 1e-12, "yaw keeps the height");
+        assert!(r.eye.distance(c.eye) > 0.01);
+        o.rotate(0.0, 1e6);
+        assert_eq!(o.pitch, Orbit::MAX_PITCH);
+        o.rotate(0.0, -1e6);
+        assert_eq!(o.pitch, -Orbit::MAX_PITCH);
+        let d = o.distance;
+        o.zoom(1.0);
+        assert!((o.distance - 0.9 * d).abs() < 1e-12);
+        o.zoom(1000.0);
+        assert!((o.distance - 0.6 * o.radius).abs() < 1e-12);
+        assert!(o.camera().near > 0.0);
+        o.zoom(-1000.0);
+        assert!((o.distance - 40.0 * o.radius).abs() < 1e-12);
     }
 }

@@ -1,11 +1,20 @@
-//! Offscreen rendering of a deformed object to an image or a PNG file.
+//! Rendering of deformed objects: offscreen to an image or a PNG file, or into a caller's colour
+//! view (a window's surface texture) in the caller's encoder.
 //!
 //! The surface comes from a [`Deformer`] (the GPU pass: positions and normals never visit the
-//! CPU), lit with Blinn-Phong from a fixed key light, with a depth buffer and 4× MSAA. The
-//! camera frames the rest bounding box from a fixed 3/4 view ([`Camera::framing`]). The finger
-//! tip (red) and the god-object (blue) are small spheres, as in the paper's Figure 1; where the
-//! surface hides them they show through as a ghost. The wireframe overlay draws the surface
-//! edges.
+//! CPU), lit with Blinn-Phong from a fixed key light, with a depth buffer and optional MSAA
+//! ([`RenderOptions::samples`]: 4 for images, [`live_samples`] for a window). The offscreen
+//! entry points frame the rest bounding box from a fixed 3/4 view ([`Camera::framing`]); a
+//! window uses an [`Orbit`] camera and [`pick`]s the surface under the pointer. The finger tips
+//! (red) and god-objects (blue) are small spheres, as in the paper's Figure 1; where the surface
+//! hides them they show through as a ghost. The wireframe overlay draws the surface edges
+//! ([`Edges`]); an [`Overlay`] draws a status line of text.
+//!
+//! * [`Renderer::render`] / [`Renderer::render_with`]: one object, offscreen, as the goldens
+//!   are judged (4× MSAA, [`COLOR_FORMAT`]);
+//! * [`Renderer::render_frame`]: several objects offscreen, framing the union of their bounds;
+//! * [`Renderer::draw`]: a [`Frame`] (several objects, each with its scene-frame offset, a
+//!   camera, spheres, overlay) into any colour view of the renderer's size and format.
 //!
 //! ```no_run
 //! # fn main() -> Result<(), touchfem::render::RenderError> {
@@ -18,8 +27,12 @@
 //! ```
 
 mod camera;
+mod overlay;
+mod pick;
 
-pub use camera::{Camera, VIEW_DIR};
+pub use camera::{Camera, Orbit, VIEW_DIR};
+pub use overlay::{rasterize_text, Overlay, OVERLAY_WGSL};
+pub use pick::{pick, Hit};
 
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
@@ -38,10 +51,15 @@ pub const RENDER_WGSL: &str = include_str!("../../shaders/render.wgsl");
 pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
 /// Depth format.
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
-/// MSAA sample count.
+/// MSAA sample count of the offscreen images (and of [`RenderOptions::default`]).
 pub const SAMPLES: u32 = 4;
-/// Sphere radius as a fraction of the rest bounding box's diagonal.
+/// Sphere radius as a fraction of the scene's size ([`Frame::scale`], the rest bounding box's
+/// diagonal).
 pub const SPHERE_RADIUS: f64 = 0.035;
+/// Most objects one [`Frame`] may hold.
+pub const MAX_FRAME_OBJECTS: usize = 8;
+/// Most spheres (fingers plus god-objects) one [`Frame`] may hold.
+pub const MAX_SPHERES: usize = 16;
 
 /// Background colour (linear RGB).
 const BACKGROUND: wgpu::Color = wgpu::Color {
@@ -54,6 +72,9 @@ const SURFACE: [f32; 4] = [0.85, 0.50, 0.28, 1.0];
 const LINES: [f32; 4] = [0.06, 0.05, 0.05, 1.0];
 const FINGER: [f32; 4] = [0.80, 0.08, 0.06, 1.0];
 const PROXY: [f32; 4] = [0.10, 0.30, 0.85, 1.0];
+/// Byte stride of the per-draw uniform records (a dynamic offset must be a multiple of the
+/// device's `min_uniform_buffer_offset_alignment`, at most 256).
+const UNIFORM_STRIDE: u64 = 256;
 
 /// Errors while rendering.
 #[derive(Debug, Error)]
@@ -67,6 +88,19 @@ pub enum RenderError {
     /// The image size is zero or beyond the device's texture limit.
     #[error("image size {0:?} is not supported (1 ..= {1} per side)")]
     BadSize([u32; 2], u32),
+    /// A frame holds more objects or spheres than the renderer draws.
+    #[error("a frame holds {count} {what}; at most {max} are drawn")]
+    TooMany {
+        /// "objects" or "spheres".
+        what: &'static str,
+        /// How many the frame holds.
+        count: usize,
+        /// The limit ([`MAX_FRAME_OBJECTS`], [`MAX_SPHERES`]).
+        max: usize,
+    },
+    /// The sample count or colour format is not usable.
+    #[error("unsupported render options: {0}")]
+    Options(String),
 }
 
 /// What to draw: the object under a force boundary condition, the finger and the god-object.
@@ -100,6 +134,38 @@ impl<'a> Scene<'a> {
     }
 }
 
+/// How a [`Renderer`] draws: MSAA samples and the colour target's format.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RenderOptions {
+    /// MSAA sample count: 1 (none) or 4. 4× MSAA costs most of a frame on a software
+    /// rasteriser; see [`live_samples`].
+    pub samples: u32,
+    /// Format of the colour view drawn into (any 8-bit RGBA/BGRA format a surface offers; the
+    /// offscreen entry points need `Rgba8*` or `Bgra8*`).
+    pub format: wgpu::TextureFormat,
+}
+
+impl Default for RenderOptions {
+    /// [`SAMPLES`] and [`COLOR_FORMAT`]: the offscreen images and goldens.
+    fn default() -> Self {
+        RenderOptions {
+            samples: SAMPLES,
+            format: COLOR_FORMAT,
+        }
+    }
+}
+
+/// The MSAA sample count for a live (windowed) loop on `adapter`: 1 on a CPU adapter (a
+/// software rasteriser such as lavapipe, where 4× MSAA is most of the frame's cost), 4
+/// elsewhere.
+pub fn live_samples(adapter: &wgpu::AdapterInfo) -> u32 {
+    if adapter.device_type == wgpu::DeviceType::Cpu {
+        1
+    } else {
+        4
+    }
+}
+
 /// Renders `scene` at `size` (width, height) on a headless GPU chosen by the environment
 /// (`WGPU_BACKEND`, `WGPU_ADAPTER_NAME`) and writes a PNG to `path`.
 pub fn render_png(path: &Path, size: [u32; 2], scene: &Scene<'_>) -> Result<(), RenderError> {
@@ -121,20 +187,109 @@ struct CameraGpu {
     light_dir: [f32; 4],
     base_color: [f32; 4],
     line_color: [f32; 4],
+    /// The drawn object's offset in the scene (xyz, m); zero for the spheres.
+    offset: [f32; 4],
 }
 
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 struct SphereInstance {
     center_radius: [f32; 4],
     color: [f32; 4],
 }
 
-/// A reusable offscreen renderer for one image size on one device.
+/// The surface edges of a [`Deformer`]'s triangles as a line-list index buffer, for the
+/// wireframe overlay. Build once per deformer and keep it with the frame loop.
+#[derive(Debug)]
+pub struct Edges {
+    buffer: Option<wgpu::Buffer>,
+    count: u32,
+}
+
+impl Edges {
+    /// The unique undirected edges of `deformer`'s triangles.
+    pub fn new(device: &wgpu::Device, deformer: &Deformer) -> Edges {
+        let e = edge_list(deformer.triangles());
+        Edges {
+            buffer: (!e.is_empty()).then(|| {
+                device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("touchfem edges"),
+                    contents: bytemuck::cast_slice(&e),
+                    usage: wgpu::BufferUsages::INDEX,
+                })
+            }),
+            count: e.len() as u32,
+        }
+    }
+
+    /// Number of indices (two per edge).
+    pub fn index_count(&self) -> u32 {
+        self.count
+    }
+}
+
+/// One object of a [`Frame`].
+#[derive(Clone, Copy, Debug)]
+pub struct FrameObject<'a> {
+    /// Its deformer (vertices in the object's own frame), forces already set and its pass
+    /// encoded by [`Renderer::draw`] into the caller's encoder.
+    pub deformer: &'a Deformer,
+    /// Where the object's origin sits in the scene, metres.
+    pub offset: DVec3,
+    /// Its rest bounding box in its own frame (min, max), metres: used to frame the camera by
+    /// [`Renderer::render_frame`] and [`union_bounds`].
+    pub bounds: (DVec3, DVec3),
+    /// Its edges, for the wireframe (skipped when `None`; [`Renderer::render_frame`] builds
+    /// them when missing).
+    pub edges: Option<&'a Edges>,
+}
+
+/// Everything one image shows, for [`Renderer::draw`]. Positions are in the scene frame.
+#[derive(Clone, Copy, Debug)]
+pub struct Frame<'a> {
+    /// The objects (at most [`MAX_FRAME_OBJECTS`]).
+    pub objects: &'a [FrameObject<'a>],
+    /// The camera.
+    pub camera: Camera,
+    /// Finger tips, drawn red (non-finite positions are skipped).
+    pub fingers: &'a [DVec3],
+    /// God-objects, drawn blue (non-finite positions are skipped).
+    pub proxies: &'a [DVec3],
+    /// The scene's size, metres (e.g. its rest bounding box's diagonal): the spheres' radius is
+    /// [`SPHERE_RADIUS`] times this, the wireframe is lifted towards the eye by 0.2 % of it.
+    pub scale: f64,
+    /// Overlay the surface edges of objects that have [`FrameObject::edges`].
+    pub wireframe: bool,
+    /// A text overlay (status line) drawn on top, if any.
+    pub overlay: Option<&'a Overlay>,
+}
+
+/// The union of the objects' rest bounds in the scene frame (each [`FrameObject::bounds`]
+/// moved by its offset).
+pub fn union_bounds(objects: &[FrameObject<'_>]) -> (DVec3, DVec3) {
+    objects.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(lo, hi), o| (lo.min(o.bounds.0 + o.offset), hi.max(o.bounds.1 + o.offset)),
+    )
+}
+
+/// Colour (multisampled) and depth attachments of one size.
+#[derive(Debug)]
+struct Attachments {
+    msaa: Option<wgpu::TextureView>,
+    depth: wgpu::TextureView,
+}
+
+/// A reusable renderer for one image size, sample count and colour format on one device.
+///
+/// It keeps its uniform and sphere buffers and its depth (and multisampled colour) attachment,
+/// so a frame loop ([`draw`](Self::draw)) allocates nothing on the device. One
+/// [`draw`](Self::draw) per submission: its uniforms are written with
+/// [`wgpu::Queue::write_buffer`].
 #[derive(Debug)]
 pub struct Renderer {
     size: [u32; 2],
-    layout: wgpu::BindGroupLayout,
+    options: RenderOptions,
     surface: wgpu::RenderPipeline,
     lines: wgpu::RenderPipeline,
     sphere: wgpu::RenderPipeline,
@@ -142,19 +297,44 @@ pub struct Renderer {
     sphere_vertices: wgpu::Buffer,
     sphere_indices: wgpu::Buffer,
     sphere_index_count: u32,
+    uniforms: wgpu::Buffer,
+    instances: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+    attachments: Attachments,
 }
 
 impl Renderer {
-    /// Builds the pipelines for images of `size` (width, height).
+    /// Builds the pipelines for images of `size` (width, height) with [`RenderOptions::default`]
+    /// (4× MSAA, [`COLOR_FORMAT`]).
     pub fn new(device: &wgpu::Device, size: [u32; 2]) -> Result<Renderer, RenderError> {
-        let max = device.limits().max_texture_dimension_2d;
-        if size[0] == 0 || size[1] == 0 || size[0] > max || size[1] > max {
-            return Err(RenderError::BadSize(size, max));
+        Renderer::with_options(device, size, RenderOptions::default())
+    }
+
+    /// Builds the pipelines for `size` (width, height), `options.samples` MSAA samples and
+    /// colour target `options.format`.
+    pub fn with_options(
+        device: &wgpu::Device,
+        size: [u32; 2],
+        options: RenderOptions,
+    ) -> Result<Renderer, RenderError> {
+        check_size(device, size)?;
+        if !matches!(options.samples, 1 | 4) {
+            return Err(RenderError::Options(format!(
+                "{} samples (1 or 4 are supported)",
+                options.samples
+            )));
+        }
+        if options.format.is_depth_stencil_format() || options.format.is_compressed() {
+            return Err(RenderError::Options(format!(
+                "{:?} is not a colour target format",
+                options.format
+            )));
         }
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("touchfem render.wgsl"),
             source: wgpu::ShaderSource::Wgsl(RENDER_WGSL.into()),
         });
+        let camera_size = std::mem::size_of::<CameraGpu>() as u64;
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("touchfem camera"),
             entries: &[wgpu::BindGroupLayoutEntry {
@@ -162,8 +342,8 @@ impl Renderer {
                 visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
                 ty: wgpu::BindingType::Buffer {
                     ty: wgpu::BufferBindingType::Uniform,
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
+                    has_dynamic_offset: true,
+                    min_binding_size: wgpu::BufferSize::new(camera_size),
                 },
                 count: None,
             }],
@@ -217,7 +397,7 @@ impl Renderer {
                     bias: Default::default(),
                 }),
                 multisample: wgpu::MultisampleState {
-                    count: SAMPLES,
+                    count: options.samples,
                     ..Default::default()
                 },
                 fragment: Some(wgpu::FragmentState {
@@ -225,7 +405,7 @@ impl Renderer {
                     entry_point: Some(fs),
                     compilation_options: Default::default(),
                     targets: &[Some(wgpu::ColorTargetState {
-                        format: COLOR_FORMAT,
+                        format: options.format,
                         blend,
                         write_mask: wgpu::ColorWrites::ALL,
                     })],
@@ -277,9 +457,33 @@ impl Renderer {
             Some(wgpu::BlendState::ALPHA_BLENDING),
         );
         let (sv, si) = uv_sphere(12, 20);
+        let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("touchfem camera"),
+            size: UNIFORM_STRIDE * (1 + MAX_FRAME_OBJECTS as u64),
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("touchfem camera"),
+            layout: &layout,
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer: &uniforms,
+                    offset: 0,
+                    size: wgpu::BufferSize::new(camera_size),
+                }),
+            }],
+        });
+        let instances = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("touchfem sphere instances"),
+            size: (MAX_SPHERES * std::mem::size_of::<SphereInstance>()) as u64,
+            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         Ok(Renderer {
             size,
-            layout,
+            options,
             surface,
             lines,
             sphere,
@@ -295,12 +499,32 @@ impl Renderer {
                 usage: wgpu::BufferUsages::INDEX,
             }),
             sphere_index_count: si.len() as u32,
+            uniforms,
+            instances,
+            bind_group,
+            attachments: attachments(device, size, options),
         })
     }
 
     /// Image size (width, height).
     pub fn size(&self) -> [u32; 2] {
         self.size
+    }
+
+    /// The options it was built with.
+    pub fn options(&self) -> RenderOptions {
+        self.options
+    }
+
+    /// Changes the image size (a window was resized): rebuilds the depth and multisampled
+    /// attachments.
+    pub fn resize(&mut self, device: &wgpu::Device, size: [u32; 2]) -> Result<(), RenderError> {
+        check_size(device, size)?;
+        if size != self.size {
+            self.size = size;
+            self.attachments = attachments(device, size, self.options);
+        }
+        Ok(())
     }
 
     /// Renders `scene`: uploads its compliance into a [`Deformer`], runs the deformation pass
@@ -335,98 +559,102 @@ impl Renderer {
     ) -> Result<image::RgbaImage, RenderError> {
         let (min, max) = bounds(&scene.mesh.nodes);
         let [w, h] = self.size;
-        let aspect = f64::from(w) / f64::from(h);
-        let camera = Camera::framing(min, max, aspect);
-        let diag = (max - min).length();
-        let cam = CameraGpu {
-            view_proj: camera.view_proj(aspect).to_cols_array_2d(),
-            eye: [
-                camera.eye.x as f32,
-                camera.eye.y as f32,
-                camera.eye.z as f32,
-                (2e-3 * diag) as f32,
-            ],
-            light_dir: camera.light_dir().extend(0.0).to_array(),
-            base_color: SURFACE,
-            line_color: LINES,
+        let camera = Camera::framing(min, max, f64::from(w) / f64::from(h));
+        let edges = scene.wireframe.then(|| Edges::new(device, deformer));
+        let objects = [FrameObject {
+            deformer,
+            offset: DVec3::ZERO,
+            bounds: (min, max),
+            edges: edges.as_ref(),
+        }];
+        let fingers: Vec<DVec3> = scene.finger.into_iter().collect();
+        let proxies: Vec<DVec3> = scene.proxy.into_iter().collect();
+        let frame = Frame {
+            objects: &objects,
+            camera,
+            fingers: &fingers,
+            proxies: &proxies,
+            scale: (max - min).length(),
+            wireframe: scene.wireframe,
+            overlay: None,
         };
-        let cam_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("touchfem camera"),
-            contents: bytemuck::bytes_of(&cam),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("touchfem camera"),
-            layout: &self.layout,
-            entries: &[wgpu::BindGroupEntry {
-                binding: 0,
-                resource: cam_buf.as_entire_binding(),
-            }],
-        });
-        let radius = (SPHERE_RADIUS * diag) as f32;
-        let instances: Vec<SphereInstance> = [(scene.finger, FINGER), (scene.proxy, PROXY)]
-            .into_iter()
-            .filter_map(|(p, color)| {
-                p.map(|p| SphereInstance {
-                    center_radius: [p.x as f32, p.y as f32, p.z as f32, radius],
-                    color,
-                })
+        self.render_offscreen(device, queue, &frame)
+    }
+
+    /// Renders several objects offscreen (their forces already set), the camera framing the
+    /// union of their rest bounds from the fixed 3/4 view ([`Camera::framing`]); builds the
+    /// wireframe's [`Edges`] of objects that have none when `wireframe` is set. Spheres:
+    /// `fingers` red, `proxies` blue, scene frame.
+    pub fn render_frame(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        objects: &[FrameObject<'_>],
+        fingers: &[DVec3],
+        proxies: &[DVec3],
+        wireframe: bool,
+    ) -> Result<image::RgbaImage, RenderError> {
+        let (min, max) = union_bounds(objects);
+        if !(min.is_finite() && max.is_finite()) {
+            return Err(RenderError::Options(
+                "render_frame needs at least one object".into(),
+            ));
+        }
+        let [w, h] = self.size;
+        let built: Vec<Option<Edges>> = objects
+            .iter()
+            .map(|o| (wireframe && o.edges.is_none()).then(|| Edges::new(device, o.deformer)))
+            .collect();
+        let objects: Vec<FrameObject<'_>> = objects
+            .iter()
+            .zip(&built)
+            .map(|(o, e)| FrameObject {
+                edges: o.edges.or(e.as_ref()),
+                ..*o
             })
             .collect();
-        let instance_buf = (!instances.is_empty()).then(|| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("touchfem sphere instances"),
-                contents: bytemuck::cast_slice(&instances),
-                usage: wgpu::BufferUsages::VERTEX,
-            })
-        });
-        let edges = edge_list(deformer.triangles());
-        let edge_buf = (scene.wireframe && !edges.is_empty()).then(|| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("touchfem edges"),
-                contents: bytemuck::cast_slice(&edges),
-                usage: wgpu::BufferUsages::INDEX,
-            })
-        });
+        let frame = Frame {
+            objects: &objects,
+            camera: Camera::framing(min, max, f64::from(w) / f64::from(h)),
+            fingers,
+            proxies,
+            scale: (max - min).length(),
+            wireframe,
+            overlay: None,
+        };
+        self.render_offscreen(device, queue, &frame)
+    }
 
+    /// Draws `frame` offscreen in one submission and reads the image back.
+    fn render_offscreen(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        frame: &Frame<'_>,
+    ) -> Result<image::RgbaImage, RenderError> {
+        use wgpu::TextureFormat as F;
+        let bgra = match self.options.format {
+            F::Rgba8Unorm | F::Rgba8UnormSrgb => false,
+            F::Bgra8Unorm | F::Bgra8UnormSrgb => true,
+            f => {
+                return Err(RenderError::Options(format!(
+                    "offscreen images need an 8-bit RGBA or BGRA format, not {f:?}"
+                )))
+            }
+        };
+        let [w, h] = self.size;
         let extent = wgpu::Extent3d {
             width: w,
             height: h,
             depth_or_array_layers: 1,
         };
-        let texture = |label, format, samples, usage| {
-            device
-                .create_texture(&wgpu::TextureDescriptor {
-                    label: Some(label),
-                    size: extent,
-                    mip_level_count: 1,
-                    sample_count: samples,
-                    dimension: wgpu::TextureDimension::D2,
-                    format,
-                    usage,
-                    view_formats: &[],
-                })
-                .create_view(&Default::default())
-        };
-        let msaa = texture(
-            "touchfem msaa",
-            COLOR_FORMAT,
-            SAMPLES,
-            wgpu::TextureUsages::RENDER_ATTACHMENT,
-        );
-        let depth = texture(
-            "touchfem depth",
-            DEPTH_FORMAT,
-            SAMPLES,
-            wgpu::TextureUsages::RENDER_ATTACHMENT,
-        );
         let resolved = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("touchfem image"),
             size: extent,
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
-            format: COLOR_FORMAT,
+            format: self.options.format,
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
             view_formats: &[],
         });
@@ -439,56 +667,10 @@ impl Renderer {
             usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
             mapped_at_creation: false,
         });
-
         let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("touchfem render"),
         });
-        deformer.encode(&mut enc);
-        {
-            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("touchfem render"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &msaa,
-                    depth_slice: None,
-                    resolve_target: Some(&resolved_view),
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(BACKGROUND),
-                        store: wgpu::StoreOp::Discard,
-                    },
-                })],
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &depth,
-                    depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(1.0),
-                        store: wgpu::StoreOp::Discard,
-                    }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            pass.set_bind_group(0, &bind_group, &[]);
-            pass.set_pipeline(&self.surface);
-            pass.set_vertex_buffer(0, deformer.vertex_buffer().slice(..));
-            pass.set_index_buffer(deformer.index_buffer().slice(..), wgpu::IndexFormat::Uint32);
-            pass.draw_indexed(0..deformer.index_count(), 0, 0..1);
-            if let Some(edges_buf) = &edge_buf {
-                pass.set_pipeline(&self.lines);
-                pass.set_index_buffer(edges_buf.slice(..), wgpu::IndexFormat::Uint32);
-                pass.draw_indexed(0..edges.len() as u32, 0, 0..1);
-            }
-            if let Some(inst) = &instance_buf {
-                let n = instances.len() as u32;
-                pass.set_vertex_buffer(0, self.sphere_vertices.slice(..));
-                pass.set_vertex_buffer(1, inst.slice(..));
-                pass.set_index_buffer(self.sphere_indices.slice(..), wgpu::IndexFormat::Uint16);
-                pass.set_pipeline(&self.sphere);
-                pass.draw_indexed(0..self.sphere_index_count, 0, 0..n);
-                pass.set_pipeline(&self.sphere_hidden);
-                pass.draw_indexed(0..self.sphere_index_count, 0, 0..n);
-            }
-        }
+        self.draw(device, queue, &mut enc, &resolved_view, frame)?;
         enc.copy_texture_to_buffer(
             wgpu::TexelCopyTextureInfo {
                 texture: &resolved,
@@ -512,7 +694,205 @@ impl Renderer {
         for row in bytes.chunks(row_bytes as usize) {
             pixels.extend_from_slice(&row[..(4 * w) as usize]);
         }
+        if bgra {
+            for p in pixels.chunks_exact_mut(4) {
+                p.swap(0, 2);
+            }
+        }
         Ok(image::RgbaImage::from_raw(w, h, pixels).expect("w·h·4 bytes"))
+    }
+
+    /// Records `frame` into `encoder`: each object's deformation pass, then one render pass
+    /// that clears `target` (a colour view of [`size`](Self::size) in the renderer's format,
+    /// e.g. a window's surface texture) and draws the objects (each moved by its offset), the
+    /// wireframe, the spheres and the overlay. Writes the renderer's uniforms with
+    /// `queue.write_buffer` (so: one `draw` per submission); allocates nothing.
+    pub fn draw(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        encoder: &mut wgpu::CommandEncoder,
+        target: &wgpu::TextureView,
+        frame: &Frame<'_>,
+    ) -> Result<(), RenderError> {
+        let _ = device;
+        let n = frame.objects.len();
+        if n > MAX_FRAME_OBJECTS {
+            return Err(RenderError::TooMany {
+                what: "objects",
+                count: n,
+                max: MAX_FRAME_OBJECTS,
+            });
+        }
+        let [w, h] = self.size;
+        let aspect = f64::from(w) / f64::from(h);
+        let camera = &frame.camera;
+        let mut cam = CameraGpu {
+            view_proj: camera.view_proj(aspect).to_cols_array_2d(),
+            eye: [
+                camera.eye.x as f32,
+                camera.eye.y as f32,
+                camera.eye.z as f32,
+                (2e-3 * frame.scale) as f32,
+            ],
+            light_dir: camera.light_dir().extend(0.0).to_array(),
+            base_color: SURFACE,
+            line_color: LINES,
+            offset: [0.0; 4],
+        };
+        let mut records = [0u8; UNIFORM_STRIDE as usize * (1 + MAX_FRAME_OBJECTS)];
+        let camera_size = std::mem::size_of::<CameraGpu>();
+        records[..camera_size].copy_from_slice(bytemuck::bytes_of(&cam));
+        for (i, o) in frame.objects.iter().enumerate() {
+            cam.offset = [o.offset.x as f32, o.offset.y as f32, o.offset.z as f32, 0.0];
+            let at = UNIFORM_STRIDE as usize * (i + 1);
+            records[at..at + camera_size].copy_from_slice(bytemuck::bytes_of(&cam));
+        }
+        queue.write_buffer(
+            &self.uniforms,
+            0,
+            &records[..UNIFORM_STRIDE as usize * n + camera_size],
+        );
+
+        let radius = (SPHERE_RADIUS * frame.scale) as f32;
+        let mut instances = [SphereInstance::default(); MAX_SPHERES];
+        let mut count = 0;
+        for (p, color) in frame
+            .fingers
+            .iter()
+            .map(|p| (p, FINGER))
+            .chain(frame.proxies.iter().map(|p| (p, PROXY)))
+            .filter(|(p, _)| p.is_finite())
+        {
+            if count == MAX_SPHERES {
+                return Err(RenderError::TooMany {
+                    what: "spheres",
+                    count: frame.fingers.len() + frame.proxies.len(),
+                    max: MAX_SPHERES,
+                });
+            }
+            instances[count] = SphereInstance {
+                center_radius: [p.x as f32, p.y as f32, p.z as f32, radius],
+                color,
+            };
+            count += 1;
+        }
+        if count > 0 {
+            queue.write_buffer(
+                &self.instances,
+                0,
+                bytemuck::cast_slice(&instances[..count]),
+            );
+        }
+        if let Some(o) = frame.overlay {
+            o.prepare(queue, self.size);
+        }
+        for o in frame.objects {
+            o.deformer.encode(encoder);
+        }
+
+        let (view, resolve_target, store) = match &self.attachments.msaa {
+            Some(msaa) => (msaa, Some(target), wgpu::StoreOp::Discard),
+            None => (target, None, wgpu::StoreOp::Store),
+        };
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("touchfem render"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view,
+                depth_slice: None,
+                resolve_target,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(BACKGROUND),
+                    store,
+                },
+            })],
+            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                view: &self.attachments.depth,
+                depth_ops: Some(wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(1.0),
+                    store: wgpu::StoreOp::Discard,
+                }),
+                stencil_ops: None,
+            }),
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        let record = |i: usize| (UNIFORM_STRIDE * (i as u64 + 1)) as u32;
+        pass.set_pipeline(&self.surface);
+        for (i, o) in frame.objects.iter().enumerate() {
+            pass.set_bind_group(0, &self.bind_group, &[record(i)]);
+            pass.set_vertex_buffer(0, o.deformer.vertex_buffer().slice(..));
+            pass.set_index_buffer(
+                o.deformer.index_buffer().slice(..),
+                wgpu::IndexFormat::Uint32,
+            );
+            pass.draw_indexed(0..o.deformer.index_count(), 0, 0..1);
+        }
+        if frame.wireframe {
+            pass.set_pipeline(&self.lines);
+            for (i, o) in frame.objects.iter().enumerate() {
+                let Some(Edges {
+                    buffer: Some(buf),
+                    count,
+                }) = o.edges
+                else {
+                    continue;
+                };
+                pass.set_bind_group(0, &self.bind_group, &[record(i)]);
+                pass.set_vertex_buffer(0, o.deformer.vertex_buffer().slice(..));
+                pass.set_index_buffer(buf.slice(..), wgpu::IndexFormat::Uint32);
+                pass.draw_indexed(0..*count, 0, 0..1);
+            }
+        }
+        if count > 0 {
+            let n = count as u32;
+            pass.set_bind_group(0, &self.bind_group, &[0]);
+            pass.set_vertex_buffer(0, self.sphere_vertices.slice(..));
+            pass.set_vertex_buffer(1, self.instances.slice(..));
+            pass.set_index_buffer(self.sphere_indices.slice(..), wgpu::IndexFormat::Uint16);
+            pass.set_pipeline(&self.sphere);
+            pass.draw_indexed(0..self.sphere_index_count, 0, 0..n);
+            pass.set_pipeline(&self.sphere_hidden);
+            pass.draw_indexed(0..self.sphere_index_count, 0, 0..n);
+        }
+        if let Some(o) = frame.overlay {
+            o.record(&mut pass);
+        }
+        Ok(())
+    }
+}
+
+fn check_size(device: &wgpu::Device, size: [u32; 2]) -> Result<(), RenderError> {
+    let max = device.limits().max_texture_dimension_2d;
+    if size[0] == 0 || size[1] == 0 || size[0] > max || size[1] > max {
+        return Err(RenderError::BadSize(size, max));
+    }
+    Ok(())
+}
+
+fn attachments(device: &wgpu::Device, size: [u32; 2], options: RenderOptions) -> Attachments {
+    let texture = |label, format| {
+        device
+            .create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d {
+                    width: size[0],
+                    height: size[1],
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: options.samples,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+                view_formats: &[],
+            })
+            .create_view(&Default::default())
+    };
+    Attachments {
+        msaa: (options.samples > 1).then(|| texture("touchfem msaa", options.format)),
+        depth: texture("touchfem depth", DEPTH_FORMAT),
     }
 }
 

@@ -1,0 +1,682 @@
+//! The winit application behind [`super::run`].
+
+use glam::DVec3;
+use std::io::Write as _;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use winit::application::ApplicationHandler;
+use winit::dpi::PhysicalSize;
+use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
+use winit::event_loop::{ActiveEventLoop, ControlFlow};
+use winit::keyboard::{Key, NamedKey};
+use winit::window::{Window, WindowId};
+
+use super::{ViewError, WindowOptions, WindowSummary};
+use crate::devices::pointer::PointerShared;
+use crate::gpu::{AdapterSelection, Deformer, DeformerOptions};
+use crate::render::{
+    live_samples, pick, Edges, Frame, FrameObject, Orbit, Overlay, RenderOptions, Renderer,
+};
+use crate::runtime::{LiveStatus, SampleReader};
+use crate::scene::World;
+
+/// Where the finger starts before a press: this far outside the touched point, m.
+const OUTSIDE_M: f64 = 1e-3;
+/// Least press depth per pixel dragged, m.
+const MIN_DEPTH_PER_PX: f64 = 0.06e-3;
+/// Press depth per pixel as a fraction of the scene's diagonal.
+const DEPTH_PER_PX_OF_DIAGONAL: f64 = 0.002;
+/// How often the status line is refreshed.
+const STATUS_EVERY: Duration = Duration::from_millis(250);
+
+/// Everything that lives on the device.
+struct Gfx {
+    window: Arc<Window>,
+    surface: wgpu::Surface<'static>,
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    config: wgpu::SurfaceConfiguration,
+    renderer: Renderer,
+    overlay: Overlay,
+    deformers: Vec<Deformer>,
+    edges: Vec<Edges>,
+    /// The first error the device reported (validation, out of memory, lost).
+    device_error: Arc<Mutex<Option<String>>>,
+}
+
+/// A left press that hit an object.
+#[derive(Clone, Copy, Debug)]
+struct Press {
+    pixel: [f64; 2],
+    point: DVec3,
+    normal: DVec3,
+}
+
+/// Per-second and whole-run frame statistics.
+#[derive(Default)]
+struct Stats {
+    frames: u64,
+    first: Option<Instant>,
+    last_present: Option<Instant>,
+    intervals_ms: Vec<f64>,
+    second_intervals_ms: Vec<f64>,
+    second_draw_ms: Vec<f64>,
+    second_force: f64,
+    second_frames: u64,
+    max_force: f64,
+    last_log: Option<Instant>,
+    last_status: Option<Instant>,
+    status_frame_ms: f64,
+}
+
+pub(super) struct App<'a> {
+    world: &'a World,
+    reader: SampleReader,
+    status: &'a LiveStatus,
+    pointer: Option<Arc<PointerShared>>,
+    opts: WindowOptions,
+    gfx: Option<Gfx>,
+    error: Option<ViewError>,
+    orbit: Orbit,
+    size: [u32; 2],
+    cursor: [f64; 2],
+    press: Option<Press>,
+    orbiting: bool,
+    wireframe: bool,
+    depth_per_px: f64,
+    scale: f64,
+    stats: Stats,
+    quit_after: Option<Duration>,
+    started: Instant,
+    log: Option<std::fs::File>,
+    samples_override: Option<u32>,
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+impl<'a> App<'a> {
+    pub(super) fn new(
+        world: &'a World,
+        reader: SampleReader,
+        status: &'a LiveStatus,
+        pointer: Option<Arc<PointerShared>>,
+        opts: &WindowOptions,
+    ) -> App<'a> {
+        let (lo, hi) = world.bounds();
+        let (lo, hi) = if lo.is_finite() && hi.is_finite() {
+            (lo, hi)
+        } else {
+            (DVec3::ZERO, DVec3::ONE)
+        };
+        let size = [opts.size[0].max(1), opts.size[1].max(1)];
+        let diag = (hi - lo).length();
+        let quit_after = std::env::var("TOUCHFEM_VIEW_SECONDS")
+            .ok()
+            .and_then(|s| s.trim().parse::<f64>().ok())
+            .filter(|s| s.is_finite() && *s >= 0.0)
+            .map(Duration::from_secs_f64);
+        let log = std::env::var_os("TOUCHFEM_VIEW_LOG").and_then(|p| {
+            std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(&p)
+                .map_err(|e| {
+                    eprintln!(
+                        "warning: cannot open TOUCHFEM_VIEW_LOG={}: {e}",
+                        p.to_string_lossy()
+                    )
+                })
+                .ok()
+        });
+        let samples_override = std::env::var("TOUCHFEM_VIEW_SAMPLES")
+            .ok()
+            .and_then(|s| s.trim().parse::<u32>().ok());
+        App {
+            world,
+            reader,
+            status,
+            pointer,
+            opts: opts.clone(),
+            gfx: None,
+            error: None,
+            orbit: Orbit::framing(lo, hi, f64::from(size[0]) / f64::from(size[1])),
+            size,
+            cursor: [0.0; 2],
+            press: None,
+            orbiting: false,
+            wireframe: true,
+            depth_per_px: MIN_DEPTH_PER_PX.max(DEPTH_PER_PX_OF_DIAGONAL * diag),
+            scale: diag,
+            stats: Stats::default(),
+            quit_after,
+            started: Instant::now(),
+            log,
+            samples_override,
+        }
+    }
+
+    /// The result once the event loop has returned.
+    pub(super) fn finish(mut self) -> Result<WindowSummary, ViewError> {
+        if let Some(e) = self.error.take() {
+            return Err(e);
+        }
+        let summary = self.summary();
+        if let Some(f) = &mut self.log {
+            let line = serde_json::json!({
+                "summary": true,
+                "frames": summary.frames,
+                "seconds": summary.seconds,
+                "frame_ms_median": summary.frame_ms_median,
+                "max_force_n": summary.max_force_n,
+                "haptic_hz": self.status.rate_hz(),
+                "samples": self.gfx.as_ref().map(|g| g.renderer.options().samples),
+            });
+            let _ = writeln!(f, "{line}");
+        }
+        Ok(summary)
+    }
+
+    fn summary(&self) -> WindowSummary {
+        let mut iv = self.stats.intervals_ms.clone();
+        WindowSummary {
+            frames: self.stats.frames,
+            seconds: self.stats.first.map_or(0.0, |t| t.elapsed().as_secs_f64()),
+            frame_ms_median: median(&mut iv),
+            max_force_n: self.stats.max_force,
+        }
+    }
+
+    fn fail(&mut self, el: &ActiveEventLoop, e: ViewError) {
+        if self.error.is_none() {
+            self.error = Some(e);
+        }
+        self.quit(el);
+    }
+
+    fn quit(&mut self, el: &ActiveEventLoop) {
+        self.status.stop.store(true, Ordering::SeqCst);
+        if let Some(p) = &self.pointer {
+            p.set_position(DVec3::NAN);
+        }
+        el.exit();
+    }
+
+    fn aspect(&self) -> f64 {
+        f64::from(self.size[0]) / f64::from(self.size[1])
+    }
+
+    /// Creates the window and everything on the device.
+    fn init(&mut self, el: &ActiveEventLoop) -> Result<Gfx, ViewError> {
+        let attrs = Window::default_attributes()
+            .with_title(self.opts.title.clone())
+            .with_inner_size(PhysicalSize::new(self.size[0], self.size[1]));
+        let window = Arc::new(el.create_window(attrs)?);
+        let sel = AdapterSelection::from_env();
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        desc.backends = sel.backends;
+        let instance = wgpu::Instance::new(desc);
+        let surface = instance.create_surface(window.clone())?;
+        let adapter = match &sel.name {
+            Some(name) => {
+                let want = name.to_lowercase();
+                let adapters = pollster::block_on(instance.enumerate_adapters(sel.backends));
+                let seen: Vec<String> = adapters.iter().map(|a| a.get_info().name).collect();
+                adapters
+                    .into_iter()
+                    .find(|a| {
+                        a.get_info().name.to_lowercase().contains(&want)
+                            && a.is_surface_supported(&surface)
+                    })
+                    .ok_or_else(|| {
+                        ViewError::Present(format!(
+                            "no adapter whose name contains '{name}' can present to the \
+                             window (found: {seen:?})"
+                        ))
+                    })?
+            }
+            None => pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+                power_preference: sel.power,
+                force_fallback_adapter: false,
+                compatible_surface: Some(&surface),
+                apply_limit_buckets: false,
+            }))
+            .map_err(|e| {
+                ViewError::Present(format!(
+                    "no adapter can present to the window ({e}); set WGPU_BACKEND (e.g. \
+                     WGPU_BACKEND=vulkan with Mesa's lavapipe installed)"
+                ))
+            })?,
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("touchfem view"),
+            required_features: adapter.features() & wgpu::Features::IMMEDIATES,
+            required_limits: adapter.limits(),
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(crate::gpu::GpuError::from)?;
+        let device_error: Arc<Mutex<Option<String>>> = Arc::default();
+        {
+            let slot = device_error.clone();
+            device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+                if let Ok(mut s) = slot.lock() {
+                    s.get_or_insert_with(|| e.to_string());
+                }
+            }));
+            let slot = device_error.clone();
+            device.set_device_lost_callback(move |reason, msg| {
+                if let Ok(mut s) = slot.lock() {
+                    s.get_or_insert_with(|| format!("device lost ({reason:?}): {msg}"));
+                }
+            });
+        }
+        let caps = surface.get_capabilities(&adapter);
+        let format = caps
+            .formats
+            .iter()
+            .copied()
+            .find(|f| f.is_srgb())
+            .or_else(|| caps.formats.first().copied())
+            .ok_or_else(|| {
+                ViewError::Present(format!(
+                    "the adapter {} cannot present to this window",
+                    adapter.get_info().name
+                ))
+            })?;
+        let inner = window.inner_size();
+        if inner.width > 0 && inner.height > 0 {
+            self.size = [inner.width, inner.height];
+        }
+        let config = wgpu::SurfaceConfiguration {
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+            format,
+            width: self.size[0],
+            height: self.size[1],
+            present_mode: wgpu::PresentMode::Fifo,
+            desired_maximum_frame_latency: 2,
+            alpha_mode: caps
+                .alpha_modes
+                .first()
+                .copied()
+                .unwrap_or(wgpu::CompositeAlphaMode::Auto),
+            view_formats: vec![],
+            color_space: wgpu::SurfaceColorSpace::Auto,
+        };
+        surface.configure(&device, &config);
+        let samples = self
+            .samples_override
+            .filter(|s| matches!(s, 1 | 4))
+            .unwrap_or_else(|| live_samples(&adapter.get_info()));
+        let options = RenderOptions { samples, format };
+        let renderer = Renderer::with_options(&device, self.size, options)?;
+        let overlay = Overlay::new(&device, options);
+        let mut deformers = Vec::with_capacity(self.world.objects.len());
+        for o in &self.world.objects {
+            deformers.push(Deformer::new(
+                &device,
+                &queue,
+                &o.scene.compliance,
+                &o.scene.mesh.nodes,
+                &o.scene.mesh.surface,
+                &DeformerOptions::default(),
+            )?);
+        }
+        let edges = deformers.iter().map(|d| Edges::new(&device, d)).collect();
+        let (lo, hi) = self.world.bounds();
+        if lo.is_finite() && hi.is_finite() {
+            self.orbit = Orbit::framing(lo, hi, self.aspect());
+        }
+        Ok(Gfx {
+            window,
+            surface,
+            device,
+            queue,
+            config,
+            renderer,
+            overlay,
+            deformers,
+            edges,
+            device_error,
+        })
+    }
+
+    /// The pointer finger's |F| (N) as the haptic loop last sent it.
+    fn pointer_force(&self, sample: &crate::runtime::WorldSample) -> f64 {
+        match &self.pointer {
+            Some(p) => p.force().length(),
+            None => sample
+                .fingers()
+                .iter()
+                .map(|f| f.force.length())
+                .fold(0.0, f64::max),
+        }
+    }
+
+    fn redraw(&mut self, el: &ActiveEventLoop) -> Result<(), ViewError> {
+        if self.status.done.load(Ordering::SeqCst) {
+            if self.status.panicked.load(Ordering::SeqCst) {
+                return Err(ViewError::HapticPanicked);
+            }
+            self.quit(el);
+            return Ok(());
+        }
+        if self.quit_after.is_some_and(|d| self.started.elapsed() >= d) {
+            self.quit(el);
+            return Ok(());
+        }
+        let t0 = Instant::now();
+        let sample = *self.reader.read();
+        let force = self.pointer_force(&sample);
+        let mut fingers = [DVec3::NAN; crate::force::MAX_FINGERS];
+        let mut proxies = [DVec3::NAN; crate::force::MAX_FINGERS];
+        for (i, f) in sample.fingers().iter().enumerate() {
+            fingers[i] = f.position;
+            proxies[i] = f.proxy.unwrap_or(DVec3::NAN);
+        }
+        let touching = sample.fingers().iter().any(|f| f.object.is_some());
+        let status_due = self
+            .stats
+            .last_status
+            .is_none_or(|t| t.elapsed() >= STATUS_EVERY);
+        let status_text = status_due.then(|| {
+            let fps = if self.stats.status_frame_ms > 0.0 {
+                1000.0 / self.stats.status_frame_ms
+            } else {
+                0.0
+            };
+            format!(
+                "|F| {force:5.2} N  haptic {:4.0} Hz  frame {:5.1} ms ({fps:3.0} fps)",
+                self.status.rate_hz(),
+                self.stats.status_frame_ms,
+            )
+        });
+        let camera = self.orbit.camera();
+        let Some(g) = self.gfx.as_mut() else {
+            return Ok(());
+        };
+        if let Some(e) = g.device_error.lock().ok().and_then(|mut s| s.take()) {
+            return Err(ViewError::Device(e));
+        }
+        for (o, d) in g.deformers.iter_mut().enumerate() {
+            let (f, n) = if o < sample.n_objects {
+                sample.bcs[o].to_f32()
+            } else {
+                Default::default()
+            };
+            d.set_forces(&g.queue, &f[..n])?;
+        }
+        if let Some(text) = &status_text {
+            g.overlay.set_text(&g.device, &g.queue, text);
+            g.window.set_title(&format!("{} | {text}", self.opts.title));
+            self.stats.last_status = Some(Instant::now());
+        }
+        let frame_tex = match g.surface.get_current_texture() {
+            wgpu::CurrentSurfaceTexture::Success(t) => t,
+            wgpu::CurrentSurfaceTexture::Suboptimal(t) => {
+                // Present this one, then reconfigure.
+                g.surface.configure(&g.device, &g.config);
+                t
+            }
+            wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => {
+                // Skip this frame; `about_to_wait` asks again shortly.
+                return Ok(());
+            }
+            wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
+                g.surface.configure(&g.device, &g.config);
+                g.window.request_redraw();
+                return Ok(());
+            }
+            wgpu::CurrentSurfaceTexture::Validation => {
+                let msg = g
+                    .device_error
+                    .lock()
+                    .ok()
+                    .and_then(|mut s| s.take())
+                    .unwrap_or_else(|| "validation error acquiring the frame".into());
+                return Err(ViewError::Present(msg));
+            }
+        };
+        let view = frame_tex.texture.create_view(&Default::default());
+        let objects: Vec<FrameObject<'_>> = self
+            .world
+            .objects
+            .iter()
+            .zip(&g.deformers)
+            .zip(&g.edges)
+            .map(|((o, d), e)| FrameObject {
+                deformer: d,
+                offset: o.offset,
+                bounds: o.scene.mesh.bounds(),
+                edges: Some(e),
+            })
+            .collect();
+        let n_f = sample.n_fingers;
+        let frame = Frame {
+            objects: &objects,
+            camera,
+            fingers: &fingers[..n_f],
+            proxies: &proxies[..n_f],
+            scale: self.scale,
+            wireframe: self.wireframe,
+            overlay: Some(&g.overlay),
+        };
+        let mut enc = g
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("touchfem view frame"),
+            });
+        g.renderer
+            .draw(&g.device, &g.queue, &mut enc, &view, &frame)?;
+        g.queue.submit([enc.finish()]);
+        g.window.pre_present_notify();
+        g.queue.present(frame_tex);
+        g.window.request_redraw();
+
+        // Statistics and the log.
+        let now = Instant::now();
+        let s = &mut self.stats;
+        s.frames += 1;
+        s.second_frames += 1;
+        s.first.get_or_insert(now);
+        if let Some(prev) = s.last_present {
+            let ms = (now - prev).as_secs_f64() * 1e3;
+            // The whole run's median is taken over the first million frames (8 MB).
+            if s.intervals_ms.len() < 1_000_000 {
+                s.intervals_ms.push(ms);
+            }
+            s.second_intervals_ms.push(ms);
+        }
+        s.last_present = Some(now);
+        s.second_draw_ms.push((now - t0).as_secs_f64() * 1e3);
+        s.second_force = s.second_force.max(force);
+        s.max_force = s.max_force.max(force);
+        let last_log = *s.last_log.get_or_insert(now);
+        if now - last_log >= Duration::from_secs(1) {
+            let frame_ms = median(&mut s.second_intervals_ms);
+            s.status_frame_ms = frame_ms;
+            let line = serde_json::json!({
+                "t": self.started.elapsed().as_secs_f64(),
+                "frames": s.frames,
+                "fps": s.second_frames as f64 / (now - last_log).as_secs_f64(),
+                "frame_ms_median": frame_ms,
+                "draw_ms_median": median(&mut s.second_draw_ms),
+                "force_n": s.second_force,
+                "haptic_hz": self.status.rate_hz(),
+                "touching": touching,
+            });
+            if let Some(f) = &mut self.log {
+                let _ = writeln!(f, "{line}");
+            }
+            s.second_intervals_ms.clear();
+            s.second_draw_ms.clear();
+            s.second_force = 0.0;
+            s.second_frames = 0;
+            s.last_log = Some(now);
+        } else if s.status_frame_ms == 0.0 && s.intervals_ms.len() >= 5 {
+            let mut iv = s.intervals_ms.clone();
+            s.status_frame_ms = median(&mut iv);
+        }
+        Ok(())
+    }
+
+    fn resize(&mut self, size: PhysicalSize<u32>) -> Result<(), ViewError> {
+        if size.width == 0 || size.height == 0 {
+            return Ok(());
+        }
+        self.size = [size.width, size.height];
+        if let Some(g) = self.gfx.as_mut() {
+            g.config.width = size.width;
+            g.config.height = size.height;
+            g.surface.configure(&g.device, &g.config);
+            g.renderer.resize(&g.device, self.size)?;
+            g.window.request_redraw();
+        }
+        Ok(())
+    }
+
+    fn left_press(&mut self) {
+        let Some(pointer) = &self.pointer else {
+            return;
+        };
+        let surfaces: Vec<(&crate::contact::Surface, DVec3)> = self
+            .world
+            .objects
+            .iter()
+            .map(|o| (&o.scene.surface, o.offset))
+            .collect();
+        let hit = pick(&self.orbit.camera(), self.size, self.cursor, &surfaces);
+        if let Some(h) = hit {
+            self.press = Some(Press {
+                pixel: self.cursor,
+                point: h.point,
+                normal: h.normal,
+            });
+            pointer.set_position(h.point + h.normal * OUTSIDE_M);
+        }
+    }
+
+    fn drag(&mut self) {
+        let (Some(p), Some(pointer)) = (self.press, &self.pointer) else {
+            return;
+        };
+        let px =
+            ((self.cursor[0] - p.pixel[0]).powi(2) + (self.cursor[1] - p.pixel[1]).powi(2)).sqrt();
+        if px > 0.0 {
+            pointer.set_position(p.point - p.normal * (px * self.depth_per_px));
+        }
+    }
+
+    fn release(&mut self) {
+        if self.press.take().is_some() {
+            if let Some(p) = &self.pointer {
+                p.set_position(DVec3::NAN);
+            }
+        }
+    }
+}
+
+impl ApplicationHandler for App<'_> {
+    fn resumed(&mut self, el: &ActiveEventLoop) {
+        if self.gfx.is_some() {
+            return;
+        }
+        match self.init(el) {
+            Ok(g) => {
+                g.window.request_redraw();
+                self.gfx = Some(g);
+                self.started = Instant::now();
+            }
+            Err(e) => self.fail(el, e),
+        }
+    }
+
+    fn window_event(&mut self, el: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
+        match event {
+            WindowEvent::CloseRequested | WindowEvent::Destroyed => self.quit(el),
+            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
+                match event.logical_key.as_ref() {
+                    Key::Named(NamedKey::Escape) => self.quit(el),
+                    Key::Character(c) if c.eq_ignore_ascii_case("w") => {
+                        self.wireframe = !self.wireframe
+                    }
+                    _ => {}
+                }
+            }
+            WindowEvent::Resized(size) => {
+                if let Err(e) = self.resize(size) {
+                    self.fail(el, e);
+                }
+            }
+            WindowEvent::CursorMoved { position, .. } => {
+                let old = self.cursor;
+                self.cursor = [position.x, position.y];
+                if self.orbiting {
+                    self.orbit
+                        .rotate(self.cursor[0] - old[0], self.cursor[1] - old[1]);
+                }
+                self.drag();
+            }
+            WindowEvent::MouseInput { state, button, .. } => match (button, state) {
+                (MouseButton::Left, ElementState::Pressed) => self.left_press(),
+                (MouseButton::Left, ElementState::Released) => self.release(),
+                (MouseButton::Right, s) => self.orbiting = s == ElementState::Pressed,
+                _ => {}
+            },
+            WindowEvent::MouseWheel { delta, .. } => {
+                let steps = match delta {
+                    MouseScrollDelta::LineDelta(_, y) => f64::from(y),
+                    MouseScrollDelta::PixelDelta(p) => p.y / 40.0,
+                };
+                self.orbit.zoom(steps);
+            }
+            WindowEvent::RedrawRequested => {
+                if let Err(e) = self.redraw(el) {
+                    self.fail(el, e);
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn about_to_wait(&mut self, el: &ActiveEventLoop) {
+        // Wake at least every 50 ms, so the timer and the haptic loop's end are noticed even
+        // when no frame is drawn (a hidden window).
+        if self.status.done.load(Ordering::SeqCst)
+            || self.quit_after.is_some_and(|d| self.started.elapsed() >= d)
+        {
+            if self.status.panicked.load(Ordering::SeqCst) {
+                self.fail(el, ViewError::HapticPanicked);
+            } else {
+                self.quit(el);
+            }
+            return;
+        }
+        // A skipped frame (timeout, occluded window) is retried here rather than at once.
+        if let Some(g) = &self.gfx {
+            let stale = self
+                .stats
+                .last_present
+                .is_none_or(|t| t.elapsed() >= Duration::from_millis(50));
+            if stale {
+                g.window.request_redraw();
+            }
+        }
+        el.set_control_flow(ControlFlow::WaitUntil(
+            Instant::now() + Duration::from_millis(50),
+        ));
+    }
+}

@@ -1,0 +1,139 @@
+//! The interactive window of `touchfem view`: a winit 0.30 application with a wgpu surface,
+//! one [`Deformer`](crate::gpu::Deformer) per object, the pointer as a finger.
+//!
+//! [`run`] is independent of how the haptic side is spawned: it reads the latest
+//! [`WorldSample`](crate::runtime::WorldSample) from a [`SampleReader`], shows the haptic
+//! loop's [`LiveStatus`] and writes the pointer finger's position into a [`PointerShared`].
+//!
+//! * **Left drag** (starting over an object) presses a finger into it from the point first
+//!   touched `p0`, along the inward normal `−n` there: the finger is at `p0 − n·depth` with
+//!   `depth = k · (pixels dragged)` (Euclidean distance from the press),
+//!   `k = max(0.06 mm, 0.002 · scene diagonal)` per pixel (0.10 mm/px on the 30 mm cube: a
+//!   100-pixel drag presses 10 mm). There is no lateral term: the finger moves along the normal
+//!   only, so the press stays where it started whatever the drag's direction. Before pressing
+//!   the finger is put 1 mm outside `p0`, so that the god-object enters through `p0` (if the
+//!   haptic loop misses that position, the runtime attaches a finger that appears inside at the
+//!   nearest surface point). Releasing lifts the finger (a NaN position).
+//! * **Right drag** orbits ([`Orbit`](crate::render::Orbit)), the **wheel** zooms, **W** toggles
+//!   the wireframe, **Esc** or closing the window quits (and sets [`LiveStatus::stop`]).
+//! * The status line (an overlay and the window title, which always contains `touchfem`): the
+//!   pointer finger's |F| in N, the haptic rate, the frame time. Updated 4 times a second.
+//!
+//! Present mode Fifo; a redraw is requested after every frame. On CPU adapters (lavapipe) the
+//! frame is drawn without MSAA ([`live_samples`](crate::render::live_samples)).
+//!
+//! Environment hooks (tests, measurements):
+//! * `TOUCHFEM_VIEW_SECONDS=S`: quit after S seconds;
+//! * `TOUCHFEM_VIEW_LOG=FILE`: append one JSON line per second, `{"t", "frames", "fps",
+//!   "frame_ms_median", "draw_ms_median", "force_n", "haptic_hz", "touching"}` (`frames`: so
+//!   far; `frame_ms_median`: median time between presented frames over that second;
+//!   `force_n`: the largest |F| of the pointer finger over that second), and a final line with
+//!   `"summary": true`;
+//! * `TOUCHFEM_VIEW_SAMPLES=1|4`: override the MSAA sample count.
+//!
+//! `WGPU_BACKEND` and `WGPU_ADAPTER_NAME` choose the adapter as for
+//! [`Gpu::new`](crate::gpu::Gpu::new), among adapters that can present to the window.
+
+mod app;
+pub mod cli;
+
+pub use cli::view_command;
+
+use std::sync::Arc;
+use thiserror::Error;
+
+use crate::devices::pointer::PointerShared;
+use crate::gpu::GpuError;
+use crate::render::RenderError;
+use crate::runtime::{LiveStatus, SampleReader};
+use crate::scene::World;
+
+/// How to open the window.
+#[derive(Clone, Debug)]
+pub struct WindowOptions {
+    /// Inner size in physical pixels (width, height).
+    pub size: [u32; 2],
+    /// The window title's prefix (should contain `touchfem`; the status is appended).
+    pub title: String,
+}
+
+/// What a window session did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct WindowSummary {
+    /// Frames presented.
+    pub frames: u64,
+    /// Seconds the window was open (from the first frame).
+    pub seconds: f64,
+    /// Median time between presented frames, ms.
+    pub frame_ms_median: f64,
+    /// The largest |F| of the pointer finger seen by the window, N.
+    pub max_force_n: f64,
+}
+
+/// Errors of the window.
+#[derive(Debug, Error)]
+pub enum ViewError {
+    /// No adapter, no device, a deformer that cannot be built.
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    /// The renderer could not be built or could not draw.
+    #[error(transparent)]
+    Render(#[from] RenderError),
+    /// The event loop could not start or failed.
+    #[error("window event loop: {0}")]
+    EventLoop(#[from] winit::error::EventLoopError),
+    /// The window could not be created.
+    #[error("cannot open a window: {0}")]
+    Window(#[from] winit::error::OsError),
+    /// wgpu could not make a surface for the window.
+    #[error("cannot create a surface for the window: {0}")]
+    Surface(#[from] wgpu::CreateSurfaceError),
+    /// The surface cannot be presented to with this adapter, or acquiring a frame failed.
+    #[error("surface: {0}")]
+    Present(String),
+    /// The device reported an error (validation, out of memory) or was lost.
+    #[error("GPU device error: {0}")]
+    Device(String),
+    /// The scene has more objects than the window draws.
+    #[error("{0} objects; the window draws at most {1}")]
+    TooManyObjects(usize, usize),
+    /// The haptic loop ended by a panic.
+    #[error("the haptic thread panicked")]
+    HapticPanicked,
+}
+
+impl From<ViewError> for crate::Error {
+    fn from(e: ViewError) -> Self {
+        crate::Error::Input(e.to_string())
+    }
+}
+
+/// Opens the window on `world` and runs it until Esc, closing, `TOUCHFEM_VIEW_SECONDS` or the
+/// end of the haptic loop ([`LiveStatus::done`]; a panic there is
+/// [`ViewError::HapticPanicked`]). Sets [`LiveStatus::stop`] on the way out and lifts the
+/// pointer finger. Must run on the main thread (winit). `pointer`: the finger the mouse drives,
+/// if the scene has one; without it the window only shows.
+pub fn run(
+    world: &World,
+    reader: SampleReader,
+    status: &LiveStatus,
+    pointer: Option<Arc<PointerShared>>,
+    opts: &WindowOptions,
+) -> Result<WindowSummary, ViewError> {
+    let n = world.objects.len();
+    if n > crate::render::MAX_FRAME_OBJECTS {
+        return Err(ViewError::TooManyObjects(
+            n,
+            crate::render::MAX_FRAME_OBJECTS,
+        ));
+    }
+    let event_loop = winit::event_loop::EventLoop::new()?;
+    let mut app = app::App::new(world, reader, status, pointer.clone(), opts);
+    let ran = event_loop.run_app(&mut app);
+    status.stop.store(true, std::sync::atomic::Ordering::SeqCst);
+    if let Some(p) = &pointer {
+        p.set_position(glam::DVec3::NAN);
+    }
+    ran?;
+    app.finish()
+}
