@@ -3,6 +3,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/ensure-vulkan.sh
+scripts/ensure-x11.sh
 export WGPU_BACKEND="${WGPU_BACKEND:-vulkan}"
 cargo test --all-targets "$@"
 cargo test --doc
