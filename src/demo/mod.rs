@@ -158,10 +158,11 @@ pub fn step_median(world: &World, samples: usize) -> Result<f64, Error> {
     Ok(percentile(&times, 0.5))
 }
 
-/// Draws one frame of every object (the first object's deformer carries the fingers).
+/// Draws one frame of every object with every finger and god-object.
 fn draw(
     gpu: &Gpu,
     renderer: &crate::render::Renderer,
+    edges: &[crate::render::Edges],
     world: &World,
     visual: &Visual<'_>,
     sample: &WorldSample,
@@ -169,18 +170,27 @@ fn draw(
     let Some(deformers) = visual.deformers() else {
         return Ok(None);
     };
-    let o = &world.objects[0];
-    let finger = sample.fingers().first();
-    let rs = crate::render::Scene {
-        mesh: &o.scene.mesh,
-        compliance: &o.scene.compliance,
-        forces: &[],
-        finger: finger.map(|f| f.position - o.offset),
-        proxy: finger.and_then(|f| f.proxy).map(|p| p - o.offset),
-        wireframe: true,
-    };
+    let objects: Vec<crate::render::FrameObject<'_>> = world
+        .objects
+        .iter()
+        .zip(deformers)
+        .enumerate()
+        .map(|(i, (o, d))| crate::render::FrameObject {
+            deformer: d,
+            offset: o.offset,
+            bounds: o.scene.mesh.bounds(),
+            edges: edges.get(i),
+        })
+        .collect();
+    let fingers: Vec<DVec3> = sample
+        .fingers()
+        .iter()
+        .map(|f| f.position)
+        .filter(|p| p.is_finite())
+        .collect();
+    let proxies: Vec<DVec3> = sample.fingers().iter().filter_map(|f| f.proxy).collect();
     renderer
-        .render_with(&gpu.device, &gpu.queue, &deformers[0], &rs)
+        .render_frame(&gpu.device, &gpu.queue, &objects, &fingers, &proxies, true)
         .map(Some)
         .map_err(|e| Error::Input(e.to_string()))
 }
@@ -200,11 +210,21 @@ pub fn run_scene(
         .record
         .clone()
         .unwrap_or_else(|| opts.out.join(format!("{}.tfsession", world.name)));
+    // The writer thread starts on the visual core (it inherits this thread's placement), away
+    // from the haptic loop's.
+    opts.placement.enter_visual();
     let (mut recorder, writer) = session::record(&session_path, world)?;
     let (mut publish, mut reader) = sample_channel();
     let status = LiveStatus::default();
     let phase = AtomicU8::new(0);
     let mut visual = Visual::new(world, gpu);
+    let edges: Vec<crate::render::Edges> = match (gpu, visual.deformers()) {
+        (Some(g), Some(ds)) => ds
+            .iter()
+            .map(|d| crate::render::Edges::new(&g.device, d))
+            .collect(),
+        _ => Vec::new(),
+    };
     let mut disp_us = Vec::new();
     let mut frames = 0u64;
     let mut gif = Vec::new();
@@ -239,7 +259,7 @@ pub fn run_scene(
                 let sample = *reader.read();
                 let us = visual.update(&sample);
                 let img = match (gpu, renderer) {
-                    (Some(g), Some(r)) => draw(g, r, world, &visual, &sample)?,
+                    (Some(g), Some(r)) => draw(g, r, &edges, world, &visual, &sample)?,
                     _ => None,
                 };
                 if phase.load(Ordering::Acquire) == 1 {

@@ -52,6 +52,7 @@ pub struct HapticWorld<'w> {
     n_fingers: usize,
     ramp_step: f64,
     max_force: f64,
+    ticks: u64,
 }
 
 impl<'w> HapticWorld<'w> {
@@ -74,6 +75,7 @@ impl<'w> HapticWorld<'w> {
             n_fingers,
             ramp_step: 1.0 / (RAMP_S * world.haptics.rate_hz).max(1.0),
             max_force: world.haptics.max_force_n,
+            ticks: 0,
         }
     }
 
@@ -84,7 +86,8 @@ impl<'w> HapticWorld<'w> {
 
     /// One tick: `positions[i]` is finger i's device position (metres, scene frame). Writes the
     /// force for each finger's device into `forces[i]` and the tick's boundary conditions and
-    /// finger views into `sample`. Allocates nothing.
+    /// finger views into `sample`, every field a reader looks at (so `sample` may be a stale
+    /// buffer, written in place). Allocates nothing.
     pub fn step(&mut self, positions: &[DVec3], forces: &mut [DVec3], sample: &mut WorldSample) {
         let objects = &self.world.objects;
         let n_obj = objects.len().min(MAX_OBJECTS);
@@ -189,6 +192,7 @@ impl<'w> HapticWorld<'w> {
                 force: forces[i],
             };
         }
-        sample.tick += 1;
+        self.ticks += 1;
+        sample.tick = self.ticks;
     }
 }

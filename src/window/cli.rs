@@ -12,7 +12,10 @@ use crate::Error;
 
 /// The devices of a scene's fingers in `view`: the first `pointer` finger is the window's
 /// pointer, scripted fingers follow their paths; other devices are refused.
-fn devices(world: &World, pointer: &Arc<PointerShared>) -> Result<Vec<Box<dyn HapticDevice>>, Error> {
+fn devices(
+    world: &World,
+    pointer: &Arc<PointerShared>,
+) -> Result<Vec<Box<dyn HapticDevice>>, Error> {
     let mut out: Vec<Box<dyn HapticDevice>> = Vec::new();
     let mut pointers = 0;
     for (i, f) in world.fingers.iter().enumerate() {
@@ -53,13 +56,15 @@ pub fn view_command(args: &crate::cli::ViewArgs) -> Result<(), Error> {
         .fingers
         .iter()
         .any(|f| matches!(f.device, DeviceSpec::Pointer));
+    let placement = crate::threads::VisualPlacement::split();
+    // The recorder's writer thread starts on the visual core, away from the haptic loop's.
+    placement.enter_visual();
     let mut recording = match &args.record {
         Some(path) => Some(session::record(path, &world)?),
         None => None,
     };
     let (mut writer, reader) = sample_channel();
     let status = LiveStatus::default();
-    let placement = crate::threads::VisualPlacement::split();
     let opts = WindowOptions {
         size: args.size,
         title: format!("touchfem view: {}", world.name),
