@@ -301,6 +301,9 @@ pub struct Renderer {
     instances: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
     attachments: Attachments,
+    /// Held from `draw` to `submit` by the offscreen renders, which take `&self` and may be
+    /// called from several threads: the uniforms and attachments are the renderer's own.
+    offscreen: std::sync::Mutex<()>,
 }
 
 impl Renderer {
@@ -503,6 +506,7 @@ impl Renderer {
             instances,
             bind_group,
             attachments: attachments(device, size, options),
+            offscreen: std::sync::Mutex::new(()),
         })
     }
 
@@ -670,6 +674,10 @@ impl Renderer {
         let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("touchfem render"),
         });
+        let guard = self
+            .offscreen
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         self.draw(device, queue, &mut enc, &resolved_view, frame)?;
         enc.copy_texture_to_buffer(
             wgpu::TexelCopyTextureInfo {
@@ -689,6 +697,7 @@ impl Renderer {
             extent,
         );
         queue.submit([enc.finish()]);
+        drop(guard);
         let bytes = crate::gpu::map_read(device, &readback)?;
         let mut pixels = Vec::with_capacity((4 * w * h) as usize);
         for row in bytes.chunks(row_bytes as usize) {
