@@ -188,12 +188,16 @@ fn view_window_presses_the_cube_with_the_pointer() {
     let stdout = std::fs::File::create(dir.join("view.stdout.txt")).unwrap();
     let stderr = std::fs::File::create(dir.join("view.stderr.txt")).unwrap();
     let backend = std::env::var("WGPU_BACKEND").unwrap_or_else(|_| "vulkan".into());
+    let session = dir.join("view.tfsession");
+    let _ = std::fs::remove_file(&session);
     let child = Command::new(env!("CARGO_BIN_EXE_touchfem"))
         .args([
             "view",
             "cube",
             "--size",
             &format!("{}x{}", SIZE[0], SIZE[1]),
+            "--record",
+            session.to_str().unwrap(),
         ])
         .env("DISPLAY", &display)
         .env("WGPU_BACKEND", backend)
@@ -332,6 +336,19 @@ fn view_window_presses_the_cube_with_the_pointer() {
     );
     assert!(max_force > 0.05, "the drag pressed with only {max_force} N");
     assert!(haptic > 500.0, "haptic rate {haptic} Hz");
+
+    // The session it recorded (the pointer's positions and the forces sent, every tick)
+    // replays through the haptic path to exactly the same forces.
+    let out = Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args(["replay", session.to_str().unwrap(), "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    eprintln!("replay: {r}");
+    assert!(r["ticks"].as_u64().unwrap() > 1000, "{r}");
+    assert_eq!(r["max_force_diff_n"].as_f64(), Some(0.0), "{r}");
+    assert!(r["max_force_n"].as_f64().unwrap() > 0.05, "{r}");
 }
 
 /// `Renderer::render_frame` draws several objects, each at its offset, with 1 and 4 samples;
