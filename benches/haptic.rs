@@ -104,10 +104,9 @@ fn precompute(c: &mut Criterion) {
 /// pressing the cube's top, and with two fingers squeezing it (the coupled solve), side by side.
 fn scene_tick(c: &mut Criterion) {
     use touchfem::runtime::{HapticWorld, WorldSample};
-    std::env::set_var("TOUCHFEM_CACHE_DIR", "");
     let mut g = c.benchmark_group("scene_tick");
-    let one = touchfem::scene::World::load("fig1", "script").unwrap();
-    let two = touchfem::scene::World::load("pinch", "script").unwrap();
+    let one = touchfem::scene::World::load_with("fig1", "script", None).unwrap();
+    let two = touchfem::scene::World::load_with("pinch", "script", None).unwrap();
     let mm = 1e-3;
     let cases: [(&str, &touchfem::scene::World, Vec<Vec<DVec3>>); 2] = [
         (

@@ -338,3 +338,40 @@ fn cache_roundtrip_and_every_kind_of_bad_file() {
         CacheOutcome::Hit
     ));
 }
+
+#[test]
+fn concurrent_cache_writes_use_unique_temporaries_and_leave_a_valid_file() {
+    let m = cube();
+    let sel = Selection::default();
+    let c = Compliance::compute(&m, &sel).unwrap();
+    let k = cache::key(&m, &sel);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cube.tfc");
+    std::thread::scope(|s| {
+        for _ in 0..4 {
+            s.spawn(|| cache::save(&path, &c, k, m.nodes.len()).unwrap());
+        }
+    });
+    let back = cache::load(&path, k, m.nodes.len()).unwrap();
+    assert_eq!(back.l_f64(), c.l_f64());
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names, ["cube.tfc"], "no temporary left behind");
+}
+
+#[test]
+fn a_cache_that_cannot_be_written_keeps_the_computed_compliance() {
+    let m = cube();
+    let sel = Selection::default();
+    let dir = tempfile::tempdir().unwrap();
+    let blocker = dir.path().join("file");
+    std::fs::write(&blocker, b"x").unwrap();
+    // The cache's directory would have to be a regular file: nothing can be written.
+    let (c, outcome) = cache::load_or_compute(&blocker.join("cube.tfc"), &m, &sel).unwrap();
+    assert!(matches!(outcome, CacheOutcome::NotSaved(..)), "{outcome:?}");
+    assert!(outcome.message().unwrap().starts_with("warning:"));
+    let fresh = Compliance::compute(&m, &sel).unwrap();
+    assert_eq!(c.l_f64(), fresh.l_f64());
+}

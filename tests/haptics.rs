@@ -133,8 +133,7 @@ fn the_loop_runs_every_tick_and_publishes_the_latest_condition() {
 #[test]
 fn the_multi_finger_tick_and_its_recording_allocate_nothing() {
     use touchfem::runtime::{sample_channel, session, HapticWorld, WorldSample};
-    std::env::set_var("TOUCHFEM_CACHE_DIR", "");
-    let world = touchfem::scene::World::load("pinch", "script").unwrap();
+    let world = touchfem::scene::World::load_with("pinch", "script", None).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let (mut rec, writer) = session::record(&dir.path().join("s.tfsession"), &world).unwrap();
     let (mut w, mut r) = sample_channel();

@@ -24,8 +24,7 @@ fn world(toml: &str) -> World {
         dir: ".".into(),
         label: "test scene".into(),
     };
-    std::env::set_var("TOUCHFEM_CACHE_DIR", "");
-    World::from_source(&src).unwrap()
+    World::from_source_with(&src, None).unwrap()
 }
 
 const CUBE_TWO: &str = r#"
@@ -420,10 +419,6 @@ device = "pointer"
 
 #[test]
 fn the_haptic_loop_keeps_its_rate_while_the_gpu_is_lost_and_the_visual_path_falls_back() {
-    std::env::set_var(
-        "WGPU_BACKEND",
-        std::env::var("WGPU_BACKEND").unwrap_or("vulkan".into()),
-    );
     let w = world(
         r#"
 unit = "mm"

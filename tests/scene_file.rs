@@ -7,13 +7,15 @@ use touchfem::force::ForceModel;
 use touchfem::scene::{DeviceSpec, SceneSource, World};
 
 fn load(text: &str, dir: &std::path::Path) -> Result<World, touchfem::Error> {
-    std::env::set_var("TOUCHFEM_CACHE_DIR", "");
-    World::from_source(&SceneSource {
-        name: "t".into(),
-        text: text.into(),
-        dir: dir.into(),
-        label: "t.toml".into(),
-    })
+    World::from_source_with(
+        &SceneSource {
+            name: "t".into(),
+            text: text.into(),
+            dir: dir.into(),
+            label: "t.toml".into(),
+        },
+        None,
+    )
 }
 
 fn err(text: &str) -> String {
@@ -25,8 +27,7 @@ fn err(text: &str) -> String {
 
 #[test]
 fn the_bundled_scenes_load_with_only_what_they_need() {
-    std::env::set_var("TOUCHFEM_CACHE_DIR", "");
-    let fig1 = World::load("fig1", "script").unwrap();
+    let fig1 = World::load_with("fig1", "script", None).unwrap();
     let o = &fig1.objects[0];
     assert_eq!((o.name.as_str(), o.scene.mesh.nodes.len()), ("cube", 125));
     assert_eq!(o.scene.compliance.rows().len(), 98);
@@ -39,7 +40,7 @@ fn the_bundled_scenes_load_with_only_what_they_need() {
     assert_eq!(keys[1], (1.0, DVec3::new(0.015, 0.015, 0.025)));
     assert_eq!(fig1.haptics.rate_hz, 1000.0);
 
-    let pinch = World::load("pinch", "script").unwrap();
+    let pinch = World::load_with("pinch", "script", None).unwrap();
     let m = &pinch.objects[0].scene.mesh;
     let c = &pinch.objects[0].scene.compliance;
     // The ball's free-surface nodes, counted independently.
@@ -62,7 +63,7 @@ fn the_bundled_scenes_load_with_only_what_they_need() {
         }
     }
     assert_eq!(pinch.fingers.len(), 2);
-    let fig2 = World::load("fig2", "script").unwrap();
+    let fig2 = World::load_with("fig2", "script", None).unwrap();
     assert_eq!(fig2.objects[0].scene.mesh.nodes.len(), 1699);
     assert_ne!(
         fig1.hash, pinch.hash,
@@ -150,8 +151,7 @@ rate_hz = 500.0
 max_force_n = 3.0
 "#;
     std::fs::write(dir.path().join("s.toml"), text).unwrap();
-    std::env::set_var("TOUCHFEM_CACHE_DIR", "");
-    let w = World::load(dir.path().join("s.toml").to_str().unwrap(), "script").unwrap();
+    let w = World::load_with(dir.path().join("s.toml").to_str().unwrap(), "script", None).unwrap();
     let o = &w.objects[0];
     assert_eq!(o.name, "box");
     assert_eq!(o.scene.mesh.material.young_pa, 3000.0);

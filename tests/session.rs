@@ -132,8 +132,7 @@ fn a_fresh_two_finger_recording_replays_to_zero_and_tampering_is_seen() {
         dir: ".".into(),
         label: "x".into(),
     };
-    std::env::set_var("TOUCHFEM_CACHE_DIR", "");
-    let w = touchfem::scene::World::from_source(&src).unwrap();
+    let w = touchfem::scene::World::from_source_with(&src, None).unwrap();
     let e = session::replay(&w, &s2).unwrap_err().to_string();
     assert!(e.contains("differs from the recorded one"), "{e}");
 }

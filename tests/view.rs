@@ -343,7 +343,11 @@ fn view_window_presses_the_cube_with_the_pointer() {
         .args(["replay", session.to_str().unwrap(), "--json"])
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     eprintln!("replay: {r}");
     assert!(r["ticks"].as_u64().unwrap() > 1000, "{r}");

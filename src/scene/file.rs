@@ -201,16 +201,26 @@ impl World {
     /// Loads a scene: a bundled scene's name, a `.toml` scene file, or a mesh (bundled name or
     /// file) as a one-object scene touched by one `device` finger.
     pub fn load(spec: &str, device: &str) -> Result<World, Error> {
+        World::load_with(spec, device, cache_dir().as_deref())
+    }
+
+    /// As [`World::load`], with the compliance cache in `cache` (`None`: no cache).
+    pub fn load_with(spec: &str, device: &str, cache: Option<&Path>) -> Result<World, Error> {
         let src = match SceneSource::find(spec)? {
             Some(s) => s,
             None => SceneSource::for_mesh(spec, device),
         };
-        World::from_source(&src)
+        World::from_source_with(&src, cache)
     }
 
-    /// Parses, validates and precomputes a scene. Warnings (a cache that cannot be written)
-    /// go to stderr.
+    /// Parses, validates and precomputes a scene, caching compliances in [`cache_dir`].
+    /// Warnings (a cache that cannot be written) go to stderr.
     pub fn from_source(src: &SceneSource) -> Result<World, Error> {
+        World::from_source_with(src, cache_dir().as_deref())
+    }
+
+    /// As [`World::from_source`], with the compliance cache in `cache` (`None`: no cache).
+    pub fn from_source_with(src: &SceneSource, cache: Option<&Path>) -> Result<World, Error> {
         let text = &src.text;
         let at = |span: std::ops::Range<usize>, key: &str, msg: String| {
             Error::Scene(format!(
@@ -393,7 +403,7 @@ impl World {
                     .file_stem()
                     .map_or(mesh_spec.clone(), |s| s.to_string_lossy().into_owned())
             });
-            let compliance = compute_cached(&name, &mesh, &sel, key)?;
+            let compliance = compute_cached(cache, &name, &mesh, &sel, key)?;
             objects.push(Object {
                 name,
                 scene: Scene::with_compliance(mesh, compliance),
@@ -514,12 +524,13 @@ impl World {
 /// The compliance for `sel`, from the cache when valid; computed (and saved, if possible)
 /// otherwise.
 fn compute_cached(
+    cache: Option<&Path>,
     name: &str,
     mesh: &crate::Mesh,
     sel: &Selection,
     key: u64,
 ) -> Result<Compliance, Error> {
-    let Some(dir) = cache_dir() else {
+    let Some(dir) = cache else {
         return Ok(Compliance::compute(mesh, sel)?);
     };
     let safe: String = name
