@@ -6,7 +6,6 @@
 //! is always finite and at most [`HapticConfig::max_force_n`].
 
 use glam::DVec3;
-use std::time::{Duration, Instant};
 
 use crate::compliance::Compliance;
 use crate::contact::{ContactPoint, GodObject, Surface};
@@ -150,9 +149,10 @@ pub fn bc_channel() -> (BcWriter, BcReader) {
     triple_buffer::triple_buffer(&HapticSample::default())
 }
 
-/// Runs the haptic loop for `seconds` at `cfg.rate_hz` on the calling thread: reads the device,
-/// steps the finger, sends the force and publishes the boundary condition each tick. Sleeps
-/// until shortly before each deadline and spins the rest, so ticks start on time.
+/// Runs one finger's haptic loop for `seconds` at `cfg.rate_hz` on the calling thread: reads
+/// the device, steps the finger, sends the force and publishes the boundary condition each
+/// tick, paced by [`crate::runtime::pacer::Pacer`] (sleep, then spin to each deadline). Scenes
+/// with several fingers or objects run [`crate::runtime::run_haptic`].
 pub fn run_loop(
     surface: &Surface,
     compliance: &Compliance,
@@ -161,67 +161,22 @@ pub fn run_loop(
     seconds: f64,
     publish: &mut BcWriter,
 ) -> HapticStats {
-    let period = Duration::from_secs_f64(1.0 / cfg.rate_hz);
-    let n = (seconds * cfg.rate_hz).ceil().max(1.0) as usize;
-    // All storage is allocated before the first tick.
-    let mut starts: Vec<Instant> = Vec::with_capacity(n);
-    let mut step_ns: Vec<u64> = Vec::with_capacity(n);
-    let mut missed = 0u64;
+    let n = (seconds * cfg.rate_hz).ceil().max(1.0) as u64;
+    let mut pacer = crate::runtime::pacer::Pacer::new(cfg.rate_hz);
     let mut max_force: f64 = 0.0;
     let mut finger = Finger::new(device.position(0.0));
-    let t0 = Instant::now();
-    let mut due = t0;
-    for _ in 0..n {
-        let now = Instant::now();
-        if due > now {
-            let wait = due - now;
-            if wait > Duration::from_micros(300) {
-                std::thread::sleep(wait - Duration::from_micros(250));
-            }
-            while Instant::now() < due {
-                std::hint::spin_loop();
-            }
-        }
-        let start = Instant::now();
-        starts.push(start);
-        let t = (start - t0).as_secs_f64();
+    while pacer.ticks() < n {
+        let (start, t) = pacer.wait();
         let x = device.position(t);
         let f = finger.step(surface, compliance, x, cfg.model, cfg.max_force_n);
         device.set_force(f);
         publish.write(finger.sample(x));
         max_force = max_force.max(f.length());
-        let end = Instant::now();
-        step_ns.push((end - start).as_nanos() as u64);
-        due += period;
-        if end > due {
-            missed += 1;
-        }
+        pacer.end(start);
     }
-    let total = starts
-        .last()
-        .map(|l| (*l - starts[0]).as_secs_f64())
-        .unwrap_or(0.0);
-    let nominal = period.as_secs_f64() * 1e6;
-    let mut err: Vec<f64> = starts
-        .windows(2)
-        .map(|w| ((w[1] - w[0]).as_secs_f64() * 1e6 - nominal).abs())
-        .collect();
-    err.sort_by(|a, b| a.total_cmp(b));
-    step_ns.sort_unstable();
-    HapticStats {
-        haptic_rate_hz: if total > 0.0 {
-            (starts.len() - 1) as f64 / total
-        } else {
-            0.0
-        },
-        period_error_us_p999: percentile(&err, 0.999),
-        missed_deadlines: missed,
-        seconds: t0.elapsed().as_secs_f64(),
-        step_us_median: step_ns.get(step_ns.len() / 2).copied().unwrap_or(0) as f64 / 1e3,
-        ticks: starts.len() as u64,
-        max_force_n: max_force,
-        realtime: false,
-    }
+    let mut stats = pacer.stats();
+    stats.max_force_n = max_force;
+    stats
 }
 
 /// Asks the OS to run the calling thread at real-time priority (Linux `SCHED_FIFO`, priority
