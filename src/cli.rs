@@ -39,6 +39,8 @@ pub enum Command {
     /// The main job: scenes headless (the bundled ones by default) with the 1 kHz haptic loop
     /// and the visual loop; frames, GIF, force traces, the session and the paper's Table 2.
     Demo(DemoArgs),
+    /// Run the haptic loop for fingers driven over UDP (the protocol in CONTRACTS.md).
+    Serve(ServeArgs),
     /// Run a recorded session's finger positions through the haptic path again and compare
     /// the forces with the recorded ones.
     Replay(ReplayArgs),
@@ -71,6 +73,31 @@ pub struct BenchArgs {
     /// Write the rows as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+}
+
+/// `touchfem serve` flags.
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    /// Scene file, bundled scene, or mesh (then up to four UDP fingers).
+    pub scene: String,
+    /// Address to listen on, e.g. 127.0.0.1:47800.
+    #[arg(long)]
+    pub udp: std::net::SocketAddr,
+    /// Seconds to run (default: until interrupted).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// Write the report as JSON here (else to stdout).
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Record the session here.
+    #[arg(long)]
+    pub record: Option<PathBuf>,
+    /// Allow a non-loopback address (forces reach a person's hand from the network).
+    #[arg(long)]
+    pub allow_remote: bool,
+    /// Watchdog: silence longer than this (ms) gives zero force and the stale flag.
+    #[arg(long, default_value_t = 20.0)]
+    pub watchdog_ms: f64,
 }
 
 /// `touchfem replay` flags.
@@ -208,6 +235,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Poke(args) => poke(&args),
         Command::Demo(args) => demo(&args),
         Command::Replay(args) => replay(&args),
+        Command::Serve(args) => serve(&args),
         Command::Bench(args) => bench(&args),
         Command::View(args) => crate::window::view_command(&args),
     }
@@ -272,6 +300,65 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
             path: path.clone(),
             source,
         })?;
+    }
+    Ok(())
+}
+
+fn serve(a: &ServeArgs) -> Result<(), Error> {
+    use crate::runtime::serve::{serve, stop_on_interrupt, ServeOptions, INTERRUPTED};
+    if let Some(s) = a.seconds {
+        if !(s.is_finite() && s > 0.0) {
+            return Err(Error::Input(format!("--seconds must be positive, got {s}")));
+        }
+    }
+    if !(a.watchdog_ms.is_finite() && a.watchdog_ms > 0.0) {
+        return Err(Error::Input(format!(
+            "--watchdog-ms must be positive, got {}",
+            a.watchdog_ms
+        )));
+    }
+    if !a.udp.ip().is_loopback() && a.allow_remote {
+        eprintln!(
+            "warning: serving {} beyond this machine: anyone who can reach it drives forces into a person's hand",
+            a.udp
+        );
+    }
+    let is_scene = crate::scene::SceneSource::find(&a.scene)?.is_some();
+    let mut world = crate::scene::World::load(&a.scene, "udp")?;
+    if !is_scene {
+        // A bare mesh: as many UDP fingers as a packet may carry.
+        let f = world.fingers[0].clone();
+        world.fingers = vec![f; crate::force::MAX_FINGERS];
+    }
+    if world
+        .fingers
+        .iter()
+        .any(|f| f.device != crate::scene::DeviceSpec::Udp)
+    {
+        return Err(Error::Scene(format!(
+            "scene '{}': `serve` drives udp fingers only",
+            world.name
+        )));
+    }
+    stop_on_interrupt();
+    let opts = ServeOptions {
+        addr: a.udp,
+        allow_remote: a.allow_remote,
+        seconds: a.seconds,
+        record: a.record.clone(),
+        watchdog: std::time::Duration::from_secs_f64(a.watchdog_ms * 1e-3),
+        placement: crate::threads::VisualPlacement::split(),
+    };
+    let report = serve(&world, &opts, &INTERRUPTED, |addr| {
+        eprintln!("listening on udp {addr}");
+    })?;
+    let json = serde_json::to_string_pretty(&report).expect("serialisable");
+    match &a.report {
+        Some(path) => std::fs::write(path, json).map_err(|source| Error::Write {
+            path: path.clone(),
+            source,
+        })?,
+        None => println!("{json}"),
     }
     Ok(())
 }

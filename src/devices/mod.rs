@@ -11,6 +11,7 @@
 pub mod pointer;
 mod replay;
 mod script;
+pub mod udp;
 
 use glam::DVec3;
 
@@ -24,6 +25,39 @@ pub trait HapticDevice: Send {
     fn position(&mut self, t: f64) -> DVec3;
     /// Sends the force (newtons) the device should render.
     fn set_force(&mut self, f: DVec3);
+}
+
+/// Every finger's device at once: what the haptic loop reads and writes each tick. A list of
+/// one-finger [`HapticDevice`]s is one; a device that serves several fingers over one channel
+/// (the UDP bridge, [`udp::UdpBridge`]) is another.
+pub trait FingerDevices: Send {
+    /// Writes each finger's position (metres, scene frame; NaN: no valid reading) at `t`
+    /// seconds since start into `out`.
+    fn read(&mut self, t: f64, out: &mut [DVec3]);
+    /// Sends each finger its force (newtons); `touching[i]` says whether finger i touches.
+    fn write(&mut self, forces: &[DVec3], touching: &[bool]);
+}
+
+impl<D: HapticDevice> FingerDevices for [D] {
+    fn read(&mut self, t: f64, out: &mut [DVec3]) {
+        for (p, d) in out.iter_mut().zip(self.iter_mut()) {
+            *p = d.position(t);
+        }
+    }
+    fn write(&mut self, forces: &[DVec3], _touching: &[bool]) {
+        for (f, d) in forces.iter().zip(self.iter_mut()) {
+            d.set_force(*f);
+        }
+    }
+}
+
+impl<D: HapticDevice> FingerDevices for Vec<D> {
+    fn read(&mut self, t: f64, out: &mut [DVec3]) {
+        self.as_mut_slice().read(t, out)
+    }
+    fn write(&mut self, forces: &[DVec3], touching: &[bool]) {
+        self.as_mut_slice().write(forces, touching)
+    }
 }
 
 impl<D: HapticDevice + ?Sized> HapticDevice for Box<D> {

@@ -6,6 +6,7 @@ pub mod haptic;
 pub mod pacer;
 mod run;
 mod sample;
+pub mod serve;
 pub mod session;
 pub mod visual;
 

@@ -9,7 +9,7 @@ use super::haptic::HapticWorld;
 use super::pacer::Pacer;
 use super::sample::{LiveStatus, SampleWriter, MAX_OBJECTS};
 use super::session::{Recorder, TickRecord};
-use crate::devices::HapticDevice;
+use crate::devices::FingerDevices;
 use crate::force::MAX_FINGERS;
 use crate::haptics::HapticStats;
 use crate::scene::World;
@@ -32,30 +32,32 @@ pub struct HapticRun {
 /// queues the tick's positions and forces. Allocates nothing per tick.
 pub fn run_haptic(
     world: &World,
-    devices: &mut [Box<dyn HapticDevice + '_>],
+    devices: &mut (impl FingerDevices + ?Sized),
     seconds: Option<f64>,
     publish: &mut SampleWriter,
     status: &LiveStatus,
     mut recorder: Option<&mut Recorder>,
 ) -> HapticRun {
     let mut hw = HapticWorld::new(world);
-    let n = hw.fingers().min(devices.len());
+    let n = hw.fingers();
     let rate = world.haptics.rate_hz;
     let limit = seconds.map(|s| (s * rate).ceil().max(1.0) as u64);
     let mut pacer = Pacer::new(rate);
     let mut pos = [DVec3::ZERO; MAX_FINGERS];
     let mut force = [DVec3::ZERO; MAX_FINGERS];
+    let mut touching = [false; MAX_FINGERS];
     let mut out = HapticRun::default();
     let mut max_force: f64 = 0.0;
     while limit.is_none_or(|l| pacer.ticks() < l) && !status.stop.load(Ordering::Relaxed) {
         let (start, t) = pacer.wait();
-        for (p, d) in pos.iter_mut().zip(devices.iter_mut()).take(n) {
-            *p = d.position(t);
-        }
+        devices.read(t, &mut pos[..n]);
         // Written in place into the triple buffer's back buffer: only the cache lines this
         // tick uses move between the cores (copying the whole sample cost ~3 µs a tick).
         let sample = publish.input_buffer_mut();
         hw.step(&pos[..n], &mut force[..n], sample);
+        for (t, f) in touching.iter_mut().zip(sample.fingers()) {
+            *t = f.object.is_some();
+        }
         for (o, m) in out
             .max_contacts
             .iter_mut()
@@ -65,8 +67,8 @@ pub fn run_haptic(
             *m = (*m).max(sample.contacts(o));
         }
         publish.publish();
-        for (f, d) in force.iter().zip(devices.iter_mut()).take(n) {
-            d.set_force(*f);
+        devices.write(&force[..n], &touching[..n]);
+        for f in &force[..n] {
             max_force = max_force.max(f.length());
         }
         if let Some(r) = recorder.as_deref_mut() {

@@ -1,0 +1,137 @@
+//! `touchfem serve`: the haptic loop for fingers driven over UDP ([`crate::devices::udp`]),
+//! with the visual path's displacement update running headless beside it.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use super::{join_haptic, run_haptic, sample_channel, session, DoneGuard, LiveStatus, Visual};
+use crate::devices::udp::{UdpBridge, UdpCounters};
+use crate::haptics::HapticStats;
+use crate::scene::World;
+use crate::Error;
+
+/// Options of `serve`.
+#[derive(Clone, Debug)]
+pub struct ServeOptions {
+    /// Where to listen.
+    pub addr: SocketAddr,
+    /// Allow a non-loopback address.
+    pub allow_remote: bool,
+    /// Seconds to run (`None`: until `stop`).
+    pub seconds: Option<f64>,
+    /// Record the session here.
+    pub record: Option<PathBuf>,
+    /// The watchdog.
+    pub watchdog: Duration,
+    /// Core placement.
+    pub placement: crate::threads::VisualPlacement,
+}
+
+/// The report of `serve` (keys in CONTRACTS.md).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ServeReport {
+    /// The address served.
+    pub address: String,
+    /// Haptic ticks run.
+    pub ticks: u64,
+    /// Datagrams read.
+    pub packets_received: u64,
+    /// Datagrams dropped (malformed, old, duplicate, foreign).
+    pub packets_dropped: u64,
+    /// Missed haptic deadlines.
+    pub missed_deadlines: u64,
+    /// p99.9 of the period error, µs.
+    pub period_error_us_p999: f64,
+    /// Largest force sent, N.
+    pub max_force_n: f64,
+    /// Every counter of the bridge.
+    pub udp: UdpCounters,
+    /// The haptic loop's timing.
+    pub haptic: HapticStats,
+}
+
+/// Binds the bridge, then runs the haptic loop on the haptic core and the headless visual
+/// update on this thread until `seconds` or `stop`. `bound` is called with the bound address
+/// before the loop starts.
+pub fn serve(
+    world: &World,
+    opts: &ServeOptions,
+    stop: &AtomicBool,
+    bound: impl FnOnce(SocketAddr),
+) -> Result<ServeReport, Error> {
+    let mut bridge = UdpBridge::bind(
+        opts.addr,
+        opts.allow_remote,
+        opts.watchdog,
+        world.haptics.max_force_n,
+    )
+    .map_err(|e| Error::Input(e.to_string()))?;
+    let addr = bridge
+        .local_addr()
+        .map_err(|e| Error::Input(format!("UDP socket: {e}")))?;
+    opts.placement.enter_visual();
+    let mut recording = match &opts.record {
+        Some(p) => Some(session::record(p, world)?),
+        None => None,
+    };
+    bound(addr);
+    let (mut writer, mut reader) = sample_channel();
+    let status = LiveStatus::default();
+    let (run, counters) = std::thread::scope(|sc| {
+        let h = sc.spawn(|| {
+            let _g = DoneGuard(&status);
+            opts.placement.enter_haptic();
+            let realtime = crate::haptics::try_realtime_priority();
+            let rec = recording.as_mut().map(|r| &mut r.0);
+            let mut run = run_haptic(world, &mut bridge, opts.seconds, &mut writer, &status, rec);
+            run.stats.realtime = realtime;
+            (run, bridge.counters)
+        });
+        let mut visual = Visual::new(world, None);
+        while !status.done.load(Ordering::Acquire) {
+            if stop.load(Ordering::Relaxed) {
+                status.stop.store(true, Ordering::Relaxed);
+            }
+            visual.update(reader.read());
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        opts.placement.leave();
+        join_haptic(h)
+    })?;
+    if let Some((rec, w)) = recording {
+        drop(rec);
+        w.join()
+            .map_err(|_| Error::Input("the session writer panicked".into()))??;
+    }
+    Ok(ServeReport {
+        address: addr.to_string(),
+        ticks: run.stats.ticks,
+        packets_received: counters.packets_received,
+        packets_dropped: counters.packets_dropped,
+        missed_deadlines: run.stats.missed_deadlines,
+        period_error_us_p999: run.stats.period_error_us_p999,
+        max_force_n: run.stats.max_force_n,
+        udp: counters,
+        haptic: run.stats,
+    })
+}
+
+/// Set by SIGINT (Ctrl-C) once [`stop_on_interrupt`] has been called.
+pub static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// Makes Ctrl-C set [`INTERRUPTED`] instead of killing the process, so a run without
+/// `--seconds` ends cleanly and writes its report.
+pub fn stop_on_interrupt() {
+    extern "C" fn on_sigint(_: libc::c_int) {
+        INTERRUPTED.store(true, Ordering::Relaxed);
+    }
+    // SAFETY: installs an async-signal-safe handler that only stores to an atomic.
+    unsafe {
+        libc::signal(
+            libc::SIGINT,
+            on_sigint as extern "C" fn(libc::c_int) as libc::sighandler_t,
+        );
+    }
+}
