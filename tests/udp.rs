@@ -189,7 +189,7 @@ fn a_press_over_loopback_gets_the_librarys_force_and_survives_bad_packets() {
             rng ^= rng << 17;
             let len = (rng % 120) as usize;
             let mut d: Vec<u8> = (0..len).map(|i| (rng >> (i % 56)) as u8).collect();
-            if rng % 3 == 0 && len >= 4 {
+            if rng.is_multiple_of(3) && len >= 4 {
                 d[..4].copy_from_slice(b"TFP1"); // right magic, wrong rest
             }
             cases.push(d);
@@ -198,7 +198,7 @@ fn a_press_over_loopback_gets_the_librarys_force_and_survives_bad_packets() {
             if touchfem::devices::udp::decode_position(d).is_none() {
                 c.raw(d);
                 malformed_sent += 1;
-                if malformed_sent % 20 == 0 {
+                if malformed_sent.is_multiple_of(20) {
                     c.send(seq, &[pressed(), far]);
                     seq += 1;
                     std::thread::sleep(Duration::from_millis(1));
@@ -235,13 +235,11 @@ fn a_vanished_client_gets_zero_force_and_may_restart_a_second_one_waits() {
         let mut a = Client::new(addr);
         let mut b = Client::new(addr);
         let far = DVec3::new(0.5, 0.5, 0.5);
-        let mut seq = 1000;
-        for k in 0..=60 {
+        for (seq, k) in (1000u32..).zip(0..=60) {
             let p = above().lerp(pressed(), (k as f64 / 40.0).min(1.0));
             a.send(seq, &[p, far]);
             // A second client sends at the same time: not its session.
             b.send(seq, &[DVec3::new(15.0, 15.0, 10.0) * MM, far]);
-            seq += 1;
             std::thread::sleep(Duration::from_millis(1));
         }
         let f = a.latest().unwrap();
