@@ -339,3 +339,30 @@ fn serve_reports_the_contract_keys() {
     }
     assert_eq!(v["ticks"], 300);
 }
+
+#[path = "../examples/udp_device.rs"]
+mod udp_device;
+
+#[test]
+fn the_example_device_presses_the_cube_over_loopback() {
+    let mut rep = None;
+    let r = with_server(2.0, |addr| {
+        let secs = 1.2;
+        rep = Some(
+            udp_device::run_client(addr, secs, udp_device::Hand::default(), |t| {
+                udp_device::press_cube(t, secs)
+            })
+            .unwrap(),
+        );
+    });
+    let rep = rep.unwrap();
+    eprintln!("{}", serde_json::to_string(&rep).unwrap());
+    assert_eq!(rep.ticks, 1200);
+    assert!(rep.forces_received >= 1000, "{rep:?}");
+    assert!(rep.touching_ticks > 300, "{rep:?}");
+    assert!(rep.max_force_n > 0.05 && rep.max_force_n <= 8.5, "{rep:?}");
+    assert!(rep.rtt_us_p50.is_finite() && rep.rtt_us_p99 >= rep.rtt_us_p50);
+    // The object pushes back: the hand rests above its target (4 mm into the top face).
+    assert!(rep.final_position[2] > 0.026 + 1e-4, "{rep:?}");
+    assert_eq!(r.packets_dropped, 0);
+}
