@@ -27,6 +27,14 @@ fn world(toml: &str) -> World {
     World::from_source_with(&src, None).unwrap()
 }
 
+const CUBE_ONE: &str = r#"
+unit = "mm"
+[[object]]
+mesh = "cube"
+[[finger]]
+device = "pointer"
+"#;
+
 const CUBE_TWO: &str = r#"
 unit = "mm"
 [[object]]
@@ -231,15 +239,7 @@ model = "exact"
 
 #[test]
 fn a_finger_that_starts_inside_is_attached_at_the_nearest_point_and_ramped_in() {
-    let w = world(
-        r#"
-unit = "mm"
-[[object]]
-mesh = "cube"
-[[finger]]
-device = "pointer"
-"#,
-    );
+    let w = world(CUBE_ONE);
     let inside = DVec3::new(14.0, 16.0, 27.5) * MM; // 2.5 mm under the top face
     let mut hw = HapticWorld::new(&w);
     let (f1, s1) = hold(&mut hw, &[inside], 1);
@@ -276,15 +276,7 @@ device = "pointer"
 
 #[test]
 fn a_finger_that_reappears_inside_after_nan_is_attached_again_and_nan_gives_zero_force() {
-    let w = world(
-        r#"
-unit = "mm"
-[[object]]
-mesh = "cube"
-[[finger]]
-device = "pointer"
-"#,
-    );
+    let w = world(CUBE_ONE);
     let mut hw = HapticWorld::new(&w);
     let (f, _) = press(
         &mut hw,
@@ -377,15 +369,7 @@ impl HapticDevice for Panicky {
 
 #[test]
 fn a_panicking_haptic_thread_stops_the_visual_loop_with_an_error() {
-    let w = world(
-        r#"
-unit = "mm"
-[[object]]
-mesh = "cube"
-[[finger]]
-device = "pointer"
-"#,
-    );
+    let w = world(CUBE_ONE);
     let status = LiveStatus::default();
     let (mut writer, mut reader) = sample_channel();
     let t0 = std::time::Instant::now();

@@ -231,9 +231,24 @@ impl Gpu {
 
     /// A headless context on the adapter `sel` names.
     pub fn new(sel: &AdapterSelection) -> Result<Gpu, GpuError> {
+        Gpu::with_instance(Gpu::instance(sel), sel, None)
+    }
+
+    /// An instance for the backends `sel` allows (for a caller that needs it before the
+    /// context, e.g. to create a window surface).
+    pub fn instance(sel: &AdapterSelection) -> wgpu::Instance {
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
         desc.backends = sel.backends;
-        let instance = wgpu::Instance::new(desc);
+        wgpu::Instance::new(desc)
+    }
+
+    /// A context on `instance`'s adapter that `sel` names and, when given, that can present to
+    /// `surface`; requests `IMMEDIATES` where offered.
+    pub fn with_instance(
+        instance: wgpu::Instance,
+        sel: &AdapterSelection,
+        surface: Option<&wgpu::Surface<'_>>,
+    ) -> Result<Gpu, GpuError> {
         let no_adapter = |reason: String| GpuError::NoAdapter {
             backends: backends_name(sel.backends),
             name: sel.name.clone().unwrap_or_else(|| "(unset)".into()),
@@ -246,7 +261,10 @@ impl Gpu {
                 let seen: Vec<String> = adapters.iter().map(|a| a.get_info().name).collect();
                 adapters
                     .into_iter()
-                    .find(|a| a.get_info().name.to_lowercase().contains(&want))
+                    .find(|a| {
+                        a.get_info().name.to_lowercase().contains(&want)
+                            && surface.is_none_or(|s| a.is_surface_supported(s))
+                    })
                     .ok_or_else(|| {
                         no_adapter(format!(
                             "no adapter name contains '{name}' (found: {seen:?})"
@@ -256,7 +274,7 @@ impl Gpu {
             None => pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
                 power_preference: sel.power,
                 force_fallback_adapter: false,
-                compatible_surface: None,
+                compatible_surface: surface,
                 apply_limit_buckets: false,
             }))
             .map_err(|e| no_adapter(e.to_string()))?,

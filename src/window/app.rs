@@ -225,50 +225,19 @@ impl<'a> App<'a> {
             .with_inner_size(PhysicalSize::new(self.size[0], self.size[1]));
         let window = Arc::new(el.create_window(attrs)?);
         let sel = AdapterSelection::from_env();
-        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
-        desc.backends = sel.backends;
-        let instance = wgpu::Instance::new(desc);
+        let instance = crate::gpu::Gpu::instance(&sel);
         let surface = instance.create_surface(window.clone())?;
-        let adapter = match &sel.name {
-            Some(name) => {
-                let want = name.to_lowercase();
-                let adapters = pollster::block_on(instance.enumerate_adapters(sel.backends));
-                let seen: Vec<String> = adapters.iter().map(|a| a.get_info().name).collect();
-                adapters
-                    .into_iter()
-                    .find(|a| {
-                        a.get_info().name.to_lowercase().contains(&want)
-                            && a.is_surface_supported(&surface)
-                    })
-                    .ok_or_else(|| {
-                        ViewError::Present(format!(
-                            "no adapter whose name contains '{name}' can present to the \
-                             window (found: {seen:?})"
-                        ))
-                    })?
-            }
-            None => pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-                power_preference: sel.power,
-                force_fallback_adapter: false,
-                compatible_surface: Some(&surface),
-                apply_limit_buckets: false,
-            }))
-            .map_err(|e| {
-                ViewError::Present(format!(
-                    "no adapter can present to the window ({e}); set WGPU_BACKEND (e.g. \
-                     WGPU_BACKEND=vulkan with Mesa's lavapipe installed)"
-                ))
-            })?,
-        };
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("touchfem view"),
-            required_features: adapter.features() & wgpu::Features::IMMEDIATES,
-            required_limits: adapter.limits(),
-            experimental_features: wgpu::ExperimentalFeatures::disabled(),
-            memory_hints: wgpu::MemoryHints::Performance,
-            trace: wgpu::Trace::Off,
-        }))
-        .map_err(crate::gpu::GpuError::from)?;
+        let crate::gpu::Gpu {
+            instance: _,
+            adapter,
+            device,
+            queue,
+        } = crate::gpu::Gpu::with_instance(instance, &sel, Some(&surface)).map_err(|e| {
+            ViewError::Present(format!(
+                "no adapter can present to the window ({e}); set WGPU_BACKEND (e.g. \
+                 WGPU_BACKEND=vulkan with Mesa's lavapipe installed)"
+            ))
+        })?;
         let device_error: Arc<Mutex<Option<String>>> = Arc::default();
         {
             let slot = device_error.clone();
