@@ -8,6 +8,7 @@
 //! Every method is called from the haptic loop once per tick: implementations must not block
 //! or allocate.
 
+pub mod limits;
 pub mod pointer;
 mod replay;
 mod script;

@@ -21,7 +21,7 @@
 //!   its force is ramped in linearly over [`RAMP_S`] so the device does not jolt.
 //! * **No valid position** (NaN or infinite): zero force for that finger, no contact.
 
-use glam::DVec3;
+use glam::{DMat3, DVec3};
 
 use super::sample::{FingerView, WorldSample, MAX_OBJECTS};
 use crate::contact::{ContactPoint, GodObject};
@@ -53,6 +53,7 @@ pub struct HapticWorld<'w> {
     ramp_step: f64,
     max_force: f64,
     ticks: u64,
+    contacts: [Option<(usize, ContactPoint)>; MAX_FINGERS],
 }
 
 impl<'w> HapticWorld<'w> {
@@ -76,6 +77,7 @@ impl<'w> HapticWorld<'w> {
             ramp_step: 1.0 / (RAMP_S * world.haptics.rate_hz).max(1.0),
             max_force: world.haptics.max_force_n,
             ticks: 0,
+            contacts: [None; MAX_FINGERS],
         }
     }
 
@@ -192,7 +194,33 @@ impl<'w> HapticWorld<'w> {
                 force: forces[i],
             };
         }
+        self.contacts = touch;
         self.ticks += 1;
         sample.tick = self.ticks;
+    }
+
+    /// The stiffness (N/m, 3×3) of finger `i`'s contact point after the last step, `None` when
+    /// it does not touch: `Σ α_j L_jj⁻¹` for the paper's model, `W⁻¹` for the exact one (a
+    /// clamped vertex counts with the clamp compliance). What a virtual coupling is sized
+    /// against. Allocates nothing.
+    pub fn contact_stiffness(&self, i: usize) -> Option<DMat3> {
+        let (o, c) = self.contacts.get(i).copied().flatten()?;
+        let comp = &self.world.objects[o].scene.compliance;
+        match self.fingers[i].model {
+            ForceModel::Paper => {
+                let mut k = DMat3::ZERO;
+                for a in 0..3 {
+                    let kv = match comp.col_of(c.nodes[a]) {
+                        Some(col) => comp.diag_inv(col),
+                        None => DMat3::from_diagonal(DVec3::splat(1.0 / comp.clamp_compliance())),
+                    };
+                    k += kv * c.alpha[a];
+                }
+                Some(k)
+            }
+            ForceModel::Exact => {
+                crate::compliance::invert3(crate::force::point_compliance(comp, &c))
+            }
+        }
     }
 }
