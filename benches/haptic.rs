@@ -160,47 +160,64 @@ fn scene_tick(c: &mut Criterion) {
     g.finish();
 }
 
-/// What the UDP bridge adds to a haptic tick: reading the socket (nothing waiting, or one
-/// position packet waiting) and sending the force packet, over loopback.
+/// What the UDP bridge adds to a haptic tick: taking the newest position and sending the
+/// force packet, over loopback, for both clocks. With the host clock the receiver thread has
+/// already taken the datagram off the socket (waited for, untimed); with the device clock the
+/// haptic thread's wait for it (untimed: it is the time between ticks) has returned.
 fn udp_bridge(c: &mut Criterion) {
     use std::net::UdpSocket;
-    use touchfem::devices::udp::{encode_position, UdpBridge, WATCHDOG};
-    use touchfem::devices::FingerDevices;
+    use touchfem::devices::udp::{encode_position, BridgeConfig, Clock, UdpBridge};
+    use touchfem::devices::{FingerDevices, ForceState};
     let mut g = c.benchmark_group("udp_bridge");
-    let mut bridge = UdpBridge::bind("127.0.0.1:0".parse().unwrap(), false, WATCHDOG, 8.5).unwrap();
-    let to = bridge.local_addr().unwrap();
-    let client = UdpSocket::bind("127.0.0.1:0").unwrap();
-    client.set_nonblocking(true).unwrap();
-    let mut pkt = [0u8; 64];
-    let mut seq = 1u32;
-    let n = encode_position(seq, &[DVec3::new(0.01, 0.02, 0.03)], &mut pkt);
-    client.send_to(&pkt[..n], to).unwrap();
-    let mut pos = [DVec3::ZERO; 1];
-    let forces = [DVec3::new(0.1, 0.2, 0.3)];
-    let mut sink = [0u8; 256];
-    bridge.read(0.0, &mut pos);
-    g.bench_function("read_nothing_waiting", |b| {
-        b.iter(|| {
-            bridge.read(0.0, black_box(&mut pos));
-        })
-    });
-    // Only the bridge's part is timed: the client's send and receive happen outside.
-    g.bench_function("read_one_packet_and_send_force", |b| {
-        b.iter_custom(|iters| {
-            let mut total = Duration::ZERO;
-            for _ in 0..iters {
-                seq += 1;
-                let n = encode_position(seq, &[DVec3::new(0.01, 0.02, 0.03)], &mut pkt);
-                client.send_to(&pkt[..n], to).unwrap();
-                let t = std::time::Instant::now();
-                bridge.read(0.0, black_box(&mut pos));
-                bridge.write(&forces, &[true]);
-                total += t.elapsed();
-                while client.recv_from(&mut sink).is_ok() {}
-            }
-            total
-        })
-    });
+    for clock in [Clock::Host, Clock::Device] {
+        let cfg = BridgeConfig {
+            clock,
+            ..BridgeConfig::default()
+        };
+        let mut bridge = UdpBridge::bind("127.0.0.1:0".parse().unwrap(), &cfg).unwrap();
+        let to = bridge.local_addr().unwrap();
+        let client = UdpSocket::bind("127.0.0.1:0").unwrap();
+        client.set_nonblocking(true).unwrap();
+        let mut pkt = [0u8; 64];
+        let mut seq = 0u32;
+        let mut pos = [DVec3::ZERO; 1];
+        let forces = [DVec3::new(0.1, 0.2, 0.3)];
+        let state = [ForceState {
+            touching: true,
+            limited: false,
+        }];
+        let mut sink = [0u8; 256];
+        let name = match clock {
+            Clock::Host => "host_clock_read_and_send",
+            Clock::Device => "device_clock_read_and_send",
+        };
+        g.bench_function(name, |b| {
+            b.iter_custom(|iters| {
+                let mut total = Duration::ZERO;
+                for _ in 0..iters {
+                    seq += 1;
+                    let n = encode_position(seq, &[DVec3::new(0.01, 0.02, 0.03)], &mut pkt);
+                    client.send_to(&pkt[..n], to).unwrap();
+                    match clock {
+                        Clock::Host => {
+                            let want = u64::from(seq);
+                            while bridge.counters().packets_received < want {
+                                std::hint::spin_loop();
+                            }
+                        }
+                        Clock::Device => bridge.wait_reading(Duration::from_millis(20)),
+                    }
+                    let t = std::time::Instant::now();
+                    bridge.read(0.0, black_box(&mut pos));
+                    bridge.write(&forces, &state);
+                    total += t.elapsed();
+                    assert!(pos[0].is_finite());
+                    while client.recv_from(&mut sink).is_ok() {}
+                }
+                total
+            })
+        });
+    }
     g.finish();
 }
 

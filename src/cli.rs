@@ -98,6 +98,15 @@ pub struct ServeArgs {
     /// Watchdog: silence longer than this (ms) gives zero force and the stale flag.
     #[arg(long, default_value_t = 20.0)]
     pub watchdog_ms: f64,
+    /// What paces the loop: `host` (touchfem's 1 kHz deadlines) or `device` (each position
+    /// packet starts a tick, answered at once: the lowest round trip).
+    #[arg(long, default_value = "host")]
+    pub clock: crate::devices::udp::Clock,
+    /// Device limits for UDP fingers whose scene gives none: a preset (falcon, phantom-omni,
+    /// phantom-premium-1.5, delta.3, omega.3, sigma.7). The force is then rendered through a
+    /// virtual coupling sized from them.
+    #[arg(long)]
+    pub limits: Option<String>,
 }
 
 /// `touchfem replay` flags.
@@ -323,23 +332,14 @@ fn serve(a: &ServeArgs) -> Result<(), Error> {
             a.udp
         );
     }
-    let is_scene = crate::scene::SceneSource::find(&a.scene)?.is_some();
-    let mut world = crate::scene::World::load(&a.scene, "udp")?;
-    if !is_scene {
-        // A bare mesh: as many UDP fingers as a packet may carry.
-        let f = world.fingers[0].clone();
-        world.fingers = vec![f; crate::force::MAX_FINGERS];
-    }
-    if world
-        .fingers
-        .iter()
-        .any(|f| f.device != crate::scene::DeviceSpec::Udp)
-    {
-        return Err(Error::Scene(format!(
-            "scene '{}': `serve` drives udp fingers only",
-            world.name
-        )));
-    }
+    let limits = match &a.limits {
+        Some(name) => Some(
+            crate::devices::limits::DeviceLimits::named(name)
+                .map_err(|e| Error::Input(format!("--limits: {e}")))?,
+        ),
+        None => None,
+    };
+    let world = crate::runtime::serve::udp_world(&a.scene, limits.as_ref())?;
     stop_on_interrupt();
     let opts = ServeOptions {
         addr: a.udp,
@@ -347,6 +347,7 @@ fn serve(a: &ServeArgs) -> Result<(), Error> {
         seconds: a.seconds,
         record: a.record.clone(),
         watchdog: std::time::Duration::from_secs_f64(a.watchdog_ms * 1e-3),
+        clock: a.clock,
         placement: crate::threads::VisualPlacement::split(),
     };
     let report = serve(&world, &opts, &INTERRUPTED, |addr| {
@@ -367,13 +368,10 @@ fn replay(a: &ReplayArgs) -> Result<(), Error> {
     use crate::runtime::session;
     let sess = session::read(&a.file)?;
     let h = &sess.header;
-    let src = crate::scene::SceneSource {
-        name: h.scene_name.clone(),
-        text: h.scene_toml.clone(),
-        dir: h.scene_dir.clone(),
-        label: format!("the scene recorded in {}", a.file.display()),
-    };
-    let world = crate::scene::World::from_source(&src)?;
+    let world = session::world(
+        &sess,
+        &format!("the scene recorded in {}", a.file.display()),
+    )?;
     let r = session::replay(&world, &sess)?;
     if a.json {
         let mut v = serde_json::to_value(&r).expect("serialisable");

@@ -330,6 +330,7 @@ fn a_10_mm_jump_across_a_thin_plate_does_not_pop_through() {
         fingers: vec![touchfem::scene::FingerSpec {
             device: touchfem::scene::DeviceSpec::Pointer,
             model: ForceModel::Paper,
+            limits: None,
         }],
         haptics: Default::default(),
         source: String::new(),

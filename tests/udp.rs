@@ -43,6 +43,7 @@ fn with_server(secs: f64, client: impl FnOnce(SocketAddr)) -> ServeReport {
                 seconds: Some(secs),
                 record: None,
                 watchdog: Duration::from_millis(20),
+                clock: Default::default(),
                 placement: Default::default(),
             };
             serve(&world, &opts, &stop, |a| tx.send(a).unwrap()).unwrap()
@@ -282,9 +283,7 @@ fn a_vanished_client_gets_zero_force_and_may_restart_a_second_one_waits() {
 fn a_non_loopback_address_needs_an_explicit_flag() {
     let e = touchfem::devices::udp::UdpBridge::bind(
         "0.0.0.0:0".parse().unwrap(),
-        false,
-        Duration::from_millis(20),
-        8.5,
+        &touchfem::devices::udp::BridgeConfig::default(),
     )
     .unwrap_err();
     assert!(e.to_string().contains("--allow-remote"), "{e}");

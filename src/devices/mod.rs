@@ -28,6 +28,16 @@ pub trait HapticDevice: Send {
     fn set_force(&mut self, f: DVec3);
 }
 
+/// What the haptic path says about one finger's force, for devices that report it (the UDP
+/// bridge's flags).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ForceState {
+    /// The finger touches an object.
+    pub touching: bool,
+    /// A limit changed the force (saturation, or the device's coupling).
+    pub limited: bool,
+}
+
 /// Every finger's device at once: what the haptic loop reads and writes each tick. A list of
 /// one-finger [`HapticDevice`]s is one; a device that serves several fingers over one channel
 /// (the UDP bridge, [`udp::UdpBridge`]) is another.
@@ -35,8 +45,19 @@ pub trait FingerDevices: Send {
     /// Writes each finger's position (metres, scene frame; NaN: no valid reading) at `t`
     /// seconds since start into `out`.
     fn read(&mut self, t: f64, out: &mut [DVec3]);
-    /// Sends each finger its force (newtons); `touching[i]` says whether finger i touches.
-    fn write(&mut self, forces: &[DVec3], touching: &[bool]);
+    /// Sends each finger its force (newtons); `state[i]` says whether finger i touches and
+    /// whether a limit shaped its force.
+    fn write(&mut self, forces: &[DVec3], state: &[ForceState]);
+    /// Whether the device clocks the loop (each of its readings starts a tick) instead of
+    /// the loop's own deadlines. Default: no.
+    fn clocked(&self) -> bool {
+        false
+    }
+    /// For a clocked device: waits, between ticks, until its next reading arrives or
+    /// `timeout` passes. Default: returns at once.
+    fn wait_reading(&mut self, timeout: std::time::Duration) {
+        let _ = timeout;
+    }
 }
 
 impl<D: HapticDevice> FingerDevices for [D] {
@@ -45,7 +66,7 @@ impl<D: HapticDevice> FingerDevices for [D] {
             *p = d.position(t);
         }
     }
-    fn write(&mut self, forces: &[DVec3], _touching: &[bool]) {
+    fn write(&mut self, forces: &[DVec3], _state: &[ForceState]) {
         for (f, d) in forces.iter().zip(self.iter_mut()) {
             d.set_force(*f);
         }
@@ -56,8 +77,8 @@ impl<D: HapticDevice> FingerDevices for Vec<D> {
     fn read(&mut self, t: f64, out: &mut [DVec3]) {
         self.as_mut_slice().read(t, out)
     }
-    fn write(&mut self, forces: &[DVec3], touching: &[bool]) {
-        self.as_mut_slice().write(forces, touching)
+    fn write(&mut self, forces: &[DVec3], state: &[ForceState]) {
+        self.as_mut_slice().write(forces, state)
     }
 }
 

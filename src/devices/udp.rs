@@ -2,8 +2,13 @@
 //! device driver — OpenHaptics, Force Dimension, Haply, CHAI3D, a robot — sends finger positions
 //! in datagrams and receives the forces, one packet per haptic tick.
 //!
-//! * Position packets (`TFP1`, seq, n, n × xyz f64) are read from a non-blocking socket at the
-//!   start of each tick into a fixed buffer: no allocation, never a blocking call.
+//! * Two clocks ([`Clock`]). **Host** (default): the haptic loop keeps its own 1 kHz deadlines;
+//!   a receiver thread blocks on the socket, checks each datagram and hands the newest
+//!   accepted position to the loop through a wait-free triple buffer, so a tick never touches
+//!   the receiving side of the socket. **Device**: the device's own 1 kHz callback is the
+//!   clock, as in OpenHaptics' servo loop; the haptic thread waits for the next position
+//!   packet (between ticks, at most the watchdog), computes and answers at once, so a round
+//!   trip is one tick's work plus the kernel's wake-up.
 //! * A packet whose seq is not greater than the last accepted one is dropped; so is every
 //!   malformed packet (size, magic, finger count, non-finite numbers). All are counted.
 //! * The sender of the first accepted packet owns the session; packets from elsewhere are
@@ -13,13 +18,16 @@
 //!   After a stale period a client may restart with lower sequence numbers. A finger that
 //!   reappears inside the object is attached and its force ramped in (see `runtime::haptic`).
 //! * Force packets (`TFF1`, seq of the position packet used, n, n × force, n × flags) go to the
-//!   owner's address each tick; a send that would block is dropped and counted.
+//!   owner's address each tick from a fixed buffer on the non-blocking socket; a send that
+//!   would block is dropped and counted.
 
 use glam::DVec3;
 use std::net::{SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use super::FingerDevices;
+use super::{FingerDevices, ForceState};
 use crate::force::MAX_FINGERS;
 
 /// Magic of a position packet.
@@ -166,22 +174,166 @@ pub fn decode_force(b: &[u8]) -> Option<ForcePacket> {
     Some(p)
 }
 
-/// The bridge: a non-blocking UDP socket serving up to [`MAX_FINGERS`] fingers.
+/// What paces the haptic loop of a bridge.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Clock {
+    /// touchfem's own deadlines (the pacer); positions arrive through a receiver thread.
+    #[default]
+    Host,
+    /// Each position packet starts a tick, answered at once (lowest round trip).
+    Device,
+}
+
+impl std::str::FromStr for Clock {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Clock, String> {
+        match s {
+            "host" => Ok(Clock::Host),
+            "device" => Ok(Clock::Device),
+            other => Err(format!(
+                "'{other}' is not a clock: use \"host\" or \"device\""
+            )),
+        }
+    }
+}
+
+/// How a bridge is set up.
+#[derive(Clone, Copy, Debug)]
+pub struct BridgeConfig {
+    /// Allow a non-loopback address.
+    pub allow_remote: bool,
+    /// Silence after which positions are stale.
+    pub watchdog: Duration,
+    /// What paces the loop.
+    pub clock: Clock,
+}
+
+impl Default for BridgeConfig {
+    fn default() -> Self {
+        BridgeConfig {
+            allow_remote: false,
+            watchdog: WATCHDOG,
+            clock: Clock::Host,
+        }
+    }
+}
+
+/// The newest accepted position packet.
+#[derive(Clone, Copy, Debug)]
+struct Accepted {
+    packet: PositionPacket,
+    from: SocketAddr,
+    at: Instant,
+}
+
+/// The protocol's admission rules (sequence, owner, watchdog), shared by both clocks.
 #[derive(Debug)]
-pub struct UdpBridge {
-    socket: UdpSocket,
+struct Gate {
     watchdog: Duration,
-    max_force_n: f64,
     owner: Option<SocketAddr>,
     last_seq: u32,
     last_accept: Option<Instant>,
-    n: usize,
-    positions: [DVec3; MAX_FINGERS],
+}
+
+impl Gate {
+    /// Checks one datagram received at `now`; counts it, and returns it when accepted.
+    fn offer(
+        &mut self,
+        bytes: &[u8],
+        from: SocketAddr,
+        now: Instant,
+        c: &AtomicCounters,
+    ) -> Option<Accepted> {
+        c.packets_received.fetch_add(1, Ordering::Relaxed);
+        let drop = |which: &AtomicU64| {
+            c.packets_dropped.fetch_add(1, Ordering::Relaxed);
+            which.fetch_add(1, Ordering::Relaxed);
+            None
+        };
+        let Some(p) = decode_position(bytes) else {
+            return drop(&c.malformed);
+        };
+        let expired = self
+            .last_accept
+            .is_none_or(|t| now.saturating_duration_since(t) > self.watchdog);
+        if self.owner.is_some_and(|o| o != from) && !expired {
+            return drop(&c.foreign);
+        }
+        if !expired && self.owner == Some(from) && p.seq <= self.last_seq {
+            return drop(&c.out_of_order);
+        }
+        self.owner = Some(from);
+        self.last_seq = p.seq;
+        self.last_accept = Some(now);
+        Some(Accepted {
+            packet: p,
+            from,
+            at: now,
+        })
+    }
+}
+
+/// The counters, shared with the receiver thread.
+#[derive(Debug, Default)]
+struct AtomicCounters {
+    packets_received: AtomicU64,
+    packets_dropped: AtomicU64,
+    malformed: AtomicU64,
+    out_of_order: AtomicU64,
+    foreign: AtomicU64,
+    forces_sent: AtomicU64,
+    send_errors: AtomicU64,
+    stale_periods: AtomicU64,
+}
+
+impl AtomicCounters {
+    fn snapshot(&self) -> UdpCounters {
+        let g = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        UdpCounters {
+            packets_received: g(&self.packets_received),
+            packets_dropped: g(&self.packets_dropped),
+            malformed: g(&self.malformed),
+            out_of_order: g(&self.out_of_order),
+            foreign: g(&self.foreign),
+            forces_sent: g(&self.forces_sent),
+            send_errors: g(&self.send_errors),
+            stale_periods: g(&self.stale_periods),
+        }
+    }
+}
+
+/// How the positions reach the haptic thread.
+enum Inbox {
+    /// From the receiver thread, wait-free.
+    Thread {
+        latest: triple_buffer::Output<Option<Accepted>>,
+        stop: Arc<AtomicBool>,
+        handle: Option<std::thread::JoinHandle<()>>,
+    },
+    /// Read by the haptic thread itself while it waits for the next tick.
+    Direct { gate: Gate, buf: Box<[u8; 2048]> },
+}
+
+/// The bridge: serves up to [`MAX_FINGERS`] fingers over one UDP socket (see the module docs).
+pub struct UdpBridge {
+    socket: UdpSocket,
+    watchdog: Duration,
+    clock: Clock,
+    inbox: Inbox,
+    counters: Arc<AtomicCounters>,
+    latest: Option<Accepted>,
     stale: bool,
-    buf: [u8; 2048],
     out: [u8; 12 + 28 * MAX_FINGERS],
-    /// The counters.
-    pub counters: UdpCounters,
+}
+
+impl std::fmt::Debug for UdpBridge {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("UdpBridge")
+            .field("socket", &self.socket)
+            .field("clock", &self.clock)
+            .field("counters", &self.counters.snapshot())
+            .finish_non_exhaustive()
+    }
 }
 
 /// Why the bridge cannot start.
@@ -195,35 +347,61 @@ pub enum UdpError {
     Bind(SocketAddr, std::io::Error),
 }
 
+/// How long the receiver thread blocks before looking at its stop flag.
+const RECEIVER_POLL: Duration = Duration::from_millis(20);
+
 impl UdpBridge {
-    /// Binds `addr` (loopback only unless `allow_remote`) with the watchdog; forces at or above
-    /// `max_force_n` are flagged as limited.
-    pub fn bind(
-        addr: SocketAddr,
-        allow_remote: bool,
-        watchdog: Duration,
-        max_force_n: f64,
-    ) -> Result<UdpBridge, UdpError> {
-        if !addr.ip().is_loopback() && !allow_remote {
+    /// Binds `addr` (loopback only unless `cfg.allow_remote`); with [`Clock::Host`] starts the
+    /// receiver thread.
+    pub fn bind(addr: SocketAddr, cfg: &BridgeConfig) -> Result<UdpBridge, UdpError> {
+        if !addr.ip().is_loopback() && !cfg.allow_remote {
             return Err(UdpError::NotLoopback(addr));
         }
-        let socket = UdpSocket::bind(addr).map_err(|e| UdpError::Bind(addr, e))?;
-        socket
-            .set_nonblocking(true)
-            .map_err(|e| UdpError::Bind(addr, e))?;
-        Ok(UdpBridge {
-            socket,
-            watchdog,
-            max_force_n,
+        let e = |err| UdpError::Bind(addr, err);
+        let socket = UdpSocket::bind(addr).map_err(e)?;
+        let counters = Arc::new(AtomicCounters::default());
+        let gate = Gate {
+            watchdog: cfg.watchdog,
             owner: None,
             last_seq: 0,
             last_accept: None,
-            n: 0,
-            positions: [DVec3::NAN; MAX_FINGERS],
+        };
+        let inbox = match cfg.clock {
+            Clock::Host => {
+                let rx = socket.try_clone().map_err(e)?;
+                rx.set_read_timeout(Some(RECEIVER_POLL)).map_err(e)?;
+                let (input, latest) = triple_buffer::triple_buffer(&None);
+                let stop = Arc::new(AtomicBool::new(false));
+                let handle = std::thread::Builder::new()
+                    .name("touchfem-udp-rx".into())
+                    .spawn({
+                        let (stop, counters) = (stop.clone(), counters.clone());
+                        move || receive(rx, gate, input, &stop, &counters)
+                    })
+                    .map_err(e)?;
+                Inbox::Thread {
+                    latest,
+                    stop,
+                    handle: Some(handle),
+                }
+            }
+            Clock::Device => Inbox::Direct {
+                gate,
+                buf: Box::new([0; 2048]),
+            },
+        };
+        // The socket stays blocking: its reads are timed (the receiver thread's, or the
+        // haptic thread's between ticks with the device clock); sends pass MSG_DONTWAIT and
+        // never wait. (A cloned socket shares O_NONBLOCK, so the two cannot differ.)
+        Ok(UdpBridge {
+            socket,
+            watchdog: cfg.watchdog,
+            clock: cfg.clock,
+            inbox,
+            counters,
+            latest: None,
             stale: true,
-            buf: [0; 2048],
             out: [0; 12 + 28 * MAX_FINGERS],
-            counters: UdpCounters::default(),
         })
     }
 
@@ -232,68 +410,122 @@ impl UdpBridge {
         self.socket.local_addr()
     }
 
-    /// Reads every waiting datagram (non-blocking), keeping the newest valid position.
-    fn drain(&mut self, now: Instant) {
+    /// The counters so far.
+    pub fn counters(&self) -> UdpCounters {
+        self.counters.snapshot()
+    }
+
+    /// What paces this bridge's loop.
+    pub fn clock(&self) -> Clock {
+        self.clock
+    }
+
+    /// Device clock: receives until a position packet is accepted or `timeout` passes
+    /// (the caller's watchdog). Host clock: returns at once.
+    fn receive_direct(&mut self, timeout: Duration) {
+        let Inbox::Direct { gate, buf } = &mut self.inbox else {
+            return;
+        };
+        let until = Instant::now() + timeout;
         loop {
-            let (len, from) = match self.socket.recv_from(&mut self.buf) {
-                Ok(r) => r,
-                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => break,
+            let now = Instant::now();
+            if now >= until {
+                return;
+            }
+            // A zero timeout would mean "block forever".
+            let wait = (until - now).max(Duration::from_micros(1));
+            if self.socket.set_read_timeout(Some(wait)).is_err() {
+                return;
+            }
+            match self.socket.recv_from(&mut buf[..]) {
+                Ok((len, from)) => {
+                    if let Some(a) = gate.offer(&buf[..len], from, Instant::now(), &self.counters) {
+                        self.latest = Some(a);
+                        return;
+                    }
+                }
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) =>
+                {
+                    return
+                }
                 // ICMP errors from earlier sends (port unreachable) and the like: skip.
-                Err(_) => continue,
-            };
-            self.counters.packets_received += 1;
-            let Some(p) = decode_position(&self.buf[..len]) else {
-                self.counters.packets_dropped += 1;
-                self.counters.malformed += 1;
-                continue;
-            };
-            let expired = self
-                .last_accept
-                .is_none_or(|t| now.duration_since(t) > self.watchdog);
-            if self.owner.is_some_and(|o| o != from) && !expired {
-                self.counters.packets_dropped += 1;
-                self.counters.foreign += 1;
-                continue;
+                Err(_) => {}
             }
-            if !expired && self.owner == Some(from) && p.seq <= self.last_seq {
-                self.counters.packets_dropped += 1;
-                self.counters.out_of_order += 1;
-                continue;
+        }
+    }
+}
+
+/// The receiver thread: blocks on the socket, admits datagrams through the gate and publishes
+/// the newest accepted one.
+fn receive(
+    socket: UdpSocket,
+    mut gate: Gate,
+    mut out: triple_buffer::Input<Option<Accepted>>,
+    stop: &AtomicBool,
+    counters: &AtomicCounters,
+) {
+    let mut buf = [0u8; 2048];
+    while !stop.load(Ordering::Relaxed) {
+        match socket.recv_from(&mut buf) {
+            Ok((len, from)) => {
+                if let Some(a) = gate.offer(&buf[..len], from, Instant::now(), counters) {
+                    out.write(Some(a));
+                }
             }
-            self.owner = Some(from);
-            self.last_seq = p.seq;
-            self.last_accept = Some(now);
-            self.n = p.n;
-            self.positions = p.positions;
+            Err(_) => continue,
+        }
+    }
+}
+
+impl Drop for UdpBridge {
+    fn drop(&mut self) {
+        if let Inbox::Thread { stop, handle, .. } = &mut self.inbox {
+            stop.store(true, Ordering::Relaxed);
+            if let Some(h) = handle.take() {
+                let _ = h.join();
+            }
         }
     }
 }
 
 impl FingerDevices for UdpBridge {
+    fn clocked(&self) -> bool {
+        self.clock == Clock::Device
+    }
+
+    fn wait_reading(&mut self, timeout: Duration) {
+        self.receive_direct(timeout.min(self.watchdog));
+    }
+
     fn read(&mut self, _t: f64, out: &mut [DVec3]) {
-        let now = Instant::now();
-        self.drain(now);
-        let fresh = self
-            .last_accept
-            .is_some_and(|t| now.duration_since(t) <= self.watchdog);
-        if !fresh && !self.stale {
-            self.counters.stale_periods += 1;
+        if let Inbox::Thread { latest, .. } = &mut self.inbox {
+            self.latest = *latest.read();
         }
-        self.stale = !fresh;
+        let now = Instant::now();
+        let fresh = self
+            .latest
+            .filter(|a| now.saturating_duration_since(a.at) <= self.watchdog);
+        if fresh.is_none() && !self.stale {
+            self.counters.stale_periods.fetch_add(1, Ordering::Relaxed);
+        }
+        self.stale = fresh.is_none();
         for (i, o) in out.iter_mut().enumerate() {
-            *o = if fresh && i < self.n {
-                self.positions[i]
-            } else {
-                DVec3::NAN
+            *o = match fresh {
+                Some(a) if i < a.packet.n => a.packet.positions[i],
+                _ => DVec3::NAN,
             };
         }
     }
 
-    fn write(&mut self, forces: &[DVec3], touching: &[bool]) {
-        let Some(to) = self.owner else {
+    fn write(&mut self, forces: &[DVec3], state: &[ForceState]) {
+        let Some(a) = self.latest else {
             return;
         };
-        let n = self.n.min(forces.len()).clamp(1, MAX_FINGERS);
+        let n = a.packet.n.min(forces.len()).clamp(1, MAX_FINGERS);
         let mut f = [DVec3::ZERO; MAX_FINGERS];
         let mut flags = [0u32; MAX_FINGERS];
         for k in 0..n {
@@ -302,19 +534,78 @@ impl FingerDevices for UdpBridge {
                 continue;
             }
             f[k] = forces.get(k).copied().unwrap_or(DVec3::ZERO);
-            if touching.get(k).copied().unwrap_or(false) {
+            let s = state.get(k).copied().unwrap_or_default();
+            if s.touching {
                 flags[k] |= FLAG_TOUCHING;
             }
-            if f[k].length() >= self.max_force_n * (1.0 - 1e-9) {
+            if s.limited {
                 flags[k] |= FLAG_LIMITED;
             }
         }
-        let len = encode_force(self.last_seq, &f[..n], &flags[..n], &mut self.out);
-        match self.socket.send_to(&self.out[..len], to) {
-            Ok(_) => self.counters.forces_sent += 1,
-            Err(_) => self.counters.send_errors += 1,
-        }
+        let len = encode_force(a.packet.seq, &f[..n], &flags[..n], &mut self.out);
+        // MSG_DONTWAIT: a datagram send only copies into the socket buffer, and never waits
+        // for room.
+        let c = if send_dontwait(&self.socket, &self.out[..len], a.from) {
+            &self.counters.forces_sent
+        } else {
+            &self.counters.send_errors
+        };
+        c.fetch_add(1, Ordering::Relaxed);
     }
+}
+
+/// `sendto` with `MSG_DONTWAIT`: never blocks, whatever the socket's mode.
+fn send_dontwait(socket: &UdpSocket, bytes: &[u8], to: SocketAddr) -> bool {
+    use std::os::fd::AsRawFd;
+    let (storage, len) = sockaddr(to);
+    // SAFETY: `bytes` and `storage` are valid for the given lengths for the call's duration.
+    let r = unsafe {
+        libc::sendto(
+            socket.as_raw_fd(),
+            bytes.as_ptr().cast(),
+            bytes.len(),
+            libc::MSG_DONTWAIT,
+            (&storage as *const libc::sockaddr_storage).cast(),
+            len,
+        )
+    };
+    r == bytes.len() as isize
+}
+
+/// A socket address in C's form.
+fn sockaddr(a: SocketAddr) -> (libc::sockaddr_storage, libc::socklen_t) {
+    // SAFETY: sockaddr_storage is plain old data; all-zero is a valid value.
+    let mut s: libc::sockaddr_storage = unsafe { std::mem::zeroed() };
+    let len = match a {
+        SocketAddr::V4(v4) => {
+            let sin = libc::sockaddr_in {
+                sin_family: libc::AF_INET as libc::sa_family_t,
+                sin_port: v4.port().to_be(),
+                sin_addr: libc::in_addr {
+                    s_addr: u32::from_ne_bytes(v4.ip().octets()),
+                },
+                sin_zero: [0; 8],
+            };
+            // SAFETY: sockaddr_storage is larger than and aligned for sockaddr_in.
+            unsafe { std::ptr::write((&mut s as *mut libc::sockaddr_storage).cast(), sin) };
+            std::mem::size_of::<libc::sockaddr_in>()
+        }
+        SocketAddr::V6(v6) => {
+            let sin6 = libc::sockaddr_in6 {
+                sin6_family: libc::AF_INET6 as libc::sa_family_t,
+                sin6_port: v6.port().to_be(),
+                sin6_flowinfo: v6.flowinfo(),
+                sin6_addr: libc::in6_addr {
+                    s6_addr: v6.ip().octets(),
+                },
+                sin6_scope_id: v6.scope_id(),
+            };
+            // SAFETY: sockaddr_storage is larger than and aligned for sockaddr_in6.
+            unsafe { std::ptr::write((&mut s as *mut libc::sockaddr_storage).cast(), sin6) };
+            std::mem::size_of::<libc::sockaddr_in6>()
+        }
+    };
+    (s, len as libc::socklen_t)
 }
 
 #[cfg(test)]

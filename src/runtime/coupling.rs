@@ -44,6 +44,19 @@ impl VirtualCoupling {
         }
     }
 
+    /// Forgets the hand's motion and the last force: after a tick without a valid position
+    /// the next force starts from zero (rate-limited in) and no velocity is inferred across
+    /// the gap.
+    pub fn reset(&mut self) {
+        self.last_force = DVec3::ZERO;
+        self.last_x = None;
+    }
+
+    /// The coupling's stiffness `k_c`, N/m.
+    pub fn stiffness(&self) -> f64 {
+        self.k_c
+    }
+
     /// The force to send the device, given the paper's force `f` on a hand at `x` and the
     /// contact's stiffness `k` (N/m; `None` when not touching).
     pub fn render(&mut self, f: DVec3, k: Option<DMat3>, x: DVec3) -> DVec3 {

@@ -20,9 +20,14 @@
 //!   to the nearest point of that object's surface, as if it had pressed in from there, and
 //!   its force is ramped in linearly over [`RAMP_S`] so the device does not jolt.
 //! * **No valid position** (NaN or infinite): zero force for that finger, no contact.
+//! * **A finger with device limits** ([`crate::scene::FingerSpec::limits`]) feels the force
+//!   through a [`VirtualCoupling`] sized from them: stiffness at most the device's, damped,
+//!   rate-limited, reset after a tick without a valid position. The displayed deformation
+//!   and the god-object stay the paper's.
 
 use glam::{DMat3, DVec3};
 
+use super::coupling::VirtualCoupling;
 use super::sample::{FingerView, WorldSample, MAX_OBJECTS};
 use crate::contact::{ContactPoint, GodObject};
 use crate::force::{
@@ -54,6 +59,8 @@ pub struct HapticWorld<'w> {
     max_force: f64,
     ticks: u64,
     contacts: [Option<(usize, ContactPoint)>; MAX_FINGERS],
+    couplings: [Option<VirtualCoupling>; MAX_FINGERS],
+    limited: [bool; MAX_FINGERS],
 }
 
 impl<'w> HapticWorld<'w> {
@@ -70,8 +77,17 @@ impl<'w> HapticWorld<'w> {
         for (f, spec) in fingers.iter_mut().zip(&world.fingers) {
             f.model = spec.model;
         }
+        let couplings = std::array::from_fn(|i| {
+            world
+                .fingers
+                .get(i)
+                .and_then(|f| f.limits.as_ref())
+                .map(|l| VirtualCoupling::new(l, world.haptics.rate_hz))
+        });
         HapticWorld {
             world,
+            couplings,
+            limited: [false; MAX_FINGERS],
             fingers,
             n_fingers,
             ramp_step: 1.0 / (RAMP_S * world.haptics.rate_hz).max(1.0),
@@ -106,6 +122,9 @@ impl<'w> HapticWorld<'w> {
             let f = &mut self.fingers[i];
             if !x.is_finite() {
                 f.absent = true;
+                if let Some(c) = &mut self.couplings[i] {
+                    c.reset();
+                }
                 continue;
             }
             if f.absent {
@@ -134,6 +153,7 @@ impl<'w> HapticWorld<'w> {
         }
         // Forces, object by object.
         forces[..n].fill(DVec3::ZERO);
+        self.limited[..n].fill(false);
         for (o, obj) in objects.iter().take(n_obj).enumerate() {
             let comp = &obj.scene.compliance;
             let mut who = [0usize; MAX_FINGERS];
@@ -183,6 +203,23 @@ impl<'w> HapticWorld<'w> {
                     sample.bcs[o].add(col, v * scale);
                 }
                 forces[i] = if out.is_finite() { out } else { DVec3::ZERO };
+                self.limited[i] = len > self.max_force;
+            }
+        }
+        self.contacts = touch;
+        // What each hand feels: through its device's coupling, where it has one.
+        for i in 0..n {
+            let x = positions[i];
+            if !x.is_finite() {
+                continue;
+            }
+            let k = self.contact_stiffness(i);
+            if let Some(c) = &mut self.couplings[i] {
+                let paper = forces[i];
+                forces[i] = c.render(paper, k, x);
+                if (forces[i] - paper).length() > 0.01 * paper.length() + 1e-9 {
+                    self.limited[i] = true;
+                }
             }
         }
         for i in 0..n {
@@ -194,9 +231,15 @@ impl<'w> HapticWorld<'w> {
                 force: forces[i],
             };
         }
-        self.contacts = touch;
         self.ticks += 1;
         sample.tick = self.ticks;
+    }
+
+    /// Whether finger `i`'s force in the last step was changed by a limit: saturated at the
+    /// scene's `max_force_n`, or rendered by its device's coupling more than 1 % away from the
+    /// paper's force.
+    pub fn limited(&self, i: usize) -> bool {
+        self.limited.get(i).copied().unwrap_or(false)
     }
 
     /// The stiffness (N/m, 3×3) of finger `i`'s contact point after the last step, `None` when

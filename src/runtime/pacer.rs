@@ -28,6 +28,8 @@ pub struct Pacer {
     step_hist: Vec<u32>,
     missed: u64,
     ticks: u64,
+    /// Ticks are started by a device ([`Pacer::arrived`]), not by deadlines.
+    external: bool,
 }
 
 impl Pacer {
@@ -44,6 +46,7 @@ impl Pacer {
             step_hist: vec![0; STEP_BINS],
             missed: 0,
             ticks: 0,
+            external: false,
         }
     }
 
@@ -61,6 +64,20 @@ impl Pacer {
                 std::hint::spin_loop();
             }
         }
+        self.start_now()
+    }
+
+    /// Starts a tick now, for a loop clocked by its device (a reading arrived): the period
+    /// error is then the spacing of the device's readings against the nominal period, and a
+    /// tick counts as missed when its own work takes longer than a period.
+    #[inline]
+    pub fn arrived(&mut self) -> (Instant, f64) {
+        self.external = true;
+        self.start_now()
+    }
+
+    #[inline]
+    fn start_now(&mut self) -> (Instant, f64) {
         let start = Instant::now();
         if let Some(last) = self.last_start {
             let err = ((start - last).as_secs_f64() - self.period.as_secs_f64()).abs() * 1e6;
@@ -80,6 +97,12 @@ impl Pacer {
         let ns = (end - start).as_nanos() as usize;
         self.step_hist[(ns / 10).min(STEP_BINS - 1)] += 1;
         self.ticks += 1;
+        if self.external {
+            if end - start > self.period {
+                self.missed += 1;
+            }
+            return;
+        }
         self.due += self.period;
         if end > self.due {
             self.missed += 1;

@@ -9,11 +9,15 @@ use super::haptic::HapticWorld;
 use super::pacer::Pacer;
 use super::sample::{LiveStatus, SampleWriter, MAX_OBJECTS};
 use super::session::{Recorder, TickRecord};
-use crate::devices::FingerDevices;
+use crate::devices::{FingerDevices, ForceState};
 use crate::force::MAX_FINGERS;
 use crate::haptics::HapticStats;
 use crate::scene::World;
 use crate::Error;
+
+/// The longest a clocked loop waits for its device's reading before it ticks anyway (the
+/// device's own watchdog may be shorter) and looks at its stop flag.
+const CLOCKED_WAIT: std::time::Duration = std::time::Duration::from_millis(20);
 
 /// What a haptic run measured.
 #[derive(Clone, Debug, Default)]
@@ -26,8 +30,9 @@ pub struct HapticRun {
     pub records_dropped: u64,
 }
 
-/// Runs the haptic loop on the calling thread at the scene's rate until `seconds` have passed
-/// (`None`: until `status.stop`). Each tick reads every finger's device, steps the god-objects
+/// Runs the haptic loop on the calling thread at the scene's rate — or, for a device that
+/// clocks it ([`FingerDevices::clocked`]), at each of its readings — until `seconds` have
+/// passed (`None`: until `status.stop`). Each tick reads every finger's device, steps the god-objects
 /// and forces, sends each device its force, publishes the [`WorldSample`] and, if recording,
 /// queues the tick's positions and forces. Allocates nothing per tick.
 pub fn run_haptic(
@@ -45,18 +50,35 @@ pub fn run_haptic(
     let mut pacer = Pacer::new(rate);
     let mut pos = [DVec3::ZERO; MAX_FINGERS];
     let mut force = [DVec3::ZERO; MAX_FINGERS];
-    let mut touching = [false; MAX_FINGERS];
+    let mut state = [ForceState::default(); MAX_FINGERS];
     let mut out = HapticRun::default();
     let mut max_force: f64 = 0.0;
-    while limit.is_none_or(|l| pacer.ticks() < l) && !status.stop.load(Ordering::Relaxed) {
-        let (start, t) = pacer.wait();
+    // A device that clocks the loop (the UDP bridge with `--clock device`) starts each tick
+    // with its reading; the run then ends on wall time.
+    let clocked = devices.clocked();
+    let until = seconds.map(|s| std::time::Duration::from_secs_f64(s.max(0.0)));
+    let more = |p: &Pacer| match (clocked, limit, until) {
+        (false, Some(l), _) => p.ticks() < l,
+        (true, _, Some(u)) => p.elapsed() < u,
+        _ => true,
+    };
+    while more(&pacer) && !status.stop.load(Ordering::Relaxed) {
+        let (start, t) = if clocked {
+            devices.wait_reading(CLOCKED_WAIT);
+            pacer.arrived()
+        } else {
+            pacer.wait()
+        };
         devices.read(t, &mut pos[..n]);
         // Written in place into the triple buffer's back buffer: only the cache lines this
         // tick uses move between the cores (copying the whole sample cost ~3 µs a tick).
         let sample = publish.input_buffer_mut();
         hw.step(&pos[..n], &mut force[..n], sample);
-        for (t, f) in touching.iter_mut().zip(sample.fingers()) {
-            *t = f.object.is_some();
+        for (i, (s, f)) in state.iter_mut().zip(sample.fingers()).enumerate() {
+            *s = ForceState {
+                touching: f.object.is_some(),
+                limited: hw.limited(i),
+            };
         }
         for (o, m) in out
             .max_contacts
@@ -67,7 +89,7 @@ pub fn run_haptic(
             *m = (*m).max(sample.contacts(o));
         }
         publish.publish();
-        devices.write(&force[..n], &touching[..n]);
+        devices.write(&force[..n], &state[..n]);
         for f in &force[..n] {
             max_force = max_force.max(f.length());
         }

@@ -7,8 +7,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use super::{join_haptic, run_haptic, sample_channel, session, DoneGuard, LiveStatus, Visual};
-use crate::devices::udp::{UdpBridge, UdpCounters};
+use crate::devices::limits::DeviceLimits;
+use crate::devices::udp::{BridgeConfig, Clock, UdpBridge, UdpCounters};
 use crate::haptics::HapticStats;
+use crate::scene::DeviceSpec;
 use crate::scene::World;
 use crate::Error;
 
@@ -25,6 +27,8 @@ pub struct ServeOptions {
     pub record: Option<PathBuf>,
     /// The watchdog.
     pub watchdog: Duration,
+    /// What paces the loop.
+    pub clock: Clock,
     /// Core placement.
     pub placement: crate::threads::VisualPlacement,
 }
@@ -46,10 +50,37 @@ pub struct ServeReport {
     pub period_error_us_p999: f64,
     /// Largest force sent, N.
     pub max_force_n: f64,
+    /// What paced the loop: "host" or "device".
+    pub clock: String,
+    /// Each finger's device limits (`null`: the paper's force, saturated).
+    pub limits: Vec<Option<DeviceLimits>>,
     /// Every counter of the bridge.
     pub udp: UdpCounters,
     /// The haptic loop's timing.
     pub haptic: HapticStats,
+}
+
+/// The world `serve` runs: a scene whose fingers are all UDP fingers, or a bare mesh (then as
+/// many UDP fingers as a packet may carry). `limits` go to every finger whose scene gives none.
+pub fn udp_world(spec: &str, limits: Option<&DeviceLimits>) -> Result<World, Error> {
+    let is_scene = crate::scene::SceneSource::find(spec)?.is_some();
+    let mut world = World::load(spec, "udp")?;
+    if !is_scene {
+        let f = world.fingers[0].clone();
+        world.fingers = vec![f; crate::force::MAX_FINGERS];
+    }
+    if world.fingers.iter().any(|f| f.device != DeviceSpec::Udp) {
+        return Err(Error::Scene(format!(
+            "scene '{}': `serve` drives udp fingers only",
+            world.name
+        )));
+    }
+    if let Some(l) = limits {
+        for f in &mut world.fingers {
+            f.limits.get_or_insert_with(|| l.clone());
+        }
+    }
+    Ok(world)
 }
 
 /// Binds the bridge, then runs the haptic loop on the haptic core and the headless visual
@@ -61,13 +92,12 @@ pub fn serve(
     stop: &AtomicBool,
     bound: impl FnOnce(SocketAddr),
 ) -> Result<ServeReport, Error> {
-    let mut bridge = UdpBridge::bind(
-        opts.addr,
-        opts.allow_remote,
-        opts.watchdog,
-        world.haptics.max_force_n,
-    )
-    .map_err(|e| Error::Input(e.to_string()))?;
+    let cfg = BridgeConfig {
+        allow_remote: opts.allow_remote,
+        watchdog: opts.watchdog,
+        clock: opts.clock,
+    };
+    let mut bridge = UdpBridge::bind(opts.addr, &cfg).map_err(|e| Error::Input(e.to_string()))?;
     let addr = bridge
         .local_addr()
         .map_err(|e| Error::Input(format!("UDP socket: {e}")))?;
@@ -87,7 +117,7 @@ pub fn serve(
             let rec = recording.as_mut().map(|r| &mut r.0);
             let mut run = run_haptic(world, &mut bridge, opts.seconds, &mut writer, &status, rec);
             run.stats.realtime = realtime;
-            (run, bridge.counters)
+            (run, bridge.counters())
         });
         let mut visual = Visual::new(world, None);
         while !status.done.load(Ordering::Acquire) {
@@ -113,6 +143,11 @@ pub fn serve(
         missed_deadlines: run.stats.missed_deadlines,
         period_error_us_p999: run.stats.period_error_us_p999,
         max_force_n: run.stats.max_force_n,
+        clock: match opts.clock {
+            Clock::Host => "host".into(),
+            Clock::Device => "device".into(),
+        },
+        limits: world.fingers.iter().map(|f| f.limits.clone()).collect(),
         udp: counters,
         haptic: run.stats,
     })

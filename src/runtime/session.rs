@@ -53,6 +53,10 @@ pub struct SessionHeader {
     pub record_bytes: usize,
     /// What a record holds, in words.
     pub layout: String,
+    /// Each finger's device limits when it ran (they may come from the command line, not
+    /// the scene); replay renders through the same couplings. Absent in older files.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub finger_limits: Vec<Option<crate::devices::limits::DeviceLimits>>,
 }
 
 /// One tick: the fingers' positions (m) and the forces sent (N).
@@ -121,6 +125,11 @@ pub fn record(
         layout: format!(
             "per tick, little-endian f64: {n} finger position(s) [x, y, z] in m, scene frame; then {n} force(s) [fx, fy, fz] in N, as sent to the devices"
         ),
+        finger_limits: if world.fingers.iter().any(|f| f.limits.is_some()) {
+            world.fingers.iter().map(|f| f.limits.clone()).collect()
+        } else {
+            Vec::new()
+        },
     };
     let werr = |source| Error::Write {
         path: path.to_path_buf(),
@@ -247,6 +256,36 @@ pub struct ReplayReport {
     pub worst_tick: usize,
     /// Largest recorded force, N.
     pub max_force_n: f64,
+}
+
+/// The scene a session was recorded with, loaded from its header (its errors are named by
+/// `label`), with each finger's device limits as they were when it ran.
+pub fn world(session: &Session, label: &str) -> Result<World, Error> {
+    let h = &session.header;
+    let src = crate::scene::SceneSource {
+        name: h.scene_name.clone(),
+        text: h.scene_toml.clone(),
+        dir: h.scene_dir.clone(),
+        label: label.into(),
+    };
+    let mut world = World::from_source(&src)?;
+    if !h.finger_limits.is_empty() {
+        if h.finger_limits.len() != world.fingers.len() {
+            return Err(Error::Session(format!(
+                "the header gives limits for {} finger(s), the scene has {}",
+                h.finger_limits.len(),
+                world.fingers.len()
+            )));
+        }
+        for (f, l) in world.fingers.iter_mut().zip(&h.finger_limits) {
+            if let Some(l) = l {
+                l.validate()
+                    .map_err(|e| Error::Session(format!("bad finger limits: {e}")))?;
+            }
+            f.limits = l.clone();
+        }
+    }
+    Ok(world)
 }
 
 /// Runs a session's positions through `world`'s haptic path, tick by tick, and compares the

@@ -17,6 +17,7 @@ use toml::Spanned;
 use super::world::{DeviceSpec, FingerSpec, HapticSettings, Object, World};
 use super::{load_mesh, LoadOptions, Scene};
 use crate::compliance::{Compliance, NodeSet, Selection};
+use crate::devices::limits::DeviceLimits;
 use crate::force::{ForceModel, MAX_FINGERS};
 use crate::runtime::MAX_OBJECTS;
 use crate::units::LengthUnit;
@@ -75,6 +76,26 @@ struct FingerToml {
     device: Spanned<String>,
     path: Option<Spanned<Vec<[f64; 4]>>>,
     model: Option<Spanned<String>>,
+    limits: Option<Spanned<LimitsToml>>,
+}
+
+/// A finger's device limits: a preset's name, or the numbers (SI, the unit in each key).
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum LimitsToml {
+    Preset(String),
+    Numbers(LimitNumbersToml),
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LimitNumbersToml {
+    name: Option<String>,
+    max_force_n: f64,
+    max_continuous_force_n: Option<f64>,
+    max_stiffness_n_per_m: f64,
+    max_damping_ns_per_m: f64,
+    workspace_radius_m: f64,
 }
 
 #[derive(Debug, Deserialize)]
@@ -481,7 +502,32 @@ impl World {
                 let span = f.path.as_ref().map(|p| p.span()).unwrap_or(0..0);
                 return Err(at(span, "path", "only a script finger takes a path".into()));
             }
-            fingers.push(FingerSpec { device, model });
+            let limits = match &f.limits {
+                None => None,
+                Some(l) => {
+                    let span = l.span();
+                    let limits = match l.get_ref() {
+                        LimitsToml::Preset(name) => DeviceLimits::named(name),
+                        LimitsToml::Numbers(n) => {
+                            let d = DeviceLimits {
+                                name: n.name.clone().unwrap_or_else(|| "custom".into()),
+                                max_force_n: n.max_force_n,
+                                max_continuous_force_n: n.max_continuous_force_n,
+                                max_stiffness_n_per_m: n.max_stiffness_n_per_m,
+                                max_damping_ns_per_m: n.max_damping_ns_per_m,
+                                workspace_radius_m: n.workspace_radius_m,
+                            };
+                            d.validate().map(|_| d)
+                        }
+                    };
+                    Some(limits.map_err(|e| at(span, "limits", e.to_string()))?)
+                }
+            };
+            fingers.push(FingerSpec {
+                device,
+                model,
+                limits,
+            });
         }
         let mut haptics = HapticSettings::default();
         if let Some(h) = &file.haptics {

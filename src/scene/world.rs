@@ -4,6 +4,7 @@
 use glam::DVec3;
 
 use super::Scene;
+use crate::devices::limits::DeviceLimits;
 use crate::force::ForceModel;
 use crate::units::LengthUnit;
 
@@ -38,6 +39,10 @@ pub struct FingerSpec {
     /// The force formula for a single contact (several fingers on one object are always
     /// solved together; see `runtime`).
     pub model: ForceModel,
+    /// The device's limits: its force is then rendered through a virtual coupling sized from
+    /// them ([`crate::runtime::coupling`]); `None`: the paper's force, saturated at
+    /// `max_force_n`.
+    pub limits: Option<DeviceLimits>,
 }
 
 /// The haptic loop's settings.
