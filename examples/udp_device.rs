@@ -3,10 +3,11 @@
 //! device's end effector; every millisecond the client sends the position, and the force that
 //! comes back pushes on the hand. It is the shape of any real driver's 1 kHz callback
 //! (OpenHaptics' `hdScheduleAsynchronous`, Force Dimension's `dhdGetPosition`/`dhdSetForce`):
-//! read the position, send it, apply the latest force.
+//! read the position, send it, apply the latest force. With `serve --clock device` the force
+//! computed from a position comes back within the same millisecond.
 //!
 //! ```sh
-//! touchfem serve cube --udp 127.0.0.1:47800 &
+//! touchfem serve cube --udp 127.0.0.1:47800 --clock device &
 //! cargo run --release --example udp_device -- 127.0.0.1:47800 3
 //! ```
 //! Prints one JSON line: round trips (send → matching force packet), forces, packets.
@@ -18,7 +19,7 @@ use std::time::{Duration, Instant};
 use touchfem::devices::udp::{decode_force, encode_position, FLAG_TOUCHING};
 
 /// The hand: mass (kg), spring (N/m) and damper (N·s/m) towards the target.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Hand {
     /// Mass, kg.
     pub mass: f64,
@@ -46,68 +47,121 @@ pub struct ClientReport {
     pub ticks: u64,
     /// Force packets received.
     pub forces_received: u64,
+    /// Ticks whose force did not arrive in time (the previous force was held).
+    pub late: u64,
     /// Round trip from sending a position to receiving the force computed from it, µs.
     pub rtt_us_p50: f64,
     /// Its 99th percentile, µs.
     pub rtt_us_p99: f64,
+    /// Its largest value, µs.
+    pub rtt_us_max: f64,
     /// Largest force received, N.
     pub max_force_n: f64,
     /// Ticks whose latest force packet said "touching".
     pub touching_ticks: u64,
     /// The hand's final position, m.
     pub final_position: [f64; 3],
+    /// Work the device's force has done on the hand up to each tick, J (a passivity
+    /// observer in the manner of Hannaford & Ryu).
+    #[serde(skip)]
+    pub work: Vec<f64>,
+    /// The hand's position at each tick, m.
+    #[serde(skip)]
+    pub positions: Vec<DVec3>,
+}
+
+/// How the client keeps time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Timing {
+    /// Real time: one position a millisecond; the force computed from it is waited for until
+    /// the next millisecond, then the newest force is held (as a driver's servo loop does).
+    RealTime,
+    /// Simulated time: each tick waits for the force computed from its position (up to
+    /// 100 ms) before the hand moves on: the physics does not depend on the machine's load.
+    Lockstep,
 }
 
 /// Runs the hand for `seconds` against touchfem at `to`, following `target(t)`, starting at
-/// `target(0)`. Sends one position a millisecond.
+/// `target(0)`: every tick it sends the position, receives the force and integrates the hand
+/// under it (zero-order hold, ten 0.1 ms steps).
 pub fn run_client(
     to: SocketAddr,
     seconds: f64,
     hand: Hand,
+    timing: Timing,
     target: impl Fn(f64) -> DVec3,
 ) -> std::io::Result<ClientReport> {
     let sock = UdpSocket::bind("127.0.0.1:0")?;
-    sock.set_nonblocking(true)?;
     let dt = 1e-3;
-    let n = (seconds / dt) as u64;
+    let sub = 10;
+    let n = (seconds / dt).round() as u64;
     let mut x = target(0.0);
     let mut v = DVec3::ZERO;
     let mut force = DVec3::ZERO;
-    let mut sent_at = vec![None::<Instant>; n as usize + 1];
     let mut rtts = Vec::with_capacity(n as usize);
     let mut rep = ClientReport::default();
     let mut out = [0u8; 64];
     let mut inp = [0u8; 256];
+    let mut work = 0.0;
     let t0 = Instant::now();
     for i in 0..n {
         let due = t0 + Duration::from_secs_f64(i as f64 * dt);
-        while Instant::now() < due {
-            std::hint::spin_loop();
+        if timing == Timing::RealTime {
+            while Instant::now() < due {
+                std::hint::spin_loop();
+            }
         }
-        // Apply the newest force that has arrived.
-        while let Ok((len, _)) = sock.recv_from(&mut inp) {
-            if let Some(p) = decode_force(&inp[..len]) {
-                force = p.forces[0];
-                rep.forces_received += 1;
-                rep.max_force_n = rep.max_force_n.max(force.length());
+        let seq = i as u32 + 1;
+        let len = encode_position(seq, &[x], &mut out);
+        let sent = Instant::now();
+        sock.send_to(&out[..len], to)?;
+        rep.ticks += 1;
+        // Wait for the force computed from this position: until the next tick in real time,
+        // up to 100 ms in lockstep.
+        let until = match timing {
+            Timing::RealTime => due + Duration::from_secs_f64(dt),
+            Timing::Lockstep => sent + Duration::from_millis(100),
+        };
+        let mut got = false;
+        loop {
+            let now = Instant::now();
+            if now >= until {
+                break;
+            }
+            sock.set_read_timeout(Some((until - now).max(Duration::from_micros(1))))?;
+            let Ok((len, _)) = sock.recv_from(&mut inp) else {
+                break;
+            };
+            let Some(p) = decode_force(&inp[..len]) else {
+                continue;
+            };
+            rep.forces_received += 1;
+            force = p.forces[0];
+            rep.max_force_n = rep.max_force_n.max(force.length());
+            if p.seq == seq {
+                rtts.push(sent.elapsed().as_secs_f64() * 1e6);
                 if p.flags[0] & FLAG_TOUCHING != 0 {
                     rep.touching_ticks += 1;
                 }
-                if let Some(Some(s)) = sent_at.get(p.seq as usize) {
-                    rtts.push(s.elapsed().as_secs_f64() * 1e6);
-                }
+                got = true;
+                break;
             }
         }
-        // The hand: m a = k (target − x) − b v + F.
+        if !got {
+            rep.late += 1;
+        }
+        // The hand: m a = k (target − x) − b v + F, the force held over the tick.
         let t = i as f64 * dt;
-        let a = (hand.k * (target(t) - x) - hand.b * v + force) / hand.mass;
-        v += a * dt;
-        x += v * dt;
-        let seq = i as u32 + 1;
-        let len = encode_position(seq, &[x], &mut out);
-        sent_at[seq as usize] = Some(Instant::now());
-        sock.send_to(&out[..len], to)?;
-        rep.ticks += 1;
+        let h = dt / sub as f64;
+        for _ in 0..sub {
+            let a = (hand.k * (target(t) - x) - hand.b * v + force) / hand.mass;
+            v += a * h;
+            let dx = v * h;
+            work += force.dot(dx);
+            x += dx;
+        }
+        rep.work.push(work);
+        rep.positions.push(x);
     }
     rtts.sort_by(|a, b| a.total_cmp(b));
     let q = |p: f64| {
@@ -117,6 +171,7 @@ pub fn run_client(
     };
     rep.rtt_us_p50 = q(0.5);
     rep.rtt_us_p99 = q(0.99);
+    rep.rtt_us_max = q(1.0);
     rep.final_position = x.to_array();
     Ok(rep)
 }
@@ -137,7 +192,9 @@ fn main() {
         .parse()
         .expect("ADDR like 127.0.0.1:47800");
     let seconds: f64 = args.next().map_or(3.0, |s| s.parse().expect("seconds"));
-    let rep =
-        run_client(to, seconds, Hand::default(), |t| press_cube(t, seconds)).expect("UDP client");
+    let rep = run_client(to, seconds, Hand::default(), Timing::RealTime, |t| {
+        press_cube(t, seconds)
+    })
+    .expect("UDP client");
     println!("{}", serde_json::to_string(&rep).expect("serialisable"));
 }

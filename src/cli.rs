@@ -107,6 +107,10 @@ pub struct ServeArgs {
     /// virtual coupling sized from them.
     #[arg(long)]
     pub limits: Option<String>,
+    /// First measure this machine's bare-loop floor for this many seconds (reported as
+    /// `floor`), then serve.
+    #[arg(long)]
+    pub floor_seconds: Option<f64>,
 }
 
 /// `touchfem replay` flags.
@@ -320,6 +324,13 @@ fn serve(a: &ServeArgs) -> Result<(), Error> {
             return Err(Error::Input(format!("--seconds must be positive, got {s}")));
         }
     }
+    if let Some(s) = a.floor_seconds {
+        if !(s.is_finite() && (0.0..=3600.0).contains(&s)) {
+            return Err(Error::Input(format!(
+                "--floor-seconds must be between 0 and 3600, got {s}"
+            )));
+        }
+    }
     if !(a.watchdog_ms.is_finite() && a.watchdog_ms > 0.0) {
         return Err(Error::Input(format!(
             "--watchdog-ms must be positive, got {}",
@@ -349,6 +360,7 @@ fn serve(a: &ServeArgs) -> Result<(), Error> {
         watchdog: std::time::Duration::from_secs_f64(a.watchdog_ms * 1e-3),
         clock: a.clock,
         placement: crate::threads::VisualPlacement::split(),
+        floor_seconds: a.floor_seconds,
     };
     let report = serve(&world, &opts, &INTERRUPTED, |addr| {
         eprintln!("listening on udp {addr}");

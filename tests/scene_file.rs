@@ -192,6 +192,19 @@ fn bad_scene_files_name_the_key_and_the_line() {
             "[[object]]\nmesh = \"cube\"\n[[finger]]\ndevice = \"script\"\npath = [[0, 0, 0, 1], [1, 0, 0, 0.9], [1, 0, 0, 0.8]]\n",
             &["line 5", "`path`", "increase", "keyframe 3"],
         ),
+        // device limits: an unknown preset, a bad number, an unknown key
+        (
+            "[[object]]\nmesh = \"cube\"\n[[finger]]\ndevice = \"udp\"\nlimits = \"phantom\"\n",
+            &["line 5", "`limits`", "'phantom' is not a device preset", "falcon"],
+        ),
+        (
+            "[[object]]\nmesh = \"cube\"\n[[finger]]\ndevice = \"udp\"\nlimits = { max_force_n = 5.0, max_stiffness_n_per_m = -1.0, max_damping_ns_per_m = 5.0, workspace_radius_m = 0.1 }\n",
+            &["line 5", "`limits`", "max_stiffness_n_per_m must be finite and positive"],
+        ),
+        (
+            "[[object]]\nmesh = \"cube\"\n[[finger]]\ndevice = \"udp\"\nlimits = { max_force = 5.0 }\n",
+            &["line 5", "limits"],
+        ),
         // unknown device, model, unit, group
         (
             "[[object]]\nmesh = \"cube\"\n[[finger]]\ndevice = \"joystick\"\n",

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use touchfem::contact::GodObject;
 use touchfem::devices::udp::{
-    decode_force, encode_position, ForcePacket, FLAG_STALE, FLAG_TOUCHING,
+    decode_force, encode_position, Clock, ForcePacket, FLAG_STALE, FLAG_TOUCHING,
 };
 use touchfem::force::{finger_force, ForceBc, ForceModel};
 use touchfem::runtime::serve::{serve, ServeOptions, ServeReport};
@@ -32,6 +32,11 @@ fn cube_world() -> World {
 
 /// Runs `serve` for `secs` on a free loopback port in a thread; calls `client(addr)` meanwhile.
 fn with_server(secs: f64, client: impl FnOnce(SocketAddr)) -> ServeReport {
+    with_server_clocked(secs, Clock::Host, client)
+}
+
+/// [`with_server`] with the given clock.
+fn with_server_clocked(secs: f64, clock: Clock, client: impl FnOnce(SocketAddr)) -> ServeReport {
     let world = cube_world();
     let stop = AtomicBool::new(false);
     let (tx, rx) = std::sync::mpsc::channel();
@@ -43,8 +48,9 @@ fn with_server(secs: f64, client: impl FnOnce(SocketAddr)) -> ServeReport {
                 seconds: Some(secs),
                 record: None,
                 watchdog: Duration::from_millis(20),
-                clock: Default::default(),
+                clock,
                 placement: Default::default(),
+                floor_seconds: None,
             };
             serve(&world, &opts, &stop, |a| tx.send(a).unwrap()).unwrap()
         });
@@ -339,6 +345,8 @@ fn serve_reports_the_contract_keys() {
     assert_eq!(v["ticks"], 300);
 }
 
+// Shared with tests/coupling.rs, which uses what this file does not.
+#[allow(dead_code)]
 #[path = "../examples/udp_device.rs"]
 mod udp_device;
 
@@ -348,9 +356,13 @@ fn the_example_device_presses_the_cube_over_loopback() {
     let r = with_server(2.0, |addr| {
         let secs = 1.2;
         rep = Some(
-            udp_device::run_client(addr, secs, udp_device::Hand::default(), |t| {
-                udp_device::press_cube(t, secs)
-            })
+            udp_device::run_client(
+                addr,
+                secs,
+                udp_device::Hand::default(),
+                udp_device::Timing::RealTime,
+                |t| udp_device::press_cube(t, secs),
+            )
             .unwrap(),
         );
     });
@@ -364,4 +376,62 @@ fn the_example_device_presses_the_cube_over_loopback() {
     // The object pushes back: the hand rests above its target (4 mm into the top face).
     assert!(rep.final_position[2] > 0.026 + 1e-4, "{rep:?}");
     assert_eq!(r.packets_dropped, 0);
+}
+
+/// After a stale period a finger that comes back inside the object is attached at the nearest
+/// surface point and its force ramped in over `RAMP_S`: no jolt. With both clocks.
+#[test]
+fn a_press_resumed_after_a_stale_period_is_ramped_in_with_either_clock() {
+    for clock in [Clock::Host, Clock::Device] {
+        with_server_clocked(1.2, clock, |addr| {
+            let mut a = Client::new(addr);
+            let far = DVec3::new(0.5, 0.5, 0.5);
+            let mut seq = 1;
+            for k in 0..=60 {
+                let p = above().lerp(pressed(), (k as f64 / 40.0).min(1.0));
+                a.send(seq, &[p, far]);
+                seq += 1;
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            let (held, next) = a.hold(seq, &[pressed(), far], 50);
+            let held = held.unwrap().forces[0].length();
+            assert!(held > 0.05, "{clock:?}: {held}");
+            // Silence for three watchdogs: the contact is released.
+            std::thread::sleep(Duration::from_millis(60));
+            let _ = a.latest();
+            // Back, at the same pressed position: the first forces are a fraction of the
+            // held one, rising to it within the ramp.
+            let mut first = Vec::new();
+            let mut s = next;
+            for _ in 0..25 {
+                a.send(s, &[pressed(), far]);
+                s += 1;
+                std::thread::sleep(Duration::from_millis(1));
+                if let Some(f) = a.latest() {
+                    if f.flags[0] & FLAG_STALE == 0 {
+                        first.push(f.forces[0].length());
+                    }
+                }
+            }
+            let (back, _) = a.hold(s, &[pressed(), far], 150);
+            let back = back.unwrap().forces[0].length();
+            eprintln!(
+                "{clock:?}: held {held:.4} N, first after the gap {first:?}, back {back:.4} N"
+            );
+            assert!(!first.is_empty(), "{clock:?}: forces resumed");
+            assert!(
+                first[0] < 0.35 * held,
+                "{clock:?}: no jolt: {} of {held}",
+                first[0]
+            );
+            assert!(
+                first.windows(2).all(|w| w[1] >= w[0] - 1e-12),
+                "{clock:?}: the ramp rises: {first:?}"
+            );
+            assert!(
+                (back - held).abs() < 0.02 * held,
+                "{clock:?}: {back} vs {held}"
+            );
+        });
+    }
 }

@@ -31,6 +31,10 @@ pub struct ServeOptions {
     pub clock: Clock,
     /// Core placement.
     pub placement: crate::threads::VisualPlacement,
+    /// Seconds of the bare-loop floor ([`crate::runtime::pacer::run_floor`]) to measure on
+    /// the haptic core before serving, so the loop's timing can be judged against this
+    /// machine's in the same run.
+    pub floor_seconds: Option<f64>,
 }
 
 /// The report of `serve` (keys in CONTRACTS.md).
@@ -58,6 +62,9 @@ pub struct ServeReport {
     pub udp: UdpCounters,
     /// The haptic loop's timing.
     pub haptic: HapticStats,
+    /// The bare-loop floor measured before serving (`--floor-seconds`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub floor: Option<HapticStats>,
 }
 
 /// The world `serve` runs: a scene whose fingers are all UDP fingers, or a bare mesh (then as
@@ -92,6 +99,21 @@ pub fn serve(
     stop: &AtomicBool,
     bound: impl FnOnce(SocketAddr),
 ) -> Result<ServeReport, Error> {
+    let floor = match opts.floor_seconds {
+        Some(secs) => Some(std::thread::scope(|sc| {
+            sc.spawn(|| {
+                opts.placement.enter_haptic();
+                let realtime = crate::haptics::try_realtime_priority();
+                let mut f = super::pacer::run_floor(world.haptics.rate_hz, secs, stop);
+                f.realtime = realtime;
+                opts.placement.leave();
+                f
+            })
+            .join()
+            .map_err(|_| Error::HapticThread("the floor loop panicked".into()))
+        })?),
+        None => None,
+    };
     let cfg = BridgeConfig {
         allow_remote: opts.allow_remote,
         watchdog: opts.watchdog,
@@ -150,6 +172,7 @@ pub fn serve(
         limits: world.fingers.iter().map(|f| f.limits.clone()).collect(),
         udp: counters,
         haptic: run.stats,
+        floor,
     })
 }
 
