@@ -196,15 +196,18 @@ fn udp_bridge(c: &mut Criterion) {
                 let mut total = Duration::ZERO;
                 for _ in 0..iters {
                     seq += 1;
-                    let n = encode_position(seq, &[DVec3::new(0.01, 0.02, 0.03)], &mut pkt);
+                    // A new position each time, so the wait below sees this packet arrive.
+                    let p = DVec3::new(0.01, 0.02, 1e-6 * f64::from(seq % 1000));
+                    let n = encode_position(seq, &[p], &mut pkt);
                     client.send_to(&pkt[..n], to).unwrap();
                     match clock {
-                        Clock::Host => {
-                            let want = u64::from(seq);
-                            while bridge.counters().packets_received < want {
-                                std::hint::spin_loop();
+                        Clock::Host => loop {
+                            bridge.read(0.0, &mut pos);
+                            if pos[0] == p {
+                                break;
                             }
-                        }
+                            std::hint::spin_loop();
+                        },
                         Clock::Device => bridge.wait_reading(Duration::from_millis(20)),
                     }
                     let t = std::time::Instant::now();

@@ -107,6 +107,11 @@ pub fn run_client(
     for i in 0..n {
         let due = t0 + Duration::from_secs_f64(i as f64 * dt);
         if timing == Timing::RealTime {
+            // Sleep, then spin the last 200 µs (sleeping all the way wakes late).
+            let now = Instant::now();
+            if due > now + Duration::from_micros(300) {
+                std::thread::sleep(due - now - Duration::from_micros(200));
+            }
             while Instant::now() < due {
                 std::hint::spin_loop();
             }
@@ -192,6 +197,9 @@ fn main() {
         .parse()
         .expect("ADDR like 127.0.0.1:47800");
     let seconds: f64 = args.next().map_or(3.0, |s| s.parse().expect("seconds"));
+    // A driver's servo loop runs at real-time priority where the OS allows it.
+    let realtime = touchfem::haptics::try_realtime_priority();
+    eprintln!("client: real-time priority {realtime}");
     let rep = run_client(to, seconds, Hand::default(), Timing::RealTime, |t| {
         press_cube(t, seconds)
     })

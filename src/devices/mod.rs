@@ -54,9 +54,10 @@ pub trait FingerDevices: Send {
         false
     }
     /// For a clocked device: waits, between ticks, until its next reading arrives or
-    /// `timeout` passes. Default: returns at once.
-    fn wait_reading(&mut self, timeout: std::time::Duration) {
+    /// `timeout` passes; returns whether one arrived. Default: returns `true` at once.
+    fn wait_reading(&mut self, timeout: std::time::Duration) -> bool {
         let _ = timeout;
+        true
     }
 }
 

@@ -421,27 +421,27 @@ impl UdpBridge {
     }
 
     /// Device clock: receives until a position packet is accepted or `timeout` passes
-    /// (the caller's watchdog). Host clock: returns at once.
-    fn receive_direct(&mut self, timeout: Duration) {
+    /// (the caller's watchdog); returns whether one was. Host clock: returns `true` at once.
+    fn receive_direct(&mut self, timeout: Duration) -> bool {
         let Inbox::Direct { gate, buf } = &mut self.inbox else {
-            return;
+            return true;
         };
         let until = Instant::now() + timeout;
         loop {
             let now = Instant::now();
             if now >= until {
-                return;
+                return false;
             }
             // A zero timeout would mean "block forever".
             let wait = (until - now).max(Duration::from_micros(1));
             if self.socket.set_read_timeout(Some(wait)).is_err() {
-                return;
+                return false;
             }
             match self.socket.recv_from(&mut buf[..]) {
                 Ok((len, from)) => {
                     if let Some(a) = gate.offer(&buf[..len], from, Instant::now(), &self.counters) {
                         self.latest = Some(a);
-                        return;
+                        return true;
                     }
                 }
                 Err(e)
@@ -450,7 +450,7 @@ impl UdpBridge {
                         std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
                     ) =>
                 {
-                    return
+                    return false
                 }
                 // ICMP errors from earlier sends (port unreachable) and the like: skip.
                 Err(_) => {}
@@ -497,8 +497,8 @@ impl FingerDevices for UdpBridge {
         self.clock == Clock::Device
     }
 
-    fn wait_reading(&mut self, timeout: Duration) {
-        self.receive_direct(timeout.min(self.watchdog));
+    fn wait_reading(&mut self, timeout: Duration) -> bool {
+        self.receive_direct(timeout.min(self.watchdog))
     }
 
     fn read(&mut self, _t: f64, out: &mut [DVec3]) {

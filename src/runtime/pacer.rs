@@ -30,6 +30,8 @@ pub struct Pacer {
     ticks: u64,
     /// Ticks are started by a device ([`Pacer::arrived`]), not by deadlines.
     external: bool,
+    /// When the device's previous reading started a tick.
+    prev_reading: Option<Instant>,
 }
 
 impl Pacer {
@@ -47,6 +49,7 @@ impl Pacer {
             missed: 0,
             ticks: 0,
             external: false,
+            prev_reading: None,
         }
     }
 
@@ -67,13 +70,27 @@ impl Pacer {
         self.start_now()
     }
 
-    /// Starts a tick now, for a loop clocked by its device (a reading arrived): the period
-    /// error is then the spacing of the device's readings against the nominal period, and a
-    /// tick counts as missed when its own work takes longer than a period.
+    /// Starts a tick now, for a loop clocked by its device: `reading` says whether a reading
+    /// arrived (else the wait timed out). The period error is then the spacing of consecutive
+    /// readings against the nominal period, and a tick counts as missed when its own work
+    /// takes longer than a period.
     #[inline]
-    pub fn arrived(&mut self) -> (Instant, f64) {
+    pub fn arrived(&mut self, reading: bool) -> (Instant, f64) {
         self.external = true;
-        self.start_now()
+        let start = Instant::now();
+        self.first_start.get_or_insert(start);
+        if reading {
+            if let Some(prev) = self.prev_reading {
+                let err = ((start - prev).as_secs_f64() - self.period.as_secs_f64()).abs() * 1e6;
+                self.err_hist[(err as usize).min(ERR_BINS - 1)] += 1;
+            }
+            self.prev_reading = Some(start);
+        } else {
+            // Not a tick of the device's clock: the next reading's spacing is not measured.
+            self.prev_reading = None;
+        }
+        self.last_start = Some(start);
+        (start, (start - self.t0).as_secs_f64())
     }
 
     #[inline]

@@ -64,8 +64,8 @@ pub fn run_haptic(
     };
     while more(&pacer) && !status.stop.load(Ordering::Relaxed) {
         let (start, t) = if clocked {
-            devices.wait_reading(CLOCKED_WAIT);
-            pacer.arrived()
+            let reading = devices.wait_reading(CLOCKED_WAIT);
+            pacer.arrived(reading)
         } else {
             pacer.wait()
         };
