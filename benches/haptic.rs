@@ -208,7 +208,9 @@ fn udp_bridge(c: &mut Criterion) {
                             }
                             std::hint::spin_loop();
                         },
-                        Clock::Device => bridge.wait_reading(Duration::from_millis(20)),
+                        Clock::Device => {
+                            assert!(bridge.wait_reading(Duration::from_millis(20)));
+                        }
                     }
                     let t = std::time::Instant::now();
                     bridge.read(0.0, black_box(&mut pos));
