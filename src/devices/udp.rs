@@ -18,7 +18,7 @@
 //!   After a stale period a client may restart with lower sequence numbers. A finger that
 //!   reappears inside the object is attached and its force ramped in (see `runtime::haptic`).
 //! * Force packets (`TFF1`, seq of the position packet used, n, n × force, n × flags) go to the
-//!   owner's address each tick from a fixed buffer on the non-blocking socket; a send that
+//!   owner's address each tick from a fixed buffer with `MSG_DONTWAIT`; a send that
 //!   would block is dropped and counted.
 
 use glam::DVec3;
