@@ -197,8 +197,13 @@ fn main() {
         .parse()
         .expect("ADDR like 127.0.0.1:47800");
     let seconds: f64 = args.next().map_or(3.0, |s| s.parse().expect("seconds"));
-    // A driver's servo loop runs at real-time priority where the OS allows it.
-    let realtime = touchfem::haptics::try_realtime_priority();
+    // A driver's servo loop runs at real-time priority where the OS allows it; here one step
+    // below touchfem's haptic loop (SCHED_FIFO 80), so on a shared core it never delays it.
+    // SAFETY: plain FFI call on the current thread with a fully initialised parameter.
+    let realtime = unsafe {
+        let param = libc::sched_param { sched_priority: 70 };
+        libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) == 0
+    };
     eprintln!("client: real-time priority {realtime}");
     let rep = run_client(to, seconds, Hand::default(), Timing::RealTime, |t| {
         press_cube(t, seconds)
