@@ -111,6 +111,13 @@ pub struct ServeArgs {
     /// `floor`), then serve.
     #[arg(long)]
     pub floor_seconds: Option<f64>,
+    /// Show the object in the `view` window (fingers, god-objects, deformation) instead of
+    /// updating it headless; closing the window ends the run.
+    #[arg(long)]
+    pub view: bool,
+    /// The window's size with `--view`, WxH pixels.
+    #[arg(long, default_value = "640x480", value_parser = parse_size)]
+    pub size: [u32; 2],
 }
 
 /// `touchfem replay` flags.
@@ -362,9 +369,12 @@ fn serve(a: &ServeArgs) -> Result<(), Error> {
         placement: crate::threads::VisualPlacement::split(),
         floor_seconds: a.floor_seconds,
     };
-    let report = serve(&world, &opts, &INTERRUPTED, |addr| {
-        eprintln!("listening on udp {addr}");
-    })?;
+    let bound = |addr| eprintln!("listening on udp {addr}");
+    let report = if a.view {
+        crate::window::cli::serve_view(&world, &opts, &INTERRUPTED, a.size, bound)?
+    } else {
+        serve(&world, &opts, &INTERRUPTED, bound)?
+    };
     let json = serde_json::to_string_pretty(&report).expect("serialisable");
     match &a.report {
         Some(path) => std::fs::write(path, json).map_err(|source| Error::Write {

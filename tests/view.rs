@@ -438,3 +438,167 @@ fn render_frame_draws_objects_at_their_offsets() {
         assert!(runs.iter().all(|(a, b)| b - a > size[0] / 8), "{runs:?}");
     }
 }
+
+/// `touchfem serve cube --udp … --view`: the window shows what a UDP client presses. Under
+/// Xvfb: a client presses the top face 5 mm over loopback; the window's picture changes around
+/// the top while the corners do not, the client feels the force, and Ctrl-C (SIGINT) ends the
+/// run with a report (no packet lost).
+#[test]
+fn serve_view_shows_a_udp_press_in_the_window() {
+    use touchfem::devices::udp::{decode_force, encode_position};
+    require_tools();
+    let dir = out_dir();
+    let n = free_display();
+    let display = format!(":{n}");
+    let xvfb = Command::new("Xvfb")
+        .args([&display, "-screen", "0", "1024x768x24", "-nolisten", "tcp"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start Xvfb");
+    let mut xvfb = KillOnDrop(xvfb);
+    let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
+    wait_until(
+        "Xvfb's socket",
+        Duration::from_secs(15),
+        &mut xvfb.0,
+        || socket.exists(),
+    );
+    let report = dir.join("serve-view.json");
+    let _ = std::fs::remove_file(&report);
+    let stderr_path = dir.join("serve-view.stderr.txt");
+    let backend = std::env::var("WGPU_BACKEND").unwrap_or_else(|_| "vulkan".into());
+    let child = Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args([
+            "serve",
+            "cube",
+            "--udp",
+            "127.0.0.1:0",
+            "--view",
+            "--size",
+            &format!("{}x{}", SIZE[0], SIZE[1]),
+            "--report",
+            report.to_str().unwrap(),
+        ])
+        .env("DISPLAY", &display)
+        .env("WGPU_BACKEND", backend)
+        .env("TOUCHFEM_CACHE_DIR", "")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&stderr_path).unwrap())
+        .spawn()
+        .expect("start touchfem serve --view");
+    let mut serve = KillOnDrop(child);
+    let mut addr = None;
+    wait_until(
+        "serve's address",
+        Duration::from_secs(60),
+        &mut serve.0,
+        || {
+            let err = std::fs::read_to_string(&stderr_path).unwrap_or_default();
+            addr = err
+                .lines()
+                .find_map(|l| l.strip_prefix("listening on udp "))
+                .and_then(|a| a.trim().parse::<std::net::SocketAddr>().ok());
+            addr.is_some()
+        },
+    );
+    let addr = addr.unwrap();
+    let win = loop {
+        let out = Command::new("xdotool")
+            .args(["search", "--name", "touchfem serve"])
+            .env("DISPLAY", &display)
+            .output()
+            .expect("xdotool search");
+        if let Some(w) = String::from_utf8_lossy(&out.stdout).lines().next() {
+            break w.trim().to_string();
+        }
+        wait_until("the window", Duration::from_secs(60), &mut serve.0, || {
+            std::thread::sleep(Duration::from_millis(200));
+            true
+        });
+    };
+    std::thread::sleep(Duration::from_millis(1500));
+    let before = capture(&display, &win, &dir.join("serve-before.png"));
+
+    // The client: from 6 mm above the top face's centre to 5 mm into it over 0.3 s, held.
+    let client = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    client.set_nonblocking(true).unwrap();
+    let mm = 1e-3;
+    let mut force: f64 = 0.0;
+    let (mut buf, mut inp) = ([0u8; 64], [0u8; 256]);
+    let t0 = Instant::now();
+    let mut during = None;
+    let mut seq = 0u32;
+    while t0.elapsed() < Duration::from_secs(4) {
+        let s = (t0.elapsed().as_secs_f64() / 0.3).min(1.0);
+        let p = DVec3::new(15.0, 15.0, 36.0 - 11.0 * s) * mm;
+        seq += 1;
+        let len = encode_position(seq, &[p], &mut buf);
+        client.send_to(&buf[..len], addr).unwrap();
+        while let Ok((len, _)) = client.recv_from(&mut inp) {
+            if let Some(f) = decode_force(&inp[..len]) {
+                force = force.max(f.forces[0].length());
+            }
+        }
+        if during.is_none() && t0.elapsed() > Duration::from_secs(2) {
+            during = Some(capture(&display, &win, &dir.join("serve-during.png")));
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let during = during.unwrap();
+    let (lo, hi) = (DVec3::ZERO, DVec3::splat(0.03));
+    let camera =
+        touchfem::render::Orbit::framing(lo, hi, f64::from(SIZE[0]) / f64::from(SIZE[1])).camera();
+    let [px, py] = camera
+        .project(DVec3::new(0.015, 0.015, 0.03), SIZE)
+        .expect("the top face is in view");
+    let (px, py) = (px.round() as u32, py.round() as u32);
+    let near = changed(
+        &before,
+        &during,
+        [
+            px.saturating_sub(70),
+            py.saturating_sub(90),
+            px + 70,
+            py + 90,
+        ],
+        24,
+    );
+    let (w, h) = (SIZE[0], SIZE[1]);
+    let corner = changed(&before, &during, [0, h - 60, 60, h], 2)
+        + changed(&before, &during, [w - 60, h - 60, w, h], 2);
+    eprintln!(
+        "serve --view: {:.1} % changed around the press, max |F| {force:.3} N",
+        100.0 * near
+    );
+    assert!(
+        near > 0.05,
+        "only {:.1} % changed around the press",
+        100.0 * near
+    );
+    assert_eq!(corner, 0.0, "a corner changed");
+    assert!(force > 0.05, "the client felt {force} N");
+
+    // Ctrl-C ends the run: the window closes and the report is written.
+    // SAFETY: kill(2) on our own child's pid, which has not been reaped yet.
+    unsafe {
+        libc::kill(serve.0.id() as libc::pid_t, libc::SIGINT);
+    }
+    wait_until(
+        "serve to end on SIGINT",
+        Duration::from_secs(20),
+        &mut xvfb.0,
+        || matches!(serve.0.try_wait(), Ok(Some(_))),
+    );
+    let status = serve.0.wait().unwrap();
+    assert!(status.success(), "serve --view exited with {status}");
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    eprintln!(
+        "report: ticks {}, packets {}",
+        r["ticks"], r["packets_received"]
+    );
+    assert!(r["packets_received"].as_u64().unwrap() > 1000, "{r}");
+    assert_eq!(r["packets_dropped"].as_u64(), Some(0), "{r}");
+    assert!(r["max_force_n"].as_f64().unwrap() > 0.05, "{r}");
+}

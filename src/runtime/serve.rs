@@ -6,7 +6,9 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use super::{join_haptic, run_haptic, sample_channel, session, DoneGuard, LiveStatus, Visual};
+use super::{
+    join_haptic, run_haptic, sample_channel, session, DoneGuard, LiveStatus, SampleReader, Visual,
+};
 use crate::devices::limits::DeviceLimits;
 use crate::devices::udp::{BridgeConfig, Clock, UdpBridge, UdpCounters};
 use crate::haptics::HapticStats;
@@ -99,6 +101,33 @@ pub fn serve(
     stop: &AtomicBool,
     bound: impl FnOnce(SocketAddr),
 ) -> Result<ServeReport, Error> {
+    serve_with(world, opts, stop, bound, |reader, status| {
+        headless(world, reader, status);
+        Ok(())
+    })
+}
+
+/// The headless visual loop: the displacement update (GPU, CPU fallback) at up to 100 Hz
+/// until the haptic loop ends.
+pub fn headless(world: &World, mut reader: SampleReader, status: &LiveStatus) {
+    let mut visual = Visual::new(world, None);
+    while !status.done.load(Ordering::Acquire) {
+        visual.update(reader.read());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// [`serve`] with the visual loop given: `visual(reader, status)` runs on the calling thread
+/// (the visual core) beside the haptic loop — headless ([`headless`]) or a window — and should
+/// return once `status.done` is set; when it returns first, the haptic loop is stopped.
+/// Setting `stop` stops the haptic loop.
+pub fn serve_with(
+    world: &World,
+    opts: &ServeOptions,
+    stop: &AtomicBool,
+    bound: impl FnOnce(SocketAddr),
+    visual: impl FnOnce(SampleReader, &LiveStatus) -> Result<(), Error>,
+) -> Result<ServeReport, Error> {
     let floor = match opts.floor_seconds {
         Some(secs) => Some(std::thread::scope(|sc| {
             sc.spawn(|| {
@@ -129,9 +158,9 @@ pub fn serve(
         None => None,
     };
     bound(addr);
-    let (mut writer, mut reader) = sample_channel();
+    let (mut writer, reader) = sample_channel();
     let status = LiveStatus::default();
-    let (run, counters) = std::thread::scope(|sc| {
+    let (run, counters, shown) = std::thread::scope(|sc| {
         let h = sc.spawn(|| {
             let _g = DoneGuard(&status);
             opts.placement.enter_haptic();
@@ -141,17 +170,21 @@ pub fn serve(
             run.stats.realtime = realtime;
             (run, bridge.counters())
         });
-        let mut visual = Visual::new(world, None);
-        while !status.done.load(Ordering::Acquire) {
-            if stop.load(Ordering::Relaxed) {
-                status.stop.store(true, Ordering::Relaxed);
+        // `stop` (Ctrl-C) reaches the haptic loop whatever the visual loop does.
+        sc.spawn(|| {
+            while !status.done.load(Ordering::Acquire) {
+                if stop.load(Ordering::Relaxed) {
+                    status.stop.store(true, Ordering::Relaxed);
+                }
+                std::thread::sleep(Duration::from_millis(10));
             }
-            visual.update(reader.read());
-            std::thread::sleep(Duration::from_millis(10));
-        }
+        });
+        let shown = visual(reader, &status);
+        status.stop.store(true, Ordering::Relaxed);
         opts.placement.leave();
-        join_haptic(h)
+        join_haptic(h).map(|(run, counters)| (run, counters, shown))
     })?;
+    shown?;
     if let Some((rec, w)) = recording {
         drop(rec);
         w.join()

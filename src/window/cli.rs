@@ -115,3 +115,26 @@ pub fn view_command(args: &crate::cli::ViewArgs) -> Result<(), Error> {
     );
     Ok(())
 }
+
+/// `touchfem serve … --view`: the UDP fingers' haptic loop ([`crate::runtime::serve`]) with
+/// the window as its visual loop (on this thread; it closes when the loop ends, and closing it
+/// ends the loop).
+pub fn serve_view(
+    world: &World,
+    opts: &crate::runtime::serve::ServeOptions,
+    stop: &std::sync::atomic::AtomicBool,
+    size: [u32; 2],
+    bound: impl FnOnce(std::net::SocketAddr),
+) -> Result<crate::runtime::serve::ServeReport, Error> {
+    if std::env::var_os("LP_NUM_THREADS").is_none() {
+        std::env::set_var("LP_NUM_THREADS", "0");
+    }
+    let wopts = WindowOptions {
+        size,
+        title: format!("touchfem serve: {}", world.name),
+    };
+    crate::runtime::serve::serve_with(world, opts, stop, bound, |reader, status| {
+        super::run(world, reader, status, None, &wopts)?;
+        Ok(())
+    })
+}
