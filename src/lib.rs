@@ -18,6 +18,7 @@
 #![warn(missing_docs)]
 
 pub mod cache;
+pub mod cg;
 pub mod cli;
 pub mod compliance;
 pub mod contact;

@@ -4,7 +4,9 @@
 //! a direct sparse solve to round-off): `cpu-f64`, `cpu-f32`, `direct-sparse` (a fresh
 //! factorisation-free solve with the kept Cholesky factor, per frame), and the GPU pass where the
 //! caller adds it. Haptic force (error = how far the contact point misses the finger, relative to
-//! the finger's displacement): `force-paper` (eq. 9–12) and `force-exact`.
+//! the finger's displacement): `force-paper` (eq. 9–12) and `force-exact`. The iterative
+//! alternative: `cg-TOL`, block-Jacobi conjugate gradient warm-started from the previous frame
+//! ([`crate::cg`]), at tolerances 1e-2 … 1e-10.
 
 use glam::{DVec3, Vec3};
 use std::time::Instant;
@@ -151,6 +153,7 @@ pub fn cpu_rows(
             time_us: tds,
             rel_error: rel_err(&direct, &reference),
         });
+        rows.extend(cg_rows(name, scene, &stiff, &forces, reps));
     }
     rows.extend(force_rows(name, scene, reps)?);
     Ok(rows)
@@ -363,4 +366,65 @@ fn gpu_frame(
         .poll(wgpu::PollType::wait_indefinitely())
         .map(|_| ())
         .map_err(|e| crate::Error::Input(format!("GPU poll: {e}")))
+}
+
+/// Conjugate-gradient rows: a finger pressing a little deeper each frame (the forces grow by
+/// 0.5 % a frame), each frame solved by block-Jacobi CG warm-started from the last, at
+/// tolerances 1e-2 … 1e-10. Time: median per frame; error: the last frame against its
+/// precomputed f64 product.
+fn cg_rows(
+    name: &str,
+    scene: &Scene,
+    stiff: &crate::fem::Stiffness,
+    forces: &[(u32, DVec3)],
+    reps: usize,
+) -> Vec<Row> {
+    let c = &scene.compliance;
+    let nr = c.rows().len();
+    let frames = reps.clamp(5, 40);
+    let mut out = Vec::new();
+    for tol in [1e-2, 1e-4, 1e-6, 1e-8, 1e-10] {
+        let mut cg = crate::cg::CgSolver::new(stiff);
+        let mut b = vec![0.0; stiff.dofs.n_free];
+        let mut u = vec![DVec3::ZERO; nr];
+        let mut times = Vec::with_capacity(frames);
+        let mut last = Vec::new();
+        for frame in 0..frames {
+            let s = 1.0 + 0.005 * frame as f64;
+            last = forces
+                .iter()
+                .map(|&(col, f)| (col, f * s))
+                .collect::<Vec<_>>();
+            let t = std::time::Instant::now();
+            b.fill(0.0);
+            for &(col, f) in &last {
+                let node = c.cols()[col as usize];
+                for a in 0..3 {
+                    if let Some(d) = stiff.dofs.free(node, a) {
+                        b[d] += f[a];
+                    }
+                }
+            }
+            cg.solve(&b, tol, 20_000);
+            let x = cg.solution();
+            for (r, &node) in c.rows().iter().enumerate() {
+                u[r] = DVec3::from_array(std::array::from_fn(|a| {
+                    stiff.dofs.free(node, a).map(|d| x[d]).unwrap_or(0.0)
+                }));
+            }
+            times.push(t.elapsed().as_secs_f64() * 1e6);
+        }
+        let mut reference = vec![DVec3::ZERO; nr];
+        c.displace(&last, &mut reference);
+        times.sort_by(|a, b| a.total_cmp(b));
+        out.push(Row {
+            method: format!("cg-{tol:e}"),
+            mesh: name.into(),
+            nodes: scene.mesh.nodes.len(),
+            active_columns: forces.len(),
+            time_us: times[times.len() / 2],
+            rel_error: rel_err(&u, &reference),
+        });
+    }
+    out
 }
