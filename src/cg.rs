@@ -42,10 +42,10 @@ impl<'k> CgSolver<'k> {
         while d < n {
             let node = k.dofs.owner[d].0;
             let mut b = [[0.0; 3]; 3];
-            for j in 0..3 {
+            for (j, col) in b.iter_mut().enumerate() {
                 for (r, v) in mat.row_idx_of_col(d + j).zip(mat.val_of_col(d + j)) {
                     if (d..d + 3).contains(&r) {
-                        b[j][r - d] = *v;
+                        col[r - d] = *v;
                     }
                 }
             }
@@ -116,7 +116,8 @@ impl<'k> CgSolver<'k> {
             it += 1;
             self.k.mul(&self.p, &mut self.q);
             let pq = dot(&self.p, &self.q);
-            if !(pq > 0.0) {
+            // Not positive (or NaN): K is not positive definite along p; stop.
+            if pq.is_nan() || pq <= 0.0 {
                 break;
             }
             let alpha = rz / pq;
