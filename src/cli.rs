@@ -230,6 +230,9 @@ pub fn parse_vec3(s: &str) -> Result<DVec3, String> {
 
 /// Runs the command line; returns the process exit code.
 pub fn run(cli: Cli) -> Result<(), Error> {
+    if !matches!(cli.command, Command::View(_)) {
+        headless_vulkan();
+    }
     match cli.command {
         Command::Info { mesh, load, json } => info(&mesh, &load, json),
         Command::Poke(args) => poke(&args),
@@ -238,6 +241,24 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Serve(args) => serve(&args),
         Command::Bench(args) => bench(&args),
         Command::View(args) => crate::window::view_command(&args),
+    }
+}
+
+/// Every command but `view` draws offscreen: no window system is involved. Mesa's implicit
+/// Vulkan layer `VK_LAYER_MESA_device_select` nevertheless probes the window systems while the
+/// adapters are enumerated (wgpu enables the Wayland, Xlib and XCB surface extensions on every
+/// instance), to put the GPU that drives the display first; without `XDG_RUNTIME_DIR`
+/// libwayland prints `error: XDG_RUNTIME_DIR is invalid or not set in the environment.` twice,
+/// on every run. Offscreen there is no display whose GPU to prefer, and wgpu chooses the
+/// adapter itself (`WGPU_BACKEND`, `WGPU_ADAPTER_NAME`, `WGPU_POWER_PREF`), so the layer is
+/// turned off with its own switch, `NODEVICE_SELECT=1` — unless the user set it, or asked the
+/// layer for a device with `MESA_VK_DEVICE_SELECT`. Nothing is filtered: a real adapter error
+/// is still reported. Call before any thread is spawned.
+fn headless_vulkan() {
+    if std::env::var_os("NODEVICE_SELECT").is_none()
+        && std::env::var_os("MESA_VK_DEVICE_SELECT").is_none()
+    {
+        std::env::set_var("NODEVICE_SELECT", "1");
     }
 }
 
