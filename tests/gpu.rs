@@ -781,6 +781,9 @@ fn own_vertex_buffer_has_the_documented_layout() {
             let len: f32 = v[i].normal[..3].iter().map(|x| x * x).sum::<f32>().sqrt();
             assert!((len - 1.0).abs() < 1e-5, "unit normal {i}: {len}");
         }
-        assert!(moved > 0.0, "{storage:?}: the push moves some vertex, max |u| {moved}");
+        assert!(
+            moved > 0.0,
+            "{storage:?}: the push moves some vertex, max |u| {moved}"
+        );
     }
 }
