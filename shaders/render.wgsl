@@ -141,7 +141,8 @@ fn vs_sphere(
 
 @fragment
 fn fs_sphere(in: SphereOut) -> @location(0) vec4<f32> {
-    return vec4<f32>(shade(in.world, in.normal, in.color.rgb), 1.0);
+    // The colour's alpha: the finger is translucent, so the dent it presses shows through.
+    return vec4<f32>(shade(in.world, in.normal, in.color.rgb), in.color.a);
 }
 
 // The hidden parts of the spheres (drawn with depth test "greater"), blended as a ghost.

@@ -664,7 +664,7 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
         };
         // The arrow: about a quarter of the object's size for this force, in nice mm/N.
         let arrow = crate::render::ForceArrow {
-            at: finger,
+            at: p.contact.map_or(finger, |c| c.proxy),
             force_n: p.feedback,
             m_per_n: crate::render::arrow_scale(p.feedback.length(), 0.25 * diag),
         };

@@ -295,7 +295,7 @@ fn press(s: &touchfem::scene::Scene, at: DVec3, push: DVec3) -> Press {
         normal: (b - a).cross(cc - a).normalize(),
         coloring: Coloring::displacement(max_u),
         arrow: ForceArrow {
-            at: finger,
+            at: c.proxy,
             force_n: p.feedback,
             m_per_n: touchfem::render::arrow_scale(p.feedback.length(), 0.25 * diag),
         },

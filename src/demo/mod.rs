@@ -291,9 +291,9 @@ fn draw(
     let arrows: Vec<crate::render::ForceArrow> = sample
         .fingers()
         .iter()
-        .filter(|f| f.proxy.is_some() && f.position.is_finite())
-        .map(|f| crate::render::ForceArrow {
-            at: f.position,
+        .filter_map(|f| f.proxy.map(|p| (f, p)))
+        .map(|(f, p)| crate::render::ForceArrow {
+            at: p,
             force_n: f.force,
             m_per_n: style.arrow_m_per_n,
         })

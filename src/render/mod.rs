@@ -64,7 +64,7 @@ pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 pub const SAMPLES: u32 = 4;
 /// Sphere radius as a fraction of the scene's size ([`Frame::scale`], the rest bounding box's
 /// diagonal).
-pub const SPHERE_RADIUS: f64 = 0.022;
+pub const SPHERE_RADIUS: f64 = 0.018;
 /// Most objects one [`Frame`] may hold.
 pub const MAX_FRAME_OBJECTS: usize = 8;
 /// Most spheres (fingers plus god-objects) one [`Frame`] may hold.
@@ -86,7 +86,8 @@ const SURFACE: [f32; 4] = [0.85, 0.50, 0.28, 1.0];
 const LINES: [f32; 4] = [0.06, 0.05, 0.05, 1.0];
 /// Opacity of the wireframe over a colour-mapped surface (fainter, so the colours read).
 const LINES_OVER_COLORS: f32 = 0.4;
-const FINGER: [f32; 4] = [0.80, 0.08, 0.06, 1.0];
+/// The finger: red, translucent (the dent it presses shows through).
+const FINGER: [f32; 4] = [0.80, 0.08, 0.06, 0.55];
 const PROXY: [f32; 4] = [0.10, 0.30, 0.85, 1.0];
 const ARROW: [f32; 4] = [0.85, 0.06, 0.05, 1.0];
 /// Byte stride of the per-draw uniform records (a dynamic offset must be a multiple of the
@@ -161,10 +162,11 @@ impl Coloring {
 }
 
 /// The force fed back to a finger, drawn as an arrow from `at` along the force, `m_per_n`
-/// metres long per newton (the legend states it in mm/N).
+/// metres long per newton (the legend states it in mm/N). Start it at the finger's god-object
+/// (where it touches the rest surface): then it points out of the dent without covering it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ForceArrow {
-    /// The finger tip, metres (scene frame).
+    /// Where the arrow starts, metres (scene frame): the god-object, or the finger tip.
     pub at: DVec3,
     /// The force on the finger, newtons.
     pub force_n: DVec3,
@@ -613,7 +615,7 @@ impl Renderer {
             T::TriangleList,
             true,
             C::Less,
-            None,
+            Some(wgpu::BlendState::ALPHA_BLENDING),
         );
         let sphere_hidden = pipeline(
             "touchfem hidden spheres",

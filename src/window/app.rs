@@ -423,8 +423,8 @@ impl<'a> App<'a> {
             m_per_n: self.arrow_m_per_n,
         }; crate::force::MAX_FINGERS];
         for (a, f) in arrows.iter_mut().zip(sample.fingers()) {
-            if f.object.is_some() {
-                a.at = f.position;
+            if let Some(p) = f.proxy.filter(|_| f.object.is_some()) {
+                a.at = p;
                 a.force_n = f.force;
             }
         }
