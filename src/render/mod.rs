@@ -17,6 +17,8 @@
 //! * [`Renderer::render`] / [`Renderer::render_with`]: one object, offscreen, as the goldens
 //!   are judged (4× MSAA, [`COLOR_FORMAT`]);
 //! * [`Renderer::render_frame`]: several objects offscreen, framing the union of their bounds;
+//! * [`Renderer::render_to_image`]: a [`Frame`] offscreen (the demo's frames: its camera,
+//!   colouring, arrows and legend);
 //! * [`Renderer::draw`]: a [`Frame`] (several objects, each with its scene-frame offset, a
 //!   camera, spheres, overlay) into any colour view of the renderer's size and format.
 //!
@@ -760,8 +762,9 @@ impl Renderer {
     }
 
     /// Renders with a caller-kept [`Deformer`] (built for `scene`'s mesh and compliance) whose
-    /// forces the caller has already set: the visual loop's per-frame call. `scene.forces` is
-    /// not used here.
+    /// forces the caller has already set. `scene.forces` is not used here. With
+    /// [`Scene::legend`] it builds the legend's overlay on every call: for a frame loop with a
+    /// legend, keep an [`Overlay`] and use [`render_to_image`](Self::render_to_image).
     pub fn render_with(
         &self,
         device: &wgpu::Device,

@@ -16,10 +16,10 @@ pub(super) const FONT: &[u8] = include_bytes!("../../assets/DejaVuSansMono.ttf")
 const PAD: f32 = 4.0;
 /// Opacity of the dark box behind the text.
 const BOX_ALPHA: f32 = 0.55;
-/// Distance of the image from the target's edges, pixels.
+/// Distance of the image from the target's edges, pixels (see [`Anchor`]).
 const ORIGIN: [f32; 2] = [8.0, 8.0];
 
-/// Which corner of the target an [`Overlay`] sits in, [`ORIGIN`] pixels from its edges.
+/// Which corner of the target an [`Overlay`] sits in, 8 pixels from its edges.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Anchor {
     /// The top-left corner (the status line).
