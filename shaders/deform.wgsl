@@ -31,6 +31,10 @@ struct Chunk {
     _pad: u32,
 }
 
+// Word of a vertex (relative to its start) that receives |u|, the displacement's magnitude in
+// metres (the deformer's own Vertex layout: 3, position.w); 0xffffffff: not written.
+override DISPLACEMENT_WORD: u32 = 0xffffffffu;
+
 @group(0) @binding(0) var<uniform> frame: Frame;
 // Uniform, not storage: every invocation reads the same entry, and llvmpipe (lavapipe) turns a
 // storage load into per-lane loads even then. 1024 = touchfem::gpu::MAX_ACTIVE.
@@ -74,6 +78,10 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
     out[o] = p.x;
     out[o + 1u] = p.y;
     out[o + 2u] = p.z;
+    // Every chunk writes the magnitude so far: after the last one it is |u| of the whole sum.
+    if DISPLACEMENT_WORD != 0xffffffffu {
+        out[o + DISPLACEMENT_WORD] = length(p - rest[r].xyz);
+    }
 }
 
 fn position(v: u32) -> vec3<f32> {

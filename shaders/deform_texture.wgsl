@@ -26,7 +26,8 @@
 // * where the active list lives, defining displacement(r, nr), the sum of column_term over the
 //   active entries: active_uniform.wgsl (the uniform buffer `forces`) or active_immediate.wgsl
 //   (immediates, when the device has them: short lists need no upload);
-// * how vertices are written, defining `out` (binding 2), store_position and store_normal:
+// * how vertices are written, defining `out` (binding 2), store_position(r, p, u) and
+//   store_normal:
 //   output_words.wgsl (any offset and stride, word by word) or output_vertex.wgsl (the
 //   deformer's own 32-byte Vertex layout, one vec4 store each).
 
@@ -94,7 +95,7 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
     let nr = frame.n_rows;
     let u = displacement(r, nr);
     let p = textureLoad(rest_tex, xy(r)).xyz + u;
-    store_position(r, p);
+    store_position(r, p, u);
     if frame.normal_offset != 0xffffffffu {
         textureStore(pos_out, xy(r), vec4<f32>(p, 1.0));
     }

@@ -1,6 +1,8 @@
-// touchfem renderer: the deformed surface (Blinn-Phong, two-sided), an optional
-// wireframe (line list over the surface edges, pulled slightly towards the eye), and the finger
-// and god-object spheres (opaque where visible, ghosted where hidden behind the surface).
+// touchfem renderer: the deformed surface (Blinn-Phong, two-sided) in one colour or coloured
+// by the displacement's magnitude |u| (viridis; |u| is position.w of touchfem::gpu::Vertex,
+// written by the deformation pass), an optional wireframe (line list over the surface edges,
+// pulled slightly towards the eye), the finger and god-object spheres and the force arrows
+// (opaque where visible, ghosted where hidden behind the surface).
 
 struct Camera {
     view_proj: mat4x4<f32>,
@@ -10,14 +12,44 @@ struct Camera {
     light_dir: vec4<f32>,
     // Surface colour (linear RGB, a = 1).
     base_color: vec4<f32>,
-    // Wireframe colour (linear RGB, a = 1).
+    // Wireframe colour (linear RGB) and opacity.
     line_color: vec4<f32>,
     // The drawn object's offset in the scene (xyz, m): its vertices are in its own frame.
     // Zero for the spheres, which are given in the scene frame.
     offset: vec4<f32>,
+    // x: 1 / the colour map's full scale (1/m): |u| · x in 0..1 runs along VIRIDIS; 0: the
+    // surface is base_color.
+    colormap: vec4<f32>,
 }
 
 @group(0) @binding(0) var<uniform> cam: Camera;
+
+// Viridis (sRGB) at i / 9: touchfem::render::VIRIDIS.
+const VIRIDIS = array<vec3<f32>, 10>(
+    vec3<f32>(0.2667, 0.0039, 0.3294),
+    vec3<f32>(0.2824, 0.1569, 0.4706),
+    vec3<f32>(0.2431, 0.2902, 0.5373),
+    vec3<f32>(0.1922, 0.4078, 0.5569),
+    vec3<f32>(0.1490, 0.5098, 0.5569),
+    vec3<f32>(0.1216, 0.6196, 0.5373),
+    vec3<f32>(0.2078, 0.7176, 0.4745),
+    vec3<f32>(0.4275, 0.8039, 0.3490),
+    vec3<f32>(0.7059, 0.8706, 0.1725),
+    vec3<f32>(0.9922, 0.9059, 0.1451),
+);
+
+fn srgb_to_linear(c: vec3<f32>) -> vec3<f32> {
+    return select(pow((c + 0.055) / 1.055, vec3<f32>(2.4)), c / 12.92, c <= vec3<f32>(0.04045));
+}
+
+// The colour map at t (clamped to 0..1), linear RGB: interpolated in sRGB like the legend.
+fn viridis(t: f32) -> vec3<f32> {
+    let x = clamp(t, 0.0, 1.0) * 9.0;
+    let i = min(u32(floor(x)), 8u);
+    let f = x - f32(i);
+    var table = VIRIDIS;
+    return srgb_to_linear(mix(table[i], table[i + 1u], f));
+}
 
 fn shade(world: vec3<f32>, normal: vec3<f32>, color: vec3<f32>) -> vec3<f32> {
     let v = normalize(cam.eye.xyz - world);
@@ -39,6 +71,8 @@ struct SurfaceOut {
     @builtin(position) clip: vec4<f32>,
     @location(0) world: vec3<f32>,
     @location(1) normal: vec3<f32>,
+    // |u|, metres.
+    @location(2) magnitude: f32,
 }
 
 @vertex
@@ -48,6 +82,7 @@ fn vs_surface(@location(0) pos: vec4<f32>, @location(1) normal: vec4<f32>) -> Su
     out.clip = cam.view_proj * vec4<f32>(world, 1.0);
     out.world = world;
     out.normal = normal.xyz;
+    out.magnitude = pos.w;
     return out;
 }
 
@@ -63,7 +98,11 @@ fn fs_surface(in: SurfaceOut) -> @location(0) vec4<f32> {
     }
     let w = smoothstep(0.8, 0.99, dot(facet, vn));
     let n = normalize(mix(facet, vn, w));
-    return vec4<f32>(shade(in.world, n, cam.base_color.rgb), 1.0);
+    var color = cam.base_color.rgb;
+    if cam.colormap.x > 0.0 {
+        color = viridis(in.magnitude * cam.colormap.x);
+    }
+    return vec4<f32>(shade(in.world, n, color), 1.0);
 }
 
 @vertex
@@ -102,11 +141,42 @@ fn vs_sphere(
 
 @fragment
 fn fs_sphere(in: SphereOut) -> @location(0) vec4<f32> {
-    return vec4<f32>(shade(in.world, in.normal, in.color.rgb), 1.0);
+    // The colour's alpha: the finger is translucent, so the dent it presses shows through.
+    return vec4<f32>(shade(in.world, in.normal, in.color.rgb), in.color.a);
 }
 
 // The hidden parts of the spheres (drawn with depth test "greater"), blended as a ghost.
 @fragment
 fn fs_sphere_hidden(in: SphereOut) -> @location(0) vec4<f32> {
     return vec4<f32>(shade(in.world, in.normal, in.color.rgb), 0.4);
+}
+
+// A force arrow: a unit arrow along +z (shaft radius 1, a cone head 4 radii long) placed with
+// its base at base_len.xyz, `length` = base_len.w, along dir_radius.xyz (unit) with radius
+// dir_radius.w. Vertex: (x, y) across, along = a·length + b·head, head = min(4·radius, length);
+// its normal in the same frame.
+@vertex
+fn vs_arrow(
+    @location(0) p: vec4<f32>,
+    @location(1) local_normal: vec3<f32>,
+    @location(2) base_len: vec4<f32>,
+    @location(3) dir_radius: vec4<f32>,
+    @location(4) color: vec4<f32>,
+) -> SphereOut {
+    let d = dir_radius.xyz;
+    let r = dir_radius.w;
+    var helper = vec3<f32>(1.0, 0.0, 0.0);
+    if abs(d.x) > 0.9 {
+        helper = vec3<f32>(0.0, 1.0, 0.0);
+    }
+    let e1 = normalize(cross(d, helper));
+    let e2 = cross(d, e1);
+    let head = min(4.0 * r, base_len.w);
+    let along = p.z * base_len.w + p.w * head;
+    var out: SphereOut;
+    out.world = base_len.xyz + d * along + (e1 * p.x + e2 * p.y) * r;
+    out.clip = cam.view_proj * vec4<f32>(out.world, 1.0);
+    out.normal = e1 * local_normal.x + e2 * local_normal.y + d * local_normal.z;
+    out.color = color;
+    return out;
 }

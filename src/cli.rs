@@ -62,6 +62,10 @@ pub struct ViewArgs {
     /// Record the session to this file.
     #[arg(long)]
     pub record: Option<PathBuf>,
+    /// Surface colour: by the displacement's magnitude with a legend in mm (the key C toggles
+    /// it), or plain.
+    #[arg(long, value_enum, default_value_t = ColorArg::Displacement)]
+    pub color: ColorArg,
 }
 
 /// `touchfem bench` flags.
@@ -147,6 +151,10 @@ pub struct DemoArgs {
     /// Directory for frames and the report.
     #[arg(long, default_value = "out/demo")]
     pub out: PathBuf,
+    /// Frame colour: by the displacement's magnitude with a legend in mm (one scale per scene),
+    /// or plain.
+    #[arg(long, value_enum, default_value_t = ColorArg::Displacement)]
+    pub color: ColorArg,
 }
 
 /// Flags that say how to load a mesh.
@@ -207,12 +215,36 @@ pub struct PokeArgs {
     /// Image size for --png, WxH pixels.
     #[arg(long, default_value = "640x480", value_parser = parse_size)]
     pub size: [u32; 2],
+    /// Surface colour for --png: by the displacement's magnitude with a legend in mm, or plain.
+    #[arg(long, value_enum, default_value_t = ColorArg::Displacement)]
+    pub color: ColorArg,
+    /// Camera for --png: the 3/4 view of the whole object, or the touched point from outside.
+    #[arg(long, value_enum, default_value_t = ViewArg::Auto)]
+    pub view: ViewArg,
     /// Keep the precomputed compliance in this cache file (recomputed if stale or corrupt).
     #[arg(long)]
     pub cache: Option<PathBuf>,
     /// Haptic ticks over which the finger moves.
     #[arg(long, default_value_t = 50)]
     pub steps: usize,
+}
+
+/// `--color`: how pictures colour the surface.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ColorArg {
+    /// By |u|, viridis, with a legend in mm.
+    Displacement,
+    /// One colour.
+    Plain,
+}
+
+/// `--view`: where a picture's camera looks from.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ViewArg {
+    /// The 3/4 view, the object filling the frame.
+    Auto,
+    /// The touched point from outside the surface.
+    Contact,
 }
 
 /// Parses "WxH" into an image size.
@@ -250,6 +282,13 @@ pub fn parse_vec3(s: &str) -> Result<DVec3, String> {
 
 /// Runs the command line; returns the process exit code.
 pub fn run(cli: Cli) -> Result<(), Error> {
+    let window = matches!(cli.command, Command::View(_));
+    let no_wayland = ["XDG_RUNTIME_DIR", "WAYLAND_DISPLAY"]
+        .iter()
+        .all(|v| std::env::var_os(v).is_none_or(|s| s.is_empty()));
+    if !window || no_wayland {
+        headless_vulkan();
+    }
     match cli.command {
         Command::Info { mesh, load, json } => info(&mesh, &load, json),
         Command::Poke(args) => poke(&args),
@@ -258,6 +297,27 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Serve(args) => serve(&args),
         Command::Bench(args) => bench(&args),
         Command::View(args) => crate::window::view_command(&args),
+    }
+}
+
+/// Every command but `view` draws offscreen: no window system is involved. Mesa's implicit
+/// Vulkan layer `VK_LAYER_MESA_device_select` nevertheless probes the window systems while the
+/// adapters are enumerated (wgpu enables the Wayland, Xlib and XCB surface extensions on every
+/// instance), to put the GPU that drives the display first; without `XDG_RUNTIME_DIR`
+/// libwayland prints `error: XDG_RUNTIME_DIR is invalid or not set in the environment.` twice,
+/// on every run. Offscreen there is no display whose GPU to prefer, and wgpu chooses the
+/// adapter itself (`WGPU_BACKEND`, `WGPU_ADAPTER_NAME`, `WGPU_POWER_PREF`), so the layer is
+/// turned off with its own switch, `NODEVICE_SELECT=1` — unless the user set it, or asked the
+/// layer for a device with `MESA_VK_DEVICE_SELECT`. The `view` window does the same when no
+/// Wayland session can be reached (neither `XDG_RUNTIME_DIR` nor `WAYLAND_DISPLAY` set: the
+/// probe could only complain); its adapter is then the one wgpu finds able to present to the
+/// window's surface. Nothing is filtered: a real adapter error is still reported. Call before
+/// any thread is spawned.
+fn headless_vulkan() {
+    if std::env::var_os("NODEVICE_SELECT").is_none()
+        && std::env::var_os("MESA_VK_DEVICE_SELECT").is_none()
+    {
+        std::env::set_var("NODEVICE_SELECT", "1");
     }
 }
 
@@ -489,6 +549,7 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
                 .as_ref()
                 .map(|r| record_path_for(r, &world.name, worlds.len() > 1)),
             size,
+            displacement_colors: a.color == ColorArg::Displacement,
         };
         let rows = run_scene(world, &opts, gpu.as_ref(), renderer.as_ref())?;
         if let Some(r) = rows.first() {
@@ -610,13 +671,51 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
     }
     if let Some(path) = &a.png {
         let (f32s, n) = p.bc.to_f32();
+        let finger = p.touch_point + a.push * s;
+        let (lo, hi) = scene.mesh.bounds();
+        let diag = (hi - lo).length();
+        // The largest displacement shown: u = L·F over the displayed rows (f64, as the GPU).
+        let mut shown = vec![DVec3::ZERO; scene.compliance.rows().len()];
+        scene.compliance.displace(p.bc.entries(), &mut shown);
+        let max_surface_u = shown.iter().map(|v| v.length()).fold(0.0, f64::max);
+        let coloring = match a.color {
+            ColorArg::Displacement => crate::render::Coloring::displacement(max_surface_u),
+            ColorArg::Plain => crate::render::Coloring::Plain,
+        };
+        // The arrow: about a quarter of the object's size for this force, in nice mm/N.
+        let arrow = crate::render::ForceArrow {
+            at: p.contact.map_or(finger, |c| c.proxy),
+            force_n: p.feedback,
+            m_per_n: crate::render::arrow_scale(p.feedback.length(), 0.25 * diag),
+        };
+        let view = match a.view {
+            ViewArg::Auto => crate::render::View::Auto,
+            ViewArg::Contact => {
+                let (point, normal) = match p.contact {
+                    Some(c) => {
+                        let [a0, a1, a2] = c.nodes.map(|i| scene.mesh.nodes[i as usize]);
+                        (c.proxy, (a1 - a0).cross(a2 - a0).normalize_or_zero())
+                    }
+                    None => (p.touch_point, -a.push.normalize_or_zero()),
+                };
+                crate::render::View::Contact {
+                    point,
+                    normal,
+                    radius_m: (3.0 * a.push.length() * s).max(0.2 * diag),
+                }
+            }
+        };
         let scene_r = crate::render::Scene {
             mesh: &scene.mesh,
             compliance: &scene.compliance,
             forces: &f32s[..n],
-            finger: Some(p.touch_point + a.push * s),
+            finger: Some(finger),
             proxy: p.contact.map(|c| c.proxy),
             wireframe: true,
+            coloring,
+            arrow: Some(arrow),
+            view,
+            legend: true,
         };
         crate::render::render_png(path, a.size, &scene_r)
             .map_err(|e| Error::Input(e.to_string()))?;

@@ -245,3 +245,112 @@ fn bench_json_has_the_contract_keys_and_sane_errors() {
     }
     assert_eq!(find("cpu-f64", "mouse")["nodes"], 1699);
 }
+
+/// `touchfem` with `args`, the environment as a user without a window system has it: no
+/// `XDG_RUNTIME_DIR` (libwayland's complaint came from there), no device-select settings.
+fn touchfem_headless(args: &[&str], extra_env: &[(&str, &str)]) -> (i32, String, String) {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_touchfem"));
+    cmd.args(args)
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("WAYLAND_DISPLAY")
+        .env_remove("NODEVICE_SELECT")
+        .env_remove("MESA_VK_DEVICE_SELECT");
+    for (k, v) in extra_env {
+        cmd.env(k, v);
+    }
+    let out = cmd.output().expect("runs");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A healthy `poke --png` run prints nothing on stderr (no `error: XDG_RUNTIME_DIR …` from the
+/// Vulkan device-select layer's window-system probing), and its picture is the documented
+/// one: the size asked for, the mouse spanning more than half its width, the legend's colour
+/// bar (viridis' two ends) in the top-right corner. Needs a GPU adapter (lavapipe works).
+#[test]
+fn healthy_poke_png_is_quiet_and_frames_the_object() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("m.png");
+    let (code, out, err) = touchfem_headless(
+        &[
+            "poke",
+            "mouse",
+            "--at",
+            "-10,0,60",
+            "--push",
+            "0,0,-8",
+            "--png",
+            png.to_str().unwrap(),
+            "--size",
+            "640x480",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("force fed back"), "{out}");
+    assert_eq!(err, "", "a healthy run printed on stderr");
+    let img = image::open(&png).unwrap().to_rgba8();
+    assert_eq!(img.dimensions(), (640, 480));
+    let bg = *img.get_pixel(2, 477);
+    let differs =
+        |p: &image::Rgba<u8>| (0..3).any(|k| (i32::from(p[k]) - i32::from(bg[k])).abs() > 12);
+    // The object's columns, left of the legend (which sits in the top-right corner).
+    let cols: Vec<u32> = (0..640)
+        .filter(|&x| (0..480).any(|y| !(x >= 480 && y < 260) && differs(img.get_pixel(x, y))))
+        .collect();
+    let span = f64::from(cols.last().unwrap() - cols.first().unwrap() + 1) / 640.0;
+    eprintln!("the mouse spans {:.1} % of the width", 100.0 * span);
+    assert!(
+        span >= 0.5,
+        "the mouse spans only {:.1} % of the width",
+        100.0 * span
+    );
+    let has = |c: [u8; 3]| {
+        img.enumerate_pixels()
+            .any(|(x, y, p)| x >= 480 && y < 260 && [p[0], p[1], p[2]] == c)
+    };
+    let v = touchfem::render::VIRIDIS;
+    assert!(
+        has(v[0]) && has(v[9]),
+        "no legend colour bar in the top-right corner"
+    );
+}
+
+/// Turning the window-system probing off hides no adapter error: a missing adapter is still
+/// reported, on stderr, with a non-zero exit.
+#[test]
+fn adapter_errors_still_reach_stderr() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("x.png");
+    let (code, _, err) = touchfem_headless(
+        &[
+            "poke",
+            "cube",
+            "--at",
+            "15,15,30",
+            "--push",
+            "0,0,-5",
+            "--png",
+            png.to_str().unwrap(),
+        ],
+        &[("WGPU_ADAPTER_NAME", "no-such-adapter-anywhere")],
+    );
+    assert_ne!(code, 0);
+    assert!(err.contains("no GPU adapter"), "{err}");
+    assert!(!png.exists());
+}
+
+/// `--color` and `--view` take only their documented values.
+#[test]
+fn poke_png_flags_reject_unknown_values() {
+    for (flag, value) in [("--color", "rainbow"), ("--view", "top")] {
+        let (code, _, err) = touchfem(&[
+            "poke", "cube", "--at", "15,15,30", "--push", "0,0,-5", "--png", "x.png", flag, value,
+        ]);
+        assert_eq!(code, 2, "{flag} {value}: {err}");
+        assert!(err.contains(value), "{err}");
+    }
+}

@@ -742,7 +742,7 @@ fn normals_of_high_valence_and_non_manifold_vertices() {
 }
 
 /// The deformer's own buffer holds whole `Vertex`es after a frame, in both layouts: position
-/// `w = 1`, normal `w = 0` (the texture layout stores each as one vec4), xyz as `read_back`.
+/// `w` = |u| (metres), normal `w = 0` (the texture layout stores each as one vec4), xyz as `read_back`.
 #[test]
 fn own_vertex_buffer_has_the_documented_layout() {
     let k = cube_case();
@@ -763,13 +763,27 @@ fn own_vertex_buffer_has_the_documented_layout() {
         .unwrap();
         let v: Vec<touchfem::gpu::Vertex> = bytemuck::pod_collect_to_vec(&bytes);
         assert_eq!(v.len(), n);
+        let mut moved = 0f32;
         for i in 0..n {
-            assert_eq!(v[i].position[3], 1.0, "{storage:?} vertex {i}");
+            // position.w = |u| = |deformed − rest| (metres), from the same pass.
+            let rest = k.mesh.nodes[k.c.rows()[i] as usize].as_vec3();
+            let u = glam::Vec3::from_slice(&pos[i]) - rest;
+            assert!(
+                (v[i].position[3] - u.length()).abs() < 1e-7,
+                "{storage:?} vertex {i}: w {} vs |u| {}",
+                v[i].position[3],
+                u.length()
+            );
+            moved = moved.max(v[i].position[3]);
             assert_eq!(v[i].normal[3], 0.0, "{storage:?} vertex {i}");
             assert_eq!(&v[i].position[..3], &pos[i][..]);
             assert_eq!(&v[i].normal[..3], &nrm[i][..]);
             let len: f32 = v[i].normal[..3].iter().map(|x| x * x).sum::<f32>().sqrt();
             assert!((len - 1.0).abs() < 1e-5, "unit normal {i}: {len}");
         }
+        assert!(
+            moved > 0.0,
+            "{storage:?}: the push moves some vertex, max |u| {moved}"
+        );
     }
 }

@@ -89,6 +89,95 @@ pub struct DemoOptions {
     pub record: Option<PathBuf>,
     /// Image size of frames.
     pub size: [u32; 2],
+    /// Colour the frames by displacement (viridis, a legend in mm) rather than plain.
+    pub displacement_colors: bool,
+}
+
+/// What a scene's frames share, so that they compare: the colour map's full scale, the force
+/// arrow's scale and the camera.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PictureScales {
+    /// The largest |u| over the scene's objects during its scripted run (a preview), m.
+    pub max_displacement_m: f64,
+    /// The largest force on a finger during it, N.
+    pub max_force_n: f64,
+    /// The colour map's full scale ([`crate::render::displacement_scale`] of the largest
+    /// |u|) and tick step, m.
+    pub displacement: (f64, f64),
+    /// The arrow's scale, m per N: the largest force about a quarter of the scene's size.
+    pub arrow_m_per_n: f64,
+}
+
+/// Previews a scene's scripted run — `samples` instants of its paths through the haptic path,
+/// `u = L·F` on the CPU (f64) for every object — for the scales its frames share.
+pub fn picture_scales(world: &World, samples: usize) -> Result<PictureScales, Error> {
+    let mut devs = scripted_devices(world, 1.0)?;
+    let n = devs.len().min(MAX_FINGERS);
+    let mut hw = HapticWorld::new(world);
+    let mut s = WorldSample::default();
+    let mut pos = [DVec3::ZERO; MAX_FINGERS];
+    let mut f = [DVec3::ZERO; MAX_FINGERS];
+    let mut u: Vec<Vec<DVec3>> = world
+        .objects
+        .iter()
+        .map(|o| vec![DVec3::ZERO; o.scene.compliance.rows().len()])
+        .collect();
+    let (mut max_u, mut max_f) = (0.0f64, 0.0f64);
+    for i in 0..=samples {
+        let t = i as f64 / samples.max(1) as f64;
+        for (p, d) in pos.iter_mut().zip(devs.iter_mut()) {
+            *p = d.position(t);
+        }
+        hw.step(&pos[..n], &mut f[..n], &mut s);
+        for (k, o) in world.objects.iter().enumerate() {
+            o.scene.compliance.displace(s.bc(k).entries(), &mut u[k]);
+            max_u = u[k].iter().map(|v| v.length()).fold(max_u, f64::max);
+        }
+        max_f = f[..n].iter().map(|v| v.length()).fold(max_f, f64::max);
+    }
+    let (lo, hi) = world.bounds();
+    let diag = (hi - lo).length();
+    Ok(PictureScales {
+        max_displacement_m: max_u,
+        max_force_n: max_f,
+        displacement: crate::render::displacement_scale(max_u),
+        arrow_m_per_n: crate::render::arrow_scale(max_f, 0.25 * diag),
+    })
+}
+
+/// The camera a scene's frames share: its objects' rest surfaces, and its fingers' keyframes
+/// within 15 % of the scene's size of them, fill the image left of a legend `legend_px` wide
+/// (see [`crate::render::Camera::fit`]).
+pub fn scene_camera(
+    world: &World,
+    size: [u32; 2],
+    legend_px: Option<[u32; 2]>,
+) -> crate::render::Camera {
+    let mut pts: Vec<DVec3> = world
+        .objects
+        .iter()
+        .flat_map(|o| {
+            o.scene
+                .mesh
+                .surface
+                .iter()
+                .flatten()
+                .map(move |&i| o.scene.mesh.nodes[i as usize] + o.offset)
+        })
+        .collect();
+    let (lo, hi) = world.bounds();
+    let pad = DVec3::splat(0.15 * (hi - lo).length());
+    for f in &world.fingers {
+        if let DeviceSpec::Script(keys) = &f.device {
+            pts.extend(keys.iter().map(|k| k.1.clamp(lo - pad, hi + pad)));
+        }
+    }
+    crate::render::Camera::fit(
+        &pts,
+        crate::render::VIEW_DIR,
+        f64::from(size[0]) / f64::from(size[1].max(1)),
+        crate::render::region_beside_legend(size, legend_px),
+    )
 }
 
 /// A scripted finger stretched in time to fit a run.
@@ -158,7 +247,16 @@ pub fn step_median(world: &World, samples: usize) -> Result<f64, Error> {
     Ok(percentile(&times, 0.5))
 }
 
-/// Draws one frame of every object with every finger and god-object.
+/// How a scene's frames are drawn: the shared camera, colouring, arrow scale and legend.
+struct FrameStyle {
+    camera: crate::render::Camera,
+    coloring: crate::render::Coloring,
+    arrow_m_per_n: f64,
+    legend: Option<crate::render::Overlay>,
+}
+
+/// Draws one frame of every object with every finger and god-object, and an arrow for the
+/// force on each touching finger.
 fn draw(
     gpu: &Gpu,
     renderer: &crate::render::Renderer,
@@ -166,6 +264,7 @@ fn draw(
     world: &World,
     visual: &Visual<'_>,
     sample: &WorldSample,
+    style: &FrameStyle,
 ) -> Result<Option<image::RgbaImage>, Error> {
     let Some(deformers) = visual.deformers() else {
         return Ok(None);
@@ -189,8 +288,31 @@ fn draw(
         .filter(|p| p.is_finite())
         .collect();
     let proxies: Vec<DVec3> = sample.fingers().iter().filter_map(|f| f.proxy).collect();
+    let arrows: Vec<crate::render::ForceArrow> = sample
+        .fingers()
+        .iter()
+        .filter_map(|f| f.proxy.map(|p| (f, p)))
+        .map(|(f, p)| crate::render::ForceArrow {
+            at: p,
+            force_n: f.force,
+            m_per_n: style.arrow_m_per_n,
+        })
+        .collect();
+    let (lo, hi) = world.bounds();
+    let frame = crate::render::Frame {
+        objects: &objects,
+        camera: style.camera,
+        fingers: &fingers,
+        proxies: &proxies,
+        scale: (hi - lo).length(),
+        wireframe: true,
+        overlay: None,
+        coloring: style.coloring,
+        arrows: &arrows,
+        legend: style.legend.as_ref(),
+    };
     renderer
-        .render_frame(&gpu.device, &gpu.queue, &objects, &fingers, &proxies, true)
+        .render_to_image(&gpu.device, &gpu.queue, &frame)
         .map(Some)
         .map_err(|e| Error::Input(e.to_string()))
 }
@@ -224,6 +346,39 @@ pub fn run_scene(
             .map(|d| crate::render::Edges::new(&g.device, d))
             .collect(),
         _ => Vec::new(),
+    };
+    let scales = picture_scales(world, 400)?;
+    let style = {
+        let coloring = if opts.displacement_colors {
+            crate::render::Coloring::Displacement {
+                full_scale_m: scales.displacement.0,
+                step_m: scales.displacement.1,
+            }
+        } else {
+            crate::render::Coloring::Plain
+        };
+        let legend = match (gpu, renderer) {
+            (Some(g), Some(r)) => crate::render::legend_image(&crate::render::LegendSpec {
+                bar_px: crate::render::LegendSpec::bar_for(r.size()[1]),
+                displacement: opts.displacement_colors.then_some(scales.displacement),
+                arrow_m_per_n: Some(scales.arrow_m_per_n),
+                force_n: None,
+            })
+            .map(|img| {
+                let mut o = crate::render::Overlay::new(&g.device, r.options());
+                o.set_anchor(crate::render::Anchor::TopRight);
+                o.set_image(&g.device, &g.queue, Some(&img));
+                o
+            }),
+            _ => None,
+        };
+        let size = renderer.map_or(opts.size, |r| r.size());
+        FrameStyle {
+            camera: scene_camera(world, size, legend.as_ref().and_then(|o| o.image_size())),
+            coloring,
+            arrow_m_per_n: scales.arrow_m_per_n,
+            legend,
+        }
     };
     let mut disp_us = Vec::new();
     let mut frames = 0u64;
@@ -259,7 +414,7 @@ pub fn run_scene(
                 let sample = *reader.read();
                 let us = visual.update(&sample);
                 let img = match (gpu, renderer) {
-                    (Some(g), Some(r)) => draw(g, r, &edges, world, &visual, &sample)?,
+                    (Some(g), Some(r)) => draw(g, r, &edges, world, &visual, &sample, &style)?,
                     _ => None,
                 };
                 if phase.load(Ordering::Acquire) == 1 {

@@ -6,7 +6,7 @@
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
-use super::bind::{buffer, compute_pipeline, storage_entry, uniform_entry};
+use super::bind::{buffer, compute_pipeline, specialised_pipeline, storage_entry, uniform_entry};
 use super::deform::{Shared, MAX_ACTIVE, WORKGROUP};
 use super::{GpuError, DEFORM_WGSL};
 
@@ -182,7 +182,19 @@ impl BufferPath {
             chunk_params,
             active,
             bind_group,
-            deform: compute_pipeline(device, &module, "deform", &[&layout0, &layout1], 0),
+            // The deformer's own `Vertex`es carry |u| in position.w (word 3).
+            deform: specialised_pipeline(
+                device,
+                &module,
+                "deform",
+                &[&layout0, &layout1],
+                0,
+                if sh.vertex_layout {
+                    &[("DISPLACEMENT_WORD", 3.0)]
+                } else {
+                    &[]
+                },
+            ),
             normals: compute_pipeline(device, &module, "normals", &[&layout0], 0),
             scratch: Vec::with_capacity(MAX_ACTIVE),
         })

@@ -26,15 +26,17 @@ pub(super) const WORKGROUP: u32 = 64;
 ///
 /// | bytes  | WGSL        | content                                          | location |
 /// |--------|-------------|--------------------------------------------------|----------|
-/// | 0..16  | `vec4<f32>` | deformed position in metres, `w = 1`             | 0        |
+/// | 0..16  | `vec4<f32>` | deformed position in metres, `w` = \|u\| (m)      | 0        |
 /// | 16..32 | `vec4<f32>` | unit area-weighted vertex normal, `w = 0`        | 1        |
 ///
-/// Vertex `i` is displayed row `i` of the compliance ([`Compliance::rows`]`()[i]` is its mesh
+/// `w` of the position is the magnitude of the vertex's displacement `u = L·F` in metres (0 at
+/// rest), written by the same pass: the renderer colours the surface by it. Vertex `i` is
+/// displayed row `i` of the compliance ([`Compliance::rows`]`()[i]` is its mesh
 /// node); [`Deformer::index_buffer`] holds the surface triangles in these indices.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Vertex {
-    /// Deformed position (m), `w = 1`.
+    /// Deformed position (m), `w` = \|u\|, the displacement's magnitude (m).
     pub position: [f32; 4],
     /// Unit normal, `w = 0`.
     pub normal: [f32; 4],
@@ -312,8 +314,8 @@ impl Deformer {
             None => {
                 let init: Vec<Vertex> = rest_rows
                     .iter()
-                    .map(|&position| Vertex {
-                        position,
+                    .map(|&[x, y, z, _]| Vertex {
+                        position: [x, y, z, 0.0],
                         normal: [0.0, 0.0, 1.0, 0.0],
                     })
                     .collect();

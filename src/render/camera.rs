@@ -1,5 +1,6 @@
-//! The cameras: the fixed 3/4 view ([`Camera::framing`]), an orbit/zoom camera ([`Orbit`]),
-//! and the ray through a pixel ([`Camera::ray`]) for picking.
+//! The cameras: the fixed 3/4 view ([`Camera::framing`], [`Camera::fit`]), a view of the
+//! touched point from outside ([`Camera::contact`]), an orbit/zoom camera ([`Orbit`]), and the
+//! ray through a pixel ([`Camera::ray`]) for picking.
 
 use glam::camera::rh::{proj::directx::perspective, view::look_at_mat4};
 use glam::{DVec3, Mat4, Vec3};
@@ -25,24 +26,147 @@ pub struct Camera {
 /// the y = min face and the x = min face are all visible.
 pub const VIEW_DIR: DVec3 = DVec3::new(-0.75, -1.25, 0.95);
 
+/// The whole image less a 5 % margin, in normalised device coordinates `[x0, x1, y0, y1]`:
+/// the region [`Camera::framing`] fills.
+pub const FULL_FRAME: [f64; 4] = [-0.95, 0.95, -0.95, 0.95];
+
 impl Camera {
     /// Frames the axis-aligned box `[min, max]` (e.g. the rest bounding box) from [`VIEW_DIR`]:
-    /// the box's bounding sphere, with a 10 % margin, fits the image at `aspect` (width/height).
+    /// its eight corners fill the image at `aspect` (width/height) up to a 5 % margin
+    /// ([`fit`](Self::fit) over [`FULL_FRAME`]).
     pub fn framing(min: DVec3, max: DVec3, aspect: f64) -> Camera {
-        let target = 0.5 * (min + max);
-        let radius = (0.5 * (max - min).length()).max(1e-9);
+        let corners: Vec<DVec3> = (0..8)
+            .map(|i| {
+                DVec3::new(
+                    if i & 1 == 0 { min.x } else { max.x },
+                    if i & 2 == 0 { min.y } else { max.y },
+                    if i & 4 == 0 { min.z } else { max.z },
+                )
+            })
+            .collect();
+        Camera::fit(&corners, VIEW_DIR, aspect, FULL_FRAME)
+    }
+
+    /// Looks along `dir` (from the points towards the eye; z up, or y up when `dir` is nearly
+    /// vertical) so that the projections of `points` fill `region` = `[x0, x1, y0, y1]` in
+    /// normalised device coordinates (−1..1, y up): their extent is centred in it and spans
+    /// its width or its height. A 30° vertical field of view; the clip planes enclose the
+    /// points. Non-finite points are ignored; no finite point gives a unit view of the origin.
+    pub fn fit(points: &[DVec3], dir: DVec3, aspect: f64, region: [f64; 4]) -> Camera {
         let fov_y_deg: f64 = 30.0;
-        let half_y = (0.5 * fov_y_deg).to_radians();
-        let half_x = (half_y.tan() * aspect).atan();
-        let dist = 1.1 * radius / half_y.min(half_x).sin();
-        Camera {
-            eye: target + VIEW_DIR.normalize() * dist,
-            target,
-            up: DVec3::Z,
-            fov_y_deg,
-            near: (dist - 2.0 * radius).max(0.05 * dist),
-            far: dist + 4.0 * radius,
+        let dir = if dir.length() > 0.0 && dir.is_finite() {
+            dir.normalize()
+        } else {
+            VIEW_DIR.normalize()
+        };
+        let up = if dir.z.abs() > 0.99 {
+            DVec3::Y
+        } else {
+            DVec3::Z
+        };
+        let pts: Vec<DVec3> = points.iter().copied().filter(|p| p.is_finite()).collect();
+        let (lo, hi) = pts.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+        );
+        if pts.is_empty() {
+            return Camera {
+                eye: dir,
+                target: DVec3::ZERO,
+                up,
+                fov_y_deg,
+                near: 0.01,
+                far: 10.0,
+            };
         }
+        let aspect = if aspect.is_finite() && aspect > 0.0 {
+            aspect
+        } else {
+            1.0
+        };
+        let ty = (0.5 * fov_y_deg).to_radians().tan();
+        let tx = ty * aspect;
+        let f = -dir;
+        let right = f.cross(up).normalize();
+        let cam_up = right.cross(f);
+        let [x0, x1, y0, y1] = region;
+        let (hx, hy) = (
+            0.5 * (x1 - x0).abs().max(1e-3),
+            0.5 * (y1 - y0).abs().max(1e-3),
+        );
+        let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+        let radius = (0.5 * (hi - lo).length()).max(1e-9);
+        let mut target = 0.5 * (lo + hi);
+        let mut d = radius / (ty.atan().min(tx.atan())).sin();
+        // Alternate: scale the distance so the extent spans the region, then shift the target
+        // so the extent is centred in it (converges in a few rounds for any point cloud).
+        for _ in 0..8 {
+            let eye = target + dir * d;
+            let (mut ax, mut bx, mut ay, mut by) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+            let mut min_depth = f64::MAX;
+            for p in &pts {
+                let v = *p - eye;
+                let z = v.dot(f).max(1e-6 * d);
+                min_depth = min_depth.min(v.dot(f));
+                let (nx, ny) = (v.dot(right) / (z * tx), v.dot(cam_up) / (z * ty));
+                ax = ax.min(nx);
+                bx = bx.max(nx);
+                ay = ay.min(ny);
+                by = by.max(ny);
+            }
+            let ratio = ((bx - ax) / (2.0 * hx)).max((by - ay) / (2.0 * hy));
+            if min_depth <= 0.0 {
+                // A point behind the eye: step back.
+                d *= 2.0;
+                continue;
+            }
+            target += right * ((0.5 * (ax + bx) - cx) * tx * d)
+                + cam_up * ((0.5 * (ay + by) - cy) * ty * d);
+            if ratio.is_finite() && ratio > 0.0 {
+                // Keep the nearest point in front of the eye.
+                d = (d * ratio).max(d - min_depth + 0.05 * radius);
+            }
+        }
+        let eye = target + dir * d;
+        let (near, far) = pts.iter().fold((f64::MAX, 0.0f64), |(n, fa), p| {
+            let z = (*p - eye).dot(f);
+            (n.min(z), fa.max(z))
+        });
+        Camera {
+            eye,
+            target,
+            up,
+            fov_y_deg,
+            near: (near - 0.5 * radius).max(0.02 * d).max(1e-9),
+            far: far + 0.5 * radius + 1e-9,
+        }
+    }
+
+    /// Looks at a touched `point` (m) from outside the surface, whose outward unit normal there
+    /// is `normal`: the eye is on the normal's side, tilted 55° towards [`VIEW_DIR`] so that a
+    /// dent shows its depth, and `points` (e.g. the surface within some radius of the touch,
+    /// the finger, the arrow's tip) fill `region` as in [`fit`](Self::fit).
+    pub fn contact(
+        point: DVec3,
+        normal: DVec3,
+        points: &[DVec3],
+        aspect: f64,
+        region: [f64; 4],
+    ) -> Camera {
+        let n = if normal.is_finite() && normal.length() > 0.0 {
+            normal.normalize()
+        } else {
+            VIEW_DIR.normalize()
+        };
+        let v = VIEW_DIR.normalize();
+        let mut t = v - n * v.dot(n);
+        if t.length() < 1e-6 {
+            t = n.any_orthonormal_vector();
+        }
+        let dir = n * 55f64.to_radians().cos() + t.normalize() * 55f64.to_radians().sin();
+        let mut all: Vec<DVec3> = points.to_vec();
+        all.push(point);
+        Camera::fit(&all, dir, aspect, region)
     }
 
     /// The view-projection matrix (right-handed, depth 0..1 as wgpu expects).
@@ -145,8 +269,8 @@ impl Orbit {
     /// Radians turned per pixel dragged.
     pub const RADIANS_PER_PIXEL: f64 = 0.008;
 
-    /// The view of [`Camera::framing`]: from [`VIEW_DIR`], the box's bounding sphere fitting the
-    /// image at `aspect` with a 10 % margin.
+    /// The view of [`Camera::framing`]: from [`VIEW_DIR`], the box's corners filling the image
+    /// at `aspect` up to a 5 % margin.
     pub fn framing(min: DVec3, max: DVec3, aspect: f64) -> Orbit {
         let c = Camera::framing(min, max, aspect);
         let v = c.eye - c.target;

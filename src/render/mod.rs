@@ -7,12 +7,18 @@
 //! entry points frame the rest bounding box from a fixed 3/4 view ([`Camera::framing`]); a
 //! window uses an [`Orbit`] camera and [`pick`]s the surface under the pointer. The finger tips
 //! (red) and god-objects (blue) are small spheres, as in the paper's Figure 1; where the surface
-//! hides them they show through as a ghost. The wireframe overlay draws the surface edges
-//! ([`Edges`]); an [`Overlay`] draws a status line of text.
+//! hides them they show through as a ghost. The force on a finger is an arrow from its tip
+//! ([`ForceArrow`], drawn at a stated scale in mm per N). The surface is one colour or
+//! coloured by the displacement's magnitude |u| ([`Coloring::Displacement`]: viridis over a
+//! fixed full scale, |u| read from the vertex that the deformation pass wrote), explained by a
+//! legend ([`legend_image`], in mm). The wireframe overlay draws the surface edges
+//! ([`Edges`]); an [`Overlay`] draws a status line of text or the legend.
 //!
 //! * [`Renderer::render`] / [`Renderer::render_with`]: one object, offscreen, as the goldens
 //!   are judged (4× MSAA, [`COLOR_FORMAT`]);
 //! * [`Renderer::render_frame`]: several objects offscreen, framing the union of their bounds;
+//! * [`Renderer::render_to_image`]: a [`Frame`] offscreen (the demo's frames: its camera,
+//!   colouring, arrows and legend);
 //! * [`Renderer::draw`]: a [`Frame`] (several objects, each with its scene-frame offset, a
 //!   camera, spheres, overlay) into any colour view of the renderer's size and format.
 //!
@@ -27,11 +33,16 @@
 //! ```
 
 mod camera;
+mod legend;
 mod overlay;
 mod pick;
 
-pub use camera::{Camera, Orbit, VIEW_DIR};
-pub use overlay::{rasterize_text, Overlay, OVERLAY_WGSL};
+pub use camera::{Camera, Orbit, FULL_FRAME, VIEW_DIR};
+pub use legend::{
+    arrow_scale, displacement_scale, legend_image, nice_ceil, nice_floor, viridis, LegendSpec,
+    VIRIDIS,
+};
+pub use overlay::{rasterize_text, Anchor, Overlay, OVERLAY_WGSL};
 pub use pick::{pick, Hit};
 
 use bytemuck::{Pod, Zeroable};
@@ -55,11 +66,16 @@ pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 pub const SAMPLES: u32 = 4;
 /// Sphere radius as a fraction of the scene's size ([`Frame::scale`], the rest bounding box's
 /// diagonal).
-pub const SPHERE_RADIUS: f64 = 0.035;
+pub const SPHERE_RADIUS: f64 = 0.018;
 /// Most objects one [`Frame`] may hold.
 pub const MAX_FRAME_OBJECTS: usize = 8;
 /// Most spheres (fingers plus god-objects) one [`Frame`] may hold.
 pub const MAX_SPHERES: usize = 16;
+/// Most force arrows one [`Frame`] may hold.
+pub const MAX_ARROWS: usize = 8;
+/// Force arrow shaft radius as a fraction of the scene's size (its head is 4 radii long and
+/// 2.5 radii wide).
+pub const ARROW_RADIUS: f64 = 0.008;
 
 /// Background colour (linear RGB).
 const BACKGROUND: wgpu::Color = wgpu::Color {
@@ -70,8 +86,12 @@ const BACKGROUND: wgpu::Color = wgpu::Color {
 };
 const SURFACE: [f32; 4] = [0.85, 0.50, 0.28, 1.0];
 const LINES: [f32; 4] = [0.06, 0.05, 0.05, 1.0];
-const FINGER: [f32; 4] = [0.80, 0.08, 0.06, 1.0];
+/// Opacity of the wireframe over a colour-mapped surface (fainter, so the colours read).
+const LINES_OVER_COLORS: f32 = 0.4;
+/// The finger: red, translucent (the dent it presses shows through).
+const FINGER: [f32; 4] = [0.80, 0.08, 0.06, 0.55];
 const PROXY: [f32; 4] = [0.10, 0.30, 0.85, 1.0];
+const ARROW: [f32; 4] = [0.85, 0.06, 0.05, 1.0];
 /// Byte stride of the per-draw uniform records (a dynamic offset must be a multiple of the
 /// device's `min_uniform_buffer_offset_alignment`, at most 256).
 const UNIFORM_STRIDE: u64 = 256;
@@ -103,6 +123,78 @@ pub enum RenderError {
     Options(String),
 }
 
+/// How the surface is coloured.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum Coloring {
+    /// One colour (terracotta), shaded.
+    #[default]
+    Plain,
+    /// By the displacement's magnitude |u|, viridis from 0 (dark violet) to `full_scale_m`
+    /// (yellow; beyond it stays yellow), shaded. Keep the scale fixed over a session so that
+    /// its frames compare; the legend ticks every `step_m`. See [`Coloring::displacement`].
+    Displacement {
+        /// |u| drawn yellow, metres.
+        full_scale_m: f64,
+        /// The legend's tick step, metres.
+        step_m: f64,
+    },
+}
+
+impl Coloring {
+    /// [`Coloring::Displacement`] with the nice scale [`displacement_scale`] of a largest
+    /// displacement `max_m` (m).
+    pub fn displacement(max_m: f64) -> Coloring {
+        let (full_scale_m, step_m) = displacement_scale(max_m);
+        Coloring::Displacement {
+            full_scale_m,
+            step_m,
+        }
+    }
+
+    /// The shader's `colormap.x`: 1 / full scale, or 0 for plain.
+    fn inverse_scale(&self) -> f32 {
+        match *self {
+            Coloring::Plain => 0.0,
+            Coloring::Displacement { full_scale_m, .. } if full_scale_m > 0.0 => {
+                (1.0 / full_scale_m) as f32
+            }
+            Coloring::Displacement { .. } => 0.0,
+        }
+    }
+}
+
+/// The force fed back to a finger, drawn as an arrow from `at` along the force, `m_per_n`
+/// metres long per newton (the legend states it in mm/N). Start it at the finger's god-object
+/// (where it touches the rest surface): then it points out of the dent without covering it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ForceArrow {
+    /// Where the arrow starts, metres (scene frame): the god-object, or the finger tip.
+    pub at: DVec3,
+    /// The force on the finger, newtons.
+    pub force_n: DVec3,
+    /// Arrow length per newton, metres.
+    pub m_per_n: f64,
+}
+
+/// Where the offscreen camera looks from.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum View {
+    /// The fixed 3/4 view ([`VIEW_DIR`]), the object filling the frame ([`Camera::fit`] over
+    /// its surface, the spheres and the arrow).
+    #[default]
+    Auto,
+    /// The touched point from outside the surface ([`Camera::contact`]), framing the surface
+    /// within `radius_m` of it.
+    Contact {
+        /// The touched point, metres.
+        point: DVec3,
+        /// The outward unit normal there.
+        normal: DVec3,
+        /// Radius of the surface framed around it, metres.
+        radius_m: f64,
+    },
+}
+
 /// What to draw: the object under a force boundary condition, the finger and the god-object.
 #[derive(Clone, Copy, Debug)]
 pub struct Scene<'a> {
@@ -118,10 +210,19 @@ pub struct Scene<'a> {
     pub proxy: Option<DVec3>,
     /// Overlay the surface edges.
     pub wireframe: bool,
+    /// How the surface is coloured.
+    pub coloring: Coloring,
+    /// The force on the finger, drawn as an arrow.
+    pub arrow: Option<ForceArrow>,
+    /// Where the camera looks from.
+    pub view: View,
+    /// Draw the legend (top right): the colour scale in mm when coloured by displacement, the
+    /// arrow's scale in mm/N and the force in N when there is an arrow.
+    pub legend: bool,
 }
 
 impl<'a> Scene<'a> {
-    /// The object at rest, no spheres, no wireframe.
+    /// The object at rest, no spheres, no wireframe, plain, the 3/4 view, no legend.
     pub fn at_rest(mesh: &'a Mesh, compliance: &'a Compliance) -> Scene<'a> {
         Scene {
             mesh,
@@ -130,7 +231,39 @@ impl<'a> Scene<'a> {
             finger: None,
             proxy: None,
             wireframe: false,
+            coloring: Coloring::Plain,
+            arrow: None,
+            view: View::Auto,
+            legend: false,
         }
+    }
+
+    /// What its legend shows (see [`Scene::legend`]) in an image `height` pixels high.
+    pub fn legend_spec(&self, height: u32) -> LegendSpec {
+        LegendSpec {
+            bar_px: LegendSpec::bar_for(height),
+            displacement: match self.coloring {
+                Coloring::Displacement {
+                    full_scale_m,
+                    step_m,
+                } => Some((full_scale_m, step_m)),
+                Coloring::Plain => None,
+            },
+            arrow_m_per_n: self.arrow.map(|a| a.m_per_n),
+            force_n: self.arrow.map(|a| a.force_n.length()),
+        }
+    }
+}
+
+/// The region of the image (normalised device coordinates, [`Camera::fit`]) left of a legend
+/// `legend_px` (width, height) in the top-right corner of a `size` image, less a 5 % margin.
+pub fn region_beside_legend(size: [u32; 2], legend_px: Option<[u32; 2]>) -> [f64; 4] {
+    match legend_px {
+        Some([lw, _]) if size[0] > 0 => {
+            let x1 = 1.0 - 2.0 * f64::from(lw + 16) / f64::from(size[0]);
+            [-0.95, x1.max(-0.5), -0.95, 0.95]
+        }
+        _ => FULL_FRAME,
     }
 }
 
@@ -189,6 +322,16 @@ struct CameraGpu {
     line_color: [f32; 4],
     /// The drawn object's offset in the scene (xyz, m); zero for the spheres.
     offset: [f32; 4],
+    /// x: 1 / the colour map's full scale (1/m), 0: plain.
+    colormap: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct ArrowInstance {
+    base_len: [f32; 4],
+    dir_radius: [f32; 4],
+    color: [f32; 4],
 }
 
 #[repr(C)]
@@ -262,6 +405,12 @@ pub struct Frame<'a> {
     pub wireframe: bool,
     /// A text overlay (status line) drawn on top, if any.
     pub overlay: Option<&'a Overlay>,
+    /// How the surfaces are coloured.
+    pub coloring: Coloring,
+    /// Force arrows (at most [`MAX_ARROWS`]; non-finite or zero ones are skipped).
+    pub arrows: &'a [ForceArrow],
+    /// A second overlay drawn on top, e.g. the legend ([`legend_image`], [`Anchor::TopRight`]).
+    pub legend: Option<&'a Overlay>,
 }
 
 /// The union of the objects' rest bounds in the scene frame (each [`FrameObject::bounds`]
@@ -297,6 +446,12 @@ pub struct Renderer {
     sphere_vertices: wgpu::Buffer,
     sphere_indices: wgpu::Buffer,
     sphere_index_count: u32,
+    arrow: wgpu::RenderPipeline,
+    arrow_hidden: wgpu::RenderPipeline,
+    arrow_vertices: wgpu::Buffer,
+    arrow_indices: wgpu::Buffer,
+    arrow_index_count: u32,
+    arrow_instances: wgpu::Buffer,
     uniforms: wgpu::Buffer,
     instances: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
@@ -370,6 +525,21 @@ impl Renderer {
                 attributes: &instance_attrs,
             }),
         ];
+        let arrow_attrs = wgpu::vertex_attr_array![0 => Float32x4, 1 => Float32x3];
+        let arrow_instance_attrs =
+            wgpu::vertex_attr_array![2 => Float32x4, 3 => Float32x4, 4 => Float32x4];
+        let arrow_buffers = [
+            Some(wgpu::VertexBufferLayout {
+                array_stride: 28,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &arrow_attrs,
+            }),
+            Some(wgpu::VertexBufferLayout {
+                array_stride: std::mem::size_of::<ArrowInstance>() as u64,
+                step_mode: wgpu::VertexStepMode::Instance,
+                attributes: &arrow_instance_attrs,
+            }),
+        ];
         let surface_buffers = [Some(Vertex::layout())];
         let pipeline = |label: &str,
                         vs: &str,
@@ -437,7 +607,7 @@ impl Renderer {
             T::LineList,
             false,
             C::LessEqual,
-            None,
+            Some(wgpu::BlendState::ALPHA_BLENDING),
         );
         let sphere = pipeline(
             "touchfem spheres",
@@ -447,7 +617,7 @@ impl Renderer {
             T::TriangleList,
             true,
             C::Less,
-            None,
+            Some(wgpu::BlendState::ALPHA_BLENDING),
         );
         let sphere_hidden = pipeline(
             "touchfem hidden spheres",
@@ -459,6 +629,27 @@ impl Renderer {
             C::Greater,
             Some(wgpu::BlendState::ALPHA_BLENDING),
         );
+        let arrow = pipeline(
+            "touchfem arrows",
+            "vs_arrow",
+            "fs_sphere",
+            &arrow_buffers,
+            T::TriangleList,
+            true,
+            C::Less,
+            None,
+        );
+        let arrow_hidden = pipeline(
+            "touchfem hidden arrows",
+            "vs_arrow",
+            "fs_sphere_hidden",
+            &arrow_buffers,
+            T::TriangleList,
+            false,
+            C::Greater,
+            Some(wgpu::BlendState::ALPHA_BLENDING),
+        );
+        let (av, ai) = arrow_mesh(16);
         let (sv, si) = uv_sphere(12, 20);
         let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("touchfem camera"),
@@ -502,6 +693,25 @@ impl Renderer {
                 usage: wgpu::BufferUsages::INDEX,
             }),
             sphere_index_count: si.len() as u32,
+            arrow,
+            arrow_hidden,
+            arrow_vertices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("touchfem arrow vertices"),
+                contents: bytemuck::cast_slice(&av),
+                usage: wgpu::BufferUsages::VERTEX,
+            }),
+            arrow_indices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("touchfem arrow indices"),
+                contents: bytemuck::cast_slice(&ai),
+                usage: wgpu::BufferUsages::INDEX,
+            }),
+            arrow_index_count: ai.len() as u32,
+            arrow_instances: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("touchfem arrow instances"),
+                size: (MAX_ARROWS * std::mem::size_of::<ArrowInstance>()) as u64,
+                usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
             uniforms,
             instances,
             bind_group,
@@ -552,8 +762,9 @@ impl Renderer {
     }
 
     /// Renders with a caller-kept [`Deformer`] (built for `scene`'s mesh and compliance) whose
-    /// forces the caller has already set: the visual loop's per-frame call. `scene.forces` is
-    /// not used here.
+    /// forces the caller has already set. `scene.forces` is not used here. With
+    /// [`Scene::legend`] it builds the legend's overlay on every call: for a frame loop with a
+    /// legend, keep an [`Overlay`] and use [`render_to_image`](Self::render_to_image).
     pub fn render_with(
         &self,
         device: &wgpu::Device,
@@ -562,8 +773,18 @@ impl Renderer {
         scene: &Scene<'_>,
     ) -> Result<image::RgbaImage, RenderError> {
         let (min, max) = bounds(&scene.mesh.nodes);
-        let [w, h] = self.size;
-        let camera = Camera::framing(min, max, f64::from(w) / f64::from(h));
+        let scale = (max - min).length();
+        let legend = if scene.legend {
+            legend_image(&scene.legend_spec(self.size[1])).map(|img| {
+                let mut o = Overlay::new(device, self.options);
+                o.set_anchor(Anchor::TopRight);
+                o.set_image(device, queue, Some(&img));
+                o
+            })
+        } else {
+            None
+        };
+        let camera = self.scene_camera(scene, legend.as_ref().and_then(Overlay::image_size));
         let edges = scene.wireframe.then(|| Edges::new(device, deformer));
         let objects = [FrameObject {
             deformer,
@@ -573,16 +794,58 @@ impl Renderer {
         }];
         let fingers: Vec<DVec3> = scene.finger.into_iter().collect();
         let proxies: Vec<DVec3> = scene.proxy.into_iter().collect();
+        let arrows: Vec<ForceArrow> = scene.arrow.into_iter().collect();
         let frame = Frame {
             objects: &objects,
             camera,
             fingers: &fingers,
             proxies: &proxies,
-            scale: (max - min).length(),
+            scale,
             wireframe: scene.wireframe,
             overlay: None,
+            coloring: scene.coloring,
+            arrows: &arrows,
+            legend: legend.as_ref(),
         };
-        self.render_offscreen(device, queue, &frame)
+        self.render_to_image(device, queue, &frame)
+    }
+
+    /// The camera [`render_with`](Self::render_with) uses for `scene` with a legend of
+    /// `legend_px` (width, height) in the top-right corner: [`View::Auto`] fits the rest
+    /// surface, the spheres and the arrow's tip into the image left of the legend;
+    /// [`View::Contact`] looks at the touched point from outside, framing the surface within
+    /// the radius, the spheres and the arrow.
+    pub fn scene_camera(&self, scene: &Scene<'_>, legend_px: Option<[u32; 2]>) -> Camera {
+        let [w, h] = self.size;
+        let aspect = f64::from(w) / f64::from(h);
+        let region = region_beside_legend(self.size, legend_px);
+        let mut extra: Vec<DVec3> = scene.finger.into_iter().chain(scene.proxy).collect();
+        if let Some(a) = scene.arrow {
+            extra.push(a.at + a.force_n * a.m_per_n);
+        }
+        let surface = scene
+            .mesh
+            .surface
+            .iter()
+            .flatten()
+            .map(|&n| scene.mesh.nodes[n as usize]);
+        match scene.view {
+            View::Auto => {
+                let pts: Vec<DVec3> = surface.chain(extra).collect();
+                Camera::fit(&pts, VIEW_DIR, aspect, region)
+            }
+            View::Contact {
+                point,
+                normal,
+                radius_m,
+            } => {
+                let pts: Vec<DVec3> = surface
+                    .filter(|p| p.distance(point) <= radius_m)
+                    .chain(extra)
+                    .collect();
+                Camera::contact(point, normal, &pts, aspect, region)
+            }
+        }
     }
 
     /// Renders several objects offscreen (their forces already set), the camera framing the
@@ -625,12 +888,16 @@ impl Renderer {
             scale: (max - min).length(),
             wireframe,
             overlay: None,
+            coloring: Coloring::Plain,
+            arrows: &[],
+            legend: None,
         };
-        self.render_offscreen(device, queue, &frame)
+        self.render_to_image(device, queue, &frame)
     }
 
-    /// Draws `frame` offscreen in one submission and reads the image back.
-    fn render_offscreen(
+    /// Draws `frame` offscreen in one submission and reads the image back (the renderer's
+    /// format must be 8-bit RGBA or BGRA).
+    pub fn render_to_image(
         &self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,
@@ -746,8 +1013,12 @@ impl Renderer {
             ],
             light_dir: camera.light_dir().extend(0.0).to_array(),
             base_color: SURFACE,
-            line_color: LINES,
+            line_color: match frame.coloring {
+                Coloring::Plain => LINES,
+                Coloring::Displacement { .. } => [LINES[0], LINES[1], LINES[2], LINES_OVER_COLORS],
+            },
             offset: [0.0; 4],
+            colormap: [frame.coloring.inverse_scale(), 0.0, 0.0, 0.0],
         };
         let mut records = [0u8; UNIFORM_STRIDE as usize * (1 + MAX_FRAME_OBJECTS)];
         let camera_size = std::mem::size_of::<CameraGpu>();
@@ -793,7 +1064,41 @@ impl Renderer {
                 bytemuck::cast_slice(&instances[..count]),
             );
         }
+        let arrow_radius = (ARROW_RADIUS * frame.scale) as f32;
+        let mut arrows = [ArrowInstance::default(); MAX_ARROWS];
+        let mut n_arrows = 0;
+        for a in frame.arrows {
+            let v = a.force_n * a.m_per_n;
+            let len = v.length();
+            if !(a.at.is_finite() && len.is_finite() && len > 0.0) {
+                continue;
+            }
+            if n_arrows == MAX_ARROWS {
+                return Err(RenderError::TooMany {
+                    what: "arrows",
+                    count: frame.arrows.len(),
+                    max: MAX_ARROWS,
+                });
+            }
+            let d = v / len;
+            arrows[n_arrows] = ArrowInstance {
+                base_len: [a.at.x as f32, a.at.y as f32, a.at.z as f32, len as f32],
+                dir_radius: [d.x as f32, d.y as f32, d.z as f32, arrow_radius],
+                color: ARROW,
+            };
+            n_arrows += 1;
+        }
+        if n_arrows > 0 {
+            queue.write_buffer(
+                &self.arrow_instances,
+                0,
+                bytemuck::cast_slice(&arrows[..n_arrows]),
+            );
+        }
         if let Some(o) = frame.overlay {
+            o.prepare(queue, self.size);
+        }
+        if let Some(o) = frame.legend {
             o.prepare(queue, self.size);
         }
         for o in frame.objects {
@@ -865,7 +1170,21 @@ impl Renderer {
             pass.set_pipeline(&self.sphere_hidden);
             pass.draw_indexed(0..self.sphere_index_count, 0, 0..n);
         }
+        if n_arrows > 0 {
+            let n = n_arrows as u32;
+            pass.set_bind_group(0, &self.bind_group, &[0]);
+            pass.set_vertex_buffer(0, self.arrow_vertices.slice(..));
+            pass.set_vertex_buffer(1, self.arrow_instances.slice(..));
+            pass.set_index_buffer(self.arrow_indices.slice(..), wgpu::IndexFormat::Uint16);
+            pass.set_pipeline(&self.arrow);
+            pass.draw_indexed(0..self.arrow_index_count, 0, 0..n);
+            pass.set_pipeline(&self.arrow_hidden);
+            pass.draw_indexed(0..self.arrow_index_count, 0, 0..n);
+        }
         if let Some(o) = frame.overlay {
+            o.record(&mut pass);
+        }
+        if let Some(o) = frame.legend {
             o.record(&mut pass);
         }
         Ok(())
@@ -923,6 +1242,60 @@ fn edge_list(tris: &[[u32; 3]]) -> Vec<u32> {
     e.sort_unstable();
     e.dedup();
     e.into_iter().flat_map(|(a, b)| [a, b]).collect()
+}
+
+/// A unit arrow along +z for `vs_arrow`: per vertex `[x, y, a, b]` (across, and along =
+/// a·length + b·head) and its normal `[nx, ny, nz]` in the arrow's frame; u16 indices. A
+/// shaft of radius 1 with a base cap, and a cone head of radius 2.5.
+fn arrow_mesh(slices: u16) -> (Vec<[f32; 7]>, Vec<u16>) {
+    let mut v: Vec<[f32; 7]> = Vec::new();
+    let mut idx: Vec<u16> = Vec::new();
+    let ring = |v: &mut Vec<[f32; 7]>, r: f32, a: f32, b: f32, nz: f32| -> u16 {
+        let start = v.len() as u16;
+        let k = (1.0 + nz * nz).sqrt();
+        for j in 0..slices {
+            let ph = std::f32::consts::TAU * f32::from(j) / f32::from(slices);
+            let (s, c) = ph.sin_cos();
+            v.push([r * c, r * s, a, b, c / k, s / k, nz / k]);
+        }
+        start
+    };
+    let quad = |idx: &mut Vec<u16>, lo: u16, hi: u16| {
+        for j in 0..slices {
+            let j1 = (j + 1) % slices;
+            idx.extend_from_slice(&[lo + j, lo + j1, hi + j, hi + j, lo + j1, hi + j1]);
+        }
+    };
+    // Shaft: from along 0 to length − head.
+    let s0 = ring(&mut v, 1.0, 0.0, 0.0, 0.0);
+    let s1 = ring(&mut v, 1.0, 1.0, -1.0, 0.0);
+    quad(&mut idx, s0, s1);
+    // Base cap.
+    let centre = v.len() as u16;
+    v.push([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0]);
+    let cap = v.len() as u16;
+    for j in 0..slices {
+        let ph = std::f32::consts::TAU * f32::from(j) / f32::from(slices);
+        v.push([ph.cos(), ph.sin(), 0.0, 0.0, 0.0, 0.0, -1.0]);
+    }
+    for j in 0..slices {
+        idx.extend_from_slice(&[centre, cap + (j + 1) % slices, cap + j]);
+    }
+    // Head: the underside (a disc of radius 2.5) and the cone (slope 2.5 : 4).
+    let hc = v.len() as u16;
+    v.push([0.0, 0.0, 1.0, -1.0, 0.0, 0.0, -1.0]);
+    let under = v.len() as u16;
+    for j in 0..slices {
+        let ph = std::f32::consts::TAU * f32::from(j) / f32::from(slices);
+        v.push([2.5 * ph.cos(), 2.5 * ph.sin(), 1.0, -1.0, 0.0, 0.0, -1.0]);
+    }
+    for j in 0..slices {
+        idx.extend_from_slice(&[hc, under + (j + 1) % slices, under + j]);
+    }
+    let c0 = ring(&mut v, 2.5, 1.0, -1.0, 2.5 / 4.0);
+    let c1 = ring(&mut v, 0.0, 1.0, 0.0, 2.5 / 4.0);
+    quad(&mut idx, c0, c1);
+    (v, idx)
 }
 
 /// A unit UV sphere: positions (= normals) and u16 triangle indices, counter-clockwise outside.

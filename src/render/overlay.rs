@@ -11,13 +11,23 @@ use super::{RenderOptions, DEPTH_FORMAT};
 pub const OVERLAY_WGSL: &str = include_str!("../../shaders/overlay.wgsl");
 
 /// The bundled font (`assets/DejaVuSansMono.ttf`).
-const FONT: &[u8] = include_bytes!("../../assets/DejaVuSansMono.ttf");
+pub(super) const FONT: &[u8] = include_bytes!("../../assets/DejaVuSansMono.ttf");
 /// Padding around the text, pixels.
 const PAD: f32 = 4.0;
 /// Opacity of the dark box behind the text.
 const BOX_ALPHA: f32 = 0.55;
-/// Where the image's top-left corner goes, pixels from the target's top-left corner.
+/// Distance of the image from the target's edges, pixels (see [`Anchor`]).
 const ORIGIN: [f32; 2] = [8.0, 8.0];
+
+/// Which corner of the target an [`Overlay`] sits in, 8 pixels from its edges.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Anchor {
+    /// The top-left corner (the status line).
+    #[default]
+    TopLeft,
+    /// The top-right corner (the legend).
+    TopRight,
+}
 /// Text height, pixels.
 pub(super) const TEXT_PX: f32 = 15.0;
 
@@ -82,6 +92,7 @@ pub struct Overlay {
     uniform: wgpu::Buffer,
     image: Option<(wgpu::BindGroup, [u32; 2])>,
     text: String,
+    anchor: Anchor,
 }
 
 impl Overlay {
@@ -171,7 +182,18 @@ impl Overlay {
             uniform,
             image: None,
             text: String::new(),
+            anchor: Anchor::TopLeft,
         }
+    }
+
+    /// Puts the overlay in `anchor`'s corner (default [`Anchor::TopLeft`]).
+    pub fn set_anchor(&mut self, anchor: Anchor) {
+        self.anchor = anchor;
+    }
+
+    /// Size of the image shown (width, height), pixels; `None` when hidden.
+    pub fn image_size(&self) -> Option<[u32; 2]> {
+        self.image.as_ref().map(|(_, s)| *s)
     }
 
     /// The text shown.
@@ -191,6 +213,25 @@ impl Overlay {
             return;
         }
         let img = rasterize_text(text, TEXT_PX);
+        self.upload(device, queue, &img);
+    }
+
+    /// Shows `img` (straight-alpha sRGB RGBA, drawn 1:1), e.g. a [`super::legend_image`];
+    /// `None` hides the overlay. The text of [`text`](Self::text) is cleared.
+    pub fn set_image(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        img: Option<&image::RgbaImage>,
+    ) {
+        self.text.clear();
+        match img {
+            Some(img) => self.upload(device, queue, img),
+            None => self.image = None,
+        }
+    }
+
+    fn upload(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, img: &image::RgbaImage) {
         let size = wgpu::Extent3d {
             width: img.width(),
             height: img.height(),
@@ -237,8 +278,12 @@ impl Overlay {
     /// Writes the quad's placement for a target of `target` pixels.
     pub(super) fn prepare(&self, queue: &wgpu::Queue, target: [u32; 2]) {
         if let Some((_, [w, h])) = &self.image {
+            let x = match self.anchor {
+                Anchor::TopLeft => ORIGIN[0],
+                Anchor::TopRight => target[0] as f32 - ORIGIN[0] - *w as f32,
+            };
             let q = QuadGpu {
-                rect: [ORIGIN[0], ORIGIN[1], *w as f32, *h as f32],
+                rect: [x, ORIGIN[1], *w as f32, *h as f32],
                 target_size: [target[0] as f32, target[1] as f32, 0.0, 0.0],
             };
             queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&q));

@@ -28,6 +28,9 @@ const OUTSIDE_M: f64 = 1e-3;
 const MIN_DEPTH_PER_PX: f64 = 0.06e-3;
 /// Press depth per pixel as a fraction of the scene's diagonal.
 const DEPTH_PER_PX_OF_DIAGONAL: f64 = 0.002;
+/// The colour map's full scale as a fraction of the scene's diagonal (rounded to a nice
+/// number): a 100-pixel drag on the cube presses 6 mm, its scale is 6 mm.
+const COLOR_SCALE_OF_DIAGONAL: f64 = 0.1;
 /// How often the status line is refreshed.
 const STATUS_EVERY: Duration = Duration::from_millis(250);
 
@@ -40,6 +43,8 @@ struct Gfx {
     config: wgpu::SurfaceConfiguration,
     renderer: Renderer,
     overlay: Overlay,
+    /// The legend (top right): the colour scale and the arrow's.
+    legend: Overlay,
     deformers: Vec<Deformer>,
     edges: Vec<Edges>,
     /// The first error the device reported (validation, out of memory, lost).
@@ -85,6 +90,12 @@ pub(super) struct App<'a> {
     press: Option<Press>,
     orbiting: bool,
     wireframe: bool,
+    /// Colour by displacement (`C` toggles).
+    colors: bool,
+    /// The colour map's full scale and tick step (m), fixed for the session.
+    color_scale: (f64, f64),
+    /// The force arrow's scale, m per N, fixed for the session.
+    arrow_m_per_n: f64,
     depth_per_px: f64,
     scale: f64,
     stats: Stats,
@@ -92,6 +103,25 @@ pub(super) struct App<'a> {
     started: Instant,
     log: Option<std::fs::File>,
     samples_override: Option<u32>,
+}
+
+/// The force arrow's scale (m per N): the force of a press as deep as the colour scale's full
+/// scale at the first object's median contact stiffness (the 3×3 `L_ii⁻¹` blocks' mean
+/// diagonal) is a quarter of the scene's size.
+fn arrow_m_per_n(world: &World, diag: f64) -> f64 {
+    let Some(o) = world.objects.first() else {
+        return crate::render::arrow_scale(1.0, 0.25 * diag);
+    };
+    let c = &o.scene.compliance;
+    let mut k: Vec<f64> = (0..c.cols().len())
+        .map(|i| {
+            let m = c.diag_inv(i);
+            (m.x_axis.x + m.y_axis.y + m.z_axis.z) / 3.0
+        })
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .collect();
+    let k = median(&mut k);
+    crate::render::arrow_scale(k * COLOR_SCALE_OF_DIAGONAL * diag, 0.25 * diag)
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -158,6 +188,9 @@ impl<'a> App<'a> {
             press: None,
             orbiting: false,
             wireframe: true,
+            colors: opts.colors,
+            color_scale: crate::render::displacement_scale(COLOR_SCALE_OF_DIAGONAL * diag),
+            arrow_m_per_n: arrow_m_per_n(world, diag),
             depth_per_px: MIN_DEPTH_PER_PX.max(DEPTH_PER_PX_OF_DIAGONAL * diag),
             scale: diag,
             stats: Stats::default(),
@@ -293,6 +326,8 @@ impl<'a> App<'a> {
         let options = RenderOptions { samples, format };
         let renderer = Renderer::with_options(&device, self.size, options)?;
         let overlay = Overlay::new(&device, options);
+        let mut legend = Overlay::new(&device, options);
+        legend.set_anchor(crate::render::Anchor::TopRight);
         let mut deformers = Vec::with_capacity(self.world.objects.len());
         for o in &self.world.objects {
             deformers.push(Deformer::new(
@@ -309,6 +344,8 @@ impl<'a> App<'a> {
         if lo.is_finite() && hi.is_finite() {
             self.orbit = Orbit::framing(lo, hi, self.aspect());
         }
+        let legend_img = self.legend_image();
+        legend.set_image(&device, &queue, legend_img.as_ref());
         Ok(Gfx {
             window,
             surface,
@@ -317,10 +354,33 @@ impl<'a> App<'a> {
             config,
             renderer,
             overlay,
+            legend,
             deformers,
             edges,
             device_error,
         })
+    }
+
+    /// The legend for the current colouring.
+    fn legend_image(&self) -> Option<image::RgbaImage> {
+        crate::render::legend_image(&crate::render::LegendSpec {
+            bar_px: crate::render::LegendSpec::bar_for(self.size[1]),
+            displacement: self.colors.then_some(self.color_scale),
+            arrow_m_per_n: Some(self.arrow_m_per_n),
+            force_n: None,
+        })
+    }
+
+    /// The surface colouring now.
+    fn coloring(&self) -> crate::render::Coloring {
+        if self.colors {
+            crate::render::Coloring::Displacement {
+                full_scale_m: self.color_scale.0,
+                step_m: self.color_scale.1,
+            }
+        } else {
+            crate::render::Coloring::Plain
+        }
     }
 
     /// The pointer finger's |F| (N) as the haptic loop last sent it.
@@ -357,6 +417,18 @@ impl<'a> App<'a> {
             proxies[i] = f.proxy.unwrap_or(DVec3::NAN);
         }
         let touching = sample.fingers().iter().any(|f| f.object.is_some());
+        let mut arrows = [crate::render::ForceArrow {
+            at: DVec3::NAN,
+            force_n: DVec3::ZERO,
+            m_per_n: self.arrow_m_per_n,
+        }; crate::force::MAX_FINGERS];
+        for (a, f) in arrows.iter_mut().zip(sample.fingers()) {
+            if let Some(p) = f.proxy.filter(|_| f.object.is_some()) {
+                a.at = p;
+                a.force_n = f.force;
+            }
+        }
+        let coloring = self.coloring();
         let status_due = self
             .stats
             .last_status
@@ -442,6 +514,9 @@ impl<'a> App<'a> {
             scale: self.scale,
             wireframe: self.wireframe,
             overlay: Some(&g.overlay),
+            coloring,
+            arrows: &arrows[..n_f],
+            legend: Some(&g.legend),
         };
         let mut enc = g
             .device
@@ -581,6 +656,13 @@ impl ApplicationHandler for App<'_> {
                     Key::Named(NamedKey::Escape) => self.quit(el),
                     Key::Character(c) if c.eq_ignore_ascii_case("w") => {
                         self.wireframe = !self.wireframe
+                    }
+                    Key::Character(c) if c.eq_ignore_ascii_case("c") => {
+                        self.colors = !self.colors;
+                        let img = self.legend_image();
+                        if let Some(g) = self.gfx.as_mut() {
+                            g.legend.set_image(&g.device, &g.queue, img.as_ref());
+                        }
                     }
                     _ => {}
                 }

@@ -68,6 +68,7 @@ pub fn view_command(args: &crate::cli::ViewArgs) -> Result<(), Error> {
     let opts = WindowOptions {
         size: args.size,
         title: format!("touchfem view: {}", world.name),
+        colors: args.color == crate::cli::ColorArg::Displacement,
     };
     let (result, haptic) = std::thread::scope(|s| {
         let haptic = s.spawn(|| {

@@ -55,6 +55,8 @@ pub struct WindowOptions {
     pub size: [u32; 2],
     /// The window title's prefix (should contain `touchfem`; the status is appended).
     pub title: String,
+    /// Start with the surface coloured by the displacement (`C` toggles it).
+    pub colors: bool,
 }
 
 /// What a window session did.

@@ -1,0 +1,363 @@
+//! The displacement colour map (viridis), its legend (a colour bar labelled in mm, and the force
+//! arrow's scale in mm per N) and the "nice" scales both use.
+
+use ab_glyph::{Font, FontRef, PxScale, ScaleFont};
+
+use super::overlay::FONT;
+
+/// Opacity of the legend's dark box (more than the status line's: it may lie over the object).
+const BOX_ALPHA: f32 = 0.75;
+
+/// Viridis (matplotlib's perceptually uniform colour map; van der Walt & Smith), sRGB, at
+/// `i / 9` for `i = 0..=9`; linear in between. The same table is `VIRIDIS` in
+/// `shaders/render.wgsl` (a unit test checks that they agree).
+pub const VIRIDIS: [[u8; 3]; 10] = [
+    [0x44, 0x01, 0x54],
+    [0x48, 0x28, 0x78],
+    [0x3e, 0x4a, 0x89],
+    [0x31, 0x68, 0x8e],
+    [0x26, 0x82, 0x8e],
+    [0x1f, 0x9e, 0x89],
+    [0x35, 0xb7, 0x79],
+    [0x6d, 0xcd, 0x59],
+    [0xb4, 0xde, 0x2c],
+    [0xfd, 0xe7, 0x25],
+];
+
+/// The colour map at `t` (clamped to 0..=1), sRGB bytes.
+pub fn viridis(t: f64) -> [u8; 3] {
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let x = t * (VIRIDIS.len() - 1) as f64;
+    let i = (x.floor() as usize).min(VIRIDIS.len() - 2);
+    let f = x - i as f64;
+    let (a, b) = (VIRIDIS[i], VIRIDIS[i + 1]);
+    std::array::from_fn(|k| {
+        (f64::from(a[k]) + f * (f64::from(b[k]) - f64::from(a[k]))).round() as u8
+    })
+}
+
+/// The smallest "nice" number (1, 2, 2.5 or 5 times a power of ten) at least `x` (up to a
+/// relative 10⁻⁶, so that rounding keeps a nice `x` as it is); `x > 0` finite, else 1.
+pub fn nice_ceil(x: f64) -> f64 {
+    if !(x.is_finite() && x > 0.0) {
+        return 1.0;
+    }
+    let p = 10f64.powf(x.log10().floor());
+    for m in [1.0, 2.0, 2.5, 5.0, 10.0] {
+        if m * p >= x * (1.0 - 1e-6) {
+            return m * p;
+        }
+    }
+    10.0 * p
+}
+
+/// The largest "nice" number (1, 2 or 5 times a power of ten) at most `x`; `x > 0` finite, else 1.
+pub fn nice_floor(x: f64) -> f64 {
+    if !(x.is_finite() && x > 0.0) {
+        return 1.0;
+    }
+    let p = 10f64.powf(x.log10().floor());
+    for m in [5.0, 2.0, 1.0] {
+        if m * p <= x * (1.0 + 1e-6) {
+            return m * p;
+        }
+    }
+    p
+}
+
+/// The colour scale's full-scale displacement for a largest displacement `max_m` (m): a tick
+/// step of 1, 2, 2.5 or 5 times a power of ten, and the smallest multiple of it at least
+/// `max_m`, with 4 or 5 steps (8 mm → 0..8 in steps of 2; 7.05 mm → 0..8; 5 mm → 0..5 in 1).
+/// Returns (full scale, step), both metres.
+pub fn displacement_scale(max_m: f64) -> (f64, f64) {
+    if !(max_m.is_finite() && max_m > 0.0) {
+        return (1e-3, 2.5e-4);
+    }
+    let step = nice_ceil(max_m / 5.0);
+    let n = (max_m / step * (1.0 - 1e-6)).ceil().max(1.0);
+    (n * step, step)
+}
+
+/// The force arrow's scale (m of arrow per N) that draws a force of `force_n` newtons about
+/// `length_m` long, rounded down to a nice number (so the arrow is at most that long).
+pub fn arrow_scale(force_n: f64, length_m: f64) -> f64 {
+    if !(force_n.is_finite() && force_n > 0.0 && length_m > 0.0) {
+        return 1e-3;
+    }
+    // In mm per N, rounded down to 1, 2, 5 × 10^k.
+    nice_floor(length_m * 1e3 / force_n) * 1e-3
+}
+
+/// What the legend shows.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LegendSpec {
+    /// Height of the colour bar, pixels (e.g. [`LegendSpec::bar_for`] the image height); the
+    /// text is a tenth of it, 10 to 14 pixels.
+    pub bar_px: u32,
+    /// The colour bar: full scale and tick step of |u|, metres (see [`displacement_scale`]).
+    pub displacement: Option<(f64, f64)>,
+    /// The force arrow's scale, metres of arrow per newton.
+    pub arrow_m_per_n: Option<f64>,
+    /// The force to print, newtons (the arrow's length), if any.
+    pub force_n: Option<f64>,
+}
+
+impl LegendSpec {
+    /// A colour bar height for an image `height` pixels high: a third of it, 60 to 150 pixels.
+    pub fn bar_for(height: u32) -> u32 {
+        (height / 3).clamp(60, 150)
+    }
+}
+
+/// Text height of the legend for a colour bar `bar_px` high: a tenth of it, 10 to 14 pixels
+/// (so the legend stays a corner of a small image).
+fn text_px(bar_px: u32) -> f32 {
+    (bar_px as f32 / 10.0).clamp(10.0, 14.0)
+}
+/// Colour bar width, pixels.
+const BAR_W: u32 = 18;
+/// Margin inside the legend box, pixels.
+const MARGIN: u32 = 8;
+
+/// Formats `v` with as many decimals as `step` needs (at most 3).
+fn label(v: f64, step: f64) -> String {
+    let decimals = (0..=3)
+        .find(|&d| {
+            let s = step * 10f64.powi(d);
+            (s - s.round()).abs() < 1e-6
+        })
+        .unwrap_or(3);
+    format!("{v:.*}", decimals as usize)
+}
+
+/// Alpha-blends white text into `img` with its top-left corner at (`x`, `y`).
+fn draw_text(img: &mut image::RgbaImage, x: f32, y: f32, text: &str, px: f32) -> f32 {
+    let font = FontRef::try_from_slice(FONT).expect("the bundled font parses");
+    let scale = PxScale::from(px);
+    let scaled = font.as_scaled(scale);
+    let mut pen = x;
+    for c in text.chars() {
+        let id = font.glyph_id(c);
+        let glyph = id.with_scale_and_position(scale, ab_glyph::point(pen, y + scaled.ascent()));
+        pen += scaled.h_advance(id);
+        let Some(outline) = font.outline_glyph(glyph) else {
+            continue;
+        };
+        let b = outline.px_bounds();
+        outline.draw(|gx, gy, v| {
+            let px = b.min.x as i64 + i64::from(gx);
+            let py = b.min.y as i64 + i64::from(gy);
+            if (0..i64::from(img.width())).contains(&px)
+                && (0..i64::from(img.height())).contains(&py)
+            {
+                let p = img.get_pixel_mut(px as u32, py as u32);
+                let v = v.clamp(0.0, 1.0);
+                // Over a straight-alpha pixel: white with coverage v.
+                let a0 = f32::from(p[3]) / 255.0;
+                let a = v + a0 * (1.0 - v);
+                for k in 0..3 {
+                    let c0 = f32::from(p[k]) / 255.0;
+                    let c = if a > 0.0 {
+                        (v + c0 * a0 * (1.0 - v)) / a
+                    } else {
+                        0.0
+                    };
+                    p[k] = (255.0 * c).round() as u8;
+                }
+                p[3] = (255.0 * a).round() as u8;
+            }
+        });
+    }
+    pen - x
+}
+
+/// Width of `text` at the legend's size, pixels.
+fn text_width(text: &str, px: f32) -> f32 {
+    let font = FontRef::try_from_slice(FONT).expect("the bundled font parses");
+    let scaled = font.as_scaled(PxScale::from(px));
+    text.chars()
+        .map(|c| scaled.h_advance(font.glyph_id(c)))
+        .sum()
+}
+
+/// The legend as a straight-alpha RGBA image (white text and the colour bar on a translucent
+/// dark box): `|u| (mm)` over a vertical viridis bar, 0 at the bottom, ticks every step; then
+/// the arrow's scale (`arrow 20 mm/N`) and the force (`|F| 0.676 N`). `None` when the spec shows
+/// nothing.
+pub fn legend_image(spec: &LegendSpec) -> Option<image::RgbaImage> {
+    let px = text_px(spec.bar_px);
+    let line = (px * 1.3).ceil() as u32;
+    let mut lines: Vec<String> = Vec::new();
+    if let Some(m_per_n) = spec.arrow_m_per_n {
+        lines.push(format!(
+            "arrow {} mm/N",
+            label(m_per_n * 1e3, m_per_n * 1e3)
+        ));
+    }
+    if let Some(f) = spec.force_n {
+        lines.push(format!("|F| {} N", format_force(f)));
+    }
+    let (bar_h, ticks) = match spec.displacement {
+        Some((full, step)) => {
+            let n = (full / step).round().max(1.0) as usize;
+            let ticks: Vec<(f64, String)> = (0..=n)
+                .map(|i| {
+                    let v = i as f64 * step;
+                    (v / full, label(v * 1e3, step * 1e3))
+                })
+                .collect();
+            (spec.bar_px.max(20), ticks)
+        }
+        None => (0, Vec::new()),
+    };
+    if bar_h == 0 && lines.is_empty() {
+        return None;
+    }
+    let title = "|u| (mm)";
+    let tick_w = ticks
+        .iter()
+        .map(|(_, s)| text_width(s, px))
+        .fold(0.0f32, f32::max);
+    let mut w = lines
+        .iter()
+        .map(|s| text_width(s, px))
+        .fold(0.0f32, f32::max);
+    if bar_h > 0 {
+        w = w
+            .max(text_width(title, px))
+            .max(BAR_W as f32 + 6.0 + tick_w);
+    }
+    let w = w.ceil() as u32 + 2 * MARGIN;
+    let bar_block = if bar_h > 0 {
+        line + bar_h + line / 2 + 4
+    } else {
+        0
+    };
+    let h = MARGIN * 2 + bar_block + line * lines.len() as u32;
+    let box_a = (255.0 * BOX_ALPHA).round() as u8;
+    let mut img = image::RgbaImage::from_pixel(w, h, image::Rgba([0, 0, 0, box_a]));
+    let mut y = MARGIN as f32;
+    if bar_h > 0 {
+        draw_text(&mut img, MARGIN as f32, y, title, px);
+        // The bar starts half a line below the title so the top tick's label fits.
+        let top = (y as u32) + line + line / 2 - 2;
+        for j in 0..bar_h {
+            let t = 1.0 - f64::from(j) / f64::from(bar_h - 1);
+            let [r, g, b] = viridis(t);
+            for i in 0..BAR_W {
+                img.put_pixel(MARGIN + i, top + j, image::Rgba([r, g, b, 255]));
+            }
+        }
+        for (t, s) in &ticks {
+            let ty = top + ((1.0 - t) * f64::from(bar_h - 1)).round() as u32;
+            for i in 0..4 {
+                img.put_pixel(MARGIN + BAR_W + i, ty, image::Rgba([255, 255, 255, 255]));
+            }
+            let text_y = ty as f32 - px * 0.6;
+            draw_text(&mut img, (MARGIN + BAR_W + 6) as f32, text_y, s, px);
+        }
+        y = (top + bar_h + line / 2 + 4) as f32;
+    }
+    for s in &lines {
+        draw_text(&mut img, MARGIN as f32, y, s, px);
+        y += line as f32;
+    }
+    Some(img)
+}
+
+/// A force in newtons with three significant digits.
+fn format_force(f: f64) -> String {
+    if f == 0.0 || !f.is_finite() {
+        return format!("{f}");
+    }
+    let digits = (2 - f.abs().log10().floor() as i32).clamp(0, 6);
+    format!("{f:.*}", digits as usize)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nice_scales() {
+        let (full, step) = displacement_scale(8e-3);
+        assert!((full - 8e-3).abs() < 1e-12 && (step - 2e-3).abs() < 1e-12);
+        let (full, step) = displacement_scale(7.05e-3);
+        assert!((full - 8e-3).abs() < 1e-12 && (step - 2e-3).abs() < 1e-12);
+        let (full, step) = displacement_scale(5e-3);
+        assert!((full - 5e-3).abs() < 1e-12 && (step - 1e-3).abs() < 1e-12);
+        let (full, step) = displacement_scale(0.3e-3);
+        assert!((full - 0.3e-3).abs() < 1e-12 && (step - 0.1e-3).abs() < 1e-12);
+        assert_eq!(nice_ceil(3.0), 5.0);
+        assert_eq!(nice_floor(19.3), 10.0);
+        assert!((arrow_scale(0.676, 0.013) * 1e3 - 10.0).abs() < 1e-9);
+        assert!((arrow_scale(0.028, 0.037) * 1e3 - 1000.0).abs() < 1e-6);
+        assert_eq!(format_force(0.675621), "0.676");
+        assert_eq!(format_force(0.028036), "0.0280");
+        assert_eq!(label(2.5, 2.5), "2.5");
+        assert_eq!(label(8.0, 2.0), "8");
+    }
+
+    #[test]
+    fn viridis_ends_and_middle() {
+        assert_eq!(viridis(0.0), VIRIDIS[0]);
+        assert_eq!(viridis(1.0), VIRIDIS[9]);
+        assert_eq!(viridis(-1.0), VIRIDIS[0]);
+        assert_eq!(viridis(f64::NAN), VIRIDIS[0]);
+        assert_eq!(viridis(4.0 / 9.0), VIRIDIS[4]);
+    }
+
+    /// The shader's table is this one.
+    #[test]
+    fn shader_table_matches() {
+        let src = super::super::RENDER_WGSL;
+        let start = src.find("const VIRIDIS").expect("VIRIDIS in render.wgsl");
+        let body = &src[start..src[start..].find(");").unwrap() + start];
+        let nums: Vec<f64> = body
+            .split(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .filter(|s| s.contains('.'))
+            .map(|s| s.parse().unwrap())
+            .collect();
+        assert_eq!(nums.len(), 30, "{body}");
+        for (i, c) in VIRIDIS.iter().enumerate() {
+            for k in 0..3 {
+                assert!(
+                    (nums[3 * i + k] - f64::from(c[k]) / 255.0).abs() < 5e-4,
+                    "stop {i} channel {k}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn legend_shows_the_bar_and_the_arrow_scale() {
+        let spec = LegendSpec {
+            bar_px: 150,
+            displacement: Some((8e-3, 2e-3)),
+            arrow_m_per_n: Some(1.0),
+            force_n: Some(0.028),
+        };
+        let img = legend_image(&spec).expect("a legend");
+        assert!(img.height() > 150 && img.width() > BAR_W);
+        // The bar's bottom is viridis(0), its top viridis(1).
+        let x = MARGIN + BAR_W / 2;
+        let col: Vec<[u8; 3]> = (0..img.height())
+            .map(|y| {
+                let p = img.get_pixel(x, y);
+                [p[0], p[1], p[2]]
+            })
+            .collect();
+        assert!(col.contains(&VIRIDIS[0]) && col.contains(&VIRIDIS[9]));
+        assert!(legend_image(&LegendSpec {
+            bar_px: 150,
+            displacement: None,
+            arrow_m_per_n: None,
+            force_n: None
+        })
+        .is_none());
+    }
+}
