@@ -133,6 +133,7 @@ pub fn serve_view(
     let wopts = WindowOptions {
         size,
         title: format!("touchfem serve: {}", world.name),
+        colors: true,
     };
     crate::runtime::serve::serve_with(world, opts, stop, bound, |reader, status| {
         super::run(world, reader, status, None, &wopts)?;
