@@ -77,6 +77,10 @@ pub struct BenchArgs {
     /// Write the rows as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Only the hard cases (nearly incompressible, slivers and needles, extreme scales,
+    /// locking): their accuracy in f64 and f32.
+    #[arg(long)]
+    pub hard: bool,
 }
 
 /// `touchfem serve` flags.
@@ -335,6 +339,9 @@ fn lavapipe_inline() {
 
 fn bench(a: &BenchArgs) -> Result<(), Error> {
     use crate::tradeoff::{bench_scenes, cpu_rows};
+    if a.hard {
+        return crate::hard::bench(a.json.as_deref());
+    }
     let (reps, active): (usize, &[usize]) = if a.quick {
         (20, &[9])
     } else {

@@ -29,6 +29,7 @@ pub mod fem;
 pub mod force;
 pub mod gpu;
 pub mod haptics;
+pub mod hard;
 pub mod mesh;
 pub mod render;
 pub mod runtime;

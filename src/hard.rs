@@ -1,0 +1,440 @@
+//! Hard cases, measured: nearly incompressible material, slivers and needles that still pass
+//! validation, and extreme scales of stiffness and size. For each: the precompute's residual,
+//! the f64 product against an independent dense LU solve (nalgebra, partial pivoting: a
+//! different algorithm and ordering from the sparse Cholesky), the f32 storage error as the GPU
+//! sees it (f32 entries, f32 sums), and the force of the paper's Fig. 1b press scaled to the
+//! body. `tests/hard_cases.rs` holds these to bounds; `touchfem bench --hard` prints them.
+//! Also volumetric locking: the press's force against ν at two resolutions.
+
+use glam::{DVec3, Vec3};
+
+use crate::compliance::{Compliance, NodeSet, Selection};
+use crate::fem::Stiffness;
+use crate::force::ForceModel;
+use crate::mesh::{grid_raw, Mesh, RawMesh};
+use crate::scene::Scene;
+use crate::units::{LengthUnit, Material};
+
+/// One hard case's numbers.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct HardCase {
+    /// What it is.
+    pub case: String,
+    /// Mesh nodes.
+    pub nodes: usize,
+    /// Worst element quality `6V/ℓ³` (regular tet 0.707; validation refuses ≤ 1e-8).
+    pub worst_quality: f64,
+    /// Young's modulus, Pa.
+    pub young_pa: f64,
+    /// Poisson's ratio.
+    pub poisson: f64,
+    /// Edge of the body, m.
+    pub size_m: f64,
+    /// The precompute's `max |K·L − I|` relative to `max |K|·max |L|`.
+    pub residual: f64,
+    /// `max |L·F − u_LU| / max |u_LU|` for a load at the top centre.
+    pub f64_error: f64,
+    /// The same product from f32 entries summed in f32 (the GPU's arithmetic), against f64.
+    pub f32_error: f64,
+    /// Force of the Fig. 1b press (a sixth of the edge, down at the top centre), N.
+    pub press_force_n: f64,
+    /// Precompute wall time, s.
+    pub precompute_s: f64,
+}
+
+/// The cube of edge `size_mm` with `cells` cells, its z nodes moved by `z_map` (mm → mm;
+/// monotone), in `unit` (the coordinates are written in that unit), bottom clamped.
+fn body(
+    cells: [usize; 3],
+    size_mm: f64,
+    unit: LengthUnit,
+    material: Material,
+    map: impl Fn([f64; 3]) -> [f64; 3],
+) -> Result<Mesh, crate::Error> {
+    let mut raw: RawMesh = grid_raw(cells, [size_mm; 3], |_, _, _| true);
+    let s = match unit {
+        LengthUnit::Millimetre => 1.0,
+        LengthUnit::Metre => 1e-3,
+    };
+    for p in &mut raw.nodes {
+        *p = map(*p).map(|v| v * s);
+    }
+    let mut mesh = Mesh::from_raw(raw, unit, material)?;
+    mesh.set_fixed_group("fixed")?;
+    Ok(mesh)
+}
+
+/// Worst `6V/ℓ³` over the tets.
+pub fn worst_quality(mesh: &Mesh) -> f64 {
+    mesh.tets
+        .iter()
+        .map(|t| {
+            let p = t.map(|i| mesh.nodes[i as usize]);
+            let v = crate::mesh::tet_volume(p[0], p[1], p[2], p[3]).abs();
+            let mut l: f64 = 0.0;
+            for a in 0..4 {
+                for b in a + 1..4 {
+                    l = l.max(p[a].distance(p[b]));
+                }
+            }
+            6.0 * v / l.powi(3)
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// The displacement of every node under `forces` by a dense LU solve of the free-DOF stiffness.
+pub fn dense_lu_solve(mesh: &Mesh, forces: &[(u32, DVec3)]) -> Result<Vec<DVec3>, crate::Error> {
+    let k = Stiffness::assemble(mesh)?;
+    let n = k.dofs.n_free;
+    let mut a = nalgebra::DMatrix::<f64>::zeros(n, n);
+    let m = k.k.as_ref();
+    for c in 0..n {
+        for (r, v) in m.row_idx_of_col(c).zip(m.val_of_col(c)) {
+            a[(r, c)] = *v;
+        }
+    }
+    let mut b = nalgebra::DVector::<f64>::zeros(n);
+    for &(node, f) in forces {
+        for ax in 0..3 {
+            if let Some(d) = k.dofs.free(node, ax) {
+                b[d] += f[ax];
+            }
+        }
+    }
+    let x = a
+        .lu()
+        .solve(&b)
+        .ok_or_else(|| crate::Error::Input("the dense stiffness is singular".into()))?;
+    Ok((0..mesh.nodes.len() as u32)
+        .map(|node| {
+            DVec3::from_array(std::array::from_fn(|ax| {
+                k.dofs.free(node, ax).map(|d| x[d]).unwrap_or(0.0)
+            }))
+        })
+        .collect())
+}
+
+/// `u = L·F` from the f32 copy of L with f32 sums, as the GPU pass computes it.
+pub fn displace_f32(c: &Compliance, forces: &[(u32, DVec3)]) -> Vec<DVec3> {
+    let nr = c.rows().len();
+    let l32 = c.l_f32();
+    let mut u = vec![Vec3::ZERO; nr];
+    for &(col, f) in forces {
+        let f = f.as_vec3();
+        for b in 0..3 {
+            let run = &l32[(3 * col as usize + b) * 3 * nr..][..3 * nr];
+            for (r, o) in u.iter_mut().enumerate() {
+                *o += Vec3::new(run[3 * r], run[3 * r + 1], run[3 * r + 2]) * f[b];
+            }
+        }
+    }
+    u.iter().map(|v| v.as_dvec3()).collect()
+}
+
+fn rel_max(a: &[DVec3], b: &[DVec3]) -> f64 {
+    let scale = b.iter().map(|v| v.length()).fold(0.0, f64::max);
+    let e = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (*x - *y).length())
+        .fold(0.0, f64::max);
+    e / scale
+}
+
+/// Measures one body: see [`HardCase`].
+pub fn measure(case: &str, mesh: Mesh) -> Result<HardCase, crate::Error> {
+    let sel = Selection {
+        rows: NodeSet::All,
+        cols: NodeSet::FreeSurface,
+    };
+    let t = std::time::Instant::now();
+    let c = Compliance::compute(&mesh, &sel)?;
+    let precompute_s = t.elapsed().as_secs_f64();
+    let (lo, hi) = mesh.bounds();
+    let size = (hi - lo).max_element();
+    let top = DVec3::new(0.5 * (lo.x + hi.x), 0.5 * (lo.y + hi.y), hi.z);
+    // A load at the free-surface node nearest the top centre, scaled so |u| is about a
+    // sixth of the edge whatever E and size are.
+    let col = (0..c.cols().len())
+        .min_by(|&a, &b| {
+            let d = |i: usize| mesh.nodes[c.cols()[i] as usize].distance(top);
+            d(a).total_cmp(&d(b))
+        })
+        .ok_or_else(|| crate::Error::Input("no touchable node".into()))?;
+    let node = c.cols()[col];
+    let diag = c.block(c.col_row(col), col).z_axis.z;
+    let f = DVec3::new(0.0, 0.0, -(size / 6.0) / diag);
+    let forces = [(col as u32, f)];
+    let mut u = vec![DVec3::ZERO; c.rows().len()];
+    c.displace(&forces, &mut u);
+    let lu = dense_lu_solve(&mesh, &[(node, f)])?;
+    // Rows are every node, in node order (the selection's rows: all nodes).
+    let by_node: Vec<DVec3> = (0..mesh.nodes.len() as u32)
+        .map(|n| c.row_of(n).map(|r| u[r]).unwrap_or(DVec3::ZERO))
+        .collect();
+    let f64_error = rel_max(&by_node, &lu);
+    let f32_error = rel_max(&displace_f32(&c, &forces), &u);
+    let kmax = {
+        let k = Stiffness::assemble(&mesh)?;
+        k.k.as_ref()
+            .val()
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v.abs()))
+    };
+    let lmax = c.l_f64().iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let residual = c.stats.residual / (kmax * lmax);
+    let material = mesh.material;
+    let quality = worst_quality(&mesh);
+    let scene = Scene::with_compliance(mesh, c);
+    let press = scene.poke(
+        top + DVec3::Z * size,
+        DVec3::new(0.0, 0.0, -size / 6.0),
+        ForceModel::Paper,
+        20,
+    )?;
+    Ok(HardCase {
+        case: case.into(),
+        nodes: scene.mesh.nodes.len(),
+        worst_quality: quality,
+        young_pa: material.young_pa,
+        poisson: material.poisson,
+        size_m: size,
+        residual,
+        f64_error,
+        f32_error,
+        press_force_n: press.feedback.length(),
+        precompute_s,
+    })
+}
+
+/// The paper's cube material (10 kPa) with Poisson's ratio `nu`.
+fn paper(nu: f64) -> Material {
+    Material {
+        young_pa: 10_000.0,
+        poisson: nu,
+    }
+}
+
+/// Every hard case (a few seconds in a release build).
+pub fn cases() -> Result<Vec<HardCase>, crate::Error> {
+    let mm = LengthUnit::Millimetre;
+    let id = |p: [f64; 3]| p;
+    let mut out = Vec::new();
+    for nu in [0.49, 0.499, 0.4999] {
+        let m = body([4, 4, 4], 30.0, mm, paper(nu), id)?;
+        out.push(measure(&format!("nu={nu}"), m)?);
+    }
+    // A layer 1 µm thick between z = 12 and 12.001 mm (5 layers of cells): slivers and
+    // near-zero-area side triangles.
+    let sliver = |p: [f64; 3]| {
+        let z = p[2];
+        let z = if z <= 12.0 + 1e-9 {
+            z
+        } else {
+            12.001 + (z - 18.0) * (30.0 - 12.001) / 12.0
+        };
+        [p[0], p[1], z]
+    };
+    // The same bodies with well-shaped cells of the same counts, for comparison.
+    out.push(measure(
+        "well-shaped 4x4x5",
+        body([4, 4, 5], 30.0, mm, paper(0.49), id)?,
+    )?);
+    out.push(measure(
+        "well-shaped 6x4x4",
+        body([6, 4, 4], 30.0, mm, paper(0.49), id)?,
+    )?);
+    out.push(measure(
+        "sliver layer (1 µm)",
+        body([4, 4, 5], 30.0, mm, paper(0.49), sliver)?,
+    )?);
+    // A column of cells 1 µm wide in x, between x = 20 and 20.001 mm (6 columns of cells),
+    // beside the press: needles.
+    let needle = |p: [f64; 3]| {
+        let x = p[0];
+        let x = if x <= 20.0 + 1e-9 {
+            x
+        } else if x <= 25.0 + 1e-9 {
+            20.0 + (x - 20.0) * 0.001 / 5.0
+        } else {
+            20.001 + (x - 25.0) * (30.0 - 20.001) / 5.0
+        };
+        [x, p[1], p[2]]
+    };
+    out.push(measure(
+        "needle column (1 µm)",
+        body([6, 4, 4], 30.0, mm, paper(0.49), needle)?,
+    )?);
+    // Extreme scales: the same cube at E = 1 Pa and 1 m, at 1 GPa and 1 mm, and in metres.
+    out.push(measure(
+        "E=1 Pa, 1 m",
+        body(
+            [4, 4, 4],
+            1000.0,
+            mm,
+            Material {
+                young_pa: 1.0,
+                poisson: 0.3,
+            },
+            id,
+        )?,
+    )?);
+    out.push(measure(
+        "E=1 GPa, 1 mm",
+        body(
+            [4, 4, 4],
+            1.0,
+            mm,
+            Material {
+                young_pa: 1e9,
+                poisson: 0.3,
+            },
+            id,
+        )?,
+    )?);
+    out.push(measure(
+        "E=1 GPa, 1 mm, in metres",
+        body(
+            [4, 4, 4],
+            1.0,
+            LengthUnit::Metre,
+            Material {
+                young_pa: 1e9,
+                poisson: 0.3,
+            },
+            id,
+        )?,
+    )?);
+    Ok(out)
+}
+
+/// One row of the locking table.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct LockingRow {
+    /// Poisson's ratio.
+    pub poisson: f64,
+    /// Top-centre settlement under a uniform 100 Pa pressure on the top face, m, on 4³, 8³
+    /// and 16³ cells.
+    pub settlement_m: [f64; 3],
+    /// Force of the Fig. 1b press (5 mm down at the top centre), N, on 4³ and 8³ cells.
+    pub press_force_n: [f64; 2],
+}
+
+/// Volumetric locking on the paper's cube (E = 10 kPa) against ν. A distributed load shows
+/// it: the coarse mesh settles less than the fine one (it is too stiff), more so as ν → 0.5.
+/// The paper's point press is shown beside it: its force roughly halves with each refinement
+/// at every ν, since a point load has no limit in 3D, and that hides locking.
+pub fn locking() -> Result<Vec<LockingRow>, crate::Error> {
+    let mut out = Vec::new();
+    for nu in [0.3, 0.45, 0.49, 0.499, 0.4999] {
+        let mut settlement = [0.0; 3];
+        for (i, n) in [4usize, 8, 16].iter().enumerate() {
+            let mesh = crate::mesh::cube_with([*n; 3], [30.0; 3], paper(nu))?;
+            let top = 0.03 - 1e-9;
+            let mut f = vec![DVec3::ZERO; mesh.nodes.len()];
+            for t in &mesh.surface {
+                let p = t.map(|i| mesh.nodes[i as usize]);
+                if p.iter().all(|q| q.z >= top) {
+                    let area = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
+                    for &v in t {
+                        f[v as usize].z -= 100.0 * area / 3.0;
+                    }
+                }
+            }
+            let forces: Vec<(u32, DVec3)> = f
+                .iter()
+                .enumerate()
+                .filter(|(_, v)| **v != DVec3::ZERO)
+                .map(|(i, v)| (i as u32, *v))
+                .collect();
+            let u = crate::fem::solve_static(&mesh, &forces)?;
+            let centre = DVec3::new(0.015, 0.015, 0.03);
+            let c = (0..mesh.nodes.len())
+                .min_by(|&a, &b| {
+                    mesh.nodes[a]
+                        .distance(centre)
+                        .total_cmp(&mesh.nodes[b].distance(centre))
+                })
+                .unwrap_or(0);
+            settlement[i] = -u[c].z;
+        }
+        let mut press = [0.0; 2];
+        for (i, n) in [4usize, 8].iter().enumerate() {
+            let mesh = crate::mesh::cube_with([*n; 3], [30.0; 3], paper(nu))?;
+            let scene = Scene::new(mesh, &Selection::default())?;
+            let p = scene.poke(
+                DVec3::new(0.015, 0.015, 0.03),
+                DVec3::new(0.0, 0.0, -0.005),
+                ForceModel::Paper,
+                20,
+            )?;
+            press[i] = p.feedback.length();
+        }
+        out.push(LockingRow {
+            poisson: nu,
+            settlement_m: settlement,
+            press_force_n: press,
+        });
+    }
+    Ok(out)
+}
+
+/// `touchfem bench --hard`: prints every hard case and the locking table; with `json`, writes
+/// them as `{"hard": [HardCase...], "locking": [LockingRow...], "machine"}`.
+pub fn bench(json: Option<&std::path::Path>) -> Result<(), crate::Error> {
+    let cases = cases()?;
+    println!(
+        "{:<26} {:>5} {:>9} {:>9} {:>9} {:>9} {:>11} {:>8}",
+        "case", "nodes", "quality", "residual", "f64_err", "f32_err", "press_N", "pre_s"
+    );
+    for c in &cases {
+        println!(
+            "{:<26} {:>5} {:>9.1e} {:>9.1e} {:>9.1e} {:>9.1e} {:>11.4e} {:>8.3}",
+            c.case,
+            c.nodes,
+            c.worst_quality,
+            c.residual,
+            c.f64_error,
+            c.f32_error,
+            c.press_force_n,
+            c.precompute_s
+        );
+    }
+    let lock = locking()?;
+    println!("\nvolumetric locking on the paper's cube: settlement under 100 Pa on the top face, and the Fig. 1b press");
+    println!(
+        "{:>8} {:>11} {:>11} {:>11} {:>10} {:>10} {:>10} {:>10}",
+        "poisson", "u 4^3 um", "u 8^3 um", "u 16^3 um", "4^3/16^3", "F 4^3 N", "F 8^3 N", "F 4/8"
+    );
+    for r in &lock {
+        let [a, b, c] = r.settlement_m;
+        let [f4, f8] = r.press_force_n;
+        println!(
+            "{:>8} {:>11.3} {:>11.3} {:>11.3} {:>10.3} {:>10.4} {:>10.4} {:>10.3}",
+            r.poisson,
+            a * 1e6,
+            b * 1e6,
+            c * 1e6,
+            a / c,
+            f4,
+            f8,
+            f4 / f8
+        );
+    }
+    if let Some(path) = json {
+        let v = serde_json::json!({
+            "hard": cases,
+            "locking": lock,
+            "machine": crate::demo::machine(),
+        });
+        std::fs::write(
+            path,
+            serde_json::to_string_pretty(&v).expect("serialisable"),
+        )
+        .map_err(|source| crate::Error::Write {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    }
+    Ok(())
+}
