@@ -215,6 +215,21 @@ fn paper(nu: f64) -> Material {
     }
 }
 
+/// The paper's 30 mm cube (ν = 0.49) in 4×4×5 cells whose middle layer, between z = 12 and
+/// 12.001 mm, is 1 µm thick: sliver tets (quality 4.7e-5) and side triangles of near-zero
+/// area.
+pub fn sliver_cube() -> Result<Mesh, crate::Error> {
+    body([4, 4, 5], 30.0, LengthUnit::Millimetre, paper(0.49), |p| {
+        let z = p[2];
+        let z = if z <= 12.0 + 1e-9 {
+            z
+        } else {
+            12.001 + (z - 18.0) * (30.0 - 12.001) / 12.0
+        };
+        [p[0], p[1], z]
+    })
+}
+
 /// Every hard case (a few seconds in a release build).
 pub fn cases() -> Result<Vec<HardCase>, crate::Error> {
     let mm = LengthUnit::Millimetre;
@@ -224,17 +239,6 @@ pub fn cases() -> Result<Vec<HardCase>, crate::Error> {
         let m = body([4, 4, 4], 30.0, mm, paper(nu), id)?;
         out.push(measure(&format!("nu={nu}"), m)?);
     }
-    // A layer 1 µm thick between z = 12 and 12.001 mm (5 layers of cells): slivers and
-    // near-zero-area side triangles.
-    let sliver = |p: [f64; 3]| {
-        let z = p[2];
-        let z = if z <= 12.0 + 1e-9 {
-            z
-        } else {
-            12.001 + (z - 18.0) * (30.0 - 12.001) / 12.0
-        };
-        [p[0], p[1], z]
-    };
     // The same bodies with well-shaped cells of the same counts, for comparison.
     out.push(measure(
         "well-shaped 4x4x5",
@@ -244,10 +248,7 @@ pub fn cases() -> Result<Vec<HardCase>, crate::Error> {
         "well-shaped 6x4x4",
         body([6, 4, 4], 30.0, mm, paper(0.49), id)?,
     )?);
-    out.push(measure(
-        "sliver layer (1 µm)",
-        body([4, 4, 5], 30.0, mm, paper(0.49), sliver)?,
-    )?);
+    out.push(measure("sliver layer (1 µm)", sliver_cube()?)?);
     // A column of cells 1 µm wide in x, between x = 20 and 20.001 mm (6 columns of cells),
     // beside the press: needles.
     let needle = |p: [f64; 3]| {

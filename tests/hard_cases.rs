@@ -144,7 +144,7 @@ fn sliding_onto_the_clamp_stays_finite_bounded_and_continuous() {
 }
 
 #[test]
-fn exactly_on_an_edge_a_vertex_and_a_thin_triangle_no_nan_and_continuous() {
+fn exactly_on_an_edge_and_a_vertex_no_nan_and_continuous() {
     let w = cube("");
     // The cube's top face is cut at x, y = 0, 7.5, 15, 22.5, 30 mm: (7.5, y) is exactly on an
     // edge, (7.5, 7.5) exactly a vertex. Press straight down there, then slide across.
@@ -162,6 +162,45 @@ fn exactly_on_an_edge_a_vertex_and_a_thin_triangle_no_nan_and_continuous() {
         assert!(f[50].length() > 0.01, "{what}");
         assert!(jump < 0.05, "{what}: {jump}");
     }
+}
+
+#[test]
+fn sliding_across_near_zero_area_triangles_is_continuous() {
+    let mesh = hard::sliver_cube().unwrap();
+    let sel = touchfem::compliance::Selection::default();
+    let w = World {
+        name: "sliver".into(),
+        unit: touchfem::LengthUnit::Millimetre,
+        objects: vec![touchfem::scene::Object {
+            name: "sliver".into(),
+            scene: touchfem::scene::Scene::new(mesh, &sel).unwrap(),
+            offset: DVec3::ZERO,
+        }],
+        fingers: vec![touchfem::scene::FingerSpec {
+            device: touchfem::scene::DeviceSpec::Pointer,
+            model: touchfem::force::ForceModel::Paper,
+            limits: None,
+        }],
+        haptics: Default::default(),
+        source: String::new(),
+        dir: ".".into(),
+        hash: 0,
+    };
+    // In through the side face x = 0 by 1.5 mm at z = 14 mm, then down across the 1 µm layer
+    // (z = 12.001 … 12 mm: triangles of 7.5 mm × 1 µm) to z = 10 mm in 0.01 mm steps.
+    let inn = (0..=30).map(|i| mm(-1.5 + 0.1 * f64::from(i), 11.0, 14.0));
+    let down = (0..=400).map(|i| mm(1.5, 11.0, 14.0 - 0.01 * f64::from(i)));
+    let f = drive(&w, inn.chain(down));
+    assert!(f.iter().all(|v| v.is_finite()));
+    let jump = worst_jump(&f[31..]);
+    eprintln!(
+        "across the 1 µm layer: |F| {:.4} … {:.4} N, worst 0.01 mm step {:.2} %",
+        f[31].length(),
+        f.last().unwrap().length(),
+        100.0 * jump
+    );
+    assert!(f[31..].iter().all(|v| v.length() > 0.01));
+    assert!(jump < 0.05, "{jump}");
 }
 
 #[test]
