@@ -81,6 +81,10 @@ pub struct BenchArgs {
     /// locking): their accuracy in f64 and f32.
     #[arg(long)]
     pub hard: bool,
+    /// Only the mesh-resolution ladder: the paper's cube at 4³ … 32³ cells, Fig. 1b's press as
+    /// a point and as a 5 mm punch, errors against the extrapolated limit.
+    #[arg(long)]
+    pub ladder: bool,
 }
 
 /// `touchfem serve` flags.
@@ -341,6 +345,14 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
     use crate::tradeoff::{bench_scenes, cpu_rows};
     if a.hard {
         return crate::hard::bench(a.json.as_deref());
+    }
+    if a.ladder {
+        let cells: &[usize] = if a.quick {
+            &[4, 8, 16]
+        } else {
+            &[4, 8, 16, 32]
+        };
+        return crate::ladder::bench(cells, a.json.as_deref());
     }
     let (reps, active): (usize, &[usize]) = if a.quick {
         (20, &[9])

@@ -30,6 +30,7 @@ pub mod force;
 pub mod gpu;
 pub mod haptics;
 pub mod hard;
+pub mod ladder;
 pub mod mesh;
 pub mod render;
 pub mod runtime;
