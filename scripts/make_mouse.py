@@ -9,7 +9,8 @@ Usage:  pip install gmsh ; python3 scripts/make_mouse.py
         python3 scripts/render_mouse.py    # meshes/mouse.png (matplotlib)
 
 The MOUSE_* environment variables override the tuned defaults (for
-experiments only; the committed mesh uses the defaults).
+experiments only; the committed mesh uses the defaults); MOUSE_OUT names the
+output file (the resolution ladder: `touchfem bench --ladder`).
 
 Deterministic: single-threaded Gmsh with a fixed random seed.  Units: mm.
 Output: MSH 4.1 ASCII with only the physical groups' elements:
@@ -22,7 +23,7 @@ import os
 import gmsh
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-OUT = os.path.join(HERE, "..", "meshes", "mouse.msh")
+OUT = os.environ.get("MOUSE_OUT", os.path.join(HERE, "..", "meshes", "mouse.msh"))
 
 # Mesh size parameters (mm), tuned so the counts land near Table 1.
 H_SURF = float(os.environ.get("MOUSE_H", "4.4"))      # size on the surface

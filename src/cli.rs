@@ -85,6 +85,9 @@ pub struct BenchArgs {
     /// a point and as a 5 mm punch, errors against the extrapolated limit.
     #[arg(long)]
     pub ladder: bool,
+    /// Where the ladder's mouse meshes are (`mouse_hH.msh`, made by scripts/make_mouse.py).
+    #[arg(long, default_value = "out/ladder")]
+    pub ladder_dir: PathBuf,
 }
 
 /// `touchfem serve` flags.
@@ -352,7 +355,7 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
         } else {
             &[4, 8, 16, 32]
         };
-        return crate::ladder::bench(cells, a.json.as_deref());
+        return crate::ladder::bench(cells, &a.ladder_dir, a.json.as_deref());
     }
     let (reps, active): (usize, &[usize]) = if a.quick {
         (20, &[9])
