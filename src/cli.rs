@@ -618,8 +618,19 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
 fn info(spec: &str, load: &LoadArgs, json: bool) -> Result<(), Error> {
     let (mesh, unit) = load_mesh(spec, &load.options())?;
     let t = mesh.table1();
+    let cond = crate::conditioning::estimate(&mesh, 60)?;
+    let (e32, e16) = crate::conditioning::predict_storage_error(&mesh)?;
+    if let Some(w) = crate::conditioning::storage_warning(spec, e32, e16) {
+        eprintln!("{w}");
+    }
     if json {
         let mut v = serde_json::to_value(&t).expect("serialisable");
+        v["condition_estimate"] = serde_json::json!(cond.condition_estimate);
+        v["lambda_min"] = serde_json::json!(cond.lambda_min);
+        v["lambda_max"] = serde_json::json!(cond.lambda_max);
+        v["worst_quality"] = serde_json::json!(cond.worst_quality);
+        v["f32_storage_error"] = serde_json::json!(e32);
+        v["f16_storage_error"] = serde_json::json!(e16);
         v["unit"] = serde_json::json!(unit.symbol());
         v["fixed_nodes"] = serde_json::json!(mesh.fixed_count());
         v["reoriented_tets"] = serde_json::json!(mesh.report.reoriented_tets.len());
@@ -634,6 +645,15 @@ fn info(spec: &str, load: &LoadArgs, json: bool) -> Result<(), Error> {
         println!("tetrahedral elements {}", t.tets);
         println!("Young's modulus      {} Pa", t.young_pa);
         println!("Poisson's ratio      {}", t.poisson);
+        println!(
+            "condition of K       {:.2e} (eigenvalues {:.3e} … {:.3e} N/m, estimated)",
+            cond.condition_estimate, cond.lambda_min, cond.lambda_max
+        );
+        println!(
+            "worst element        quality {:.2e} (6V/l³; regular 0.707, refused at 1e-8)",
+            cond.worst_quality
+        );
+        println!("storage error        f32 {e32:.1e}, f16 {e16:.1e} (of the largest displacement)");
         report_changes(&mesh);
     }
     Ok(())

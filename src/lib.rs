@@ -21,6 +21,7 @@ pub mod cache;
 pub mod cg;
 pub mod cli;
 pub mod compliance;
+pub mod conditioning;
 pub mod contact;
 pub mod demo;
 pub mod devices;

@@ -39,6 +39,13 @@ fn info_cube_json_is_table_1() {
     assert_eq!(v["tets"], 320);
     assert_eq!(v["young_pa"], 10000.0);
     assert_eq!(v["poisson"], 0.49);
+    // Early warning: K's condition (the cube's dense eigenvalues give 4.55e3), the worst
+    // element (the five-tet cell's corner tets: 6V/l³ = 1/(2√2)), and the storage errors.
+    let kappa = v["condition_estimate"].as_f64().unwrap();
+    assert!((kappa / 4.55e3 - 1.0).abs() < 0.05, "{kappa}");
+    assert!((v["worst_quality"].as_f64().unwrap() - 0.3536).abs() < 1e-3);
+    assert!(v["f32_storage_error"].as_f64().unwrap() < 1e-6);
+    assert!(v["f16_storage_error"].as_f64().unwrap() < 1e-3);
 }
 
 #[test]

@@ -554,6 +554,13 @@ impl World {
                 haptics.max_force_n = v;
             }
         }
+        // Early warning: a body whose compliance loses more than 1e-3 in f32 or f16 storage.
+        for o in &objects {
+            let (e32, e16) = crate::conditioning::storage_error(&o.scene.compliance);
+            if let Some(w) = crate::conditioning::storage_warning(&o.name, e32, e16) {
+                eprintln!("{w}");
+            }
+        }
         Ok(World {
             name: src.name.clone(),
             unit,
