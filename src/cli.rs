@@ -77,6 +77,9 @@ pub struct BenchArgs {
     /// Write the rows as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Draw time against error (log–log, one panel per mesh but the cube) into this PNG.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
     /// Only the hard cases (nearly incompressible, slivers and needles, extreme scales,
     /// locking): their accuracy in f64 and f32.
     #[arg(long)]
@@ -391,6 +394,15 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
             "{:<14} {:<6} {:>6} {:>7} {:>12.3} {:>11.2e}",
             r.method, r.mesh, r.nodes, r.active_columns, r.time_us, r.rel_error
         );
+    }
+    if let Some(path) = &a.plot {
+        let mut meshes: Vec<&str> = Vec::new();
+        for r in &rows {
+            if r.mesh != "cube" && !meshes.contains(&r.mesh.as_str()) {
+                meshes.push(&r.mesh);
+            }
+        }
+        crate::bench_plot::write_plot(path, &rows, &meshes)?;
     }
     if let Some(path) = &a.json {
         let v = serde_json::json!({ "rows": rows, "machine": crate::demo::machine() });

@@ -17,6 +17,7 @@
 
 #![warn(missing_docs)]
 
+pub mod bench_plot;
 pub mod cache;
 pub mod cg;
 pub mod cli;
