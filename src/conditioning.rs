@@ -190,14 +190,7 @@ mod tests {
         let mesh = crate::mesh::cube();
         let c = estimate(&mesh, 200).unwrap();
         let k = Stiffness::assemble(&mesh).unwrap();
-        let n = k.dofs.n_free;
-        let mut a = nalgebra::DMatrix::<f64>::zeros(n, n);
-        let m = k.k.as_ref();
-        for j in 0..n {
-            for (r, v) in m.row_idx_of_col(j).zip(m.val_of_col(j)) {
-                a[(r, j)] = *v;
-            }
-        }
+        let a = crate::hard::dense_k(&k);
         let ev = a.symmetric_eigenvalues();
         let (lo, hi) = ev
             .iter()

@@ -82,9 +82,8 @@ pub fn worst_quality(mesh: &Mesh) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
-/// The displacement of every node under `forces` by a dense LU solve of the free-DOF stiffness.
-pub fn dense_lu_solve(mesh: &Mesh, forces: &[(u32, DVec3)]) -> Result<Vec<DVec3>, crate::Error> {
-    let k = Stiffness::assemble(mesh)?;
+/// The free-DOF stiffness as a dense matrix (for independent checks on small meshes).
+pub fn dense_k(k: &Stiffness) -> nalgebra::DMatrix<f64> {
     let n = k.dofs.n_free;
     let mut a = nalgebra::DMatrix::<f64>::zeros(n, n);
     let m = k.k.as_ref();
@@ -93,6 +92,14 @@ pub fn dense_lu_solve(mesh: &Mesh, forces: &[(u32, DVec3)]) -> Result<Vec<DVec3>
             a[(r, c)] = *v;
         }
     }
+    a
+}
+
+/// The displacement of every node under `forces` by a dense LU solve of the free-DOF stiffness.
+pub fn dense_lu_solve(mesh: &Mesh, forces: &[(u32, DVec3)]) -> Result<Vec<DVec3>, crate::Error> {
+    let k = Stiffness::assemble(mesh)?;
+    let n = k.dofs.n_free;
+    let a = dense_k(&k);
     let mut b = nalgebra::DVector::<f64>::zeros(n);
     for &(node, f) in forces {
         for ax in 0..3 {
@@ -131,16 +138,6 @@ pub fn displace_f32(c: &Compliance, forces: &[(u32, DVec3)]) -> Vec<DVec3> {
     u.iter().map(|v| v.as_dvec3()).collect()
 }
 
-fn rel_max(a: &[DVec3], b: &[DVec3]) -> f64 {
-    let scale = b.iter().map(|v| v.length()).fold(0.0, f64::max);
-    let e = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| (*x - *y).length())
-        .fold(0.0, f64::max);
-    e / scale
-}
-
 /// Measures one body: see [`HardCase`].
 pub fn measure(case: &str, mesh: Mesh) -> Result<HardCase, crate::Error> {
     let sel = Selection {
@@ -172,8 +169,8 @@ pub fn measure(case: &str, mesh: Mesh) -> Result<HardCase, crate::Error> {
     let by_node: Vec<DVec3> = (0..mesh.nodes.len() as u32)
         .map(|n| c.row_of(n).map(|r| u[r]).unwrap_or(DVec3::ZERO))
         .collect();
-    let f64_error = rel_max(&by_node, &lu);
-    let f32_error = rel_max(&displace_f32(&c, &forces), &u);
+    let f64_error = crate::tradeoff::rel_err(&by_node, &lu);
+    let f32_error = crate::tradeoff::rel_err(&displace_f32(&c, &forces), &u);
     let kmax = {
         let k = Stiffness::assemble(&mesh)?;
         k.k.as_ref()
@@ -209,10 +206,11 @@ pub fn measure(case: &str, mesh: Mesh) -> Result<HardCase, crate::Error> {
 
 /// The paper's cube material (10 kPa) with Poisson's ratio `nu`.
 fn paper(nu: f64) -> Material {
-    Material {
-        young_pa: 10_000.0,
-        poisson: nu,
-    }
+    material(10_000.0, nu)
+}
+
+fn material(young_pa: f64, poisson: f64) -> Material {
+    Material { young_pa, poisson }
 }
 
 /// The paper's 30 mm cube (ν = 0.49) in 4×4×5 cells whose middle layer, between z = 12 and
@@ -269,42 +267,15 @@ pub fn cases() -> Result<Vec<HardCase>, crate::Error> {
     // Extreme scales: the same cube at E = 1 Pa and 1 m, at 1 GPa and 1 mm, and in metres.
     out.push(measure(
         "E=1 Pa, 1 m",
-        body(
-            [4, 4, 4],
-            1000.0,
-            mm,
-            Material {
-                young_pa: 1.0,
-                poisson: 0.3,
-            },
-            id,
-        )?,
+        body([4, 4, 4], 1000.0, mm, material(1.0, 0.3), id)?,
     )?);
     out.push(measure(
         "E=1 GPa, 1 mm",
-        body(
-            [4, 4, 4],
-            1.0,
-            mm,
-            Material {
-                young_pa: 1e9,
-                poisson: 0.3,
-            },
-            id,
-        )?,
+        body([4, 4, 4], 1.0, mm, material(1e9, 0.3), id)?,
     )?);
     out.push(measure(
         "E=1 GPa, 1 mm, in metres",
-        body(
-            [4, 4, 4],
-            1.0,
-            LengthUnit::Metre,
-            Material {
-                young_pa: 1e9,
-                poisson: 0.3,
-            },
-            id,
-        )?,
+        body([4, 4, 4], 1.0, LengthUnit::Metre, material(1e9, 0.3), id)?,
     )?);
     Ok(out)
 }
@@ -428,14 +399,7 @@ pub fn bench(json: Option<&std::path::Path>) -> Result<(), crate::Error> {
             "locking": lock,
             "machine": crate::demo::machine(),
         });
-        std::fs::write(
-            path,
-            serde_json::to_string_pretty(&v).expect("serialisable"),
-        )
-        .map_err(|source| crate::Error::Write {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        crate::tradeoff::write_json(path, &v)?;
     }
     Ok(())
 }

@@ -391,14 +391,7 @@ pub fn bench(
         let v = serde_json::json!({
             "cube": cube, "mouse": mouse, "machine": crate::demo::machine(),
         });
-        std::fs::write(
-            path,
-            serde_json::to_string_pretty(&v).expect("serialisable"),
-        )
-        .map_err(|source| crate::Error::Write {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        crate::tradeoff::write_json(path, &v)?;
     }
     Ok(())
 }

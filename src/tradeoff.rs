@@ -58,7 +58,8 @@ pub fn spread_forces(c: &Compliance, k: usize) -> Vec<(u32, DVec3)> {
         .collect()
 }
 
-fn rel_err(a: &[DVec3], reference: &[DVec3]) -> f64 {
+/// `max |a − reference| / max |reference|` (the absolute error when the reference is zero).
+pub fn rel_err(a: &[DVec3], reference: &[DVec3]) -> f64 {
     let scale = reference.iter().map(|v| v.length()).fold(0.0, f64::max);
     let e = a
         .iter()
@@ -427,4 +428,14 @@ fn cg_rows(
         });
     }
     out
+}
+
+/// Writes `v` as pretty JSON to `path`.
+pub fn write_json(path: &std::path::Path, v: &serde_json::Value) -> Result<(), crate::Error> {
+    std::fs::write(path, serde_json::to_string_pretty(v).expect("serialisable")).map_err(|source| {
+        crate::Error::Write {
+            path: path.to_path_buf(),
+            source,
+        }
+    })
 }

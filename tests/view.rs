@@ -151,21 +151,8 @@ fn read_log(path: &Path) -> Vec<serde_json::Value> {
         .collect()
 }
 
-fn wait_until(what: &str, timeout: Duration, child: &mut Child, mut ok: impl FnMut() -> bool) {
-    let t0 = Instant::now();
-    while !ok() {
-        if let Ok(Some(st)) = child.try_wait() {
-            panic!("touchfem view exited ({st}) while waiting for {what}; see target/view-test/");
-        }
-        assert!(t0.elapsed() < timeout, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
-#[test]
-fn view_window_presses_the_cube_with_the_pointer() {
-    require_tools();
-    let dir = out_dir();
+/// Starts Xvfb on a free display; returns it (ended when dropped) and the display's name.
+fn start_xvfb() -> (KillOnDrop, String) {
     let n = free_display();
     let display = format!(":{n}");
     let xvfb = Command::new("Xvfb")
@@ -182,6 +169,25 @@ fn view_window_presses_the_cube_with_the_pointer() {
         &mut xvfb.0,
         || socket.exists(),
     );
+    (xvfb, display)
+}
+
+fn wait_until(what: &str, timeout: Duration, child: &mut Child, mut ok: impl FnMut() -> bool) {
+    let t0 = Instant::now();
+    while !ok() {
+        if let Ok(Some(st)) = child.try_wait() {
+            panic!("touchfem view exited ({st}) while waiting for {what}; see target/view-test/");
+        }
+        assert!(t0.elapsed() < timeout, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn view_window_presses_the_cube_with_the_pointer() {
+    require_tools();
+    let dir = out_dir();
+    let (mut xvfb, display) = start_xvfb();
 
     let log = dir.join("view.log.jsonl");
     let _ = std::fs::remove_file(&log);
@@ -448,22 +454,7 @@ fn serve_view_shows_a_udp_press_in_the_window() {
     use touchfem::devices::udp::{decode_force, encode_position};
     require_tools();
     let dir = out_dir();
-    let n = free_display();
-    let display = format!(":{n}");
-    let xvfb = Command::new("Xvfb")
-        .args([&display, "-screen", "0", "1024x768x24", "-nolisten", "tcp"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("start Xvfb");
-    let mut xvfb = KillOnDrop(xvfb);
-    let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
-    wait_until(
-        "Xvfb's socket",
-        Duration::from_secs(15),
-        &mut xvfb.0,
-        || socket.exists(),
-    );
+    let (mut xvfb, display) = start_xvfb();
     let report = dir.join("serve-view.json");
     let _ = std::fs::remove_file(&report);
     let stderr_path = dir.join("serve-view.stderr.txt");
