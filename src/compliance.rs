@@ -62,6 +62,7 @@ impl Default for Selection {
 
 /// What the precompute cost and how accurate it is.
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct PrecomputeStats {
     /// Free DOFs of K.
     pub free_dofs: usize,
@@ -75,6 +76,32 @@ pub struct PrecomputeStats {
     pub residual: f64,
     /// max |L_ij − L_jiᵀ| over the touchable square block, relative to max |L|.
     pub symmetry: f64,
+    /// Where the time went (wall seconds of each phase).
+    pub phases: PhaseTimes,
+}
+
+/// Wall seconds of each precompute phase. The solve phases run on several threads: their
+/// entries are the wall time of the slowest worker's share (`solve_s`: triangular solves,
+/// `check_s`: the residual K·x − e, `scatter_s`: copying the displayed rows out).
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct PhaseTimes {
+    /// Assembling K, s.
+    pub assemble_s: f64,
+    /// Fill-reducing ordering and symbolic factorisation, s.
+    pub symbolic_s: f64,
+    /// Numeric Cholesky factorisation, s.
+    pub numeric_s: f64,
+    /// Forward and back substitution for all columns, s.
+    pub solve_s: f64,
+    /// Residual check, s.
+    pub check_s: f64,
+    /// Copying rows into L, s.
+    pub scatter_s: f64,
+    /// Building the result (f32 copy, diagonal inverses, symmetry check), s.
+    pub finish_s: f64,
+    /// Non-zeros of the Cholesky factor.
+    pub factor_nonzeros: usize,
 }
 
 /// `L = K⁻¹` for displayed rows × touchable columns, with the touchable diagonal blocks.
@@ -120,8 +147,13 @@ impl Compliance {
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<Compliance, FemError> {
         let t0 = Instant::now();
+        let mut phases = PhaseTimes::default();
         let stiff = Stiffness::assemble(mesh)?;
-        let factor = stiff.factorize()?;
+        phases.assemble_s = t0.elapsed().as_secs_f64();
+        let (factor, sym_s, num_s) = stiff.factorize_timed()?;
+        phases.symbolic_s = sym_s;
+        phases.numeric_s = num_s;
+        phases.factor_nonzeros = factor.nonzeros();
         let n = mesh.nodes.len();
         let cols = sel.cols.resolve(mesh);
         let mut rows = sel.rows.resolve(mesh);
@@ -178,7 +210,7 @@ impl Compliance {
             cols: &cols,
             done: &done,
         };
-        let mut results: Vec<Result<f64, FemError>> = Vec::with_capacity(workers);
+        let mut results: Vec<Result<(f64, [f64; 3]), FemError>> = Vec::with_capacity(workers);
         std::thread::scope(|sc| {
             let mut slices = l.chunks_mut(9 * nr * per);
             let first = slices.next();
@@ -200,9 +232,16 @@ impl Compliance {
         });
         let mut residual = 0.0f64;
         for r in results {
-            residual = residual.max(r?);
+            let (res, t) = r?;
+            residual = residual.max(res);
+            phases.solve_s = phases.solve_s.max(t[0]);
+            phases.check_s = phases.check_s.max(t[1]);
+            phases.scatter_s = phases.scatter_s.max(t[2]);
         }
+        let t_fin = Instant::now();
         let mut c = Compliance::from_dense(rows, cols, l, n)?;
+        phases.finish_s = t_fin.elapsed().as_secs_f64();
+        c.stats.phases = phases;
         progress(nc, nc);
         c.stats.free_dofs = nf;
         c.stats.k_nonzeros = stiff.k.compute_nnz();
@@ -401,13 +440,14 @@ struct SolveCtx<'a> {
 
 impl SolveCtx<'_> {
     /// Solves the columns `first..first + out.len() / (9R)` into `out` (their slice of L) and
-    /// returns max |K·x − e| over them.
+    /// returns max |K·x − e| over them and the seconds spent solving, checking, scattering.
     fn solve_range(
         &self,
         first: usize,
         out: &mut [f64],
         progress: &mut dyn FnMut(usize),
-    ) -> Result<f64, FemError> {
+    ) -> Result<(f64, [f64; 3]), FemError> {
+        let mut times = [0.0f64; 3];
         let nr = self.rows.len();
         let count = out.len() / (9 * nr);
         let nf = self.stiff.dofs.n_free;
@@ -428,7 +468,9 @@ impl SolveCtx<'_> {
                     b[(d, 3 * k + a)] = 1.0;
                 }
             }
+            let ts = Instant::now();
             self.factor.solve_in_place(&mut b);
+            times[0] += ts.elapsed().as_secs_f64();
             for (k, local) in chunk.clone().enumerate() {
                 let node = self.cols[first + local];
                 for bax in 0..3 {
@@ -440,11 +482,14 @@ impl SolveCtx<'_> {
                     if xs.iter().any(|v| !v.is_finite()) {
                         return Err(FemError::Singular { node, dof: e });
                     }
+                    let tc = Instant::now();
                     self.stiff.mul(&xs, &mut kx);
                     for (i, v) in kx.iter().enumerate() {
                         let target = if i == e { 1.0 } else { 0.0 };
                         residual = residual.max((v - target).abs());
                     }
+                    times[1] += tc.elapsed().as_secs_f64();
+                    let tsc = Instant::now();
                     let base = (3 * local + bax) * 3 * nr;
                     for (ri, &r) in self.rows.iter().enumerate() {
                         for a in 0..3 {
@@ -453,6 +498,7 @@ impl SolveCtx<'_> {
                             }
                         }
                     }
+                    times[2] += tsc.elapsed().as_secs_f64();
                 }
             }
             let d = self
@@ -461,6 +507,6 @@ impl SolveCtx<'_> {
                 + chunk.len();
             progress(d);
         }
-        Ok(residual)
+        Ok((residual, times))
     }
 }

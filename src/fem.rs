@@ -2,8 +2,6 @@
 //! elimination of the clamped DOFs, and the sparse Cholesky factorisation of `K` (faer, supernodal
 //! with AMD ordering).
 
-use faer::linalg::solvers::Solve;
-use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
 use faer::sparse::{SparseColMat, Triplet};
 use faer::{Mat, Side};
 use glam::DVec3;
@@ -214,24 +212,55 @@ impl Stiffness {
 
     /// Factorises K = LLᵀ (faer: AMD ordering, supernodal or simplicial as it sees fit).
     pub fn factorize(&self) -> Result<Factor, FemError> {
-        let symbolic = SymbolicLlt::try_new(self.k.symbolic(), Side::Lower)
-            .map_err(|e| FemError::Factorisation(format!("{e:?}")))?;
-        let llt = Llt::try_new_with_symbolic(symbolic, self.k.as_ref(), Side::Lower).map_err(
-            |e| match e {
-                faer::sparse::linalg::LltError::Numeric(
-                    faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index },
-                ) => {
-                    // `index` is in the permuted order; name the DOF's node as best we can.
-                    let dof = index.min(self.dofs.n_free.saturating_sub(1));
-                    FemError::Singular {
-                        node: self.dofs.owner.get(dof).map(|o| o.0).unwrap_or(0),
-                        dof,
-                    }
+        self.factorize_timed().map(|(f, _, _)| f)
+    }
+
+    /// As [`Stiffness::factorize`], with the seconds spent on the symbolic (ordering) and the
+    /// numeric factorisation.
+    pub fn factorize_timed(&self) -> Result<(Factor, f64, f64), FemError> {
+        use faer::dyn_stack::{MemBuffer, MemStack};
+        use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, SymmetricOrdering};
+        let fact_err = |e: &dyn std::fmt::Debug| FemError::Factorisation(format!("{e:?}"));
+        let t0 = std::time::Instant::now();
+        let symbolic = factorize_symbolic_cholesky(
+            self.k.symbolic(),
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            Default::default(),
+        )
+        .map_err(|e| fact_err(&e))?;
+        let sym_s = t0.elapsed().as_secs_f64();
+        let t1 = std::time::Instant::now();
+        let mut values = Vec::new();
+        values
+            .try_reserve_exact(symbolic.len_val())
+            .map_err(|e| fact_err(&e))?;
+        values.resize(symbolic.len_val(), 0.0f64);
+        let par = faer::Par::Seq;
+        let mut buf = MemBuffer::try_new(
+            symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
+        )
+        .map_err(|e| fact_err(&e))?;
+        symbolic
+            .factorize_numeric_llt::<f64>(
+                &mut values,
+                self.k.as_ref(),
+                Side::Lower,
+                Default::default(),
+                par,
+                MemStack::new(&mut buf),
+                Default::default(),
+            )
+            .map_err(|e| {
+                let faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } = e;
+                // `index` is in the permuted order; name the DOF's node as best we can.
+                let dof = index.min(self.dofs.n_free.saturating_sub(1));
+                FemError::Singular {
+                    node: self.dofs.owner.get(dof).map(|o| o.0).unwrap_or(0),
+                    dof,
                 }
-                other => FemError::Factorisation(format!("{other:?}")),
-            },
-        )?;
-        Ok(Factor { llt })
+            })?;
+        Ok((Factor { symbolic, values }, sym_s, t1.elapsed().as_secs_f64()))
     }
 
     /// y = K·x over free DOFs.
@@ -251,13 +280,27 @@ impl Stiffness {
 
 /// The Cholesky factor of K.
 pub struct Factor {
-    llt: Llt<usize, f64>,
+    symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
+    values: Vec<f64>,
 }
 
 impl Factor {
-    /// Solves K X = B in place (B is n_free × m, column-major).
+    /// Solves K X = B in place (B is n_free × m, column-major), on the calling thread.
     pub fn solve_in_place(&self, b: &mut Mat<f64>) {
-        self.llt.solve_in_place(b.as_mut());
+        use faer::dyn_stack::{MemBuffer, MemStack};
+        let llt = faer::sparse::linalg::cholesky::LltRef::new(&self.symbolic, &self.values);
+        let mut buf = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(b.ncols(), faer::Par::Seq));
+        llt.solve_in_place_with_conj(
+            faer::Conj::No,
+            b.as_mut(),
+            faer::Par::Seq,
+            MemStack::new(&mut buf),
+        );
+    }
+
+    /// Non-zeros of the Cholesky factor.
+    pub fn nonzeros(&self) -> usize {
+        self.symbolic.len_val()
     }
 }
 
