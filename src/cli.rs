@@ -49,6 +49,45 @@ pub enum Command {
     /// An interactive window: a left drag presses the pointer into the object, a right drag
     /// orbits, the wheel zooms, Esc quits.
     View(ViewArgs),
+    /// Precompute the compliance a scene needs into a cache file; `--shard I/N` computes one
+    /// part of the columns (for N machines), `--merge` joins the parts.
+    Precompute(PrecomputeArgs),
+}
+
+/// `touchfem precompute` flags.
+#[derive(Args, Debug)]
+pub struct PrecomputeArgs {
+    /// Scene file, bundled scene, mesh file or bundled mesh.
+    #[arg(required_unless_present = "merge")]
+    pub scene: Option<String>,
+    /// How to load a mesh given as SCENE (a scene file says it itself).
+    #[command(flatten)]
+    pub load: LoadArgs,
+    /// Output file (a directory for a scene of several objects). Default: the cache file the
+    /// scene loader reads ($TOUCHFEM_CACHE_DIR), with `.part-I-of-N` appended for a shard.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Compute only the I-th of N parts of the columns (1-based), e.g. 3/8.
+    #[arg(long, value_parser = parse_shard)]
+    pub shard: Option<(usize, usize)>,
+    /// Join these shard files into --out (equal to the unsharded file).
+    #[arg(long, num_args = 1.., conflicts_with_all = ["scene", "shard"], requires = "out")]
+    pub merge: Vec<PathBuf>,
+    /// Print one JSON object (`seconds`, `rows`, `cols`, `bytes`, ...).
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Parses "I/N" (1 ≤ I ≤ N ≤ 65536) into a shard index and count.
+pub fn parse_shard(s: &str) -> Result<(usize, usize), String> {
+    let bad = || format!("expected I/N with 1 <= I <= N <= 65536 (e.g. 3/8), got '{s}'");
+    let (i, n) = s.split_once('/').ok_or_else(bad)?;
+    let i: usize = i.trim().parse().map_err(|_| bad())?;
+    let n: usize = n.trim().parse().map_err(|_| bad())?;
+    if i == 0 || i > n || n > 65536 {
+        return Err(bad());
+    }
+    Ok((i, n))
 }
 
 /// `touchfem view` flags.
@@ -147,7 +186,8 @@ pub struct LoadArgs {
 }
 
 impl LoadArgs {
-    fn options(&self) -> LoadOptions {
+    /// The mesh-loading options these flags name.
+    pub fn options(&self) -> LoadOptions {
         LoadOptions {
             unit: self.unit,
             young_pa: self.young,
@@ -238,6 +278,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Serve(args) => serve(&args),
         Command::Bench(args) => bench(&args),
         Command::View(args) => crate::window::view_command(&args),
+        Command::Precompute(args) => crate::precompute::command(&args),
     }
 }
 

@@ -29,6 +29,7 @@ pub mod force;
 pub mod gpu;
 pub mod haptics;
 pub mod mesh;
+pub mod precompute;
 pub mod render;
 pub mod runtime;
 pub mod scene;
