@@ -262,6 +262,7 @@ pub fn gpu_rows(
     for (method, storage) in [
         ("gpu-f32-texture", LStorage::Texture),
         ("gpu-f32-buffers", LStorage::Buffers),
+        ("gpu-f16-buffers", LStorage::BuffersF16),
     ] {
         rows.extend(gpu_layout_rows(
             method, storage, name, scene, gpu, active, reps,
