@@ -327,26 +327,103 @@ impl Writer {
         Ok(())
     }
 
-    /// Sets the residual stored in the header.
-    pub fn set_residual(&mut self, residual: f64) {
-        self.head.residual_bits = residual.to_bits();
+    /// Continues an interrupted write of the same `head` from `partial` (left by
+    /// [`Writer::keep_partial`]): its complete batches (checksums verified) are kept. Returns the
+    /// writer, the held batches already done and the residual over them. `None` if `partial`
+    /// does not exist; an error if it was made for another mesh, selection or shard.
+    pub fn resume(
+        path: &Path,
+        partial: &Path,
+        head: &Header,
+    ) -> Result<Option<(Writer, Vec<bool>, f64)>, CacheError> {
+        if !partial.exists() {
+            return Ok(None);
+        }
+        let part = Part::open(partial)?;
+        let same = Header {
+            residual_bits: head.residual_bits,
+            ..part.head.clone()
+        };
+        if &same != head {
+            return Err(CacheError::Mismatch {
+                path: partial.to_path_buf(),
+                msg: "an interrupted precompute of another mesh, material, selection or shard:                       delete it to start afresh"
+                    .into(),
+            });
+        }
+        let mut done = vec![false; part.batches()];
+        let mut sums = vec![None; part.batches()];
+        let mut buf = Vec::new();
+        for (i, d) in done.iter_mut().enumerate() {
+            if part.sums[i] != 0 && part.read_batch(i, &mut buf).is_ok() {
+                *d = true;
+                sums[i] = Some(part.sums[i]);
+            }
+        }
+        let residual = f64::from_bits(part.head.residual_bits);
+        let mut lists = Vec::with_capacity(4 * (part.rows.len() + part.cols.len()));
+        for &v in part.rows.iter().chain(&part.cols) {
+            lists.extend_from_slice(&v.to_le_bytes());
+        }
+        drop(part);
+        let io = |source| CacheError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let tmp = unique_tmp(path);
+        std::fs::rename(partial, &tmp).map_err(io)?;
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(&tmp)
+            .map_err(io)?;
+        Ok(Some((
+            Writer {
+                path: path.to_path_buf(),
+                tmp,
+                file,
+                head: head.clone(),
+                lists,
+                sums: std::sync::Mutex::new(sums),
+                done: false,
+            },
+            done,
+            residual,
+        )))
     }
 
-    /// Writes the checksums, syncs, renames to the final name and syncs the directory. Fails
-    /// if a batch was not written.
-    pub fn finish(mut self) -> Result<u64, CacheError> {
+    /// Stops an interrupted write: the batches written so far stay in `partial` (a valid file
+    /// whose missing batches have checksum 0), from which [`Writer::resume`] continues.
+    pub fn keep_partial(mut self, partial: &Path) -> Result<(), CacheError> {
+        let sums: Vec<u64> = self
+            .sums
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .map(|s| s.unwrap_or(0))
+            .collect();
+        let tmp = self.tmp.clone();
+        self.write_tail(&sums)?;
+        std::fs::rename(&tmp, partial).map_err(|source| CacheError::Io {
+            path: partial.to_path_buf(),
+            source,
+        })?;
+        self.done = true;
+        sync_dir(partial).map_err(|source| CacheError::Io {
+            path: partial.to_path_buf(),
+            source,
+        })
+    }
+
+    /// Writes header, batch sums and checksum, and syncs the file.
+    fn write_tail(&self, sums: &[u64]) -> Result<(), CacheError> {
         use std::os::unix::fs::FileExt;
         let io = |source| CacheError::Io {
             path: self.path.clone(),
             source,
         };
-        let sums = std::mem::take(&mut *self.sums.lock().unwrap_or_else(|e| e.into_inner()));
         let mut table = Vec::with_capacity(8 * sums.len());
-        for (i, s) in sums.iter().enumerate() {
-            let s = s.ok_or_else(|| CacheError::Format {
-                path: self.path.clone(),
-                msg: format!("batch {i} was never written"),
-            })?;
+        for s in sums {
             table.extend_from_slice(&s.to_le_bytes());
         }
         let head = self.head.to_bytes();
@@ -360,7 +437,30 @@ impl Writer {
         self.file
             .write_all_at(&h.digest().to_le_bytes(), l_end + table.len() as u64)
             .map_err(io)?;
-        self.file.sync_all().map_err(io)?;
+        self.file.sync_all().map_err(io)
+    }
+
+    /// Sets the residual stored in the header.
+    pub fn set_residual(&mut self, residual: f64) {
+        self.head.residual_bits = residual.to_bits();
+    }
+
+    /// Writes the checksums, syncs, renames to the final name and syncs the directory. Fails
+    /// if a batch was not written.
+    pub fn finish(mut self) -> Result<u64, CacheError> {
+        let io = |source| CacheError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        let sums = std::mem::take(&mut *self.sums.lock().unwrap_or_else(|e| e.into_inner()));
+        let mut table = Vec::with_capacity(sums.len());
+        for (i, s) in sums.iter().enumerate() {
+            table.push(s.ok_or_else(|| CacheError::Format {
+                path: self.path.clone(),
+                msg: format!("batch {i} was never written"),
+            })?);
+        }
+        self.write_tail(&table)?;
         std::fs::rename(&self.tmp, &self.path).map_err(io)?;
         self.done = true;
         sync_dir(&self.path).map_err(io)?;

@@ -153,8 +153,9 @@ impl Compliance {
         let mut l = vec![0.0f64; 9 * nr * nc];
         let out = std::sync::Mutex::new(&mut l[..]);
         let mut phases = plan.phases.clone();
+        let all: Vec<usize> = (0..plan.batches()).collect();
         let (residual, t) = plan.solve(
-            0..plan.batches(),
+            &all,
             &|b, data| {
                 let mut g = out.lock().unwrap_or_else(|e| e.into_inner());
                 let first = plan.batch_cols(b).start;
@@ -453,7 +454,7 @@ impl ColumnPlan {
         lo..(lo + BATCH_COLS).min(self.cols.len())
     }
 
-    /// Solves the batches `batches` on all cores. For each batch, `sink(b, data)` receives its
+    /// Solves the batches `batches` (indices on the batch grid) on all cores. For each batch, `sink(b, data)` receives its
     /// slice of L (`9·R·batch columns` f64, this module's layout) from whichever worker solved
     /// it; a sink returning `false` stops the work (the caller keeps its own error). Returns
     /// max |K·x − e| over one checked DOF column per batch and the slowest worker's seconds
@@ -461,7 +462,7 @@ impl ColumnPlan {
     /// thread now and then.
     pub fn solve(
         &self,
-        batches: std::ops::Range<usize>,
+        batches: &[usize],
         sink: &(dyn Fn(usize, &[f64]) -> bool + Sync),
         progress: &mut dyn FnMut(usize),
     ) -> Result<(f64, [f64; 3]), FemError> {
@@ -470,7 +471,7 @@ impl ColumnPlan {
             .unwrap_or(1)
             .clamp(1, 16)
             .min(batches.len().max(1));
-        let next = std::sync::atomic::AtomicUsize::new(batches.start);
+        let next = std::sync::atomic::AtomicUsize::new(0);
         let stop = std::sync::atomic::AtomicBool::new(false);
         let done = std::sync::atomic::AtomicUsize::new(0);
         let work = |progress: &mut dyn FnMut(usize)| -> Result<(f64, [f64; 3]), FemError> {
@@ -480,10 +481,9 @@ impl ColumnPlan {
                 if stop.load(Relaxed) {
                     return Ok(acc);
                 }
-                let b = next.fetch_add(1, Relaxed);
-                if b >= batches.end {
+                let Some(&b) = batches.get(next.fetch_add(1, Relaxed)) else {
                     return Ok(acc);
-                }
+                };
                 let (res, t, data) = self.solve_batch(b)?;
                 acc.0 = acc.0.max(res);
                 for k in 0..3 {

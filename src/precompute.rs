@@ -3,6 +3,7 @@
 //! several machines share the work, and the merge of the shards.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use crate::cache::{self, CacheError, Header, Writer};
@@ -35,15 +36,47 @@ pub struct Report {
     pub phases: PhaseTimes,
 }
 
+/// Set by SIGINT/SIGTERM during `touchfem precompute`: the batches in flight finish, the rest
+/// wait for a resume.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: libc::c_int) {
+    INTERRUPTED.store(true, Ordering::Relaxed);
+}
+
+/// Where an interrupted precompute of `out` keeps its finished batches.
+pub fn partial_path(out: &Path) -> PathBuf {
+    let mut s = out.as_os_str().to_os_string();
+    s.push(".partial");
+    PathBuf::from(s)
+}
+
 /// Precomputes the columns of shard `shard` = (I, N) (1-based; `(1, 1)`: all) of `mesh`'s
 /// compliance for `sel` into `out`, streaming each solved batch into the file.
-/// `progress(columns done, columns in this shard)`.
+/// `progress(columns done, columns in this shard)`. If `OUT.partial` holds an interrupted run
+/// of the same work, its finished batches are kept and only the rest is solved.
 pub fn precompute_to_file(
     mesh: &Mesh,
     sel: &Selection,
     out: &Path,
     shard: (usize, usize),
     progress: &mut dyn FnMut(usize, usize),
+) -> Result<Report, Error> {
+    precompute_until(mesh, sel, out, shard, progress, &|_| {
+        INTERRUPTED.load(Ordering::Relaxed)
+    })
+}
+
+/// As [`precompute_to_file`]; `stop(batches written)` is asked after each batch, and `true`
+/// stops the run: the finished batches are kept in `OUT.partial` and
+/// [`Error::Interrupted`] is returned.
+pub fn precompute_until(
+    mesh: &Mesh,
+    sel: &Selection,
+    out: &Path,
+    shard: (usize, usize),
+    progress: &mut dyn FnMut(usize, usize),
+    stop: &(dyn Fn(usize) -> bool + Sync),
 ) -> Result<Report, Error> {
     let t0 = Instant::now();
     let key = cache::key(mesh, sel);
@@ -66,24 +99,56 @@ pub fn precompute_to_file(
         free_dofs: plan.free_dofs() as u32,
         residual_bits: 0,
     };
-    let mut writer = Writer::create(out, head, &plan.rows, &plan.cols)?;
+    let partial = partial_path(out);
+    let (mut writer, done, old_residual) = match Writer::resume(out, &partial, &head)? {
+        Some(w) => w,
+        None => (
+            Writer::create(out, head, &plan.rows, &plan.cols)?,
+            vec![false; range.len()],
+            0.0,
+        ),
+    };
+    let todo: Vec<usize> = range.clone().filter(|&b| !done[b - range.start]).collect();
     let failed: std::sync::Mutex<Option<CacheError>> = std::sync::Mutex::new(None);
+    let written = std::sync::atomic::AtomicUsize::new(done.iter().filter(|&&d| d).count());
+    let stopped = AtomicBool::new(false);
     let total = col_end - col_begin;
+    let already: usize = range
+        .clone()
+        .filter(|&b| done[b - range.start])
+        .map(|b| plan.batch_cols(b).len())
+        .sum();
     let (residual, t) = plan.solve(
-        range.clone(),
+        &todo,
         &|b, data| match writer.write_batch(b - range.start, data) {
-            Ok(()) => true,
+            Ok(()) => {
+                let w = written.fetch_add(1, Ordering::Relaxed) + 1;
+                if stop(w) {
+                    stopped.store(true, Ordering::Relaxed);
+                    return false;
+                }
+                true
+            }
             Err(e) => {
                 *failed.lock().unwrap_or_else(|e| e.into_inner()) = Some(e);
                 false
             }
         },
-        &mut |done| progress(done, total),
+        &mut |d| progress(already + d, total),
     )?;
     if let Some(e) = failed.into_inner().unwrap_or_else(|e| e.into_inner()) {
         return Err(e.into());
     }
+    let residual = residual.max(old_residual);
     writer.set_residual(residual);
+    if stopped.load(Ordering::Relaxed) {
+        writer.keep_partial(&partial)?;
+        return Err(Error::Interrupted {
+            partial,
+            done: written.load(Ordering::Relaxed),
+            total: range.len(),
+        });
+    }
     let bytes = writer.finish()?;
     let mut phases = plan.phases.clone();
     phases.solve_s = t[0];
@@ -121,9 +186,16 @@ fn objects(args: &PrecomputeArgs, spec: &str) -> Result<Vec<PlannedObject>, Erro
     }])
 }
 
-/// `touchfem precompute`.
+/// `touchfem precompute`. Ctrl-C (or SIGTERM) keeps the finished batches in `OUT.partial`;
+/// the same command again resumes from them.
 pub fn command(args: &PrecomputeArgs) -> Result<(), Error> {
     let t0 = Instant::now();
+    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+    unsafe {
+        let h = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
+        libc::signal(libc::SIGINT, h);
+        libc::signal(libc::SIGTERM, h);
+    }
     if !args.merge.is_empty() {
         let out = args
             .out

@@ -254,3 +254,58 @@ fn cli_precompute_shards_and_merge() {
     assert!(err.contains("1 of 2") || err.contains("parts"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
+
+#[test]
+fn an_interrupted_precompute_resumes_to_the_same_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = mouse();
+    let sel = Selection::default();
+    let full = dir.path().join("full.tfc");
+    precompute_to_file(&m, &sel, &full, (1, 1), &mut |_, _| {}).unwrap();
+    let out = dir.path().join("resumed.tfc");
+    // Stop after 3 batches, then after 5 more, then run to the end.
+    for stop_at in [3, 8] {
+        let r =
+            touchfem::precompute::precompute_until(&m, &sel, &out, (1, 1), &mut |_, _| {}, &|w| {
+                w >= stop_at
+            });
+        match r {
+            Err(touchfem::Error::Interrupted {
+                partial,
+                done,
+                total,
+            }) => {
+                assert_eq!(partial, touchfem::precompute::partial_path(&out));
+                assert!(done >= stop_at && done < total, "{done} of {total}");
+                assert!(partial.exists() && !out.exists());
+            }
+            other => panic!("expected an interruption, got {other:?}"),
+        }
+    }
+    // A partial file of another selection is refused, not mixed in.
+    let other = Selection {
+        cols: NodeSet::Nodes(m.free_surface_nodes()[..100].to_vec()),
+        ..Selection::default()
+    };
+    let r = precompute_to_file(&m, &other, &out, (1, 1), &mut |_, _| {});
+    assert!(
+        matches!(r, Err(touchfem::Error::Cache(CacheError::Mismatch { .. }))),
+        "{r:?}"
+    );
+    let mut seen = 0;
+    precompute_to_file(&m, &sel, &out, (1, 1), &mut |d, _| seen = seen.max(d)).unwrap();
+    assert_eq!(seen, m.free_surface_nodes().len());
+    assert!(!touchfem::precompute::partial_path(&out).exists());
+    assert_eq!(std::fs::read(&out).unwrap(), std::fs::read(&full).unwrap());
+    let tmps = std::fs::read_dir(dir.path())
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .ends_with(".tmp")
+        })
+        .count();
+    assert_eq!(tmps, 0);
+}
