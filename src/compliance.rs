@@ -486,8 +486,8 @@ impl ColumnPlan {
                 };
                 let (res, t, data) = self.solve_batch(b)?;
                 acc.0 = acc.0.max(res);
-                for k in 0..3 {
-                    acc.1[k] += t[k];
+                for (a, v) in acc.1.iter_mut().zip(t) {
+                    *a += v;
                 }
                 if !sink(b, &data) {
                     stop.store(true, Relaxed);
@@ -513,8 +513,8 @@ impl ColumnPlan {
         for r in results {
             let (res, t) = r?;
             out.0 = out.0.max(res);
-            for k in 0..3 {
-                out.1[k] = out.1[k].max(t[k]);
+            for (a, v) in out.1.iter_mut().zip(t) {
+                *a = a.max(v);
             }
         }
         Ok(out)
