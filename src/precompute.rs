@@ -149,6 +149,7 @@ pub fn precompute_until(
             total: range.len(),
         });
     }
+    progress(total, total);
     let bytes = writer.finish()?;
     let mut phases = plan.phases.clone();
     phases.solve_s = t[0];
