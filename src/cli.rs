@@ -112,6 +112,10 @@ pub struct BenchArgs {
     /// Write the rows as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Add rows for this scene's objects (a scene file, bundled scene or mesh): its precompute
+    /// (time, memory, peak RSS; the JSON's `scene` array) and the displacement methods.
+    #[arg(long)]
+    pub scene: Option<String>,
 }
 
 /// `touchfem serve` flags.
@@ -311,7 +315,15 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
         }
     };
     let mut rows = Vec::new();
-    for (name, scene) in bench_scenes()? {
+    let mut scene_table = Vec::new();
+    let mut scenes = bench_scenes()?;
+    if let Some(spec) = &a.scene {
+        let (r, t, s) = crate::tradeoff::scene_objects(spec)?;
+        rows.extend(r);
+        scene_table = t;
+        scenes.extend(s);
+    }
+    for (name, scene) in scenes {
         rows.extend(cpu_rows(&name, &scene, active, reps)?);
         if let Some(g) = &gpu {
             // Submit from the core the driver's threads started on (as the demo does).
@@ -331,8 +343,26 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
             r.method, r.mesh, r.nodes, r.active_columns, r.time_us, r.rel_error
         );
     }
+    for t in &scene_table {
+        println!(
+            "{}: {} nodes, {} surface / {} free surface, {} rows × {} cols: precompute {:.2} s, L {:.0} MB (f64 + f32), peak RSS {:.2} GB",
+            t["object"].as_str().unwrap_or("?"),
+            t["nodes"],
+            t["surface_nodes"],
+            t["free_surface_nodes"],
+            t["rows"],
+            t["cols"],
+            t["precompute_s"].as_f64().unwrap_or(0.0),
+            t["bytes_l"].as_f64().unwrap_or(0.0) / 1e6,
+            t["peak_rss_bytes"].as_f64().unwrap_or(0.0) / 1e9,
+        );
+    }
     if let Some(path) = &a.json {
-        let v = serde_json::json!({ "rows": rows, "machine": crate::demo::machine() });
+        let v = serde_json::json!({
+            "rows": rows,
+            "scene": scene_table,
+            "machine": crate::demo::machine(),
+        });
         std::fs::write(
             path,
             serde_json::to_string_pretty(&v).expect("serialisable"),

@@ -309,3 +309,40 @@ fn an_interrupted_precompute_resumes_to_the_same_file() {
         .count();
     assert_eq!(tmps, 0);
 }
+
+#[test]
+fn bench_scene_gives_the_precompute_row_of_each_object() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bench.json");
+    let o = touchfem(&[
+        "bench",
+        "--quick",
+        "--scene",
+        "pinch",
+        "--json",
+        path.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    let t = &v["scene"][0];
+    // pinch: the cube with a ball of 33 touchable nodes.
+    assert_eq!(t["nodes"], 125);
+    assert_eq!(t["surface_nodes"], 98);
+    assert_eq!(t["free_surface_nodes"], 73);
+    assert_eq!(t["rows"], 98);
+    assert_eq!(t["cols"], 33);
+    assert!(t["precompute_s"].as_f64().unwrap() > 0.0);
+    assert_eq!(t["bytes_l"].as_u64().unwrap(), 12 * 9 * 98 * 33 + 72 * 33);
+    assert!(t["peak_rss_bytes"].as_u64().unwrap() > 1 << 20);
+    let rows = v["rows"].as_array().unwrap();
+    let pre = rows
+        .iter()
+        .find(|r| r["method"] == "precompute")
+        .expect("a precompute row");
+    assert_eq!(pre["active_columns"], 33);
+    assert!(pre["rel_error"].as_f64().unwrap() < 1e-9);
+    let name = pre["mesh"].as_str().unwrap();
+    assert!(rows
+        .iter()
+        .any(|r| r["mesh"] == name && r["method"] != "precompute"));
+}
