@@ -266,7 +266,7 @@ pub fn scene_objects(
 ) -> Result<(Vec<Row>, Vec<serde_json::Value>, Vec<(String, Scene)>), crate::Error> {
     let src = match crate::scene::SceneSource::find(spec)? {
         Some(s) => s,
-        None => crate::scene::SceneSource::for_mesh(spec, "script"),
+        None => crate::scene::SceneSource::for_mesh(spec, "udp"),
     };
     let mut rows = Vec::new();
     let mut table = Vec::new();

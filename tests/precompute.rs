@@ -346,3 +346,27 @@ fn bench_scene_gives_the_precompute_row_of_each_object() {
         .iter()
         .any(|r| r["mesh"] == name && r["method"] != "precompute"));
 }
+
+#[test]
+fn precompute_without_out_fills_the_cache_the_scene_loader_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache_dir = dir.path().join("cache");
+    for spec in ["pinch", "mouse"] {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
+            .args(["precompute", spec, "--json"])
+            .env("TOUCHFEM_CACHE_DIR", &cache_dir)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let file = PathBuf::from(v["objects"][0]["file"].as_str().unwrap());
+        assert!(file.starts_with(&cache_dir) && file.exists(), "{file:?}");
+        // The loader finds it: nothing is recomputed (a loaded compliance reports 0 s) and it
+        // equals a fresh computation bit for bit.
+        let w = touchfem::scene::World::load_with(spec, "udp", Some(&cache_dir)).unwrap();
+        let c = &w.objects[0].scene.compliance;
+        assert_eq!(c.stats.seconds, 0.0, "{spec} was recomputed");
+        let fresh = touchfem::scene::World::load_with(spec, "udp", None).unwrap();
+        assert_eq!(c.l_f64(), fresh.objects[0].scene.compliance.l_f64());
+    }
+}
