@@ -257,13 +257,14 @@ pub fn peak_rss_bytes() -> u64 {
     u.ru_maxrss.max(0) as u64 * 1024
 }
 
+/// What [`scene_objects`] gives: rows, table rows (JSON) and the named scenes.
+pub type SceneObjects = (Vec<Row>, Vec<serde_json::Value>, Vec<(String, Scene)>);
+
 /// `bench --scene`: for each object of the scene `spec`, one `precompute` row (time of the
 /// in-memory precompute, `rel_error` = its residual max |K·x − e|) and the table row
 /// (nodes, surface and free-surface nodes, rows × cols, precompute seconds, bytes of `L` held
 /// (f64 + f32), peak RSS so far, phases); returns the objects' scenes for the other rows.
-pub fn scene_objects(
-    spec: &str,
-) -> Result<(Vec<Row>, Vec<serde_json::Value>, Vec<(String, Scene)>), crate::Error> {
+pub fn scene_objects(spec: &str) -> Result<SceneObjects, crate::Error> {
     let src = match crate::scene::SceneSource::find(spec)? {
         Some(s) => s,
         None => crate::scene::SceneSource::for_mesh(spec, "udp"),
