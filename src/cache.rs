@@ -38,6 +38,10 @@ const MAGIC: &[u8; 8] = b"TFEMCMP\0";
 /// The cache format version this build reads and writes.
 pub const FORMAT_VERSION: u32 = 2;
 const HEADER: usize = 72;
+/// Version of what [`key`] hashes (not of the file layout, which the header's version names):
+/// scene hashes and recorded sessions include the key, so it changes only when the hashed
+/// content does.
+const KEY_VERSION: u32 = 1;
 
 /// Why a cache file was not used.
 #[derive(Debug, Error)]
@@ -143,7 +147,7 @@ fn unique_tmp(path: &Path) -> std::path::PathBuf {
 /// the row/column selection.
 pub fn key(mesh: &Mesh, sel: &Selection) -> u64 {
     let mut h = Xxh3::new();
-    h.update(&FORMAT_VERSION.to_le_bytes());
+    h.update(&KEY_VERSION.to_le_bytes());
     for p in &mesh.nodes {
         for c in p.to_array() {
             h.update(&c.to_bits().to_le_bytes());
