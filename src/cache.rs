@@ -1,34 +1,47 @@
 //! A cache file for the precomputed compliance, so that the factorisation and solves run once.
 //!
-//! Format (little-endian), version 1:
+//! Format (little-endian), version 2. A file holds the columns `col_begin..col_end` of L: all of
+//! them for a complete cache, one part of them for a shard (`touchfem precompute --shard I/N`).
 //! ```text
-//! magic     8 bytes  "TFEMCMP\0"
-//! version   u32      1
-//! precision u32      8 (f64 values)
-//! n_nodes   u32
-//! rows      u32      R
-//! cols      u32      C
-//! reserved  u32      0
-//! key       u64      xxh3 of mesh nodes + tets + material + fixed set + row/column selection
-//! payload   R u32 row nodes, C u32 column nodes, 9·R·C f64 L (layout of `compliance`),
-//!           4 f64 stats (residual, symmetry, seconds, free dofs)
-//! checksum  u64      xxh3 of the payload
+//! magic        8 bytes  "TFEMCMP\0"
+//! version      u32      2
+//! precision    u32      8 (f64 values)
+//! n_nodes      u32
+//! rows         u32      R
+//! cols         u32      C
+//! batch        u32      columns per batch (compliance::BATCH_COLS)
+//! key          u64      xxh3 of mesh nodes + tets + material + fixed set + row/column selection
+//! shard        u32 ×2   index I (1-based) and count N; a complete file is 1 of 1
+//! col range    u32 ×2   col_begin, col_end (on the batch grid)
+//! free_dofs    u32
+//! reserved     u32      0
+//! residual     f64      max |K·x − e| over the checked columns
+//! lists        R u32 row nodes, C u32 column nodes (all of them, also in a shard)
+//! L            9·R·(col_end − col_begin) f64 (layout of `compliance`, those columns only)
+//! batch sums   one u64 per batch of the range: xxh3 of that batch's L bytes
+//! checksum     u64      xxh3 of header + lists + batch sums
 //! ```
+//! Every file is self-describing (the key names the mesh, material and selection), so a merge of
+//! parts made for different meshes, materials or selections is refused ([`CacheError::Mismatch`]).
 //! A missing, stale (other key), truncated or corrupt (bad checksum) file is reported as a
 //! [`CacheError`] and [`load_or_compute`] recomputes and rewrites it; nothing stale is used.
+//! Files are written to a unique temporary name, synced, renamed, and the directory synced.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 use xxhash_rust::xxh3::{xxh3_64, Xxh3};
 
-use crate::compliance::{Compliance, Selection};
+use crate::compliance::{Compliance, Selection, BATCH_COLS};
 use crate::mesh::Mesh;
 
 const MAGIC: &[u8; 8] = b"TFEMCMP\0";
 /// The cache format version this build reads and writes.
-pub const FORMAT_VERSION: u32 = 1;
-const HEADER: usize = 8 + 4 * 6 + 8;
+pub const FORMAT_VERSION: u32 = 2;
+const HEADER: usize = 72;
+/// Version of what [`key`] hashes (not of the file layout, which the header's version names):
+/// scene hashes and recorded sessions include the key, so it changes only when the hashed
+/// content does.
+const KEY_VERSION: u32 = 1;
 
 /// Why a cache file was not used.
 #[derive(Debug, Error)]
@@ -70,6 +83,25 @@ pub enum CacheError {
     Corrupt {
         /// The file.
         path: PathBuf,
+    },
+    /// A shard (part of the columns) where a complete file is needed.
+    #[error("{path} is part {index} of {count} of a sharded precompute: merge the parts first (touchfem precompute --merge)")]
+    Partial {
+        /// The file.
+        path: PathBuf,
+        /// Its shard index (1-based).
+        index: u32,
+        /// The shard count.
+        count: u32,
+    },
+    /// Parts that do not belong together (another mesh, material or selection; a missing,
+    /// repeated or overlapping part).
+    #[error("cannot merge {path}: {msg}")]
+    Mismatch {
+        /// The offending part.
+        path: PathBuf,
+        /// What does not match.
+        msg: String,
     },
 }
 
@@ -115,7 +147,7 @@ fn unique_tmp(path: &Path) -> std::path::PathBuf {
 /// the row/column selection.
 pub fn key(mesh: &Mesh, sel: &Selection) -> u64 {
     let mut h = Xxh3::new();
-    h.update(&FORMAT_VERSION.to_le_bytes());
+    h.update(&KEY_VERSION.to_le_bytes());
     for p in &mesh.nodes {
         for c in p.to_array() {
             h.update(&c.to_bits().to_le_bytes());
@@ -140,63 +172,338 @@ pub fn key(mesh: &Mesh, sel: &Selection) -> u64 {
     h.digest()
 }
 
-/// Writes a compliance to `path` (atomically: a temporary file, then a rename).
-pub fn save(path: &Path, c: &Compliance, key: u64, n_nodes: usize) -> Result<(), CacheError> {
-    let io = |source| CacheError::Io {
-        path: path.to_path_buf(),
-        source,
+/// The header of a cache file or shard: what it was made for and which columns it holds.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Header {
+    /// Mesh node count.
+    pub n_nodes: u32,
+    /// Displayed nodes R.
+    pub rows: u32,
+    /// Touchable nodes C (all of them, also in a shard).
+    pub cols: u32,
+    /// Columns per batch.
+    pub batch: u32,
+    /// Mesh + material + selection hash ([`key`]).
+    pub key: u64,
+    /// Shard index, 1-based.
+    pub shard_index: u32,
+    /// Shard count (1: a complete file).
+    pub shard_count: u32,
+    /// First column held.
+    pub col_begin: u32,
+    /// One past the last column held.
+    pub col_end: u32,
+    /// Free DOFs of K.
+    pub free_dofs: u32,
+    /// max |K·x − e| over the checked columns held.
+    pub residual_bits: u64,
+}
+
+impl Header {
+    fn to_bytes(&self) -> [u8; HEADER] {
+        let mut h = [0u8; HEADER];
+        h[..8].copy_from_slice(MAGIC);
+        let mut put = |o: usize, v: u32| h[o..o + 4].copy_from_slice(&v.to_le_bytes());
+        put(8, FORMAT_VERSION);
+        put(12, 8);
+        put(16, self.n_nodes);
+        put(20, self.rows);
+        put(24, self.cols);
+        put(28, self.batch);
+        put(40, self.shard_index);
+        put(44, self.shard_count);
+        put(48, self.col_begin);
+        put(52, self.col_end);
+        put(56, self.free_dofs);
+        put(60, 0);
+        h[32..40].copy_from_slice(&self.key.to_le_bytes());
+        h[64..72].copy_from_slice(&self.residual_bits.to_le_bytes());
+        h
+    }
+
+    fn held_batches(&self) -> usize {
+        (self.col_end - self.col_begin).div_ceil(self.batch.max(1)) as usize
+    }
+
+    /// Bytes of the L values held.
+    fn l_bytes(&self) -> u64 {
+        72 * self.rows as u64 * (self.col_end - self.col_begin) as u64
+    }
+
+    /// Total file length the header implies.
+    fn file_len(&self) -> u64 {
+        HEADER as u64
+            + 4 * (self.rows as u64 + self.cols as u64)
+            + self.l_bytes()
+            + 8 * self.held_batches() as u64
+            + 8
+    }
+
+    fn lists_len(&self) -> usize {
+        4 * (self.rows as usize + self.cols as usize)
+    }
+
+    /// The column range held.
+    pub fn col_range(&self) -> std::ops::Range<usize> {
+        self.col_begin as usize..self.col_end as usize
+    }
+}
+
+/// A cache file or shard being written: a unique temporary file of the final size, filled
+/// batch by batch (from any thread, in any order), then checksummed, synced and renamed.
+/// Dropped without [`Writer::finish`], the temporary is removed.
+pub struct Writer {
+    path: PathBuf,
+    tmp: PathBuf,
+    file: std::fs::File,
+    head: Header,
+    lists: Vec<u8>,
+    sums: std::sync::Mutex<Vec<Option<u64>>>,
+    done: bool,
+}
+
+fn sync_dir(path: &Path) -> std::io::Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
     };
-    let mut payload =
-        Vec::with_capacity(4 * (c.rows().len() + c.cols().len()) + 8 * c.l_f64().len() + 32);
-    for &r in c.rows() {
-        payload.extend_from_slice(&r.to_le_bytes());
+    std::fs::File::open(dir)?.sync_all()
+}
+
+impl Writer {
+    /// Starts writing `head` with the row and column node lists to `path`.
+    pub fn create(
+        path: &Path,
+        head: Header,
+        rows: &[u32],
+        cols: &[u32],
+    ) -> Result<Writer, CacheError> {
+        let io = |source| CacheError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        if let Some(dir) = path.parent() {
+            if !dir.as_os_str().is_empty() {
+                std::fs::create_dir_all(dir).map_err(io)?;
+            }
+        }
+        let mut lists = Vec::with_capacity(4 * (rows.len() + cols.len()));
+        for &v in rows.iter().chain(cols) {
+            lists.extend_from_slice(&v.to_le_bytes());
+        }
+        let tmp = unique_tmp(path);
+        let file = std::fs::File::create_new(&tmp).map_err(io)?;
+        let w = Writer {
+            path: path.to_path_buf(),
+            tmp,
+            file,
+            sums: std::sync::Mutex::new(vec![None; head.held_batches()]),
+            head,
+            lists,
+            done: false,
+        };
+        use std::os::unix::fs::FileExt;
+        (|| {
+            w.file.set_len(w.head.file_len())?;
+            w.file.write_all_at(&w.head.to_bytes(), 0)?;
+            w.file.write_all_at(&w.lists, HEADER as u64)
+        })()
+        .map_err(io)?;
+        Ok(w)
     }
-    for &k in c.cols() {
-        payload.extend_from_slice(&k.to_le_bytes());
+
+    /// Writes the held batch `i` (0-based within the file's range): `values` are its
+    /// `9·R·columns` f64. Callable from several threads.
+    pub fn write_batch(&self, i: usize, values: &[f64]) -> Result<(), CacheError> {
+        use std::os::unix::fs::FileExt;
+        let bytes: &[u8] = bytemuck::cast_slice(values);
+        let off = HEADER as u64
+            + self.lists.len() as u64
+            + 72 * self.head.rows as u64 * (i as u64 * self.head.batch as u64);
+        self.file
+            .write_all_at(bytes, off)
+            .map_err(|source| CacheError::Io {
+                path: self.path.clone(),
+                source,
+            })?;
+        let sum = xxh3_64(bytes);
+        self.sums.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(sum);
+        Ok(())
     }
-    for &v in c.l_f64() {
-        payload.extend_from_slice(&v.to_le_bytes());
+
+    /// Continues an interrupted write of the same `head` from `partial` (left by
+    /// [`Writer::keep_partial`]): its complete batches (checksums verified) are kept. Returns the
+    /// writer, the held batches already done and the residual over them. `None` if `partial`
+    /// does not exist; an error if it was made for another mesh, selection or shard.
+    pub fn resume(
+        path: &Path,
+        partial: &Path,
+        head: &Header,
+    ) -> Result<Option<(Writer, Vec<bool>, f64)>, CacheError> {
+        if !partial.exists() {
+            return Ok(None);
+        }
+        let part = Part::open(partial)?;
+        let same = Header {
+            residual_bits: head.residual_bits,
+            ..part.head.clone()
+        };
+        if &same != head {
+            return Err(CacheError::Mismatch {
+                path: partial.to_path_buf(),
+                msg: "an interrupted precompute of another mesh, material, selection or shard:                       delete it to start afresh"
+                    .into(),
+            });
+        }
+        let mut done = vec![false; part.batches()];
+        let mut sums = vec![None; part.batches()];
+        let mut buf = Vec::new();
+        for (i, d) in done.iter_mut().enumerate() {
+            if part.sums[i] != 0 && part.read_batch(i, &mut buf).is_ok() {
+                *d = true;
+                sums[i] = Some(part.sums[i]);
+            }
+        }
+        let residual = f64::from_bits(part.head.residual_bits);
+        let mut lists = Vec::with_capacity(4 * (part.rows.len() + part.cols.len()));
+        for &v in part.rows.iter().chain(&part.cols) {
+            lists.extend_from_slice(&v.to_le_bytes());
+        }
+        drop(part);
+        let io = |source| CacheError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let tmp = unique_tmp(path);
+        std::fs::rename(partial, &tmp).map_err(io)?;
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(&tmp)
+            .map_err(io)?;
+        Ok(Some((
+            Writer {
+                path: path.to_path_buf(),
+                tmp,
+                file,
+                head: head.clone(),
+                lists,
+                sums: std::sync::Mutex::new(sums),
+                done: false,
+            },
+            done,
+            residual,
+        )))
     }
-    for v in [
-        c.stats.residual,
-        c.stats.symmetry,
-        c.stats.seconds,
-        c.stats.free_dofs as f64,
-    ] {
-        payload.extend_from_slice(&v.to_le_bytes());
+
+    /// Stops an interrupted write: the batches written so far stay in `partial` (a valid file
+    /// whose missing batches have checksum 0), from which [`Writer::resume`] continues.
+    pub fn keep_partial(mut self, partial: &Path) -> Result<(), CacheError> {
+        let sums: Vec<u64> = self
+            .sums
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .map(|s| s.unwrap_or(0))
+            .collect();
+        let tmp = self.tmp.clone();
+        self.write_tail(&sums)?;
+        std::fs::rename(&tmp, partial).map_err(|source| CacheError::Io {
+            path: partial.to_path_buf(),
+            source,
+        })?;
+        self.done = true;
+        sync_dir(partial).map_err(|source| CacheError::Io {
+            path: partial.to_path_buf(),
+            source,
+        })
     }
-    let mut head = Vec::with_capacity(HEADER);
-    head.extend_from_slice(MAGIC);
-    for v in [
-        FORMAT_VERSION,
-        8,
-        n_nodes as u32,
-        c.rows().len() as u32,
-        c.cols().len() as u32,
-        0,
-    ] {
-        head.extend_from_slice(&v.to_le_bytes());
+
+    /// Writes header, batch sums and checksum, and syncs the file.
+    fn write_tail(&self, sums: &[u64]) -> Result<(), CacheError> {
+        use std::os::unix::fs::FileExt;
+        let io = |source| CacheError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        let mut table = Vec::with_capacity(8 * sums.len());
+        for s in sums {
+            table.extend_from_slice(&s.to_le_bytes());
+        }
+        let head = self.head.to_bytes();
+        let mut h = Xxh3::new();
+        h.update(&head);
+        h.update(&self.lists);
+        h.update(&table);
+        let l_end = HEADER as u64 + self.lists.len() as u64 + self.head.l_bytes();
+        self.file.write_all_at(&head, 0).map_err(io)?;
+        self.file.write_all_at(&table, l_end).map_err(io)?;
+        self.file
+            .write_all_at(&h.digest().to_le_bytes(), l_end + table.len() as u64)
+            .map_err(io)?;
+        self.file.sync_all().map_err(io)
     }
-    head.extend_from_slice(&key.to_le_bytes());
-    if let Some(dir) = path.parent() {
-        if !dir.as_os_str().is_empty() {
-            std::fs::create_dir_all(dir).map_err(io)?;
+
+    /// Sets the residual stored in the header.
+    pub fn set_residual(&mut self, residual: f64) {
+        self.head.residual_bits = residual.to_bits();
+    }
+
+    /// Writes the checksums, syncs, renames to the final name and syncs the directory. Fails
+    /// if a batch was not written.
+    pub fn finish(mut self) -> Result<u64, CacheError> {
+        let io = |source| CacheError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        let sums = std::mem::take(&mut *self.sums.lock().unwrap_or_else(|e| e.into_inner()));
+        let mut table = Vec::with_capacity(sums.len());
+        for (i, s) in sums.iter().enumerate() {
+            table.push(s.ok_or_else(|| CacheError::Format {
+                path: self.path.clone(),
+                msg: format!("batch {i} was never written"),
+            })?);
+        }
+        self.write_tail(&table)?;
+        std::fs::rename(&self.tmp, &self.path).map_err(io)?;
+        self.done = true;
+        sync_dir(&self.path).map_err(io)?;
+        Ok(self.head.file_len())
+    }
+}
+
+impl Drop for Writer {
+    fn drop(&mut self) {
+        if !self.done {
+            let _ = std::fs::remove_file(&self.tmp);
         }
     }
-    let tmp = unique_tmp(path);
-    let written = (|| {
-        let mut f = std::fs::File::create_new(&tmp)?;
-        f.write_all(&head)?;
-        f.write_all(&payload)?;
-        f.write_all(&xxh3_64(&payload).to_le_bytes())?;
-        f.sync_all()?;
-        drop(f);
-        std::fs::rename(&tmp, path)
-    })();
-    if written.is_err() {
-        let _ = std::fs::remove_file(&tmp);
+}
+
+/// Writes a complete compliance to `path` (atomically: a unique temporary file, synced, then a
+/// rename and a sync of the directory).
+pub fn save(path: &Path, c: &Compliance, key: u64, n_nodes: usize) -> Result<(), CacheError> {
+    let nr = c.rows().len();
+    let nc = c.cols().len();
+    let head = Header {
+        n_nodes: n_nodes as u32,
+        rows: nr as u32,
+        cols: nc as u32,
+        batch: BATCH_COLS as u32,
+        key,
+        shard_index: 1,
+        shard_count: 1,
+        col_begin: 0,
+        col_end: nc as u32,
+        free_dofs: c.stats.free_dofs as u32,
+        residual_bits: c.stats.residual.to_bits(),
+    };
+    let w = Writer::create(path, head, c.rows(), c.cols())?;
+    let l = c.l_f64();
+    for (i, chunk) in l.chunks(9 * nr * BATCH_COLS).enumerate() {
+        w.write_batch(i, chunk)?;
     }
-    written.map_err(io)
+    w.finish().map(|_| ())
 }
 
 fn u32_at(b: &[u8], o: usize) -> u32 {
@@ -206,78 +513,325 @@ fn u64_at(b: &[u8], o: usize) -> u64 {
     u64::from_le_bytes(b[o..o + 8].try_into().expect("8 bytes"))
 }
 
-/// Reads a compliance from `path`, checking magic, version, precision, key, length and checksum.
+/// An opened cache file or shard whose header, lists and checksum table were checked; the L
+/// values are read (and checked batch by batch) on demand.
+pub struct Part {
+    /// The file.
+    pub path: PathBuf,
+    /// Its header.
+    pub head: Header,
+    /// Row nodes.
+    pub rows: Vec<u32>,
+    /// Column nodes.
+    pub cols: Vec<u32>,
+    sums: Vec<u64>,
+    file: std::fs::File,
+}
+
+impl Part {
+    /// Opens `path`: checks magic, version, precision, length and the checksum of header,
+    /// lists and batch sums.
+    pub fn open(path: &Path) -> Result<Part, CacheError> {
+        use std::io::Read;
+        use std::os::unix::fs::FileExt;
+        let p = || path.to_path_buf();
+        let io = |source| CacheError::Io { path: p(), source };
+        let mut file = std::fs::File::open(path).map_err(io)?;
+        let len = file.metadata().map_err(io)?.len();
+        let mut hb = [0u8; HEADER];
+        let got = (&mut file).take(HEADER as u64).read(&mut hb).map_err(io)?;
+        let mut got = got;
+        while got < HEADER {
+            let n = file.read(&mut hb[got..]).map_err(io)?;
+            if n == 0 {
+                break;
+            }
+            got += n;
+        }
+        if got >= 8 && &hb[..8] != MAGIC {
+            return Err(CacheError::Format {
+                path: p(),
+                msg: "not a touchfem compliance cache".into(),
+            });
+        }
+        if got < HEADER {
+            return Err(CacheError::Truncated {
+                path: p(),
+                len: len as usize,
+                expected: HEADER,
+            });
+        }
+        let version = u32_at(&hb, 8);
+        if version != FORMAT_VERSION {
+            return Err(CacheError::Format {
+                path: p(),
+                msg: format!("format version {version}, this build reads {FORMAT_VERSION}"),
+            });
+        }
+        if u32_at(&hb, 12) != 8 {
+            return Err(CacheError::Format {
+                path: p(),
+                msg: format!("precision {} bytes, expected 8", u32_at(&hb, 12)),
+            });
+        }
+        let head = Header {
+            n_nodes: u32_at(&hb, 16),
+            rows: u32_at(&hb, 20),
+            cols: u32_at(&hb, 24),
+            batch: u32_at(&hb, 28),
+            key: u64_at(&hb, 32),
+            shard_index: u32_at(&hb, 40),
+            shard_count: u32_at(&hb, 44),
+            col_begin: u32_at(&hb, 48),
+            col_end: u32_at(&hb, 52),
+            free_dofs: u32_at(&hb, 56),
+            residual_bits: u64_at(&hb, 64),
+        };
+        let expected = head.file_len();
+        if len != expected {
+            // A flipped bit in the sizes reads as a wrong length; the checksum cannot be found.
+            return Err(CacheError::Truncated {
+                path: p(),
+                len: len as usize,
+                expected: expected as usize,
+            });
+        }
+        let sane = head.batch > 0
+            && head.col_begin <= head.col_end
+            && head.col_end <= head.cols
+            && head.shard_index >= 1
+            && head.shard_index <= head.shard_count;
+        let mut lists = vec![0u8; head.lists_len()];
+        file.read_exact_at(&mut lists, HEADER as u64).map_err(io)?;
+        let nb = head.held_batches();
+        let mut table = vec![0u8; 8 * nb + 8];
+        file.read_exact_at(&mut table, expected - 8 * nb as u64 - 8)
+            .map_err(io)?;
+        let mut h = Xxh3::new();
+        h.update(&hb);
+        h.update(&lists);
+        h.update(&table[..8 * nb]);
+        if h.digest() != u64_at(&table, 8 * nb) || !sane {
+            return Err(CacheError::Corrupt { path: p() });
+        }
+        let nr = head.rows as usize;
+        let rows = (0..nr).map(|i| u32_at(&lists, 4 * i)).collect();
+        let cols = (0..head.cols as usize)
+            .map(|i| u32_at(&lists, 4 * (nr + i)))
+            .collect();
+        let sums = (0..nb).map(|i| u64_at(&table, 8 * i)).collect();
+        Ok(Part {
+            path: p(),
+            head,
+            rows,
+            cols,
+            sums,
+            file,
+        })
+    }
+
+    /// Reads held batch `i` into `out` (resized to its length) and checks its checksum.
+    pub fn read_batch(&self, i: usize, out: &mut Vec<f64>) -> Result<(), CacheError> {
+        use std::os::unix::fs::FileExt;
+        let h = &self.head;
+        let first = h.col_begin as usize + i * h.batch as usize;
+        let ncols = (h.col_end as usize - first).min(h.batch as usize);
+        let n = 9 * h.rows as usize * ncols;
+        out.clear();
+        out.resize(n, 0.0);
+        let off =
+            HEADER as u64 + h.lists_len() as u64 + 72 * h.rows as u64 * (i as u64 * h.batch as u64);
+        let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut out[..]);
+        self.file
+            .read_exact_at(bytes, off)
+            .map_err(|source| CacheError::Io {
+                path: self.path.clone(),
+                source,
+            })?;
+        if xxh3_64(bytes) != self.sums[i] {
+            return Err(CacheError::Corrupt {
+                path: self.path.clone(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Batches held.
+    pub fn batches(&self) -> usize {
+        self.sums.len()
+    }
+}
+
+/// Reads a complete compliance from `path`, checking magic, version, precision, key, length,
+/// checksums and that it is not a shard. Streams L into memory batch by batch (no second copy
+/// of the file).
 pub fn load(path: &Path, expected_key: u64, n_nodes: usize) -> Result<Compliance, CacheError> {
-    let p = || path.to_path_buf();
-    let b = std::fs::read(path).map_err(|source| CacheError::Io { path: p(), source })?;
-    if b.len() < HEADER {
-        return Err(CacheError::Truncated {
-            path: p(),
-            len: b.len(),
-            expected: HEADER,
+    let part = Part::open(path)?;
+    let h = &part.head;
+    if h.key != expected_key || h.n_nodes as usize != n_nodes {
+        return Err(CacheError::Stale {
+            path: path.to_path_buf(),
         });
     }
-    if &b[..8] != MAGIC {
-        return Err(CacheError::Format {
-            path: p(),
-            msg: "not a touchfem compliance cache".into(),
+    if h.shard_count != 1 || h.col_begin != 0 || h.col_end != h.cols {
+        return Err(CacheError::Partial {
+            path: path.to_path_buf(),
+            index: h.shard_index,
+            count: h.shard_count,
         });
     }
-    let version = u32_at(&b, 8);
-    if version != FORMAT_VERSION {
-        return Err(CacheError::Format {
-            path: p(),
-            msg: format!("format version {version}, this build reads {FORMAT_VERSION}"),
-        });
-    }
-    if u32_at(&b, 12) != 8 {
-        return Err(CacheError::Format {
-            path: p(),
-            msg: format!("precision {} bytes, expected 8", u32_at(&b, 12)),
-        });
-    }
-    let nn = u32_at(&b, 16) as usize;
-    let nr = u32_at(&b, 20) as usize;
-    let nc = u32_at(&b, 24) as usize;
-    if u64_at(&b, 32) != expected_key || nn != n_nodes {
-        return Err(CacheError::Stale { path: p() });
-    }
-    let payload_len = 4usize
-        .checked_mul(nr + nc)
-        .and_then(|x| x.checked_add(72usize.checked_mul(nr)?.checked_mul(nc)?))
-        .and_then(|x| x.checked_add(32))
-        .ok_or_else(|| CacheError::Format {
-            path: p(),
-            msg: "sizes overflow".into(),
+    let nr = h.rows as usize;
+    let nc = h.cols as usize;
+    let mut l: Vec<f64> = Vec::new();
+    l.try_reserve_exact(9 * nr * nc)
+        .map_err(|e| CacheError::Format {
+            path: path.to_path_buf(),
+            msg: format!("cannot hold L: {e}"),
         })?;
-    let expected = HEADER + payload_len + 8;
-    if b.len() != expected {
-        return Err(CacheError::Truncated {
-            path: p(),
-            len: b.len(),
-            expected,
+    let mut buf = Vec::new();
+    for i in 0..part.batches() {
+        part.read_batch(i, &mut buf)?;
+        l.extend_from_slice(&buf);
+    }
+    let mut c =
+        Compliance::from_dense(part.rows.clone(), part.cols.clone(), l, n_nodes).map_err(|e| {
+            CacheError::Format {
+                path: path.to_path_buf(),
+                msg: format!("inconsistent contents: {e}"),
+            }
+        })?;
+    c.stats.residual = f64::from_bits(h.residual_bits);
+    c.stats.free_dofs = h.free_dofs as usize;
+    Ok(c)
+}
+
+/// What a merge wrote.
+#[derive(Clone, Debug)]
+pub struct MergeInfo {
+    /// Displayed nodes.
+    pub rows: usize,
+    /// Touchable nodes.
+    pub cols: usize,
+    /// Bytes of the merged file.
+    pub bytes: u64,
+}
+
+/// Joins the shards `parts` (any order) into one complete file at `out`, equal byte for byte to
+/// the unsharded precompute. Refuses parts made for another mesh, material or selection, and a
+/// missing, repeated or overlapping part ([`CacheError::Mismatch`]); checks every batch's
+/// checksum while copying.
+pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeInfo, CacheError> {
+    let mut opened = parts
+        .iter()
+        .map(|p| Part::open(p))
+        .collect::<Result<Vec<_>, _>>()?;
+    let Some(first) = opened.first() else {
+        return Err(CacheError::Mismatch {
+            path: out.to_path_buf(),
+            msg: "no parts given".into(),
+        });
+    };
+    let (h0, rows0, cols0) = (first.head.clone(), first.rows.clone(), first.cols.clone());
+    for p in &opened {
+        let h = &p.head;
+        let bad = |msg: String| {
+            Err(CacheError::Mismatch {
+                path: p.path.clone(),
+                msg,
+            })
+        };
+        if h.key != h0.key || h.n_nodes != h0.n_nodes || p.rows != rows0 || p.cols != cols0 {
+            return bad(format!(
+                "made for another mesh, material or selection than {} (key {:016x}, not {:016x})",
+                parts[0].display(),
+                h.key,
+                h0.key
+            ));
+        }
+        if h.batch != h0.batch || h.free_dofs != h0.free_dofs {
+            return bad("made with another batch size or stiffness".into());
+        }
+    }
+    for p in &opened {
+        let h = &p.head;
+        let bad = |msg: String| {
+            Err(CacheError::Mismatch {
+                path: p.path.clone(),
+                msg,
+            })
+        };
+        if h.shard_count as usize != parts.len() {
+            return bad(format!(
+                "is part {} of {}, but {} parts were given",
+                h.shard_index,
+                h.shard_count,
+                parts.len()
+            ));
+        }
+    }
+    opened.sort_by_key(|p| p.head.shard_index);
+    let mut next_col = 0u32;
+    for (i, p) in opened.iter().enumerate() {
+        if p.head.shard_index as usize != i + 1 {
+            return Err(CacheError::Mismatch {
+                path: p.path.clone(),
+                msg: format!(
+                    "part {} is given twice or part {} is missing",
+                    p.head.shard_index,
+                    i + 1
+                ),
+            });
+        }
+        if p.head.col_begin != next_col {
+            return Err(CacheError::Mismatch {
+                path: p.path.clone(),
+                msg: format!(
+                    "holds columns {}..{}, expected them to start at {next_col}",
+                    p.head.col_begin, p.head.col_end
+                ),
+            });
+        }
+        next_col = p.head.col_end;
+    }
+    if next_col != h0.cols {
+        return Err(CacheError::Mismatch {
+            path: opened[opened.len() - 1].path.clone(),
+            msg: format!("the parts end at column {next_col} of {}", h0.cols),
         });
     }
-    let payload = &b[HEADER..HEADER + payload_len];
-    if xxh3_64(payload) != u64_at(&b, HEADER + payload_len) {
-        return Err(CacheError::Corrupt { path: p() });
+    let residual = opened
+        .iter()
+        .map(|p| f64::from_bits(p.head.residual_bits))
+        .fold(0.0f64, f64::max);
+    let head = Header {
+        shard_index: 1,
+        shard_count: 1,
+        col_begin: 0,
+        col_end: h0.cols,
+        residual_bits: residual.to_bits(),
+        ..h0
+    };
+    let w = Writer::create(out, head, &rows0, &cols0)?;
+    let mut buf = Vec::new();
+    let mut b = 0;
+    for p in &opened {
+        for i in 0..p.batches() {
+            p.read_batch(i, &mut buf)?;
+            w.write_batch(b, &buf)?;
+            b += 1;
+        }
     }
-    let rows: Vec<u32> = (0..nr).map(|i| u32_at(payload, 4 * i)).collect();
-    let cols: Vec<u32> = (0..nc).map(|i| u32_at(payload, 4 * (nr + i))).collect();
-    let lo = 4 * (nr + nc);
-    let l: Vec<f64> = (0..9 * nr * nc)
-        .map(|i| f64::from_bits(u64_at(payload, lo + 8 * i)))
-        .collect();
-    let so = lo + 72 * nr * nc;
-    let stat = |k: usize| f64::from_bits(u64_at(payload, so + 8 * k));
-    let mut c = Compliance::from_dense(rows, cols, l, n_nodes).map_err(|e| CacheError::Format {
-        path: p(),
-        msg: format!("inconsistent contents: {e}"),
-    })?;
-    c.stats.residual = stat(0);
-    c.stats.seconds = stat(2);
-    c.stats.free_dofs = stat(3) as usize;
-    Ok(c)
+    let bytes = w.finish()?;
+    Ok(MergeInfo {
+        rows: rows0.len(),
+        cols: cols0.len(),
+        bytes,
+    })
+}
+
+/// The batch range of shard `index` (1-based) of `count` over `batches` batches.
+pub fn shard_batches(batches: usize, index: usize, count: usize) -> std::ops::Range<usize> {
+    (batches * (index - 1) / count)..(batches * index / count)
 }
 
 /// Loads the compliance from `path` if it is valid for this mesh and selection; otherwise

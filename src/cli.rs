@@ -49,6 +49,45 @@ pub enum Command {
     /// An interactive window: a left drag presses the pointer into the object, a right drag
     /// orbits, the wheel zooms, Esc quits.
     View(ViewArgs),
+    /// Precompute the compliance a scene needs into a cache file; `--shard I/N` computes one
+    /// part of the columns (for N machines), `--merge` joins the parts.
+    Precompute(PrecomputeArgs),
+}
+
+/// `touchfem precompute` flags.
+#[derive(Args, Debug)]
+pub struct PrecomputeArgs {
+    /// Scene file, bundled scene, mesh file or bundled mesh.
+    #[arg(required_unless_present = "merge")]
+    pub scene: Option<String>,
+    /// How to load a mesh given as SCENE (a scene file says it itself).
+    #[command(flatten)]
+    pub load: LoadArgs,
+    /// Output file (a directory for a scene of several objects). Default: the cache file the
+    /// scene loader reads ($TOUCHFEM_CACHE_DIR), with `.part-I-of-N` appended for a shard.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Compute only the I-th of N parts of the columns (1-based), e.g. 3/8.
+    #[arg(long, value_parser = parse_shard)]
+    pub shard: Option<(usize, usize)>,
+    /// Join these shard files into --out (equal to the unsharded file).
+    #[arg(long, num_args = 1.., conflicts_with_all = ["scene", "shard"], requires = "out")]
+    pub merge: Vec<PathBuf>,
+    /// Print one JSON object (`seconds`, `rows`, `cols`, `bytes`, ...).
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Parses "I/N" (1 ≤ I ≤ N ≤ 65536) into a shard index and count.
+pub fn parse_shard(s: &str) -> Result<(usize, usize), String> {
+    let bad = || format!("expected I/N with 1 <= I <= N <= 65536 (e.g. 3/8), got '{s}'");
+    let (i, n) = s.split_once('/').ok_or_else(bad)?;
+    let i: usize = i.trim().parse().map_err(|_| bad())?;
+    let n: usize = n.trim().parse().map_err(|_| bad())?;
+    if i == 0 || i > n || n > 65536 {
+        return Err(bad());
+    }
+    Ok((i, n))
 }
 
 /// `touchfem view` flags.
@@ -91,6 +130,10 @@ pub struct BenchArgs {
     /// Where the ladder's mouse meshes are (`mouse_hH.msh`, made by scripts/make_mouse.py).
     #[arg(long, default_value = "out/ladder")]
     pub ladder_dir: PathBuf,
+    /// Add rows for this scene's objects (a scene file, bundled scene or mesh): its precompute
+    /// (time, memory, peak RSS; the JSON's `scene` array) and the displacement methods.
+    #[arg(long)]
+    pub scene: Option<String>,
 }
 
 /// `touchfem serve` flags.
@@ -189,7 +232,8 @@ pub struct LoadArgs {
 }
 
 impl LoadArgs {
-    fn options(&self) -> LoadOptions {
+    /// The mesh-loading options these flags name.
+    pub fn options(&self) -> LoadOptions {
         LoadOptions {
             unit: self.unit,
             young_pa: self.young,
@@ -311,6 +355,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Serve(args) => serve(&args),
         Command::Bench(args) => bench(&args),
         Command::View(args) => crate::window::view_command(&args),
+        Command::Precompute(args) => crate::precompute::command(&args),
     }
 }
 
@@ -375,7 +420,15 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
         }
     };
     let mut rows = Vec::new();
-    for (name, scene) in bench_scenes()? {
+    let mut scene_table = Vec::new();
+    let mut scenes = bench_scenes()?;
+    if let Some(spec) = &a.scene {
+        let (r, t, s) = crate::tradeoff::scene_objects(spec)?;
+        rows.extend(r);
+        scene_table = t;
+        scenes.extend(s);
+    }
+    for (name, scene) in scenes {
         rows.extend(cpu_rows(&name, &scene, active, reps)?);
         if let Some(g) = &gpu {
             // Submit from the core the driver's threads started on (as the demo does).
@@ -395,6 +448,20 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
             r.method, r.mesh, r.nodes, r.active_columns, r.time_us, r.rel_error
         );
     }
+    for t in &scene_table {
+        println!(
+            "{}: {} nodes, {} surface / {} free surface, {} rows × {} cols: precompute {:.2} s, L {:.0} MB (f64 + f32), peak RSS {:.2} GB",
+            t["object"].as_str().unwrap_or("?"),
+            t["nodes"],
+            t["surface_nodes"],
+            t["free_surface_nodes"],
+            t["rows"],
+            t["cols"],
+            t["precompute_s"].as_f64().unwrap_or(0.0),
+            t["bytes_l"].as_f64().unwrap_or(0.0) / 1e6,
+            t["peak_rss_bytes"].as_f64().unwrap_or(0.0) / 1e9,
+        );
+    }
     if let Some(path) = &a.plot {
         let mut meshes: Vec<&str> = Vec::new();
         for r in &rows {
@@ -405,7 +472,11 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
         crate::bench_plot::write_plot(path, &rows, &meshes)?;
     }
     if let Some(path) = &a.json {
-        let v = serde_json::json!({ "rows": rows, "machine": crate::demo::machine() });
+        let v = serde_json::json!({
+            "rows": rows,
+            "scene": scene_table,
+            "machine": crate::demo::machine(),
+        });
         std::fs::write(
             path,
             serde_json::to_string_pretty(&v).expect("serialisable"),

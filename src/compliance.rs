@@ -62,6 +62,7 @@ impl Default for Selection {
 
 /// What the precompute cost and how accurate it is.
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct PrecomputeStats {
     /// Free DOFs of K.
     pub free_dofs: usize,
@@ -75,6 +76,32 @@ pub struct PrecomputeStats {
     pub residual: f64,
     /// max |L_ij − L_jiᵀ| over the touchable square block, relative to max |L|.
     pub symmetry: f64,
+    /// Where the time went (wall seconds of each phase).
+    pub phases: PhaseTimes,
+}
+
+/// Wall seconds of each precompute phase. The solve phases run on several threads: their
+/// entries are the wall time of the slowest worker's share (`solve_s`: triangular solves,
+/// `check_s`: the residual K·x − e, `scatter_s`: copying the displayed rows out).
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct PhaseTimes {
+    /// Assembling K, s.
+    pub assemble_s: f64,
+    /// Fill-reducing ordering and symbolic factorisation, s.
+    pub symbolic_s: f64,
+    /// Numeric Cholesky factorisation, s.
+    pub numeric_s: f64,
+    /// Forward and back substitution for all columns, s.
+    pub solve_s: f64,
+    /// Residual check, s.
+    pub check_s: f64,
+    /// Copying rows into L, s.
+    pub scatter_s: f64,
+    /// Building the result (f32 copy, diagonal inverses, symmetry check), s.
+    pub finish_s: f64,
+    /// Non-zeros of the Cholesky factor.
+    pub factor_nonzeros: usize,
 }
 
 /// `L = K⁻¹` for displayed rows × touchable columns, with the touchable diagonal blocks.
@@ -120,96 +147,36 @@ impl Compliance {
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<Compliance, FemError> {
         let t0 = Instant::now();
-        let stiff = Stiffness::assemble(mesh)?;
-        let factor = stiff.factorize()?;
-        let n = mesh.nodes.len();
-        let cols = sel.cols.resolve(mesh);
-        let mut rows = sel.rows.resolve(mesh);
-        let mut row_of_node = vec![u32::MAX; n];
-        let mut col_of_node = vec![u32::MAX; n];
-        for (ci, &c) in cols.iter().enumerate() {
-            if c as usize >= n {
-                return Err(FemError::BadSelection(format!(
-                    "touchable node {c} does not exist ({n} nodes)"
-                )));
-            }
-            if mesh.fixed[c as usize] {
-                return Err(FemError::BadSelection(format!(
-                    "touchable node {c} is clamped"
-                )));
-            }
-            if col_of_node[c as usize] != u32::MAX {
-                return Err(FemError::BadSelection(format!("node {c} selected twice")));
-            }
-            col_of_node[c as usize] = ci as u32;
-        }
-        for (ri, &r) in rows.iter().enumerate() {
-            if r as usize >= n || row_of_node[r as usize] != u32::MAX {
-                return Err(FemError::BadSelection(format!(
-                    "displayed node {r} is out of range or repeated"
-                )));
-            }
-            row_of_node[r as usize] = ri as u32;
-        }
-        for &c in &cols {
-            if row_of_node[c as usize] == u32::MAX {
-                row_of_node[c as usize] = rows.len() as u32;
-                rows.push(c);
-            }
-        }
-        let col_row: Vec<u32> = cols.iter().map(|&c| row_of_node[c as usize]).collect();
-        let nr = rows.len();
-        let nc = cols.len();
+        let plan = ColumnPlan::new(mesh, sel)?;
+        let nr = plan.rows.len();
+        let nc = plan.cols.len();
         let mut l = vec![0.0f64; 9 * nr * nc];
-        let nf = stiff.dofs.n_free;
-        // Columns are solved in batches, the batches split over the cores: each worker owns a
-        // contiguous range of column nodes and so a contiguous slice of L.
-        let workers = std::thread::available_parallelism()
-            .map(|n| n.get())
-            .unwrap_or(1)
-            .clamp(1, 16)
-            .min(nc.div_ceil(16).max(1));
-        let per = nc.div_ceil(workers).max(1);
-        let done = std::sync::atomic::AtomicUsize::new(0);
-        let ctx = SolveCtx {
-            stiff: &stiff,
-            factor: &factor,
-            rows: &rows,
-            cols: &cols,
-            done: &done,
-        };
-        let mut results: Vec<Result<f64, FemError>> = Vec::with_capacity(workers);
-        std::thread::scope(|sc| {
-            let mut slices = l.chunks_mut(9 * nr * per);
-            let first = slices.next();
-            let handles: Vec<_> = slices
-                .enumerate()
-                .map(|(w, sl)| {
-                    let ctx = &ctx;
-                    sc.spawn(move || ctx.solve_range((w + 1) * per, sl, &mut |_| {}))
-                })
-                .collect();
-            if let Some(sl) = first {
-                results.push(ctx.solve_range(0, sl, &mut |d| progress(d, nc)));
-            }
-            for h in handles {
-                results.push(h.join().unwrap_or_else(|_| {
-                    Err(FemError::Factorisation("a solver thread panicked".into()))
-                }));
-            }
-        });
-        let mut residual = 0.0f64;
-        for r in results {
-            residual = residual.max(r?);
-        }
-        let mut c = Compliance::from_dense(rows, cols, l, n)?;
+        let out = std::sync::Mutex::new(&mut l[..]);
+        let mut phases = plan.phases.clone();
+        let all: Vec<usize> = (0..plan.batches()).collect();
+        let (residual, t) = plan.solve(
+            &all,
+            &|b, data| {
+                let mut g = out.lock().unwrap_or_else(|e| e.into_inner());
+                let first = plan.batch_cols(b).start;
+                g[9 * nr * first..][..data.len()].copy_from_slice(data);
+                true
+            },
+            &mut |done| progress(done, nc),
+        )?;
         progress(nc, nc);
-        c.stats.free_dofs = nf;
-        c.stats.k_nonzeros = stiff.k.compute_nnz();
+        phases.solve_s = t[0];
+        phases.check_s = t[1];
+        phases.scatter_s = t[2];
+        let t_fin = Instant::now();
+        let (rows, cols) = (plan.rows.clone(), plan.cols.clone());
+        let mut c = Compliance::from_dense(rows, cols, l, mesh.nodes.len())?;
+        phases.finish_s = t_fin.elapsed().as_secs_f64();
+        c.stats.phases = phases;
+        c.stats.free_dofs = plan.stiff.dofs.n_free;
+        c.stats.k_nonzeros = plan.stiff.k.compute_nnz();
         c.stats.residual = residual;
         c.stats.seconds = t0.elapsed().as_secs_f64();
-        // row_of_node/col_of_node were rebuilt by from_dense; they agree with ours.
-        debug_assert_eq!(c.col_row, col_row);
         Ok(c)
     }
 
@@ -390,77 +357,232 @@ impl Compliance {
     }
 }
 
-/// What the precompute workers share.
-struct SolveCtx<'a> {
-    stiff: &'a Stiffness,
-    factor: &'a crate::fem::Factor,
-    rows: &'a [u32],
-    cols: &'a [u32],
-    done: &'a std::sync::atomic::AtomicUsize,
+/// Columns per solve batch. Batches sit on a fixed grid of column indices (batch `b` holds
+/// columns `64b .. 64b + 64`), so a column's values never depend on how the work is split
+/// over threads or shards: merged shards equal the unsharded result bit for bit.
+pub const BATCH_COLS: usize = 64;
+
+/// The ordering of the precompute's factorisation: nested dissection, or AMD when the
+/// environment variable `TOUCHFEM_ORDERING` is `amd` (for comparisons; see `bench`).
+fn ordering() -> crate::fem::Ordering {
+    match std::env::var("TOUCHFEM_ORDERING").as_deref() {
+        Ok("amd") => crate::fem::Ordering::Amd,
+        _ => crate::fem::Ordering::NestedDissection,
+    }
 }
 
-impl SolveCtx<'_> {
-    /// Solves the columns `first..first + out.len() / (9R)` into `out` (their slice of L) and
-    /// returns max |K·x − e| over them.
-    fn solve_range(
-        &self,
-        first: usize,
-        out: &mut [f64],
-        progress: &mut dyn FnMut(usize),
-    ) -> Result<f64, FemError> {
-        let nr = self.rows.len();
-        let count = out.len() / (9 * nr);
-        let nf = self.stiff.dofs.n_free;
-        let batch = 64usize;
-        let mut residual = 0.0f64;
-        let mut kx = vec![0.0; nf];
-        let mut xs = vec![0.0; nf];
-        for chunk_start in (0..count).step_by(batch) {
-            let chunk = chunk_start..(chunk_start + batch).min(count);
-            let mut b = Mat::<f64>::zeros(nf, 3 * chunk.len());
-            for (k, local) in chunk.clone().enumerate() {
-                for a in 0..3 {
-                    let d = self
-                        .stiff
-                        .dofs
-                        .free(self.cols[first + local], a)
-                        .expect("columns are free");
-                    b[(d, 3 * k + a)] = 1.0;
-                }
+/// The factorised stiffness and the resolved selection, ready to solve column batches.
+pub struct ColumnPlan {
+    /// Displayed nodes (rows); the touchable nodes are included.
+    pub rows: Vec<u32>,
+    /// Touchable nodes (columns).
+    pub cols: Vec<u32>,
+    /// Assembly and factorisation times (the solve phases are filled by the caller).
+    pub phases: PhaseTimes,
+    stiff: Stiffness,
+    factor: crate::fem::Factor,
+}
+
+impl ColumnPlan {
+    /// Resolves and checks the selection, assembles K and factorises it.
+    pub fn new(mesh: &Mesh, sel: &Selection) -> Result<ColumnPlan, FemError> {
+        let t0 = Instant::now();
+        let n = mesh.nodes.len();
+        let cols = sel.cols.resolve(mesh);
+        let mut rows = sel.rows.resolve(mesh);
+        let mut row_of_node = vec![u32::MAX; n];
+        let mut col_of_node = vec![u32::MAX; n];
+        for (ci, &c) in cols.iter().enumerate() {
+            if c as usize >= n {
+                return Err(FemError::BadSelection(format!(
+                    "touchable node {c} does not exist ({n} nodes)"
+                )));
             }
-            self.factor.solve_in_place(&mut b);
-            for (k, local) in chunk.clone().enumerate() {
-                let node = self.cols[first + local];
-                for bax in 0..3 {
-                    let x = b.col(3 * k + bax);
-                    for (i, v) in xs.iter_mut().enumerate() {
-                        *v = x[i];
-                    }
-                    let e = self.stiff.dofs.free(node, bax).expect("free");
-                    if xs.iter().any(|v| !v.is_finite()) {
-                        return Err(FemError::Singular { node, dof: e });
-                    }
-                    self.stiff.mul(&xs, &mut kx);
-                    for (i, v) in kx.iter().enumerate() {
-                        let target = if i == e { 1.0 } else { 0.0 };
-                        residual = residual.max((v - target).abs());
-                    }
-                    let base = (3 * local + bax) * 3 * nr;
-                    for (ri, &r) in self.rows.iter().enumerate() {
-                        for a in 0..3 {
-                            if let Some(d) = self.stiff.dofs.free(r, a) {
-                                out[base + 3 * ri + a] = xs[d];
-                            }
-                        }
-                    }
-                }
+            if mesh.fixed[c as usize] {
+                return Err(FemError::BadSelection(format!(
+                    "touchable node {c} is clamped"
+                )));
             }
-            let d = self
-                .done
-                .fetch_add(chunk.len(), std::sync::atomic::Ordering::Relaxed)
-                + chunk.len();
-            progress(d);
+            if col_of_node[c as usize] != u32::MAX {
+                return Err(FemError::BadSelection(format!("node {c} selected twice")));
+            }
+            col_of_node[c as usize] = ci as u32;
         }
-        Ok(residual)
+        for (ri, &r) in rows.iter().enumerate() {
+            if r as usize >= n || row_of_node[r as usize] != u32::MAX {
+                return Err(FemError::BadSelection(format!(
+                    "displayed node {r} is out of range or repeated"
+                )));
+            }
+            row_of_node[r as usize] = ri as u32;
+        }
+        for &c in &cols {
+            if row_of_node[c as usize] == u32::MAX {
+                row_of_node[c as usize] = rows.len() as u32;
+                rows.push(c);
+            }
+        }
+        let mut phases = PhaseTimes::default();
+        let stiff = Stiffness::assemble(mesh)?;
+        phases.assemble_s = t0.elapsed().as_secs_f64();
+        let (factor, sym_s, num_s) = stiff.factorize_timed(ordering())?;
+        phases.symbolic_s = sym_s;
+        phases.numeric_s = num_s;
+        phases.factor_nonzeros = factor.nonzeros();
+        Ok(ColumnPlan {
+            rows,
+            cols,
+            phases,
+            stiff,
+            factor,
+        })
+    }
+
+    /// Free DOFs of K.
+    pub fn free_dofs(&self) -> usize {
+        self.stiff.dofs.n_free
+    }
+
+    /// Number of column batches.
+    pub fn batches(&self) -> usize {
+        self.cols.len().div_ceil(BATCH_COLS)
+    }
+
+    /// The column indices of batch `b`.
+    pub fn batch_cols(&self, b: usize) -> std::ops::Range<usize> {
+        let lo = (b * BATCH_COLS).min(self.cols.len());
+        lo..(lo + BATCH_COLS).min(self.cols.len())
+    }
+
+    /// Solves the batches `batches` (indices on the batch grid) on all cores. For each batch, `sink(b, data)` receives its
+    /// slice of L (`9·R·batch columns` f64, this module's layout) from whichever worker solved
+    /// it; a sink returning `false` stops the work (the caller keeps its own error). Returns
+    /// max |K·x − e| over one checked DOF column per batch and the slowest worker's seconds
+    /// solving, checking and scattering. `progress(columns done)` is called on the calling
+    /// thread now and then.
+    pub fn solve(
+        &self,
+        batches: &[usize],
+        sink: &(dyn Fn(usize, &[f64]) -> bool + Sync),
+        progress: &mut dyn FnMut(usize),
+    ) -> Result<(f64, [f64; 3]), FemError> {
+        let workers = std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+            .clamp(1, 16)
+            .min(batches.len().max(1));
+        let next = std::sync::atomic::AtomicUsize::new(0);
+        let stop = std::sync::atomic::AtomicBool::new(false);
+        let done = std::sync::atomic::AtomicUsize::new(0);
+        let work = |progress: &mut dyn FnMut(usize)| -> Result<(f64, [f64; 3]), FemError> {
+            use std::sync::atomic::Ordering::Relaxed;
+            let mut acc = (0.0f64, [0.0f64; 3]);
+            loop {
+                if stop.load(Relaxed) {
+                    return Ok(acc);
+                }
+                let Some(&b) = batches.get(next.fetch_add(1, Relaxed)) else {
+                    return Ok(acc);
+                };
+                let (res, t, data) = self.solve_batch(b)?;
+                acc.0 = acc.0.max(res);
+                for (a, v) in acc.1.iter_mut().zip(t) {
+                    *a += v;
+                }
+                if !sink(b, &data) {
+                    stop.store(true, Relaxed);
+                }
+                let d = done.fetch_add(self.batch_cols(b).len(), Relaxed);
+                progress(d + self.batch_cols(b).len());
+            }
+        };
+        let mut results = Vec::with_capacity(workers);
+        std::thread::scope(|sc| {
+            let work = &work;
+            let handles: Vec<_> = (1..workers)
+                .map(|_| sc.spawn(move || work(&mut |_| {})))
+                .collect();
+            results.push(work(progress));
+            for h in handles {
+                results.push(h.join().unwrap_or_else(|_| {
+                    Err(FemError::Factorisation("a solver thread panicked".into()))
+                }));
+            }
+        });
+        let mut out = (0.0f64, [0.0f64; 3]);
+        for r in results {
+            let (res, t) = r?;
+            out.0 = out.0.max(res);
+            for (a, v) in out.1.iter_mut().zip(t) {
+                *a = a.max(v);
+            }
+        }
+        Ok(out)
+    }
+
+    /// Solves one batch: its slice of L, the residual of its checked column and the seconds
+    /// spent solving, checking and scattering.
+    fn solve_batch(&self, batch: usize) -> Result<(f64, [f64; 3], Vec<f64>), FemError> {
+        let nr = self.rows.len();
+        let nf = self.stiff.dofs.n_free;
+        let chunk = self.batch_cols(batch);
+        let mut times = [0.0f64; 3];
+        let mut b = Mat::<f64>::zeros(nf, 3 * chunk.len());
+        for (k, ci) in chunk.clone().enumerate() {
+            for a in 0..3 {
+                let d = self
+                    .stiff
+                    .dofs
+                    .free(self.cols[ci], a)
+                    .ok_or(FemError::BadSelection("a touchable node is clamped".into()))?;
+                b[(d, 3 * k + a)] = 1.0;
+            }
+        }
+        let ts = Instant::now();
+        self.factor.solve_in_place(&mut b);
+        times[0] += ts.elapsed().as_secs_f64();
+        let tc = Instant::now();
+        // The check K·x = e costs about as much as a solve per column: it is done on one DOF
+        // column per batch (the batch's first), which catches a bad factorisation all the same.
+        let mut residual = 0.0f64;
+        {
+            let node = self.cols[chunk.start];
+            let e = self
+                .stiff
+                .dofs
+                .free(node, 0)
+                .ok_or(FemError::BadSelection("a touchable node is clamped".into()))?;
+            let xs: Vec<f64> = (0..nf).map(|i| b[(i, 0)]).collect();
+            if xs.iter().any(|v| !v.is_finite()) {
+                return Err(FemError::Singular { node, dof: e });
+            }
+            let mut kx = vec![0.0; nf];
+            self.stiff.mul(&xs, &mut kx);
+            for (i, v) in kx.iter().enumerate() {
+                let target = if i == e { 1.0 } else { 0.0 };
+                residual = residual.max((v - target).abs());
+            }
+        }
+        times[1] += tc.elapsed().as_secs_f64();
+        let tsc = Instant::now();
+        let mut out = vec![0.0f64; 9 * nr * chunk.len()];
+        // Free DOF of each row entry (or none: clamped rows stay zero).
+        for j in 0..3 * chunk.len() {
+            let x = b.col(j);
+            let dst = &mut out[j * 3 * nr..][..3 * nr];
+            for (ri, &r) in self.rows.iter().enumerate() {
+                for a in 0..3 {
+                    if let Some(d) = self.stiff.dofs.free(r, a) {
+                        let v = x[d];
+                        if !v.is_finite() {
+                            return Err(FemError::Singular { node: r, dof: d });
+                        }
+                        dst[3 * ri + a] = v;
+                    }
+                }
+            }
+        }
+        times[2] += tsc.elapsed().as_secs_f64();
+        Ok((residual, times, out))
     }
 }

@@ -23,6 +23,18 @@ pub enum Error {
     /// A session file is invalid, or does not match its scene.
     #[error("{0}")]
     Session(String),
+    /// A precompute was interrupted (Ctrl-C): its finished batches are kept for a resume.
+    #[error(
+        "interrupted: {done} of {total} column batches kept in {partial}; run the same command again to resume"
+    )]
+    Interrupted {
+        /// The partial file.
+        partial: std::path::PathBuf,
+        /// Batches finished.
+        done: usize,
+        /// Batches in this shard.
+        total: usize,
+    },
     /// Bad input that is none of the above (a flag, a coordinate).
     #[error("{0}")]
     Input(String),

@@ -2,8 +2,6 @@
 //! elimination of the clamped DOFs, and the sparse Cholesky factorisation of `K` (faer, supernodal
 //! with AMD ordering).
 
-use faer::linalg::solvers::Solve;
-use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
 use faer::sparse::{SparseColMat, Triplet};
 use faer::{Mat, Side};
 use glam::DVec3;
@@ -154,6 +152,107 @@ pub struct Stiffness {
     pub dofs: Dofs,
     /// K over free DOFs, N/m.
     pub k: SparseColMat<usize, f64>,
+    /// Position of each free node (free DOFs `3i..3i + 3` belong to free node `i`), metres:
+    /// the geometry the nested-dissection ordering cuts.
+    free_coords: Vec<DVec3>,
+}
+
+/// The fill-reducing ordering of the sparse Cholesky factorisation.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Ordering {
+    /// faer's approximate minimum degree.
+    Amd,
+    /// Nested dissection of the node graph by coordinate bisection (separators last), on
+    /// 3-DOF node blocks: less fill than AMD on 3D meshes (see README, precompute).
+    #[default]
+    NestedDissection,
+}
+
+/// Leaves of the nested dissection hold at most this many nodes.
+const ND_LEAF: usize = 96;
+
+/// Nested dissection of the node graph `adj` (CSR: `ptr`, `idx`) by coordinate bisection:
+/// the nodes are split at the median of the bounding box's longest axis, the nodes of the first
+/// half that touch the second half form the separator, which is ordered after both halves.
+/// Returns the nodes in elimination order.
+fn nested_dissection(coords: &[DVec3], ptr: &[usize], idx: &[usize]) -> Vec<usize> {
+    fn rec(
+        nodes: &mut [usize],
+        coords: &[DVec3],
+        ptr: &[usize],
+        idx: &[usize],
+        side: &mut [u8],
+        order: &mut Vec<usize>,
+    ) {
+        if nodes.len() <= ND_LEAF {
+            order.extend_from_slice(nodes);
+            return;
+        }
+        // Try a median cut across each axis; keep the one with the smallest separator.
+        let mid = nodes.len() / 2;
+        let mut best: Option<(usize, usize)> = None; // (separator size, axis)
+        for ax in 0..3 {
+            split(nodes, coords, ax, mid);
+            let sep = separator(nodes, mid, ptr, idx, side).len();
+            if best.is_none_or(|(s, _)| sep < s) {
+                best = Some((sep, ax));
+            }
+        }
+        let ax = best.map_or(0, |b| b.1);
+        split(nodes, coords, ax, mid);
+        let sep = separator(nodes, mid, ptr, idx, side);
+        for &i in sep.iter() {
+            side[i] = 3;
+        }
+        let mut a: Vec<usize> = nodes[..mid]
+            .iter()
+            .copied()
+            .filter(|&i| side[i] != 3)
+            .collect();
+        for &i in sep.iter() {
+            side[i] = 0;
+        }
+        let mut b = nodes[mid..].to_vec();
+        rec(&mut a, coords, ptr, idx, side, order);
+        rec(&mut b, coords, ptr, idx, side, order);
+        order.extend_from_slice(&sep);
+    }
+    /// Puts the nodes below the median of axis `ax` first.
+    fn split(nodes: &mut [usize], coords: &[DVec3], ax: usize, mid: usize) {
+        nodes.select_nth_unstable_by(mid, |&a, &b| {
+            coords[a][ax]
+                .partial_cmp(&coords[b][ax])
+                .unwrap_or(std::cmp::Ordering::Equal)
+                .then(a.cmp(&b))
+        });
+    }
+    /// The nodes of `nodes[..mid]` with a neighbour in `nodes[mid..]`.
+    fn separator(
+        nodes: &[usize],
+        mid: usize,
+        ptr: &[usize],
+        idx: &[usize],
+        side: &mut [u8],
+    ) -> Vec<usize> {
+        for &i in &nodes[mid..] {
+            side[i] = 2;
+        }
+        let sep = nodes[..mid]
+            .iter()
+            .copied()
+            .filter(|&i| idx[ptr[i]..ptr[i + 1]].iter().any(|&j| side[j] == 2))
+            .collect();
+        for &i in &nodes[mid..] {
+            side[i] = 0;
+        }
+        sep
+    }
+    let n = coords.len();
+    let mut nodes: Vec<usize> = (0..n).collect();
+    let mut side = vec![0u8; n];
+    let mut order = Vec::with_capacity(n);
+    rec(&mut nodes, coords, ptr, idx, &mut side, &mut order);
+    order
 }
 
 impl Stiffness {
@@ -209,29 +308,111 @@ impl Stiffness {
         }
         let k = SparseColMat::try_new_from_triplets(dofs.n_free, dofs.n_free, &trip)
             .map_err(|e| FemError::Factorisation(format!("{e:?}")))?;
-        Ok(Stiffness { dofs, k })
+        let free_coords = (0..dofs.n_free / 3)
+            .map(|i| mesh.nodes[dofs.owner[3 * i].0 as usize])
+            .collect();
+        Ok(Stiffness {
+            dofs,
+            k,
+            free_coords,
+        })
     }
 
     /// Factorises K = LLᵀ (faer: AMD ordering, supernodal or simplicial as it sees fit).
     pub fn factorize(&self) -> Result<Factor, FemError> {
-        let symbolic = SymbolicLlt::try_new(self.k.symbolic(), Side::Lower)
-            .map_err(|e| FemError::Factorisation(format!("{e:?}")))?;
-        let llt = Llt::try_new_with_symbolic(symbolic, self.k.as_ref(), Side::Lower).map_err(
-            |e| match e {
-                faer::sparse::linalg::LltError::Numeric(
-                    faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index },
-                ) => {
-                    // `index` is in the permuted order; name the DOF's node as best we can.
-                    let dof = index.min(self.dofs.n_free.saturating_sub(1));
-                    FemError::Singular {
-                        node: self.dofs.owner.get(dof).map(|o| o.0).unwrap_or(0),
-                        dof,
-                    }
+        self.factorize_timed(Ordering::default()).map(|(f, _, _)| f)
+    }
+
+    /// The fill-reducing permutation of the free DOFs (forward: new → old; inverse), `None`
+    /// for faer's AMD.
+    fn ordering(&self, ord: Ordering) -> Option<(Vec<usize>, Vec<usize>)> {
+        if ord == Ordering::Amd {
+            return None;
+        }
+        let nn = self.free_coords.len();
+        let k = self.k.symbolic();
+        let mut ptr = Vec::with_capacity(nn + 1);
+        let mut idx = Vec::new();
+        ptr.push(0);
+        for i in 0..nn {
+            idx.extend(
+                k.row_idx_of_col(3 * i)
+                    .filter(|r| r % 3 == 0 && r / 3 != i)
+                    .map(|r| r / 3),
+            );
+            ptr.push(idx.len());
+        }
+        let order = nested_dissection(&self.free_coords, &ptr, &idx);
+        let fwd: Vec<usize> = order
+            .iter()
+            .flat_map(|&n| [3 * n, 3 * n + 1, 3 * n + 2])
+            .collect();
+        let mut inv = vec![0usize; fwd.len()];
+        for (new, &old) in fwd.iter().enumerate() {
+            inv[old] = new;
+        }
+        Some((fwd, inv))
+    }
+
+    /// As [`Stiffness::factorize`] with the ordering `ord`, with the seconds spent on the
+    /// symbolic (ordering) and the numeric factorisation.
+    pub fn factorize_timed(&self, ord: Ordering) -> Result<(Factor, f64, f64), FemError> {
+        use faer::dyn_stack::{MemBuffer, MemStack};
+        use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, SymmetricOrdering};
+        let fact_err = |e: &dyn std::fmt::Debug| FemError::Factorisation(format!("{e:?}"));
+        let t0 = std::time::Instant::now();
+        let perm = self.ordering(ord);
+        let ordering = match &perm {
+            None => SymmetricOrdering::Amd,
+            Some((fwd, inv)) => SymmetricOrdering::Custom(faer::perm::PermRef::new_checked(
+                fwd,
+                inv,
+                self.dofs.n_free,
+            )),
+        };
+        let symbolic = factorize_symbolic_cholesky(
+            self.k.symbolic(),
+            Side::Lower,
+            ordering,
+            Default::default(),
+        )
+        .map_err(|e| fact_err(&e))?;
+        let sym_s = t0.elapsed().as_secs_f64();
+        let t1 = std::time::Instant::now();
+        let mut values = Vec::new();
+        values
+            .try_reserve_exact(symbolic.len_val())
+            .map_err(|e| fact_err(&e))?;
+        values.resize(symbolic.len_val(), 0.0f64);
+        let par = faer::Par::Seq;
+        let mut buf = MemBuffer::try_new(
+            symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
+        )
+        .map_err(|e| fact_err(&e))?;
+        symbolic
+            .factorize_numeric_llt::<f64>(
+                &mut values,
+                self.k.as_ref(),
+                Side::Lower,
+                Default::default(),
+                par,
+                MemStack::new(&mut buf),
+                Default::default(),
+            )
+            .map_err(|e| {
+                let faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } = e;
+                // `index` is in the permuted order; name the DOF's node as best we can.
+                let dof = index.min(self.dofs.n_free.saturating_sub(1));
+                FemError::Singular {
+                    node: self.dofs.owner.get(dof).map(|o| o.0).unwrap_or(0),
+                    dof,
                 }
-                other => FemError::Factorisation(format!("{other:?}")),
-            },
-        )?;
-        Ok(Factor { llt })
+            })?;
+        Ok((
+            Factor { symbolic, values },
+            sym_s,
+            t1.elapsed().as_secs_f64(),
+        ))
     }
 
     /// y = K·x over free DOFs.
@@ -251,13 +432,30 @@ impl Stiffness {
 
 /// The Cholesky factor of K.
 pub struct Factor {
-    llt: Llt<usize, f64>,
+    symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
+    values: Vec<f64>,
 }
 
 impl Factor {
-    /// Solves K X = B in place (B is n_free × m, column-major).
+    /// Solves K X = B in place (B is n_free × m, column-major), on the calling thread.
     pub fn solve_in_place(&self, b: &mut Mat<f64>) {
-        self.llt.solve_in_place(b.as_mut());
+        use faer::dyn_stack::{MemBuffer, MemStack};
+        let llt = faer::sparse::linalg::cholesky::LltRef::new(&self.symbolic, &self.values);
+        let mut buf = MemBuffer::new(
+            self.symbolic
+                .solve_in_place_scratch::<f64>(b.ncols(), faer::Par::Seq),
+        );
+        llt.solve_in_place_with_conj(
+            faer::Conj::No,
+            b.as_mut(),
+            faer::Par::Seq,
+            MemStack::new(&mut buf),
+        );
+    }
+
+    /// Non-zeros of the Cholesky factor.
+    pub fn nonzeros(&self) -> usize {
+        self.symbolic.len_val()
     }
 }
 

@@ -34,6 +34,7 @@ pub mod haptics;
 pub mod hard;
 pub mod ladder;
 pub mod mesh;
+pub mod precompute;
 pub mod render;
 pub mod runtime;
 pub mod scene;

@@ -251,6 +251,60 @@ pub fn bench_scenes() -> Result<Vec<(String, Scene)>, crate::Error> {
     ])
 }
 
+/// Peak resident memory of this process so far, bytes (`getrusage`; 0 if unavailable).
+pub fn peak_rss_bytes() -> u64 {
+    // SAFETY: getrusage only writes the struct it is given.
+    let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) } != 0 {
+        return 0;
+    }
+    u.ru_maxrss.max(0) as u64 * 1024
+}
+
+/// What [`scene_objects`] gives: rows, table rows (JSON) and the named scenes.
+pub type SceneObjects = (Vec<Row>, Vec<serde_json::Value>, Vec<(String, Scene)>);
+
+/// `bench --scene`: for each object of the scene `spec`, one `precompute` row (time of the
+/// in-memory precompute, `rel_error` = its residual max |K·x − e|) and the table row
+/// (nodes, surface and free-surface nodes, rows × cols, precompute seconds, bytes of `L` held
+/// (f64 + f32), peak RSS so far, phases); returns the objects' scenes for the other rows.
+pub fn scene_objects(spec: &str) -> Result<SceneObjects, crate::Error> {
+    let src = match crate::scene::SceneSource::find(spec)? {
+        Some(s) => s,
+        None => crate::scene::SceneSource::for_mesh(spec, "udp"),
+    };
+    let mut rows = Vec::new();
+    let mut table = Vec::new();
+    let mut scenes = Vec::new();
+    for o in crate::scene::World::plan(&src)? {
+        let t = Instant::now();
+        let c = Compliance::compute(&o.mesh, &o.selection)?;
+        let seconds = t.elapsed().as_secs_f64();
+        rows.push(Row {
+            method: "precompute".into(),
+            mesh: o.name.clone(),
+            nodes: o.mesh.nodes.len(),
+            active_columns: c.cols().len(),
+            time_us: seconds * 1e6,
+            rel_error: c.stats.residual,
+        });
+        table.push(serde_json::json!({
+            "object": o.name,
+            "nodes": o.mesh.nodes.len(),
+            "surface_nodes": o.mesh.surface_nodes.len(),
+            "free_surface_nodes": o.mesh.free_surface_nodes().len(),
+            "rows": c.rows().len(),
+            "cols": c.cols().len(),
+            "precompute_s": seconds,
+            "bytes_l": c.stats.bytes,
+            "peak_rss_bytes": peak_rss_bytes(),
+            "phases": c.stats.phases,
+        }));
+        scenes.push((o.name.clone(), Scene::with_compliance(o.mesh, c)));
+    }
+    Ok((rows, table, scenes))
+}
+
 /// The GPU pass's rows for one mesh, for both layouts of `L` (`gpu-f32-texture`,
 /// `gpu-f32-buffers`): `set_forces` + `encode` + submit + wait, and the error of the read-back
 /// positions against the f64 CPU product, relative to max |u|.
@@ -266,6 +320,7 @@ pub fn gpu_rows(
     for (method, storage) in [
         ("gpu-f32-texture", LStorage::Texture),
         ("gpu-f32-buffers", LStorage::Buffers),
+        ("gpu-f16-buffers", LStorage::BuffersF16),
     ] {
         rows.extend(gpu_layout_rows(
             method, storage, name, scene, gpu, active, reps,

@@ -10,6 +10,40 @@ use super::bind::{buffer, compute_pipeline, specialised_pipeline, storage_entry,
 use super::deform::{Shared, MAX_ACTIVE, WORKGROUP};
 use super::{GpuError, DEFORM_WGSL};
 
+/// `shaders/deform.wgsl` with `L` read as half floats, two per `u32` word
+/// ([`super::LStorage::BuffersF16`]).
+pub fn deform_f16_wgsl() -> String {
+    const F32_DECL: &str = "var<storage, read> l: array<f32>;";
+    const F32_LOAD: &str = "return vec3<f32>(l[i], l[i + 1u], l[i + 2u]);";
+    assert!(DEFORM_WGSL.contains(F32_DECL) && DEFORM_WGSL.contains(F32_LOAD));
+    DEFORM_WGSL
+        .replace(F32_DECL, "var<storage, read> l: array<u32>;")
+        .replace(
+            F32_LOAD,
+            "return vec3<f32>(half_at(i), half_at(i + 1u), half_at(i + 2u));",
+        )
+        + "\n// Entry i of L: half i & 1 of word i / 2 (the low half first).\n\
+           fn half_at(i: u32) -> f32 {\n\
+           \x20   let w = unpack2x16float(l[i >> 1u]);\n\
+           \x20   return select(w.x, w.y, (i & 1u) == 1u);\n\
+           }\n"
+}
+
+/// `values` as IEEE binary16, packed two per little-endian `u32` (the first in the low half),
+/// zero-padded to a whole word.
+pub fn pack_f16(values: &[f32]) -> Vec<u32> {
+    values
+        .chunks(2)
+        .map(|p| {
+            let lo = half::f16::from_f32(p[0]).to_bits() as u32;
+            let hi = p
+                .get(1)
+                .map_or(0, |&v| half::f16::from_f32(v).to_bits() as u32);
+            lo | (hi << 16)
+        })
+        .collect()
+}
+
 const CHUNK_PARAM_BYTES: u64 = 16;
 
 #[repr(C)]
@@ -38,6 +72,11 @@ struct Chunk {
 
 /// `L` in storage buffers, and the passes that read it.
 pub(super) struct BufferPath {
+    half: bool,
+    /// Forces are multiplied by this before upload: `L` is stored divided by it (a power of
+    /// two near max |L|, so that half floats keep their precision whatever the material's
+    /// units; 1 for f32).
+    force_scale: f32,
     cols_per_chunk: usize,
     chunks: Vec<Chunk>,
     chunk_param_stride: u64,
@@ -61,8 +100,14 @@ impl BufferPath {
         sh.check("triangle list", 4 * sh.index_words)?;
         sh.check("vertex-triangle adjacency", 4 * adj.len() as u64)?;
 
-        let bytes_per_col = 36 * nr as u64;
-        let cols_per_chunk = (sh.max_chunk / bytes_per_col) as usize;
+        // f32: 9R floats per column node; f16: 9R halves (+ a pad half per chunk).
+        let bytes_per_col = if sh.half { 18 } else { 36 } * nr as u64;
+        let avail = if sh.half {
+            sh.max_chunk.saturating_sub(4)
+        } else {
+            sh.max_chunk
+        };
+        let cols_per_chunk = (avail / bytes_per_col) as usize;
         if cols_per_chunk == 0 {
             return Err(GpuError::BufferTooLarge {
                 what: "one column node of L",
@@ -134,19 +179,33 @@ impl BufferPath {
 
         let mut chunks = Vec::with_capacity(n_chunks);
         let col_len = 9 * nr;
+        let max_l = sh.l.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let force_scale = if sh.half && max_l.is_finite() && max_l > 0.0 {
+            2f32.powi(max_l.log2().round() as i32)
+        } else {
+            1.0
+        };
         for k in 0..n_chunks {
             let c0 = (k * cols_per_chunk).min(nc);
             let c1 = ((k + 1) * cols_per_chunk).min(nc);
             let data = &sh.l[c0 * col_len..c1 * col_len];
-            let size = (4 * data.len() as u64).max(16);
+            let packed;
+            let bytes: &[u8] = if sh.half {
+                let scaled: Vec<f32> = data.iter().map(|v| v / force_scale).collect();
+                packed = pack_f16(&scaled);
+                bytemuck::cast_slice(&packed)
+            } else {
+                bytemuck::cast_slice(data)
+            };
+            let size = (bytes.len() as u64).max(16);
             let l = device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("touchfem L chunk"),
                 size,
                 usage: usage_ro,
                 mapped_at_creation: false,
             });
-            if !data.is_empty() {
-                queue.write_buffer(&l, 0, bytemuck::cast_slice(data));
+            if !bytes.is_empty() {
+                queue.write_buffer(&l, 0, bytes);
                 // Flush each chunk's staging copy so that peak memory stays near one chunk.
                 queue.submit([]);
             }
@@ -170,11 +229,18 @@ impl BufferPath {
             });
         }
 
+        let source = if sh.half {
+            deform_f16_wgsl().into()
+        } else {
+            DEFORM_WGSL.into()
+        };
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("touchfem deform.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(DEFORM_WGSL.into()),
+            source: wgpu::ShaderSource::Wgsl(source),
         });
         Ok(BufferPath {
+            half: sh.half,
+            force_scale,
             cols_per_chunk,
             first: Vec::with_capacity(chunks.len()),
             chunks,
@@ -232,7 +298,7 @@ impl BufferPath {
         for &(col, force) in forces {
             let k = col as usize / cpc;
             self.scratch[self.first[k] as usize] = ActiveGpu {
-                force,
+                force: force.map(|f| f * self.force_scale),
                 col: (col as usize - k * cpc) as u32,
             };
             self.first[k] += 1;
@@ -259,6 +325,11 @@ impl BufferPath {
             pass.set_bind_group(0, &self.bind_group, &[]);
             pass.dispatch_workgroups(groups, 1, 1);
         }
+    }
+
+    /// Whether `L` is stored as half floats.
+    pub(super) fn half(&self) -> bool {
+        self.half
     }
 
     pub(super) fn chunk_count(&self) -> usize {

@@ -113,6 +113,12 @@ pub enum LStorage {
     /// on software rasterisers, 5–7× faster than storage buffers on lavapipe; `12·R·C` floats
     /// (one pad per three).
     Texture,
+    /// Storage buffers of half floats (IEEE binary16, two per `u32` word, read with WGSL's
+    /// `unpack2x16float`: wgpu's downlevel flag `SHADER_F16_IN_F32`, which every native
+    /// backend has, not the `shader-f16` feature): half the memory of
+    /// [`Buffers`](Self::Buffers), `4.5·R·C` words. Its error against the f64 `L·F` is at most
+    /// 2·10⁻³ of the largest displacement (`tests/gpu_f16.rs`).
+    BuffersF16,
 }
 
 /// Options for [`Deformer::new`].
@@ -168,6 +174,8 @@ pub(super) struct Shared<'a> {
     /// The output is the deformer's own buffer of [`Vertex`]es (offset 0, stride 32, `w`
     /// components defined), bound whole.
     pub vertex_layout: bool,
+    /// Store `L` as half floats ([`LStorage::BuffersF16`]).
+    pub half: bool,
 }
 
 impl Shared<'_> {
@@ -361,6 +369,7 @@ impl Deformer {
         });
 
         let shared = Shared {
+            half: options.storage == LStorage::BuffersF16,
             device,
             queue,
             l: input.l,
@@ -396,7 +405,7 @@ impl Deformer {
                 )))
             }
             LStorage::Texture => true,
-            LStorage::Buffers => false,
+            LStorage::Buffers | LStorage::BuffersF16 => false,
             LStorage::Auto => {
                 textures_ok && device.adapter_info().device_type == wgpu::DeviceType::Cpu
             }
@@ -509,6 +518,7 @@ impl Deformer {
     /// The layout `L` is stored in ([`LStorage::Auto`] resolved).
     pub fn storage(&self) -> LStorage {
         match self.path {
+            Path::Buffers(ref b) if b.half() => LStorage::BuffersF16,
             Path::Buffers(_) => LStorage::Buffers,
             Path::Texture(_) => LStorage::Texture,
         }

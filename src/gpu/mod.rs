@@ -16,6 +16,7 @@ mod buffer_path;
 mod deform;
 mod texture_path;
 
+pub use buffer_path::{deform_f16_wgsl, pack_f16};
 pub use deform::{
     Deformer, DeformerInput, DeformerOptions, LStorage, OutputTarget, Vertex, MAX_ACTIVE,
     NO_NORMALS, VERTEX_STRIDE,
@@ -347,6 +348,18 @@ mod tests {
         naga::valid::Validator::new(naga::valid::ValidationFlags::all(), caps)
             .validate(&module)
             .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(src)));
+    }
+
+    /// The half-float variant of `deform.wgsl` validates, and packing keeps the low half first.
+    #[test]
+    fn f16_shader_validates_and_packs_low_half_first() {
+        validate(
+            "deform.wgsl (f16)",
+            &super::deform_f16_wgsl(),
+            naga::valid::Capabilities::SHADER_FLOAT16_IN_FLOAT32,
+        );
+        let w = super::pack_f16(&[1.0, -2.0, 0.5]);
+        assert_eq!(w, [0x3c00 | (0xc000 << 16), 0x3800]);
     }
 
     /// Every shader in `shaders/` parses and validates with naga (no GPU needed): the

@@ -242,6 +242,30 @@ impl World {
 
     /// As [`World::from_source`], with the compliance cache in `cache` (`None`: no cache).
     pub fn from_source_with(src: &SceneSource, cache: Option<&Path>) -> Result<World, Error> {
+        World::build(src, &mut |name, mesh, sel, key| {
+            compute_cached(cache, name, mesh, sel, key).map(Some)
+        })
+    }
+
+    /// What a scene asks to precompute, without computing it: for each object its name, mesh
+    /// (scene units applied), selection and cache key (see `touchfem precompute`).
+    pub fn plan(src: &SceneSource) -> Result<Vec<PlannedObject>, Error> {
+        let mut out = Vec::new();
+        World::build(src, &mut |name, mesh, sel, key| {
+            out.push(PlannedObject {
+                name: name.to_string(),
+                mesh: mesh.clone(),
+                selection: sel.clone(),
+                key,
+            });
+            Ok(None)
+        })?;
+        Ok(out)
+    }
+
+    /// Parses and validates a scene; `compute` gives each object's compliance (`None`: leave the
+    /// object out).
+    fn build(src: &SceneSource, compute: &mut Compute<'_>) -> Result<World, Error> {
         let text = &src.text;
         let at = |span: std::ops::Range<usize>, key: &str, msg: String| {
             Error::Scene(format!(
@@ -424,7 +448,9 @@ impl World {
                     .file_stem()
                     .map_or(mesh_spec.clone(), |s| s.to_string_lossy().into_owned())
             });
-            let compliance = compute_cached(cache, &name, &mesh, &sel, key)?;
+            let Some(compliance) = compute(&name, &mesh, &sel, key)? else {
+                continue;
+            };
             objects.push(Object {
                 name,
                 scene: Scene::with_compliance(mesh, compliance),
@@ -574,6 +600,32 @@ impl World {
     }
 }
 
+/// Gives an object's compliance during [`World::build`]: (name, mesh, selection, cache key).
+type Compute<'a> =
+    dyn FnMut(&str, &crate::Mesh, &Selection, u64) -> Result<Option<Compliance>, Error> + 'a;
+
+/// One object of a scene as `touchfem precompute` sees it.
+#[derive(Clone, Debug)]
+pub struct PlannedObject {
+    /// The object's name (file names of its cache derive from it).
+    pub name: String,
+    /// Its mesh, in metres.
+    pub mesh: crate::Mesh,
+    /// Rows and columns to precompute.
+    pub selection: Selection,
+    /// The cache key ([`crate::cache::key`]).
+    pub key: u64,
+}
+
+/// The cache file name of an object: `NAME-KEY.tfc` (name made file-safe) in `dir`.
+pub fn cache_file(dir: &Path, name: &str, key: u64) -> PathBuf {
+    let safe: String = name
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .collect();
+    dir.join(format!("{safe}-{key:016x}.tfc"))
+}
+
 /// The compliance for `sel`, from the cache when valid; computed (and saved, if possible)
 /// otherwise.
 fn compute_cached(
@@ -586,11 +638,7 @@ fn compute_cached(
     let Some(dir) = cache else {
         return Ok(Compliance::compute(mesh, sel)?);
     };
-    let safe: String = name
-        .chars()
-        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
-        .collect();
-    let path = dir.join(format!("{safe}-{key:016x}.tfc"));
+    let path = cache_file(dir, name, key);
     let (c, outcome) = crate::cache::load_or_compute(&path, mesh, sel)?;
     if let crate::cache::CacheOutcome::NotSaved(..) = outcome {
         if let Some(m) = outcome.message() {

@@ -1,0 +1,34 @@
+//! Where the precompute time goes:
+//! `cargo run --release --example precompute_phases MESH [UNIT] [factor]`
+//! (`factor`: only the factorisation, both orderings, with the factor's non-zeros).
+fn main() {
+    let a: Vec<String> = std::env::args().collect();
+    let opts = touchfem::scene::LoadOptions {
+        unit: a.get(2).map(|u| u.parse().expect("unit")),
+        ..Default::default()
+    };
+    let (mesh, _) = touchfem::scene::load_mesh(&a[1], &opts).expect("mesh");
+    if a.get(3).is_some_and(|s| s == "factor") {
+        let k = touchfem::fem::Stiffness::assemble(&mesh).expect("K");
+        for o in [
+            touchfem::fem::Ordering::Amd,
+            touchfem::fem::Ordering::NestedDissection,
+        ] {
+            let (f, sym, num) = k.factorize_timed(o).expect("factor");
+            println!(
+                "{}",
+                serde_json::json!({"nodes": mesh.nodes.len(), "ordering": format!("{o:?}"),
+                "factor_nonzeros": f.nonzeros(), "symbolic_s": sym, "numeric_s": num})
+            );
+        }
+        return;
+    }
+    let sel = touchfem::compliance::Selection::default();
+    let c = touchfem::compliance::Compliance::compute(&mesh, &sel).expect("compute");
+    let s = &c.stats;
+    println!(
+        "{}",
+        serde_json::json!({"nodes": mesh.nodes.len(), "rows": c.rows().len(), "cols": c.cols().len(),
+        "seconds": s.seconds, "bytes": s.bytes, "free_dofs": s.free_dofs, "k_nnz": s.k_nonzeros, "phases": s.phases})
+    );
+}

@@ -1,0 +1,372 @@
+//! `touchfem precompute`: streamed cache files, shards and their merge (equal byte for byte to
+//! the unsharded file), refused merges, and cache robustness.
+
+use std::path::{Path, PathBuf};
+use touchfem::cache::{self, CacheError, CacheOutcome};
+use touchfem::compliance::{Compliance, NodeSet, Selection};
+use touchfem::mesh::{cube, mouse};
+use touchfem::precompute::precompute_to_file;
+use touchfem::Mesh;
+
+fn shards(mesh: &Mesh, sel: &Selection, dir: &Path, n: usize) -> Vec<PathBuf> {
+    (1..=n)
+        .map(|i| {
+            let p = dir.join(format!("part-{i}-of-{n}.tfc"));
+            let r = precompute_to_file(mesh, sel, &p, (i, n), &mut |_, _| {}).unwrap();
+            assert_eq!(r.file, p);
+            p
+        })
+        .collect()
+}
+
+#[test]
+fn merged_shards_equal_the_unsharded_file_byte_for_byte() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, mesh) in [("cube", cube()), ("mouse", mouse())] {
+        let sel = Selection::default();
+        let full = dir.path().join(format!("{name}.tfc"));
+        let r = precompute_to_file(&mesh, &sel, &full, (1, 1), &mut |_, _| {}).unwrap();
+        let full_bytes = std::fs::read(&full).unwrap();
+        assert_eq!(r.bytes as usize, full_bytes.len());
+        // The same bytes as saving an in-memory compliance.
+        let c = Compliance::compute(&mesh, &sel).unwrap();
+        let saved = dir.path().join(format!("{name}.saved.tfc"));
+        cache::save(&saved, &c, cache::key(&mesh, &sel), mesh.nodes.len()).unwrap();
+        assert_eq!(std::fs::read(&saved).unwrap(), full_bytes, "{name}");
+        // It loads, bit for bit the direct compute.
+        let back = cache::load(&full, cache::key(&mesh, &sel), mesh.nodes.len()).unwrap();
+        assert_eq!(back.l_f64(), c.l_f64());
+        assert_eq!(back.rows(), c.rows());
+        assert_eq!(back.cols(), c.cols());
+        for n in [2, 3, 5] {
+            let mut parts = shards(&mesh, &sel, dir.path(), n);
+            parts.reverse(); // any order
+            let merged = dir.path().join(format!("{name}.merged{n}.tfc"));
+            let m = cache::merge(&parts, &merged).unwrap();
+            assert_eq!(m.bytes as usize, full_bytes.len());
+            assert_eq!(
+                std::fs::read(&merged).unwrap(),
+                full_bytes,
+                "{name} in {n} parts"
+            );
+        }
+    }
+}
+
+#[test]
+fn wrong_merges_are_refused_with_a_typed_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = cube();
+    let sel = Selection::default();
+    let parts = shards(&m, &sel, dir.path(), 2);
+    let out = dir.path().join("out.tfc");
+    let mismatch = |r: Result<cache::MergeInfo, CacheError>| {
+        assert!(matches!(r, Err(CacheError::Mismatch { .. })), "{r:?}");
+        assert!(!out.exists(), "nothing written");
+    };
+    // Another material.
+    let mut soft = cube();
+    soft.material.young_pa *= 2.0;
+    let soft_dir = dir.path().join("soft");
+    let soft_parts = shards(&soft, &sel, &soft_dir, 2);
+    mismatch(cache::merge(
+        &[parts[0].clone(), soft_parts[1].clone()],
+        &out,
+    ));
+    // Another selection (fewer touchable nodes).
+    let sel2 = Selection {
+        cols: NodeSet::Nodes(m.free_surface_nodes()[..70].to_vec()),
+        ..Selection::default()
+    };
+    let sel_dir = dir.path().join("sel");
+    let sel_parts = shards(&m, &sel2, &sel_dir, 2);
+    mismatch(cache::merge(
+        &[parts[0].clone(), sel_parts[1].clone()],
+        &out,
+    ));
+    // A missing, a repeated part.
+    mismatch(cache::merge(&parts[..1], &out));
+    mismatch(cache::merge(&[parts[1].clone(), parts[1].clone()], &out));
+    mismatch(cache::merge(&[], &out));
+    // Parts of another split.
+    let three = shards(&m, &sel, &dir.path().join("three"), 3);
+    mismatch(cache::merge(&[parts[0].clone(), three[1].clone()], &out));
+    // A corrupt part.
+    let mut b = std::fs::read(&parts[1]).unwrap();
+    let mid = b.len() / 2;
+    b[mid] ^= 1;
+    let bad = dir.path().join("bad.tfc");
+    std::fs::write(&bad, &b).unwrap();
+    let r = cache::merge(&[parts[0].clone(), bad], &out);
+    assert!(matches!(r, Err(CacheError::Corrupt { .. })), "{r:?}");
+    assert!(!out.exists());
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect();
+    assert!(names.is_empty(), "temporaries left: {names:?}");
+}
+
+#[test]
+fn a_shard_is_not_loaded_as_a_cache() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = cube();
+    let sel = Selection::default();
+    let parts = shards(&m, &sel, dir.path(), 2);
+    let r = cache::load(&parts[1], cache::key(&m, &sel), m.nodes.len());
+    assert!(
+        matches!(
+            r,
+            Err(CacheError::Partial {
+                index: 2,
+                count: 2,
+                ..
+            })
+        ),
+        "{:?}",
+        r.err()
+    );
+    // load_or_compute recomputes and replaces it with a complete file.
+    let (c, o) = cache::load_or_compute(&parts[1], &m, &sel).unwrap();
+    assert!(matches!(
+        o,
+        CacheOutcome::Recomputed(CacheError::Partial { .. })
+    ));
+    assert_eq!(c.l_f64(), Compliance::compute(&m, &sel).unwrap().l_f64());
+    assert!(cache::load(&parts[1], cache::key(&m, &sel), m.nodes.len()).is_ok());
+}
+
+#[test]
+fn a_cache_from_another_selection_is_never_loaded() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cube.tfc");
+    let m = cube();
+    let all = Selection::default();
+    let some = Selection {
+        cols: NodeSet::Nodes(m.free_surface_nodes()[..10].to_vec()),
+        ..Selection::default()
+    };
+    let (_, o) = cache::load_or_compute(&path, &m, &all).unwrap();
+    assert!(matches!(o, CacheOutcome::Recomputed(CacheError::Io { .. })));
+    let (c, o) = cache::load_or_compute(&path, &m, &some).unwrap();
+    assert!(
+        matches!(o, CacheOutcome::Recomputed(CacheError::Stale { .. })),
+        "{o:?}"
+    );
+    assert_eq!(c.cols().len(), 10);
+    assert_eq!(c.l_f64(), Compliance::compute(&m, &some).unwrap().l_f64());
+    // Same node set in another order is another selection too (another column layout).
+    let mut rev = m.free_surface_nodes()[..10].to_vec();
+    rev.reverse();
+    let some_rev = Selection {
+        cols: NodeSet::Nodes(rev),
+        ..Selection::default()
+    };
+    assert!(matches!(
+        cache::load(&path, cache::key(&m, &some_rev), m.nodes.len()),
+        Err(CacheError::Stale { .. })
+    ));
+}
+
+#[test]
+fn a_failed_save_removes_its_temporary_and_leaves_the_old_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = cube();
+    let sel = Selection::default();
+    let path = dir.path().join("cube.tfc");
+    let c = Compliance::compute(&m, &sel).unwrap();
+    cache::save(&path, &c, cache::key(&m, &sel), m.nodes.len()).unwrap();
+    let before = std::fs::read(&path).unwrap();
+    // The target name is a non-empty directory now: the rename fails.
+    let blocked = dir.path().join("blocked.tfc");
+    std::fs::create_dir(&blocked).unwrap();
+    std::fs::write(blocked.join("x"), b"x").unwrap();
+    let r = cache::save(&blocked, &c, cache::key(&m, &sel), m.nodes.len());
+    assert!(matches!(r, Err(CacheError::Io { .. })), "{r:?}");
+    let tmps: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect();
+    assert!(tmps.is_empty(), "{tmps:?}");
+    assert_eq!(std::fs::read(&path).unwrap(), before);
+}
+
+fn touchfem(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn cli_precompute_shards_and_merge() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |n: &str| dir.path().join(n).to_string_lossy().into_owned();
+    let out = touchfem(&["precompute", "cube", "--out", &d("full.tfc"), "--json"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["rows"], 98);
+    assert_eq!(v["cols"], 73);
+    assert!(v["seconds"].as_f64().unwrap() >= 0.0);
+    let full = std::fs::read(d("full.tfc")).unwrap();
+    assert_eq!(v["bytes"].as_u64().unwrap() as usize, full.len());
+    for i in 1..=2 {
+        let o = touchfem(&[
+            "precompute",
+            "cube",
+            "--shard",
+            &format!("{i}/2"),
+            "--out",
+            &d(&format!("p{i}.tfc")),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let o = touchfem(&[
+        "precompute",
+        "--merge",
+        &d("p2.tfc"),
+        &d("p1.tfc"),
+        "--out",
+        &d("merged.tfc"),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["bytes"].as_u64().unwrap() as usize, full.len());
+    assert_eq!(std::fs::read(d("merged.tfc")).unwrap(), full);
+    // Bad shard specs and a wrong merge: clear errors, no panic.
+    for spec in ["0/2", "3/2", "a/b", "2", "1/0"] {
+        let o = touchfem(&["precompute", "cube", "--shard", spec, "--out", &d("x.tfc")]);
+        assert!(!o.status.success());
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("I/N"), "{err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+    let o = touchfem(&["precompute", "--merge", &d("p1.tfc"), "--out", &d("x.tfc")]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("1 of 2") || err.contains("parts"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn an_interrupted_precompute_resumes_to_the_same_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = mouse();
+    let sel = Selection::default();
+    let full = dir.path().join("full.tfc");
+    precompute_to_file(&m, &sel, &full, (1, 1), &mut |_, _| {}).unwrap();
+    let out = dir.path().join("resumed.tfc");
+    // Stop after 3 batches, then after 5 more, then run to the end.
+    for stop_at in [3, 8] {
+        let r =
+            touchfem::precompute::precompute_until(&m, &sel, &out, (1, 1), &mut |_, _| {}, &|w| {
+                w >= stop_at
+            });
+        match r {
+            Err(touchfem::Error::Interrupted {
+                partial,
+                done,
+                total,
+            }) => {
+                assert_eq!(partial, touchfem::precompute::partial_path(&out));
+                assert!(done >= stop_at && done < total, "{done} of {total}");
+                assert!(partial.exists() && !out.exists());
+            }
+            other => panic!("expected an interruption, got {other:?}"),
+        }
+    }
+    // A partial file of another selection is refused, not mixed in.
+    let other = Selection {
+        cols: NodeSet::Nodes(m.free_surface_nodes()[..100].to_vec()),
+        ..Selection::default()
+    };
+    let r = precompute_to_file(&m, &other, &out, (1, 1), &mut |_, _| {});
+    assert!(
+        matches!(r, Err(touchfem::Error::Cache(CacheError::Mismatch { .. }))),
+        "{r:?}"
+    );
+    let mut seen = 0;
+    precompute_to_file(&m, &sel, &out, (1, 1), &mut |d, _| seen = seen.max(d)).unwrap();
+    assert_eq!(seen, m.free_surface_nodes().len());
+    assert!(!touchfem::precompute::partial_path(&out).exists());
+    assert_eq!(std::fs::read(&out).unwrap(), std::fs::read(&full).unwrap());
+    let tmps = std::fs::read_dir(dir.path())
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .ends_with(".tmp")
+        })
+        .count();
+    assert_eq!(tmps, 0);
+}
+
+#[test]
+fn bench_scene_gives_the_precompute_row_of_each_object() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bench.json");
+    let o = touchfem(&[
+        "bench",
+        "--quick",
+        "--scene",
+        "pinch",
+        "--json",
+        path.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    let t = &v["scene"][0];
+    // pinch: the cube with a ball of 33 touchable nodes.
+    assert_eq!(t["nodes"], 125);
+    assert_eq!(t["surface_nodes"], 98);
+    assert_eq!(t["free_surface_nodes"], 73);
+    assert_eq!(t["rows"], 98);
+    assert_eq!(t["cols"], 33);
+    assert!(t["precompute_s"].as_f64().unwrap() > 0.0);
+    assert_eq!(t["bytes_l"].as_u64().unwrap(), 12 * 9 * 98 * 33 + 72 * 33);
+    assert!(t["peak_rss_bytes"].as_u64().unwrap() > 1 << 20);
+    let rows = v["rows"].as_array().unwrap();
+    let pre = rows
+        .iter()
+        .find(|r| r["method"] == "precompute")
+        .expect("a precompute row");
+    assert_eq!(pre["active_columns"], 33);
+    assert!(pre["rel_error"].as_f64().unwrap() < 1e-9);
+    let name = pre["mesh"].as_str().unwrap();
+    assert!(rows
+        .iter()
+        .any(|r| r["mesh"] == name && r["method"] != "precompute"));
+}
+
+#[test]
+fn precompute_without_out_fills_the_cache_the_scene_loader_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache_dir = dir.path().join("cache");
+    for spec in ["pinch", "mouse"] {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
+            .args(["precompute", spec, "--json"])
+            .env("TOUCHFEM_CACHE_DIR", &cache_dir)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let file = PathBuf::from(v["objects"][0]["file"].as_str().unwrap());
+        assert!(file.starts_with(&cache_dir) && file.exists(), "{file:?}");
+        // The loader finds it: nothing is recomputed (a loaded compliance reports 0 s) and it
+        // equals a fresh computation bit for bit.
+        let w = touchfem::scene::World::load_with(spec, "udp", Some(&cache_dir)).unwrap();
+        let c = &w.objects[0].scene.compliance;
+        assert_eq!(c.stats.seconds, 0.0, "{spec} was recomputed");
+        let fresh = touchfem::scene::World::load_with(spec, "udp", None).unwrap();
+        assert_eq!(c.l_f64(), fresh.objects[0].scene.compliance.l_f64());
+    }
+}
