@@ -321,6 +321,7 @@ pub fn gpu_rows(
         ("gpu-f32-texture", LStorage::Texture),
         ("gpu-f32-buffers", LStorage::Buffers),
         ("gpu-f16-buffers", LStorage::BuffersF16),
+        ("gpu-f16-texture", LStorage::TextureF16),
     ] {
         rows.extend(gpu_layout_rows(
             method, storage, name, scene, gpu, active, reps,

@@ -1,4 +1,5 @@
-//! Half-float storage of `L` on the GPU ([`LStorage::BuffersF16`]): its displacements against the
+//! Half-float storage of `L` on the GPU ([`LStorage::BuffersF16`], [`LStorage::TextureF16`]):
+//! its displacements against the
 //! f64 `L·F` on the CPU, beside f32 storage. Needs an adapter (lavapipe works).
 
 use glam::DVec3;
@@ -63,14 +64,23 @@ fn half_float_l_stays_within_2e_3_of_the_f64_displacement() {
         for cols in [vec![0, 1, 2], (0..nc).step_by(7).collect::<Vec<_>>()] {
             let e32 = rel_error(&g, &mesh, &c, LStorage::Buffers, &cols);
             let e16 = rel_error(&g, &mesh, &c, LStorage::BuffersF16, &cols);
+            let t32 = rel_error(&g, &mesh, &c, LStorage::Texture, &cols);
+            let t16 = rel_error(&g, &mesh, &c, LStorage::TextureF16, &cols);
             println!(
-                "{name}, {} columns: f32 {e32:.2e}, f16 {e16:.2e}",
+                "{name}, {} columns: buffers f32 {e32:.2e}, f16 {e16:.2e}; texture f32 {t32:.2e}, f16 {t16:.2e}",
                 cols.len()
             );
-            assert!(e32 <= 1e-5, "{name}: f32 error {e32}");
-            assert!(e16 <= 2e-3, "{name}: f16 error {e16}");
-            // It is the half-float rounding, not a layout error: well above f32's.
-            assert!(e16 > 10.0 * e32, "{name}: f16 {e16} vs f32 {e32}");
+            for (layout, e32, e16) in [("buffers", e32, e16), ("texture", t32, t16)] {
+                assert!(e32 <= 1e-5, "{name}, {layout}: f32 error {e32}");
+                assert!(e16 <= 2e-3, "{name}, {layout}: f16 error {e16}");
+                // It is the half-float rounding, not a layout error: well above f32's.
+                assert!(e16 > 10.0 * e32, "{name}, {layout}: f16 {e16} vs f32 {e32}");
+            }
+            // The two layouts round L the same way: the same f16 error to f32 precision.
+            assert!(
+                (e16 - t16).abs() <= 1e-3 * e16 + 1e-6,
+                "{name}: {e16} vs {t16}"
+            );
         }
     }
 }

@@ -119,6 +119,10 @@ pub enum LStorage {
     /// [`Buffers`](Self::Buffers), `4.5·R·C` words. Its error against the f64 `L·F` is at most
     /// 2·10⁻³ of the largest displacement (`tests/gpu_f16.rs`).
     BuffersF16,
+    /// [`Texture`](Self::Texture) with `L` as half floats (`Rgba16Float`, scaled like
+    /// [`BuffersF16`](Self::BuffersF16)): half the memory of the f32 texture, the software
+    /// rasteriser's fast path.
+    TextureF16,
 }
 
 /// Options for [`Deformer::new`].
@@ -369,7 +373,7 @@ impl Deformer {
         });
 
         let shared = Shared {
-            half: options.storage == LStorage::BuffersF16,
+            half: matches!(options.storage, LStorage::BuffersF16 | LStorage::TextureF16),
             device,
             queue,
             l: input.l,
@@ -397,14 +401,14 @@ impl Deformer {
         // The texture passes bind three storage textures each.
         let textures_ok = limits.max_storage_textures_per_shader_stage >= 3;
         let texture = match options.storage {
-            LStorage::Texture if !textures_ok => {
+            LStorage::Texture | LStorage::TextureF16 if !textures_ok => {
                 return Err(GpuError::Unsupported(format!(
                     "LStorage::Texture: it needs 3 storage textures per shader stage, the \
                      device allows {}",
                     limits.max_storage_textures_per_shader_stage
                 )))
             }
-            LStorage::Texture => true,
+            LStorage::Texture | LStorage::TextureF16 => true,
             LStorage::Buffers | LStorage::BuffersF16 => false,
             LStorage::Auto => {
                 textures_ok && device.adapter_info().device_type == wgpu::DeviceType::Cpu
@@ -520,6 +524,7 @@ impl Deformer {
         match self.path {
             Path::Buffers(ref b) if b.half() => LStorage::BuffersF16,
             Path::Buffers(_) => LStorage::Buffers,
+            Path::Texture(ref t) if t.half() => LStorage::TextureF16,
             Path::Texture(_) => LStorage::Texture,
         }
     }

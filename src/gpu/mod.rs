@@ -58,8 +58,9 @@ pub const INLINE_ACTIVE: usize = 7;
 
 /// The complete texture-layout shader: [`DEFORM_TEXTURE_WGSL`] with the prelude that reads
 /// the active list from immediates (`immediates`) or from the uniform buffer, and the one that
-/// writes [`Vertex`]es (`vertex_layout`) or words at any offset and stride.
-pub fn deform_texture_source(immediates: bool, vertex_layout: bool) -> String {
+/// writes [`Vertex`]es (`vertex_layout`) or words at any offset and stride; with `half`, `L`
+/// is read from an `rgba16float` texture ([`LStorage::TextureF16`]).
+pub fn deform_texture_source(immediates: bool, vertex_layout: bool, half: bool) -> String {
     let active = if immediates {
         ACTIVE_IMMEDIATE_WGSL
     } else {
@@ -70,7 +71,15 @@ pub fn deform_texture_source(immediates: bool, vertex_layout: bool) -> String {
     } else {
         OUTPUT_WORDS_WGSL
     };
-    format!("{DEFORM_TEXTURE_WGSL}\n{active}\n{output}")
+    let body = if half {
+        DEFORM_TEXTURE_WGSL.replace(
+            "var l_tex: texture_storage_2d_array<rgba32float, read>",
+            "var l_tex: texture_storage_2d_array<rgba16float, read>",
+        )
+    } else {
+        DEFORM_TEXTURE_WGSL.to_string()
+    };
+    format!("{body}\n{active}\n{output}")
 }
 
 /// Everything that can go wrong on the GPU side.
@@ -395,16 +404,22 @@ mod tests {
         );
         for immediates in [false, true] {
             for vertex in [false, true] {
-                let caps = if immediates {
-                    Capabilities::IMMEDIATES
-                } else {
-                    Capabilities::empty()
-                };
-                validate(
-                    &format!("deform_texture (immediates {immediates}, vertex layout {vertex})"),
-                    &super::deform_texture_source(immediates, vertex),
-                    caps,
-                );
+                for half in [false, true] {
+                    let caps = if immediates {
+                        Capabilities::IMMEDIATES
+                    } else {
+                        Capabilities::empty()
+                    };
+                    let src = super::deform_texture_source(immediates, vertex, half);
+                    assert_eq!(src.contains("rgba16float"), half);
+                    validate(
+                        &format!(
+                            "deform_texture (immediates {immediates}, vertex layout {vertex}, half {half})"
+                        ),
+                        &src,
+                        caps,
+                    );
+                }
             }
         }
     }

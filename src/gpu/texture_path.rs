@@ -59,6 +59,10 @@ pub(super) struct TexturePath {
     /// The immediates (`shaders/active_immediate.wgsl`'s `Immediates`), if the device has
     /// them: count, inline flag, two pads, then up to [`INLINE_ACTIVE`] entries.
     immediates: Option<[u32; IMMEDIATE_WORDS]>,
+    /// `L` is stored as half floats (`Rgba16Float`), divided by this power of two near
+    /// max |L|; the forces are multiplied by it (1 for f32).
+    force_scale: f32,
+    half: bool,
 }
 
 /// 32-bit words of immediates.
@@ -185,14 +189,21 @@ impl TexturePath {
             bytemuck::cast_slice(&fans),
         )?;
 
-        // L: texel t = (3c + b)·R + r, W texels a row, 2^log_h rows a layer.
+        // L: texel t = (3c + b)·R + r, W texels a row, 2^log_h rows a layer; four f32 (16
+        // bytes) or, with half floats, four f16 (8 bytes) a texel.
+        let texel_bytes: u64 = if sh.half { 8 } else { 16 };
+        let l_format = if sh.half {
+            wgpu::TextureFormat::Rgba16Float
+        } else {
+            rgba
+        };
         let texels = 3 * nc * nr;
         let rows = texels.div_ceil(W).max(1);
-        let cap_rows = (sh.max_chunk / (16 * W)).min(max_dim);
+        let cap_rows = (sh.max_chunk / (texel_bytes * W)).min(max_dim);
         if cap_rows == 0 {
             return Err(GpuError::BufferTooLarge {
                 what: "one row of the L texture",
-                bytes: 16 * W,
+                bytes: texel_bytes * W,
                 limit: sh.max_chunk,
             });
         }
@@ -202,8 +213,8 @@ impl TexturePath {
         if layers > u64::from(limits.max_texture_array_layers) || texels > u64::from(u32::MAX) {
             return Err(GpuError::BufferTooLarge {
                 what: "L as a texture array",
-                bytes: 16 * texels,
-                limit: 16 * W * per_layer * u64::from(limits.max_texture_array_layers),
+                bytes: texel_bytes * texels,
+                limit: texel_bytes * W * per_layer * u64::from(limits.max_texture_array_layers),
             });
         }
         let (width, height) = if layers == 1 {
@@ -221,12 +232,19 @@ impl TexturePath {
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
-            format: rgba,
+            format: l_format,
             usage: tb,
             view_formats: &[],
         });
+        let max_l = sh.l.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let force_scale = if sh.half && max_l.is_finite() && max_l > 0.0 {
+            2f32.powi(max_l.log2().round() as i32)
+        } else {
+            1.0
+        };
         let layer_texels = (width * height) as usize;
         let mut staging: Vec<[f32; 4]> = Vec::with_capacity(layer_texels);
+        let mut staging16: Vec<[u16; 4]> = Vec::new();
         for k in 0..layers as usize {
             let t0 = (k * layer_texels).min(texels as usize);
             let t1 = ((k + 1) * layer_texels).min(texels as usize);
@@ -237,6 +255,17 @@ impl TexturePath {
                     .map(|v| [v[0], v[1], v[2], 0.0]),
             );
             staging.resize(layer_texels, [0.0; 4]);
+            let data: &[u8] = if sh.half {
+                staging16.clear();
+                staging16.extend(
+                    staging
+                        .iter()
+                        .map(|t| t.map(|v| half::f16::from_f32(v / force_scale).to_bits())),
+                );
+                bytemuck::cast_slice(&staging16)
+            } else {
+                bytemuck::cast_slice(&staging)
+            };
             queue.write_texture(
                 wgpu::TexelCopyTextureInfo {
                     texture: &l_tex,
@@ -248,10 +277,10 @@ impl TexturePath {
                     },
                     aspect: wgpu::TextureAspect::All,
                 },
-                bytemuck::cast_slice(&staging),
+                data,
                 wgpu::TexelCopyBufferLayout {
                     offset: 0,
-                    bytes_per_row: Some(16 * width as u32),
+                    bytes_per_row: Some(texel_bytes as u32 * width as u32),
                     rows_per_image: Some(height as u32),
                 },
                 wgpu::Extent3d {
@@ -297,7 +326,7 @@ impl TexturePath {
                 uniform_entry(0),
                 uniform_entry(1),
                 storage_entry(2, false),
-                storage_texture_entry(3, read, rgba, d2a),
+                storage_texture_entry(3, read, l_format, d2a),
                 storage_texture_entry(4, read, rgba, d2),
                 storage_texture_entry(5, write, rgba, d2),
             ],
@@ -344,7 +373,7 @@ impl TexturePath {
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("touchfem deform_texture.wgsl"),
             source: wgpu::ShaderSource::Wgsl(
-                deform_texture_source(sh.immediates, sh.vertex_layout).into(),
+                deform_texture_source(sh.immediates, sh.vertex_layout, sh.half).into(),
             ),
         });
         let imm_bytes = if sh.immediates { IMMEDIATE_BYTES } else { 0 };
@@ -380,7 +409,14 @@ impl TexturePath {
             frame: frame_buf,
             scratch: Vec::with_capacity(MAX_ACTIVE),
             immediates: sh.immediates.then_some([0; IMMEDIATE_WORDS]),
+            force_scale,
+            half: sh.half,
         })
+    }
+
+    /// Whether `L` is stored as half floats.
+    pub(super) fn half(&self) -> bool {
+        self.half
     }
 
     /// Takes this frame's active list (`forces` is validated). With immediates, the count goes
@@ -388,8 +424,15 @@ impl TexturePath {
     /// uploaded. Otherwise the entries are written to the uniform list (and, without
     /// immediates, the count to the frame uniform).
     pub(super) fn set_forces(&mut self, queue: &wgpu::Queue, forces: &[(u32, [f32; 3])]) {
-        let entry =
-            |&(col, f): &(u32, [f32; 3])| [f[0].to_bits(), f[1].to_bits(), f[2].to_bits(), col];
+        let k = self.force_scale;
+        let entry = |&(col, f): &(u32, [f32; 3])| {
+            [
+                (f[0] * k).to_bits(),
+                (f[1] * k).to_bits(),
+                (f[2] * k).to_bits(),
+                col,
+            ]
+        };
         let n = forces.len() as u32;
         if let Some(imm) = &mut self.immediates {
             let is_inline = forces.len() <= INLINE_ACTIVE;
