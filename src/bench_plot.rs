@@ -23,7 +23,7 @@ pub fn write_plot(path: &Path, rows: &[Row], meshes: &[&str]) -> Result<(), Erro
     });
     let visual: Vec<&Row> = rows
         .iter()
-        .filter(|r| !r.method.starts_with("force-") && r.time_us > 0.0)
+        .filter(|r| crate::tradeoff::is_visual(r) && r.time_us > 0.0)
         .collect();
     let mut methods: Vec<&str> = Vec::new();
     for r in &visual {

@@ -462,6 +462,33 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
             t["peak_rss_bytes"].as_f64().unwrap_or(0.0) / 1e9,
         );
     }
+    // The answer a reader brings: the fastest method for one contact triangle (3 nodes) and
+    // for about a hundred touched nodes, per mesh, from this run.
+    let mut fastest = Vec::new();
+    let mut seen: Vec<&str> = Vec::new();
+    for r in &rows {
+        if seen.contains(&r.mesh.as_str()) {
+            continue;
+        }
+        seen.push(&r.mesh);
+        let mut shown = Vec::new();
+        for want in [3, 100] {
+            if let Some(f) = crate::tradeoff::fastest(&rows, &r.mesh, want) {
+                if shown.contains(&f.active_columns) {
+                    continue;
+                }
+                shown.push(f.active_columns);
+                println!(
+                    "fastest on {} for {} touched nodes: {} ({:.1} µs, error {:.1e})",
+                    f.mesh, f.active_columns, f.method, f.time_us, f.rel_error
+                );
+                fastest.push(serde_json::json!({
+                    "mesh": f.mesh, "want": want, "active_columns": f.active_columns,
+                    "method": f.method, "time_us": f.time_us, "rel_error": f.rel_error,
+                }));
+            }
+        }
+    }
     if let Some(path) = &a.plot {
         let mut meshes: Vec<&str> = Vec::new();
         for r in &rows {
@@ -475,16 +502,10 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
         let v = serde_json::json!({
             "rows": rows,
             "scene": scene_table,
+            "fastest": fastest,
             "machine": crate::demo::machine(),
         });
-        std::fs::write(
-            path,
-            serde_json::to_string_pretty(&v).expect("serialisable"),
-        )
-        .map_err(|source| Error::Write {
-            path: path.clone(),
-            source,
-        })?;
+        crate::tradeoff::write_json(path, &v)?;
     }
     Ok(())
 }

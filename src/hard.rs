@@ -36,6 +36,9 @@ pub struct HardCase {
     pub f64_error: f64,
     /// The same product from f32 entries summed in f32 (the GPU's arithmetic), against f64.
     pub f32_error: f64,
+    /// The same from f16 entries (L scaled by a power of two near max |L|, as both f16
+    /// layouts store it) summed in f32, against f64.
+    pub f16_error: f64,
     /// Force of the Fig. 1b press (a sixth of the edge, down at the top centre), N.
     pub press_force_n: f64,
     /// Precompute wall time, s.
@@ -121,6 +124,31 @@ pub fn dense_lu_solve(mesh: &Mesh, forces: &[(u32, DVec3)]) -> Result<Vec<DVec3>
         .collect())
 }
 
+/// `u = L·F` from half floats of `L / s` (`s` a power of two near max |L|) with f32 sums and
+/// the forces multiplied by `s`, as the GPU's f16 layouts compute it.
+pub fn displace_f16(c: &Compliance, forces: &[(u32, DVec3)]) -> Vec<DVec3> {
+    let nr = c.rows().len();
+    let l32 = c.l_f32();
+    let max_l = l32.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let s = if max_l.is_finite() && max_l > 0.0 {
+        2f32.powi(max_l.log2().round() as i32)
+    } else {
+        1.0
+    };
+    let mut u = vec![Vec3::ZERO; nr];
+    for &(col, f) in forces {
+        let f = f.as_vec3() * s;
+        for b in 0..3 {
+            let run = &l32[(3 * col as usize + b) * 3 * nr..][..3 * nr];
+            for (r, o) in u.iter_mut().enumerate() {
+                let h = |i: usize| half::f16::from_f32(run[3 * r + i] / s).to_f32();
+                *o += Vec3::new(h(0), h(1), h(2)) * f[b];
+            }
+        }
+    }
+    u.iter().map(|v| v.as_dvec3()).collect()
+}
+
 /// `u = L·F` from the f32 copy of L with f32 sums, as the GPU pass computes it.
 pub fn displace_f32(c: &Compliance, forces: &[(u32, DVec3)]) -> Vec<DVec3> {
     let nr = c.rows().len();
@@ -171,6 +199,7 @@ pub fn measure(case: &str, mesh: Mesh) -> Result<HardCase, crate::Error> {
         .collect();
     let f64_error = crate::tradeoff::rel_err(&by_node, &lu);
     let f32_error = crate::tradeoff::rel_err(&displace_f32(&c, &forces), &u);
+    let f16_error = crate::tradeoff::rel_err(&displace_f16(&c, &forces), &u);
     let kmax = {
         let k = Stiffness::assemble(&mesh)?;
         k.k.as_ref()
@@ -199,6 +228,7 @@ pub fn measure(case: &str, mesh: Mesh) -> Result<HardCase, crate::Error> {
         residual,
         f64_error,
         f32_error,
+        f16_error,
         press_force_n: press.feedback.length(),
         precompute_s,
     })
@@ -230,23 +260,31 @@ pub fn sliver_cube() -> Result<Mesh, crate::Error> {
 
 /// Every hard case (a few seconds in a release build).
 pub fn cases() -> Result<Vec<HardCase>, crate::Error> {
+    bodies()?
+        .into_iter()
+        .map(|(name, mesh)| measure(&name, mesh))
+        .collect()
+}
+
+/// The hard cases' bodies, named.
+pub fn bodies() -> Result<Vec<(String, Mesh)>, crate::Error> {
     let mm = LengthUnit::Millimetre;
     let id = |p: [f64; 3]| p;
     let mut out = Vec::new();
     for nu in [0.49, 0.499, 0.4999] {
         let m = body([4, 4, 4], 30.0, mm, paper(nu), id)?;
-        out.push(measure(&format!("nu={nu}"), m)?);
+        out.push((format!("nu={nu}"), m));
     }
     // The same bodies with well-shaped cells of the same counts, for comparison.
-    out.push(measure(
-        "well-shaped 4x4x5",
+    out.push((
+        "well-shaped 4x4x5".into(),
         body([4, 4, 5], 30.0, mm, paper(0.49), id)?,
-    )?);
-    out.push(measure(
-        "well-shaped 6x4x4",
+    ));
+    out.push((
+        "well-shaped 6x4x4".into(),
         body([6, 4, 4], 30.0, mm, paper(0.49), id)?,
-    )?);
-    out.push(measure("sliver layer (1 µm)", sliver_cube()?)?);
+    ));
+    out.push(("sliver layer (1 µm)".into(), sliver_cube()?));
     // A column of cells 1 µm wide in x, between x = 20 and 20.001 mm (6 columns of cells),
     // beside the press: needles.
     let needle = |p: [f64; 3]| {
@@ -260,23 +298,23 @@ pub fn cases() -> Result<Vec<HardCase>, crate::Error> {
         };
         [x, p[1], p[2]]
     };
-    out.push(measure(
-        "needle column (1 µm)",
+    out.push((
+        "needle column (1 µm)".into(),
         body([6, 4, 4], 30.0, mm, paper(0.49), needle)?,
-    )?);
+    ));
     // Extreme scales: the same cube at E = 1 Pa and 1 m, at 1 GPa and 1 mm, and in metres.
-    out.push(measure(
-        "E=1 Pa, 1 m",
+    out.push((
+        "E=1 Pa, 1 m".into(),
         body([4, 4, 4], 1000.0, mm, material(1.0, 0.3), id)?,
-    )?);
-    out.push(measure(
-        "E=1 GPa, 1 mm",
+    ));
+    out.push((
+        "E=1 GPa, 1 mm".into(),
         body([4, 4, 4], 1.0, mm, material(1e9, 0.3), id)?,
-    )?);
-    out.push(measure(
-        "E=1 GPa, 1 mm, in metres",
+    ));
+    out.push((
+        "E=1 GPa, 1 mm, in metres".into(),
         body([4, 4, 4], 1.0, LengthUnit::Metre, material(1e9, 0.3), id)?,
-    )?);
+    ));
     Ok(out)
 }
 
@@ -356,18 +394,19 @@ pub fn locking() -> Result<Vec<LockingRow>, crate::Error> {
 pub fn bench(json: Option<&std::path::Path>) -> Result<(), crate::Error> {
     let cases = cases()?;
     println!(
-        "{:<26} {:>5} {:>9} {:>9} {:>9} {:>9} {:>11} {:>8}",
-        "case", "nodes", "quality", "residual", "f64_err", "f32_err", "press_N", "pre_s"
+        "{:<26} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11} {:>8}",
+        "case", "nodes", "quality", "residual", "f64_err", "f32_err", "f16_err", "press_N", "pre_s"
     );
     for c in &cases {
         println!(
-            "{:<26} {:>5} {:>9.1e} {:>9.1e} {:>9.1e} {:>9.1e} {:>11.4e} {:>8.3}",
+            "{:<26} {:>5} {:>9.1e} {:>9.1e} {:>9.1e} {:>9.1e} {:>9.1e} {:>11.4e} {:>8.3}",
             c.case,
             c.nodes,
             c.worst_quality,
             c.residual,
             c.f64_error,
             c.f32_error,
+            c.f16_error,
             c.press_force_n,
             c.precompute_s
         );

@@ -495,3 +495,20 @@ pub fn write_json(path: &std::path::Path, v: &serde_json::Value) -> Result<(), c
         }
     })
 }
+
+/// Whether a row times a visual update (`u = L·F` or its alternatives), not a force step or
+/// a precompute.
+pub fn is_visual(r: &Row) -> bool {
+    !r.method.starts_with("force-") && r.method != "precompute"
+}
+
+/// The fastest visual-update row of `mesh` at the active-column count nearest `active`.
+pub fn fastest<'a>(rows: &'a [Row], mesh: &str, active: usize) -> Option<&'a Row> {
+    let here = || rows.iter().filter(|r| r.mesh == mesh && is_visual(r));
+    let k = here()
+        .map(|r| r.active_columns)
+        .min_by_key(|&k| k.abs_diff(active))?;
+    here()
+        .filter(|r| r.active_columns == k)
+        .min_by(|a, b| a.time_us.total_cmp(&b.time_us))
+}

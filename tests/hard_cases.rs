@@ -15,12 +15,13 @@ fn every_hard_body_is_accurate_in_f64_and_f32() {
     let cases = hard::cases().unwrap();
     for c in &cases {
         eprintln!(
-            "{:26} nodes {:4} quality {:.1e} residual {:.1e} f64 {:.1e} f32 {:.1e} press {:.4e} N",
-            c.case, c.nodes, c.worst_quality, c.residual, c.f64_error, c.f32_error, c.press_force_n
+            "{:26} nodes {:4} quality {:.1e} residual {:.1e} f64 {:.1e} f32 {:.1e} f16 {:.1e} press {:.4e} N",
+            c.case, c.nodes, c.worst_quality, c.residual, c.f64_error, c.f32_error, c.f16_error, c.press_force_n
         );
         assert!(c.residual < 1e-12, "{}: residual {:e}", c.case, c.residual);
         assert!(c.f64_error < 1e-10, "{}: f64 {:e}", c.case, c.f64_error);
         assert!(c.f32_error < 1e-5, "{}: f32 {:e}", c.case, c.f32_error);
+        assert!(c.f16_error < 2e-3, "{}: f16 {:e}", c.case, c.f16_error);
         assert!(
             c.press_force_n.is_finite() && c.press_force_n > 0.0,
             "{}: {}",
@@ -55,6 +56,79 @@ fn every_hard_body_is_accurate_in_f64_and_f32() {
             100.0 * d
         );
         assert!(d < 0.5, "{name}: {d}");
+    }
+}
+
+/// The GPU pass itself (lavapipe here), in both layouts and both precisions, on every hard
+/// body: the extreme scales and the bad cells change nothing.
+#[test]
+fn on_the_gpu_every_hard_body_stays_within_f32_and_f16_bounds() {
+    use touchfem::compliance::{Compliance, NodeSet, Selection};
+    use touchfem::gpu::{Deformer, DeformerOptions, Gpu, LStorage};
+    let g = Gpu::new_headless()
+        .unwrap_or_else(|e| panic!("GPU tests need an adapter and must not be skipped: {e}"));
+    for (name, mesh) in hard::bodies().unwrap() {
+        let sel = Selection {
+            rows: NodeSet::Surface,
+            cols: NodeSet::FreeSurface,
+        };
+        let c = Compliance::compute(&mesh, &sel).unwrap();
+        // One contact triangle's worth of columns, forces sized to move the body by ~1/20
+        // of its size.
+        let (lo, hi) = mesh.bounds();
+        let size = (hi - lo).max_element();
+        let k = 0.05 * size / c.block(c.col_row(0), 0).z_axis.z;
+        let forces: Vec<(u32, DVec3)> = (0..3u32)
+            .map(|i| {
+                (
+                    i * 5,
+                    DVec3::new(0.2, -0.3, -1.0) * k * (1.0 + f64::from(i)),
+                )
+            })
+            .collect();
+        let mut u = vec![DVec3::ZERO; c.rows().len()];
+        c.displace(&forces, &mut u);
+        let max_u = u.iter().map(|v| v.length()).fold(0.0, f64::max);
+        for storage in [
+            LStorage::Texture,
+            LStorage::TextureF16,
+            LStorage::Buffers,
+            LStorage::BuffersF16,
+        ] {
+            let opts = DeformerOptions {
+                storage,
+                ..Default::default()
+            };
+            let mut d =
+                Deformer::new(&g.device, &g.queue, &c, &mesh.nodes, &mesh.surface, &opts).unwrap();
+            let f32s: Vec<(u32, [f32; 3])> = forces
+                .iter()
+                .map(|&(col, f)| (col, f.as_vec3().to_array()))
+                .collect();
+            d.set_forces(&g.queue, &f32s).unwrap();
+            let mut enc = g.device.create_command_encoder(&Default::default());
+            d.encode(&mut enc);
+            g.queue.submit([enc.finish()]);
+            let (got, _) = d.read_back(&g.device, &g.queue).unwrap();
+            let err = c
+                .rows()
+                .iter()
+                .enumerate()
+                .map(|(r, &node)| {
+                    let rest = mesh.nodes[node as usize].as_vec3().as_dvec3();
+                    let p = DVec3::new(got[r][0].into(), got[r][1].into(), got[r][2].into());
+                    (p - rest - u[r]).length()
+                })
+                .fold(0.0, f64::max)
+                / max_u;
+            eprintln!("{name:26} {storage:?}: {err:.2e}");
+            assert!(err.is_finite());
+            let bound = match storage {
+                LStorage::TextureF16 | LStorage::BuffersF16 => 2e-3,
+                _ => 1e-5,
+            };
+            assert!(err < bound, "{name}, {storage:?}: {err:e}");
+        }
     }
 }
 
