@@ -65,14 +65,24 @@ fn nearest(mesh: &Mesh, at: DVec3) -> Option<u32> {
     })
 }
 
+/// What moving a set of nodes takes.
+pub struct Press {
+    /// The reaction the finger feels, N.
+    pub reaction: DVec3,
+    /// The nodal forces applied (mesh node, N).
+    pub forces: Vec<(u32, DVec3)>,
+    /// The displacement at the probe nodes, m.
+    pub probes: Vec<DVec3>,
+}
+
 /// Nodes `s` all moved by `push`: the nodal forces (N) that do it, and the displacement at
 /// `probe_nodes` (m). Solves `L_SS f = u_S` with the precomputed columns of `s`.
-fn press_nodes(
+pub fn press_nodes(
     mesh: &Mesh,
     s: &[u32],
     push: DVec3,
     probe_nodes: &[u32],
-) -> Result<(DVec3, Vec<DVec3>), crate::Error> {
+) -> Result<Press, crate::Error> {
     let sel = Selection {
         rows: NodeSet::Nodes(probe_nodes.to_vec()),
         cols: NodeSet::Nodes(s.to_vec()),
@@ -110,8 +120,20 @@ fn press_nodes(
         .iter()
         .map(|&p| c.row_of(p).map(|r| u[r]).unwrap_or(DVec3::NAN))
         .collect();
-    // The finger feels the reaction.
-    Ok((-total, probes))
+    Ok(Press {
+        // The finger feels the reaction.
+        reaction: -total,
+        forces: forces.iter().map(|&(i, f)| (s[i as usize], f)).collect(),
+        probes,
+    })
+}
+
+/// The surface nodes a punch of `radius` at the free-surface node nearest `at` moves.
+pub fn punch_nodes(mesh: &Mesh, at: DVec3, radius: f64) -> Vec<u32> {
+    match nearest(mesh, at) {
+        Some(n) => under(mesh, mesh.nodes[n as usize], radius),
+        None => Vec::new(),
+    }
 }
 
 /// Measures one rung. `probe_nodes`: nodes where the field is compared across rungs (the
@@ -127,9 +149,10 @@ pub fn rung(
     precompute: bool,
 ) -> Result<Rung, crate::Error> {
     let node = nearest(mesh, at).ok_or_else(|| crate::Error::Input("no free surface".into()))?;
-    let (point, _) = press_nodes(mesh, &[node], push, &[node])?;
+    let point = press_nodes(mesh, &[node], push, &[node])?.reaction;
     let s = under(mesh, mesh.nodes[node as usize], radius);
-    let (punch, probes) = press_nodes(mesh, &s, push, probe_nodes)?;
+    let punch = press_nodes(mesh, &s, push, probe_nodes)?;
+    let (punch, probes) = (punch.reaction, punch.probes);
     let mut edge = 0.0;
     for t in &mesh.surface {
         for k in 0..3 {
