@@ -203,11 +203,7 @@ fn force_rows(name: &str, scene: &Scene, reps: usize) -> Result<Vec<Row>, crate:
             let mut bc = ForceBc::default();
             finger_force(c, &cp, model, &mut bc);
             c.displace(bc.entries(), &mut u);
-            let moved: DVec3 = (0..3)
-                .filter_map(|k| c.row_of(cp.nodes[k]).map(|row| u[row] * cp.alpha[k]))
-                .sum();
-            let want = cp.displacement();
-            worst = worst.max((moved - want).length() / want.length().max(1e-300));
+            worst = worst.max(miss(c, &u, &cp));
         }
         out.push(Row {
             method: format!("force-{}", format!("{model:?}").to_lowercase()),
@@ -251,11 +247,7 @@ fn force_rows(name: &str, scene: &Scene, reps: usize) -> Result<Vec<Row>, crate:
             }
             c.displace(bc.entries(), &mut u);
             for cp in pair {
-                let moved: DVec3 = (0..3)
-                    .filter_map(|k| c.row_of(cp.nodes[k]).map(|row| u[row] * cp.alpha[k]))
-                    .sum();
-                let want = cp.displacement();
-                worst = worst.max((moved - want).length() / want.length().max(1e-300));
+                worst = worst.max(miss(c, &u, cp));
             }
         }
         out.push(Row {
@@ -268,6 +260,16 @@ fn force_rows(name: &str, scene: &Scene, reps: usize) -> Result<Vec<Row>, crate:
         });
     }
     Ok(out)
+}
+
+/// How far contact point `cp` moved under the rows' displacement `u` misses its finger,
+/// relative to the finger's displacement.
+fn miss(c: &crate::compliance::Compliance, u: &[DVec3], cp: &crate::contact::ContactPoint) -> f64 {
+    let moved: DVec3 = (0..3)
+        .filter_map(|k| c.row_of(cp.nodes[k]).map(|row| u[row] * cp.alpha[k]))
+        .sum();
+    let want = cp.displacement();
+    (moved - want).length() / want.length().max(1e-300)
 }
 
 /// A ~2k-node box (12³ cells, 2197 nodes) with the paper's mouse material, for size scaling.
