@@ -306,6 +306,7 @@ fn a_non_loopback_address_needs_an_explicit_flag() {
 fn serve_reports_the_contract_keys() {
     let dir = tempfile::tempdir().unwrap();
     let rep = dir.path().join("r.json");
+    let session = dir.path().join("s.tfsession");
     let port = UdpSocket::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -321,6 +322,8 @@ fn serve_reports_the_contract_keys() {
             "0.3",
             "--report",
             rep.to_str().unwrap(),
+            "--record",
+            session.to_str().unwrap(),
         ])
         .env("TOUCHFEM_CACHE_DIR", "")
         .output()
@@ -343,6 +346,21 @@ fn serve_reports_the_contract_keys() {
         assert!(v[k].is_number(), "{k}: {v}");
     }
     assert_eq!(v["ticks"], 300);
+    // A bare mesh serves four UDP fingers; its recorded session names them all and replays.
+    assert_eq!(v["limits"].as_array().map(Vec::len), Some(4), "{v}");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args(["replay", session.to_str().unwrap(), "--json"])
+        .env("TOUCHFEM_CACHE_DIR", "")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(r["ticks"], 300, "{r}");
+    assert_eq!(r["max_force_diff_n"].as_f64(), Some(0.0), "{r}");
 }
 
 // Shared with tests/coupling.rs, which uses what this file does not.

@@ -72,12 +72,19 @@ pub struct ServeReport {
 /// The world `serve` runs: a scene whose fingers are all UDP fingers, or a bare mesh (then as
 /// many UDP fingers as a packet may carry). `limits` go to every finger whose scene gives none.
 pub fn udp_world(spec: &str, limits: Option<&DeviceLimits>) -> Result<World, Error> {
-    let is_scene = crate::scene::SceneSource::find(spec)?.is_some();
-    let mut world = World::load(spec, "udp")?;
-    if !is_scene {
-        let f = world.fingers[0].clone();
-        world.fingers = vec![f; crate::force::MAX_FINGERS];
-    }
+    use crate::scene::SceneSource;
+    let mut world = match SceneSource::find(spec)? {
+        Some(_) => World::load(spec, "udp")?,
+        None => {
+            // A bare mesh: its one-finger scene text with as many UDP fingers as a packet may
+            // carry, so that a recorded session's scene has them all and replays.
+            let mut src = SceneSource::for_mesh(spec, "udp");
+            for _ in 1..crate::force::MAX_FINGERS {
+                src.text.push_str("\n[[finger]]\ndevice = \"udp\"\n");
+            }
+            World::from_source_with(&src, crate::scene::file::cache_dir().as_deref())?
+        }
+    };
     if world.fingers.iter().any(|f| f.device != DeviceSpec::Udp) {
         return Err(Error::Scene(format!(
             "scene '{}': `serve` drives udp fingers only",
