@@ -40,6 +40,31 @@ impl Default for Hand {
     }
 }
 
+impl Hand {
+    /// Moves the hand at `x` with velocity `v` for `dt` under `force` (held), pulled towards
+    /// `target`, in `sub` semi-implicit Euler steps; returns the work the force did on it, J.
+    pub fn step(
+        &self,
+        x: &mut DVec3,
+        v: &mut DVec3,
+        target: DVec3,
+        force: DVec3,
+        dt: f64,
+        sub: u32,
+    ) -> f64 {
+        let h = dt / f64::from(sub);
+        let mut work = 0.0;
+        for _ in 0..sub {
+            let a = (self.k * (target - *x) - self.b * *v + force) / self.mass;
+            *v += a * h;
+            let dx = *v * h;
+            work += force.dot(dx);
+            *x += dx;
+        }
+        work
+    }
+}
+
 /// What a run measured.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct ClientReport {
@@ -93,7 +118,7 @@ pub fn run_client(
 ) -> std::io::Result<ClientReport> {
     let sock = UdpSocket::bind("127.0.0.1:0")?;
     let dt = 1e-3;
-    let sub = 10;
+    let sub = 10u32;
     let n = (seconds / dt).round() as u64;
     let mut x = target(0.0);
     let mut v = DVec3::ZERO;
@@ -157,14 +182,7 @@ pub fn run_client(
         }
         // The hand: m a = k (target − x) − b v + F, the force held over the tick.
         let t = i as f64 * dt;
-        let h = dt / sub as f64;
-        for _ in 0..sub {
-            let a = (hand.k * (target(t) - x) - hand.b * v + force) / hand.mass;
-            v += a * h;
-            let dx = v * h;
-            work += force.dot(dx);
-            x += dx;
-        }
+        work += hand.step(&mut x, &mut v, target(t), force, dt, sub);
         rep.work.push(work);
         rep.positions.push(x);
     }

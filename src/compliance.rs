@@ -10,7 +10,7 @@
 //! consecutive addresses. The f32 copy for the GPU has the same layout.
 
 use faer::Mat;
-use glam::{DMat3, DVec3};
+use glam::{DMat3, DVec3, Vec3};
 use std::time::Instant;
 
 use crate::fem::{FemError, Stiffness};
@@ -121,6 +121,18 @@ pub struct Compliance {
     clamp_compliance: f64,
     /// Precompute cost and accuracy.
     pub stats: PrecomputeStats,
+}
+
+/// The power of two nearest max |L| (in the log): what `L` is divided by before it is stored
+/// in half floats, so that any material keeps half-float precision (1 for an empty or
+/// non-finite `L`).
+pub fn f16_scale(l: &[f32]) -> f32 {
+    let max_l = l.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    if max_l.is_finite() && max_l > 0.0 {
+        2f32.powi(max_l.log2().round() as i32)
+    } else {
+        1.0
+    }
 }
 
 /// Inverts a 3×3 symmetric positive definite block; `None` if it is not invertible.
@@ -328,6 +340,43 @@ impl Compliance {
                 let col = &self.l[(3 * c as usize + b) * nr3..][..nr3];
                 for (r, o) in out[..nr].iter_mut().enumerate() {
                     *o += DVec3::new(col[3 * r], col[3 * r + 1], col[3 * r + 2]) * *fb;
+                }
+            }
+        }
+    }
+
+    /// u = L·F from the f32 copy with f32 sums — the GPU's arithmetic — into `out`.
+    pub fn displace_f32(&self, forces: &[(u32, DVec3)], out: &mut [Vec3]) {
+        self.displace_rounded(forces, out, 1.0, |v| v);
+    }
+
+    /// u = L·F as the GPU's half-float layouts compute it: `L / s` rounded to f16
+    /// (`s` = [`f16_scale`]), the forces times `s`, f32 sums; into `out`.
+    pub fn displace_f16(&self, forces: &[(u32, DVec3)], out: &mut [Vec3]) {
+        let s = f16_scale(&self.l32);
+        self.displace_rounded(forces, out, s, |v| half::f16::from_f32(v / s).to_f32());
+    }
+
+    fn displace_rounded(
+        &self,
+        forces: &[(u32, DVec3)],
+        out: &mut [Vec3],
+        scale: f32,
+        round: impl Fn(f32) -> f32,
+    ) {
+        let nr = self.rows.len();
+        out[..nr].fill(Vec3::ZERO);
+        for &(c, f) in forces {
+            let f = f.as_vec3() * scale;
+            for b in 0..3 {
+                let run = &self.l32[(3 * c as usize + b) * 3 * nr..][..3 * nr];
+                for (r, o) in out[..nr].iter_mut().enumerate() {
+                    let e = Vec3::new(
+                        round(run[3 * r]),
+                        round(run[3 * r + 1]),
+                        round(run[3 * r + 2]),
+                    );
+                    *o += e * f[b];
                 }
             }
         }

@@ -76,12 +76,6 @@ pub fn storage_error(c: &Compliance) -> (f64, f64) {
     if nc == 0 || nr == 0 {
         return (0.0, 0.0);
     }
-    let l = c.l_f64();
-    let maxl = l.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    if maxl == 0.0 || !maxl.is_finite() {
-        return (0.0, 0.0);
-    }
-    let scale = 2f64.powi(maxl.log2().round() as i32);
     // The most compliant column (smallest diagonal stiffness), and another column.
     let soft = (0..nc)
         .min_by(|&a, &b| {
@@ -90,48 +84,25 @@ pub fn storage_error(c: &Compliance) -> (f64, f64) {
                 .abs()
                 .total_cmp(&c.diag_inv(b).determinant().abs())
         })
-        .unwrap_or(0);
-    let neighbour = (0..nc).find(|&j| j != soft).unwrap_or(soft);
-    let loads: [Vec<(usize, DVec3)>; 2] = [
+        .unwrap_or(0) as u32;
+    let other = (0..nc as u32).find(|&j| j != soft).unwrap_or(soft);
+    let loads = [
         vec![(soft, DVec3::new(0.3, -0.4, -1.0))],
         vec![
             (soft, DVec3::new(0.0, 0.0, -1.0)),
-            (neighbour, DVec3::new(0.0, 0.0, 1.0)),
+            (other, DVec3::new(0.0, 0.0, 1.0)),
         ],
     ];
     let (mut e32, mut e16) = (0.0f64, 0.0f64);
+    let mut exact = vec![DVec3::ZERO; nr];
     for load in &loads {
-        let mut exact = vec![DVec3::ZERO; nr];
-        let mut u32v = vec![[0f32; 3]; nr];
-        let mut u16v = vec![[0f32; 3]; nr];
-        for &(col, f) in load {
-            for b in 0..3 {
-                let run = &l[(3 * col + b) * 3 * nr..][..3 * nr];
-                let fb = f[b];
-                for r in 0..nr {
-                    for a in 0..3 {
-                        let v = run[3 * r + a];
-                        exact[r][a] += v * fb;
-                        u32v[r][a] += (v as f32) * (fb as f32);
-                        let h = half::f16::from_f64(v / scale).to_f32();
-                        u16v[r][a] += h * ((fb * scale) as f32);
-                    }
-                }
-            }
-        }
-        let big = exact.iter().map(|v| v.length()).fold(0.0, f64::max);
-        if big == 0.0 {
+        c.displace(load, &mut exact);
+        if exact.iter().all(|v| *v == DVec3::ZERO) || !exact.iter().all(|v| v.is_finite()) {
             continue;
         }
-        let err = |u: &[[f32; 3]]| {
-            u.iter()
-                .zip(&exact)
-                .map(|(a, b)| (DVec3::new(a[0].into(), a[1].into(), a[2].into()) - *b).length())
-                .fold(0.0, f64::max)
-                / big
-        };
-        e32 = e32.max(err(&u32v));
-        e16 = e16.max(err(&u16v));
+        let err = |u: Vec<DVec3>| crate::tradeoff::rel_err(&u, &exact);
+        e32 = e32.max(err(crate::hard::displace_f32(c, load)));
+        e16 = e16.max(err(crate::hard::displace_f16(c, load)));
     }
     (e32, e16)
 }

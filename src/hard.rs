@@ -124,45 +124,17 @@ pub fn dense_lu_solve(mesh: &Mesh, forces: &[(u32, DVec3)]) -> Result<Vec<DVec3>
         .collect())
 }
 
-/// `u = L·F` from half floats of `L / s` (`s` a power of two near max |L|) with f32 sums and
-/// the forces multiplied by `s`, as the GPU's f16 layouts compute it.
-pub fn displace_f16(c: &Compliance, forces: &[(u32, DVec3)]) -> Vec<DVec3> {
-    let nr = c.rows().len();
-    let l32 = c.l_f32();
-    let max_l = l32.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-    let s = if max_l.is_finite() && max_l > 0.0 {
-        2f32.powi(max_l.log2().round() as i32)
-    } else {
-        1.0
-    };
-    let mut u = vec![Vec3::ZERO; nr];
-    for &(col, f) in forces {
-        let f = f.as_vec3() * s;
-        for b in 0..3 {
-            let run = &l32[(3 * col as usize + b) * 3 * nr..][..3 * nr];
-            for (r, o) in u.iter_mut().enumerate() {
-                let h = |i: usize| half::f16::from_f32(run[3 * r + i] / s).to_f32();
-                *o += Vec3::new(h(0), h(1), h(2)) * f[b];
-            }
-        }
-    }
+/// `u = L·F` in the GPU's f32 arithmetic ([`Compliance::displace_f32`]), in f64.
+pub fn displace_f32(c: &Compliance, forces: &[(u32, DVec3)]) -> Vec<DVec3> {
+    let mut u = vec![Vec3::ZERO; c.rows().len()];
+    c.displace_f32(forces, &mut u);
     u.iter().map(|v| v.as_dvec3()).collect()
 }
 
-/// `u = L·F` from the f32 copy of L with f32 sums, as the GPU pass computes it.
-pub fn displace_f32(c: &Compliance, forces: &[(u32, DVec3)]) -> Vec<DVec3> {
-    let nr = c.rows().len();
-    let l32 = c.l_f32();
-    let mut u = vec![Vec3::ZERO; nr];
-    for &(col, f) in forces {
-        let f = f.as_vec3();
-        for b in 0..3 {
-            let run = &l32[(3 * col as usize + b) * 3 * nr..][..3 * nr];
-            for (r, o) in u.iter_mut().enumerate() {
-                *o += Vec3::new(run[3 * r], run[3 * r + 1], run[3 * r + 2]) * f[b];
-            }
-        }
-    }
+/// `u = L·F` in the GPU's half-float arithmetic ([`Compliance::displace_f16`]), in f64.
+pub fn displace_f16(c: &Compliance, forces: &[(u32, DVec3)]) -> Vec<DVec3> {
+    let mut u = vec![Vec3::ZERO; c.rows().len()];
+    c.displace_f16(forces, &mut u);
     u.iter().map(|v| v.as_dvec3()).collect()
 }
 

@@ -176,24 +176,14 @@ pub fn rung(
         precompute_s = Some(t.elapsed().as_secs_f64());
         bytes = Some(c.stats.bytes);
         let nr = c.rows().len();
-        let l32 = c.l_f32();
-        let col0 = c.col_of(node).unwrap_or(0);
-        let cols = [
-            col0,
-            (col0 + 1) % c.cols().len(),
-            (col0 + 2) % c.cols().len(),
-        ];
+        let nc = c.cols().len() as u32;
+        let col0 = c.col_of(node).unwrap_or(0) as u32;
+        let forces: Vec<(u32, DVec3)> = (0..3)
+            .map(|k| ((col0 + k) % nc, DVec3::splat(0.1)))
+            .collect();
         let mut u = vec![Vec3::ZERO; nr];
         frame_us = Some(crate::tradeoff::median_us(30, || {
-            u.fill(Vec3::ZERO);
-            for &col in &cols {
-                for b in 0..3 {
-                    let run = &l32[(3 * col + b) * 3 * nr..][..3 * nr];
-                    for (r, o) in u.iter_mut().enumerate() {
-                        *o += Vec3::new(run[3 * r], run[3 * r + 1], run[3 * r + 2]) * 0.1;
-                    }
-                }
-            }
+            c.displace_f32(&forces, &mut u);
             std::hint::black_box(&u);
         }));
     }

@@ -87,7 +87,6 @@ pub fn cpu_rows(
     let nr = c.rows().len();
     let stiff = crate::fem::Stiffness::assemble(&scene.mesh)?;
     let factor = stiff.factorize()?;
-    let l32 = c.l_f32();
     let mut seen = Vec::new();
     for &k in active {
         let forces = spread_forces(c, k);
@@ -107,18 +106,7 @@ pub fn cpu_rows(
             rel_error: 0.0,
         });
         let mut u32v = vec![Vec3::ZERO; nr];
-        let t32 = median_us(reps, || {
-            u32v.iter_mut().for_each(|v| *v = Vec3::ZERO);
-            for &(col, f) in &forces {
-                let f = f.as_vec3();
-                for b in 0..3 {
-                    let run = &l32[(3 * col as usize + b) * 3 * nr..][..3 * nr];
-                    for (r, o) in u32v.iter_mut().enumerate() {
-                        *o += Vec3::new(run[3 * r], run[3 * r + 1], run[3 * r + 2]) * f[b];
-                    }
-                }
-            }
-        });
+        let t32 = median_us(reps, || c.displace_f32(&forces, &mut u32v));
         let as64: Vec<DVec3> = u32v.iter().map(|v| v.as_dvec3()).collect();
         rows.push(Row {
             method: "cpu-f32".into(),

@@ -77,14 +77,7 @@ fn press(world: &World, start: DVec3, end: DVec3) -> Outcome {
         let force = f[0];
         out.limited += usize::from(hw.limited(0));
         out.max_force = out.max_force.max(force.length());
-        for _ in 0..10 {
-            let dt = 1e-4;
-            let a = (HAND.k * (aim(t) - x) - HAND.b * v + force) / HAND.mass;
-            v += a * dt;
-            let dx = v * dt;
-            work += force.dot(dx);
-            x += dx;
-        }
+        work += HAND.step(&mut x, &mut v, aim(t), force, 1e-3, 10);
         out.work.push(work);
         out.x.push(x);
     }

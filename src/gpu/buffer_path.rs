@@ -179,9 +179,8 @@ impl BufferPath {
 
         let mut chunks = Vec::with_capacity(n_chunks);
         let col_len = 9 * nr;
-        let max_l = sh.l.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-        let force_scale = if sh.half && max_l.is_finite() && max_l > 0.0 {
-            2f32.powi(max_l.log2().round() as i32)
+        let force_scale = if sh.half {
+            crate::compliance::f16_scale(sh.l)
         } else {
             1.0
         };

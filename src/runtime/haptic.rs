@@ -210,9 +210,10 @@ impl<'w> HapticWorld<'w> {
         // What each hand feels: through its device's coupling, where it has one.
         for i in 0..n {
             let x = positions[i];
-            if !x.is_finite() {
+            if !x.is_finite() || self.couplings[i].is_none() {
                 continue;
             }
+            // Only a coupled finger needs its contact's stiffness (a 3×3 inverse).
             let k = self.contact_stiffness(i);
             if let Some(c) = &mut self.couplings[i] {
                 let paper = forces[i];
