@@ -102,6 +102,18 @@ pub struct PhaseTimes {
     pub finish_s: f64,
     /// Non-zeros of the Cholesky factor.
     pub factor_nonzeros: usize,
+    /// How the columns were computed: `"columns"` (a forward and back substitution per
+    /// column) or `"gram"` (sparse forward solves and their Gram product, see [`crate::gram`]).
+    pub method: String,
+    /// The Gram method's forward solves (`W`), s; 0 for the column method.
+    pub forward_s: f64,
+    /// Bytes of the Gram method's `W`; 0 for the column method.
+    pub w_bytes: usize,
+    /// Estimated floating-point operations of the column method's solves.
+    pub column_flops: f64,
+    /// Estimated floating-point operations of the Gram method (forward solves + products);
+    /// 0 when it does not apply.
+    pub gram_flops: f64,
 }
 
 /// `L = K⁻¹` for displayed rows × touchable columns, with the touchable diagonal blocks.
@@ -158,8 +170,18 @@ impl Compliance {
         sel: &Selection,
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<Compliance, FemError> {
+        Self::compute_with_method(mesh, sel, method(), progress)
+    }
+
+    /// As [`Compliance::compute_with_progress`] with the precompute method `how`.
+    pub fn compute_with_method(
+        mesh: &Mesh,
+        sel: &Selection,
+        how: Method,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<Compliance, FemError> {
         let t0 = Instant::now();
-        let plan = ColumnPlan::new(mesh, sel)?;
+        let plan = ColumnPlan::with_method(mesh, sel, how)?;
         let nr = plan.rows.len();
         let nc = plan.cols.len();
         let mut l = vec![0.0f64; 9 * nr * nc];
@@ -411,6 +433,32 @@ impl Compliance {
 /// over threads or shards: merged shards equal the unsharded result bit for bit.
 pub const BATCH_COLS: usize = 64;
 
+/// How the precompute computes its columns.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Method {
+    /// A forward and a back substitution over all DOFs per touchable DOF.
+    Columns,
+    /// Sparse forward solves for the displayed DOFs and their Gram product
+    /// ([`crate::gram`]); the column method where the factor is not supernodal.
+    Gram,
+    /// Whichever is estimated cheaper.
+    #[default]
+    Auto,
+}
+
+/// The method named by the environment variable `TOUCHFEM_PRECOMPUTE` (`columns`, `gram`;
+/// anything else or unset: [`Method::Auto`]).
+pub fn method() -> Method {
+    match std::env::var("TOUCHFEM_PRECOMPUTE").as_deref() {
+        Ok("columns") => Method::Columns,
+        Ok("gram") => Method::Gram,
+        _ => Method::Auto,
+    }
+}
+
+/// Batches between two checks of a Gram batch against a direct solve of its first column.
+const GRAM_CHECK_EVERY: usize = 16;
+
 /// The ordering of the precompute's factorisation: nested dissection, or AMD when the
 /// environment variable `TOUCHFEM_ORDERING` is `amd` (for comparisons; see `bench`).
 fn ordering() -> crate::fem::Ordering {
@@ -430,11 +478,30 @@ pub struct ColumnPlan {
     pub phases: PhaseTimes,
     stiff: Stiffness,
     factor: crate::fem::Factor,
+    /// The Gram method's plan, `W`, and the row index of each of its nodes.
+    gram: Option<(crate::gram::GramPlan, Vec<f64>, Vec<u32>)>,
+}
+
+fn solver_threads() -> usize {
+    std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1)
+        .clamp(1, 16)
 }
 
 impl ColumnPlan {
-    /// Resolves and checks the selection, assembles K and factorises it.
+    /// Resolves and checks the selection, assembles K and factorises it, with the method of
+    /// [`method`] (for the Gram method, `W` is computed here).
     pub fn new(mesh: &Mesh, sel: &Selection) -> Result<ColumnPlan, FemError> {
+        Self::with_method(mesh, sel, method())
+    }
+
+    /// As [`ColumnPlan::new`] with the method `how`.
+    pub fn with_method(
+        mesh: &Mesh,
+        sel: &Selection,
+        how: Method,
+    ) -> Result<ColumnPlan, FemError> {
         let t0 = Instant::now();
         let n = mesh.nodes.len();
         let cols = sel.cols.resolve(mesh);
@@ -478,12 +545,39 @@ impl ColumnPlan {
         phases.symbolic_s = sym_s;
         phases.numeric_s = num_s;
         phases.factor_nonzeros = factor.nonzeros();
+        phases.column_flops = 12.0 * cols.len() as f64 * factor.nonzeros() as f64;
+        phases.method = "columns".into();
+        let mut cols = cols;
+        let mut gram = None;
+        if how != Method::Columns {
+            let shown: Vec<u32> = rows
+                .iter()
+                .copied()
+                .filter(|&r| !mesh.fixed[r as usize])
+                .collect();
+            if let Some(g) = crate::gram::GramPlan::new(&factor, &stiff.dofs, &shown, &cols) {
+                phases.gram_flops = g.forward_flops + g.gram_flops;
+                if how == Method::Gram || phases.gram_flops < 0.7 * phases.column_flops {
+                    let tf = Instant::now();
+                    if let Some(w) = g.forward(&factor, solver_threads()) {
+                        phases.forward_s = tf.elapsed().as_secs_f64();
+                        phases.w_bytes = g.w_bytes();
+                        phases.method = "gram".into();
+                        cols = g.touchable();
+                        let row_of: Vec<u32> =
+                            g.nodes().iter().map(|&n| row_of_node[n as usize]).collect();
+                        gram = Some((g, w, row_of));
+                    }
+                }
+            }
+        }
         Ok(ColumnPlan {
             rows,
             cols,
             phases,
             stiff,
             factor,
+            gram,
         })
     }
 
@@ -515,11 +609,7 @@ impl ColumnPlan {
         sink: &(dyn Fn(usize, &[f64]) -> bool + Sync),
         progress: &mut dyn FnMut(usize),
     ) -> Result<(f64, [f64; 3]), FemError> {
-        let workers = std::thread::available_parallelism()
-            .map(|n| n.get())
-            .unwrap_or(1)
-            .clamp(1, 16)
-            .min(batches.len().max(1));
+        let workers = solver_threads().min(batches.len().max(1));
         let next = std::sync::atomic::AtomicUsize::new(0);
         let stop = std::sync::atomic::AtomicBool::new(false);
         let done = std::sync::atomic::AtomicUsize::new(0);
@@ -572,6 +662,9 @@ impl ColumnPlan {
     /// Solves one batch: its slice of L, the residual of its checked column and the seconds
     /// spent solving, checking and scattering.
     fn solve_batch(&self, batch: usize) -> Result<(f64, [f64; 3], Vec<f64>), FemError> {
+        if let Some((g, w, row_of)) = &self.gram {
+            return self.gram_batch(batch, g, w, row_of);
+        }
         let nr = self.rows.len();
         let nf = self.stiff.dofs.n_free;
         let chunk = self.batch_cols(batch);
@@ -632,6 +725,85 @@ impl ColumnPlan {
             }
         }
         times[2] += tsc.elapsed().as_secs_f64();
+        Ok((residual, times, out))
+    }
+
+    /// The Gram method's batch: its tile of `(K⁻¹)[S, T]` moved into this module's layout;
+    /// every [`GRAM_CHECK_EVERY`]th batch compares its first column with a direct solve.
+    fn gram_batch(
+        &self,
+        batch: usize,
+        g: &crate::gram::GramPlan,
+        w: &[f64],
+        row_of: &[u32],
+    ) -> Result<(f64, [f64; 3], Vec<f64>), FemError> {
+        let nr = self.rows.len();
+        let chunk = self.batch_cols(batch);
+        let mut times = [0.0f64; 3];
+        let m = 3 * g.nodes().len();
+        let nt = 3 * chunk.len();
+        let ts = Instant::now();
+        let mut tile = vec![0.0f64; m * nt];
+        g.tile(w, chunk.start, chunk.end, &mut tile);
+        times[0] = ts.elapsed().as_secs_f64();
+        let tsc = Instant::now();
+        let mut out = vec![0.0f64; 9 * nr * chunk.len()];
+        for j in 0..nt {
+            let src = &tile[j * m..][..m];
+            let dst = &mut out[j * 3 * nr..][..3 * nr];
+            for (gi, &ri) in row_of.iter().enumerate() {
+                for a in 0..3 {
+                    let v = src[3 * gi + a];
+                    if !v.is_finite() {
+                        return Err(FemError::Singular {
+                            node: g.nodes()[gi],
+                            dof: a,
+                        });
+                    }
+                    dst[3 * ri as usize + a] = v;
+                }
+            }
+        }
+        times[2] = tsc.elapsed().as_secs_f64();
+        let tc = Instant::now();
+        let mut residual = 0.0f64;
+        if batch % GRAM_CHECK_EVERY == 0 {
+            let node = self.cols[chunk.start];
+            let e = self
+                .stiff
+                .dofs
+                .free(node, 0)
+                .ok_or(FemError::BadSelection("a touchable node is clamped".into()))?;
+            let nf = self.stiff.dofs.n_free;
+            let mut b = Mat::<f64>::zeros(nf, 1);
+            b[(e, 0)] = 1.0;
+            self.factor.solve_in_place(&mut b);
+            let xs: Vec<f64> = (0..nf).map(|i| b[(i, 0)]).collect();
+            let mut kx = vec![0.0; nf];
+            self.stiff.mul(&xs, &mut kx);
+            for (i, v) in kx.iter().enumerate() {
+                let target = if i == e { 1.0 } else { 0.0 };
+                residual = residual.max((v - target).abs());
+            }
+            // The Gram column must be the direct solve's displayed rows.
+            let scale = xs.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+            let mut diff = 0.0f64;
+            for (ri, &r) in self.rows.iter().enumerate() {
+                for a in 0..3 {
+                    if let Some(d) = self.stiff.dofs.free(r, a) {
+                        diff = diff.max((out[3 * ri + a] - xs[d]).abs());
+                    }
+                }
+            }
+            if !(diff <= 1e-8 * scale) {
+                return Err(FemError::Factorisation(format!(
+                    "the Gram product disagrees with a direct solve by {:.1e} of max |L| \
+                     (column of node {node})",
+                    diff / scale
+                )));
+            }
+        }
+        times[1] = tc.elapsed().as_secs_f64();
         Ok((residual, times, out))
     }
 }

@@ -457,6 +457,30 @@ impl Factor {
     pub fn nonzeros(&self) -> usize {
         self.symbolic.len_val()
     }
+
+    /// The supernodal structure and values of the factor of the permuted K, or `None` when
+    /// faer chose a simplicial factorisation (small or very sparse K).
+    pub fn supernodal(
+        &self,
+    ) -> Option<(
+        &faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky<usize>,
+        &[f64],
+    )> {
+        match self.symbolic.raw() {
+            faer::sparse::linalg::cholesky::SymbolicCholeskyRaw::Supernodal(s) => {
+                Some((s, &self.values))
+            }
+            _ => None,
+        }
+    }
+
+    /// The position of each free DOF in the factor's elimination order.
+    pub fn position_of_dof(&self) -> Vec<usize> {
+        match self.symbolic.perm() {
+            Some(p) => p.arrays().1.to_vec(),
+            None => (0..self.symbolic.nrows()).collect(),
+        }
+    }
 }
 
 /// Solves the static problem K u = f on the whole mesh (a fresh factorisation): `forces` are

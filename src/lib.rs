@@ -28,6 +28,7 @@ pub mod demo;
 pub mod devices;
 pub mod error;
 pub mod fem;
+pub mod gram;
 pub mod force;
 pub mod gpu;
 pub mod haptics;

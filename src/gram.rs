@@ -1,0 +1,362 @@
+//! The compliance block `(K⁻¹)[S, T]` as a Gram product of sparse forward solves: the
+//! precompute's method when many nodes are touchable (a whole surface).
+//!
+//! With the supernodal Cholesky factor `P K Pᵀ = G Gᵀ`, `(K⁻¹)[S,T] = W_Sᵀ W_T` where
+//! `W = G⁻¹ P E` holds one forward solve per displayed DOF (`T ⊆ S`). A DOF's column of `W`
+//! is non-zero only on its own supernode and that supernode's ancestors. Ordering the
+//! displayed nodes by the post-order of their supernodes makes the columns that reach a
+//! supernode `s` one contiguous range `D(s)`, so `W` is held as one dense block `W_s`
+//! (`|D(s)| × |s|`) per supernode, computed bottom-up with dense triangular solves and
+//! products. Then `(K⁻¹)[S,T] = Σ_s W_s[D(s)] W_s[D_T(s)]ᵀ`, tile by tile of columns.
+//!
+//! Against one forward and one back substitution over all DOFs per column (the column
+//! method), this skips the back substitution and every supernode that a column never reaches;
+//! what remains is dense level-3 work. [`GramPlan::forward_flops`] and
+//! [`GramPlan::gram_flops`] estimate it so that the precompute can pick the cheaper method.
+
+use faer::reborrow::{Reborrow, ReborrowMut};
+use faer::{Accum, Mat, MatMut, MatRef, Par};
+
+use crate::fem::{Dofs, Factor};
+
+/// The structure of the Gram product for one factor and one selection.
+pub struct GramPlan {
+    /// First factor column of each supernode, and one past the last (`n_sn + 1` entries).
+    begin: Vec<usize>,
+    /// Supernode of each factor column.
+    sn_of: Vec<u32>,
+    /// Displayed free nodes in Gram order.
+    nodes: Vec<u32>,
+    /// Factor column of (node in Gram order, axis).
+    col_of: Vec<usize>,
+    /// Per supernode, the node range `D(s)` (Gram order).
+    range: Vec<(usize, usize)>,
+    /// Touchable nodes in Gram order, as positions in `nodes`.
+    t_pos: Vec<usize>,
+    /// Per supernode, the range of `t_pos` inside `D(s)`.
+    t_range: Vec<(usize, usize)>,
+    /// Offset of each supernode's block in `W` (`n_sn + 1` entries), f64 entries.
+    off: Vec<usize>,
+    /// Floating-point operations of [`GramPlan::forward`] (estimate).
+    pub forward_flops: f64,
+    /// Floating-point operations of all the [`GramPlan::tile`]s (estimate).
+    pub gram_flops: f64,
+}
+
+/// Work in one supernode's update above which it is split over the cores.
+const PARALLEL_FLOPS: f64 = 2e7;
+
+/// A pointer to `W` shared by the threads of one supernode's update, which write disjoint rows.
+#[derive(Clone, Copy)]
+struct Shared(*mut f64);
+// SAFETY: the threads given a `Shared` write disjoint rows of disjoint-or-identical blocks,
+// and the scope joins them before `W` is used again.
+unsafe impl Send for Shared {}
+unsafe impl Sync for Shared {}
+
+impl GramPlan {
+    /// The plan for rows `s_nodes` (the displayed free nodes) and columns `t_nodes` (each also
+    /// in `s_nodes`); `None` if the factor is not supernodal or a node's DOFs do not share one
+    /// path to the root (the column method then applies).
+    pub fn new(f: &Factor, dofs: &Dofs, s_nodes: &[u32], t_nodes: &[u32]) -> Option<GramPlan> {
+        let (sym, _) = f.supernodal()?;
+        let pos = f.position_of_dof();
+        let nsn = sym.n_supernodes();
+        let mut begin: Vec<usize> = sym.supernode_begin().to_vec();
+        begin.push(sym.nrows());
+        let mut sn_of = vec![0u32; sym.nrows()];
+        for s in 0..nsn {
+            sn_of[begin[s]..begin[s + 1]].fill(s as u32);
+        }
+        // Supernodal elimination tree: a supernode's parent holds its first off-diagonal row.
+        let mut parent = vec![usize::MAX; nsn];
+        for (s, p) in parent.iter_mut().enumerate() {
+            if let Some(&r) = sym.supernode(s).pattern().iter().min() {
+                *p = sn_of[r] as usize;
+                if *p <= s {
+                    return None;
+                }
+            }
+        }
+        // Post-order: `post[s]`, and the first post-order index of s's subtree.
+        let mut size = vec![1usize; nsn];
+        for s in 0..nsn {
+            if parent[s] != usize::MAX {
+                size[parent[s]] += size[s];
+            }
+        }
+        let mut child_ptr = vec![0usize; nsn + 1];
+        for &p in &parent {
+            if p != usize::MAX {
+                child_ptr[p + 1] += 1;
+            }
+        }
+        for s in 0..nsn {
+            child_ptr[s + 1] += child_ptr[s];
+        }
+        let mut children = vec![0usize; child_ptr[nsn]];
+        let mut fill = child_ptr.clone();
+        for (s, &p) in parent.iter().enumerate() {
+            if p != usize::MAX {
+                children[fill[p]] = s;
+                fill[p] += 1;
+            }
+        }
+        // Subtrees in post-order are contiguous: give each subtree its block of indices.
+        let mut first = vec![0usize; nsn];
+        let mut next_root = 0usize;
+        for s in (0..nsn).rev() {
+            if parent[s] == usize::MAX {
+                first[s] = next_root;
+                next_root += size[s];
+            }
+        }
+        for s in (0..nsn).rev() {
+            let mut at = first[s];
+            for &c in &children[child_ptr[s]..child_ptr[s + 1]] {
+                first[c] = at;
+                at += size[c];
+            }
+        }
+        let post: Vec<usize> = (0..nsn).map(|s| first[s] + size[s] - 1).collect();
+        // Each displayed node's home: the supernode of its first factor column.
+        let mut keyed = Vec::with_capacity(s_nodes.len());
+        for &n in s_nodes {
+            let mut cols = [0usize; 3];
+            for (a, c) in cols.iter_mut().enumerate() {
+                *c = pos[dofs.free(n, a)?];
+            }
+            let low = *cols.iter().min()?;
+            let home = sn_of[low] as usize;
+            for &c in &cols {
+                let s = sn_of[c] as usize;
+                if !(first[s] <= post[home] && post[home] <= post[s]) {
+                    return None;
+                }
+            }
+            keyed.push((post[home], low, n, cols));
+        }
+        keyed.sort_unstable();
+        let keys: Vec<usize> = keyed.iter().map(|k| k.0).collect();
+        let nodes: Vec<u32> = keyed.iter().map(|k| k.2).collect();
+        let col_of: Vec<usize> = keyed.iter().flat_map(|k| k.3).collect();
+        let range: Vec<(usize, usize)> = (0..nsn)
+            .map(|s| {
+                (
+                    keys.partition_point(|&k| k < first[s]),
+                    keys.partition_point(|&k| k <= post[s]),
+                )
+            })
+            .collect();
+        let mut at_node = std::collections::HashMap::with_capacity(nodes.len());
+        for (g, &n) in nodes.iter().enumerate() {
+            at_node.insert(n, g);
+        }
+        let mut t_pos: Vec<usize> = t_nodes
+            .iter()
+            .map(|n| at_node.get(n).copied())
+            .collect::<Option<_>>()?;
+        t_pos.sort_unstable();
+        let t_range: Vec<(usize, usize)> = range
+            .iter()
+            .map(|&(lo, hi)| {
+                (
+                    t_pos.partition_point(|&g| g < lo),
+                    t_pos.partition_point(|&g| g < hi),
+                )
+            })
+            .collect();
+        let mut off = Vec::with_capacity(nsn + 1);
+        off.push(0usize);
+        let (mut fwd, mut gram) = (0.0f64, 0.0f64);
+        for s in 0..nsn {
+            let ns = (begin[s + 1] - begin[s]) as f64;
+            let md = 3.0 * (range[s].1 - range[s].0) as f64;
+            let mt = 3.0 * (t_range[s].1 - t_range[s].0) as f64;
+            let npat = sym.supernode(s).pattern().len() as f64;
+            fwd += md * ns * (ns + 2.0 * npat);
+            gram += 2.0 * md * ns * mt;
+            off.push(off[s] + 3 * (range[s].1 - range[s].0) * (begin[s + 1] - begin[s]));
+        }
+        Some(GramPlan {
+            begin,
+            sn_of,
+            nodes,
+            col_of,
+            range,
+            t_pos,
+            t_range,
+            off,
+            forward_flops: fwd,
+            gram_flops: gram,
+        })
+    }
+
+    /// The displayed free nodes in Gram order (the rows of a [`GramPlan::tile`], 3 per node).
+    pub fn nodes(&self) -> &[u32] {
+        &self.nodes
+    }
+
+    /// The touchable nodes in Gram order: column `k` of the tiles is `touchable()[k]`.
+    pub fn touchable(&self) -> Vec<u32> {
+        self.t_pos.iter().map(|&g| self.nodes[g]).collect()
+    }
+
+    /// Bytes of `W`.
+    pub fn w_bytes(&self) -> usize {
+        8 * self.off.last().copied().unwrap_or(0)
+    }
+
+    /// Computes `W` (bottom-up over the supernodes, the large ones split over `threads`).
+    /// `None` if `W` does not fit in memory.
+    pub fn forward(&self, f: &Factor, threads: usize) -> Option<Vec<f64>> {
+        let (sym, val) = f.supernodal()?;
+        let total = *self.off.last()?;
+        let mut w = Vec::new();
+        w.try_reserve_exact(total).ok()?;
+        w.resize(total, 0.0f64);
+        for (g, cols) in self.col_of.chunks_exact(3).enumerate() {
+            for (a, &c) in cols.iter().enumerate() {
+                let s = self.sn_of[c] as usize;
+                let (lo, hi) = self.range[s];
+                let md = 3 * (hi - lo);
+                let i = c - self.begin[s];
+                w[self.off[s] + i * md + 3 * (g - lo) + a] = 1.0;
+            }
+        }
+        let ptr = Shared(w.as_mut_ptr());
+        for s in 0..self.begin.len() - 1 {
+            let (lo, hi) = self.range[s];
+            let md = 3 * (hi - lo);
+            if md == 0 {
+                continue;
+            }
+            let ns = self.begin[s + 1] - self.begin[s];
+            let pattern = sym.supernode(s).pattern();
+            let npat = pattern.len();
+            let vp = sym.col_ptr_for_val();
+            let ls = MatRef::from_column_major_slice(&val[vp[s]..vp[s + 1]], ns + npat, ns);
+            let (l11, l21) = ls.split_at_row(ns);
+            let work = md as f64 * ns as f64 * (ns + 2 * npat) as f64;
+            let parts = if work > PARALLEL_FLOPS { threads.max(1) } else { 1 };
+            let rows = |t: usize| (md * t / parts)..(md * (t + 1) / parts);
+            let job = |r: std::ops::Range<usize>| {
+                // SAFETY: rows `r` of W_s and of its ancestors' blocks are this job's alone.
+                unsafe { self.update(ptr, s, r, l11, l21, pattern) }
+            };
+            if parts == 1 {
+                job(0..md);
+            } else {
+                std::thread::scope(|sc| {
+                    for t in 1..parts {
+                        let r = rows(t);
+                        let job = &job;
+                        sc.spawn(move || job(r));
+                    }
+                    job(rows(0));
+                });
+            }
+        }
+        Some(w)
+    }
+
+    /// Rows `r` of supernode `s`'s step: `W_s ← W_s L₁₁⁻ᵀ` (the forward solve through the
+    /// diagonal block) and the update `W_a −= W_s L₂₁ᵀ` of the ancestors' blocks.
+    ///
+    /// # Safety
+    /// `w` points to `W`; no other thread touches rows `r` of `W_s` or the matching rows of
+    /// the ancestors' blocks during the call.
+    unsafe fn update(
+        &self,
+        w: Shared,
+        s: usize,
+        r: std::ops::Range<usize>,
+        l11: MatRef<'_, f64>,
+        l21: MatRef<'_, f64>,
+        pattern: &[usize],
+    ) {
+        let (lo, hi) = self.range[s];
+        let md = 3 * (hi - lo);
+        let ns = l11.nrows();
+        let nr = r.end - r.start;
+        if nr == 0 {
+            return;
+        }
+        // SAFETY: W_s occupies off[s]..off[s+1]; rows r of its md × ns column-major block.
+        let mut ws: MatMut<'_, f64> = unsafe {
+            MatMut::from_raw_parts_mut(w.0.add(self.off[s] + r.start), nr, ns, 1, md as isize)
+        };
+        faer::linalg::triangular_solve::solve_lower_triangular_in_place(
+            l11,
+            ws.rb_mut().transpose_mut(),
+            Par::Seq,
+        );
+        let npat = pattern.len();
+        let chunk = (4_000_000 / nr).clamp(1, npat.max(1));
+        let mut u = Mat::<f64>::zeros(nr, chunk);
+        for c0 in (0..npat).step_by(chunk) {
+            let c1 = (c0 + chunk).min(npat);
+            let mut uc = u.as_mut().subcols_mut(0, c1 - c0);
+            faer::linalg::matmul::matmul(
+                uc.rb_mut(),
+                Accum::Replace,
+                ws.rb(),
+                l21.subrows(c0, c1 - c0).transpose(),
+                1.0,
+                Par::Seq,
+            );
+            for (k, &row) in pattern[c0..c1].iter().enumerate() {
+                let a = self.sn_of[row] as usize;
+                let (alo, ahi) = self.range[a];
+                let mda = 3 * (ahi - alo);
+                let i = row - self.begin[a];
+                let base = self.off[a] + i * mda + 3 * (lo - alo) + r.start;
+                // SAFETY: inside W_a (D(s) ⊆ D(a)); these rows belong to this job.
+                let dst = unsafe { std::slice::from_raw_parts_mut(w.0.add(base), nr) };
+                for (d, v) in dst.iter_mut().zip(uc.rb().col(k).iter()) {
+                    *d -= *v;
+                }
+            }
+        }
+    }
+
+    /// Columns `j0..j1` of the touchable list: `out` (`3·nodes × 3·(j1 − j0)`, column-major,
+    /// rows in Gram order) receives `(K⁻¹)[S, T_j0..j1]`; it must be zero on entry.
+    pub fn tile(&self, w: &[f64], j0: usize, j1: usize, out: &mut [f64]) {
+        let m = 3 * self.nodes.len();
+        let nt = 3 * (j1 - j0);
+        let mut out = MatMut::from_column_major_slice_mut(&mut out[..m * nt], m, nt);
+        let mut gather = Vec::new();
+        for s in 0..self.begin.len() - 1 {
+            let (tlo, thi) = self.t_range[s];
+            let (a, b) = (tlo.max(j0), thi.min(j1));
+            if a >= b {
+                continue;
+            }
+            let (lo, hi) = self.range[s];
+            let md = 3 * (hi - lo);
+            let ns = self.begin[s + 1] - self.begin[s];
+            let ws = MatRef::from_column_major_slice(&w[self.off[s]..self.off[s + 1]], md, ns);
+            let k = 3 * (b - a);
+            gather.clear();
+            gather.resize(k * ns, 0.0f64);
+            for i in 0..ns {
+                let col = &w[self.off[s] + i * md..][..md];
+                for (t, &g) in self.t_pos[a..b].iter().enumerate() {
+                    for ax in 0..3 {
+                        gather[i * k + 3 * t + ax] = col[3 * (g - lo) + ax];
+                    }
+                }
+            }
+            let bm = MatRef::from_column_major_slice(&gather, k, ns);
+            faer::linalg::matmul::matmul(
+                out.rb_mut().submatrix_mut(3 * lo, 3 * (a - j0), md, k),
+                Accum::Add,
+                ws,
+                bm.transpose(),
+                1.0,
+                Par::Seq,
+            );
+        }
+    }
+}
