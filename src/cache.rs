@@ -331,6 +331,81 @@ impl Writer {
         Ok(())
     }
 
+    /// Writes the held batch `i` without counting it as written: a batch whose upper rows
+    /// are still to be mirrored ([`crate::compliance::ColumnPlan::mirror`]), after which
+    /// [`Writer::write_batch`] writes it whole.
+    pub fn write_unfinished(&self, i: usize, values: &[f64]) -> Result<(), CacheError> {
+        use std::os::unix::fs::FileExt;
+        self.file
+            .write_all_at(bytemuck::cast_slice(values), self.batch_offset(i))
+            .map_err(|source| CacheError::Io {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    /// Completes held batch `i`, first written by [`Writer::write_unfinished`]: `values` is
+    /// the whole batch, of which only rows `rows` of each DOF column changed since; those are
+    /// written and the batch counted as written with the checksum of `values`.
+    pub fn finish_batch(
+        &self,
+        i: usize,
+        values: &[f64],
+        rows: std::ops::Range<usize>,
+    ) -> Result<(), CacheError> {
+        use std::os::unix::fs::FileExt;
+        let nr3 = 3 * self.head.rows as usize;
+        let io = |source| CacheError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        if !rows.is_empty() {
+            for (j, col) in values.chunks_exact(nr3).enumerate() {
+                let off = self.batch_offset(i) + 8 * (j * nr3 + rows.start) as u64;
+                self.file
+                    .write_all_at(bytemuck::cast_slice(&col[rows.clone()]), off)
+                    .map_err(io)?;
+            }
+        }
+        let sum = xxh3_64(bytemuck::cast_slice(values));
+        self.sums.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(sum);
+        Ok(())
+    }
+
+    /// Reads held batch `i` as written so far (no checksum) into `out` (resized).
+    pub fn read_unfinished(&self, i: usize, out: &mut Vec<f64>) -> Result<(), CacheError> {
+        use std::os::unix::fs::FileExt;
+        let first = self.head.col_begin as usize + i * self.head.batch as usize;
+        let ncols = (self.head.col_end as usize - first).min(self.head.batch as usize);
+        out.clear();
+        out.resize(9 * self.head.rows as usize * ncols, 0.0);
+        self.file
+            .read_exact_at(bytemuck::cast_slice_mut(&mut out[..]), self.batch_offset(i))
+            .map_err(|source| CacheError::Io {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    /// Reads rows `r0 .. r0 + out.len()` of DOF column `q` (counted from the file's first
+    /// column) as written so far.
+    pub fn read_column(&self, q: usize, r0: usize, out: &mut [f64]) -> Result<(), CacheError> {
+        use std::os::unix::fs::FileExt;
+        let off = self.batch_offset(0) + 8 * (q as u64 * 3 * self.head.rows as u64 + r0 as u64);
+        self.file
+            .read_exact_at(bytemuck::cast_slice_mut(out), off)
+            .map_err(|source| CacheError::Io {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    fn batch_offset(&self, i: usize) -> u64 {
+        HEADER as u64
+            + self.lists.len() as u64
+            + 72 * self.head.rows as u64 * (i as u64 * self.head.batch as u64)
+    }
+
     /// Continues an interrupted write of the same `head` from `partial` (left by
     /// [`Writer::keep_partial`]): its complete batches (checksums verified) are kept. Returns the
     /// writer, the held batches already done and the residual over them. `None` if `partial`

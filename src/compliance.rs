@@ -181,7 +181,8 @@ impl Compliance {
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<Compliance, FemError> {
         let t0 = Instant::now();
-        let plan = ColumnPlan::with_method(mesh, sel, how)?;
+        let mut plan = ColumnPlan::with_method(mesh, sel, how)?;
+        let mirrored = plan.mirror_from(0);
         let nr = plan.rows.len();
         let nc = plan.cols.len();
         let mut l = vec![0.0f64; 9 * nr * nc];
@@ -198,6 +199,20 @@ impl Compliance {
             },
             &mut |done| progress(done, nc),
         )?;
+        if mirrored {
+            let tm = Instant::now();
+            let stride = 9 * nr * BATCH_COLS;
+            for b in 1..plan.batches() {
+                let (done, rest) = l.split_at_mut(b * stride);
+                let len = 9 * nr * plan.batch_cols(b).len();
+                plan.mirror(b, &mut rest[..len], &mut |q, r0, out: &mut [f64]| {
+                    out.copy_from_slice(&done[q * 3 * nr + r0..][..out.len()]);
+                    Ok::<(), ()>(())
+                })
+                .expect("reading memory cannot fail");
+            }
+            phases.scatter_s += tm.elapsed().as_secs_f64();
+        }
         progress(nc, nc);
         phases.solve_s = t[0];
         phases.check_s = t[1];
@@ -456,6 +471,9 @@ pub fn method() -> Method {
     }
 }
 
+/// `read(DOF column, first row, out)`: rows of an earlier batch, for [`ColumnPlan::mirror`].
+pub type ReadRows<'a, E> = dyn FnMut(usize, usize, &mut [f64]) -> Result<(), E> + 'a;
+
 /// Batches between two checks of a Gram batch against a direct solve of its first column.
 const GRAM_CHECK_EVERY: usize = 16;
 
@@ -480,6 +498,9 @@ pub struct ColumnPlan {
     factor: crate::fem::Factor,
     /// The Gram method's plan, `W`, and the row index of each of its nodes.
     gram: Option<(crate::gram::GramPlan, Vec<f64>, Vec<u32>)>,
+    /// Symmetric Gram plans: the first column whose batch is at hand when the upper rows are
+    /// mirrored (see [`ColumnPlan::mirror_from`]).
+    mirror_from: Option<usize>,
 }
 
 fn solver_threads() -> usize {
@@ -497,11 +518,7 @@ impl ColumnPlan {
     }
 
     /// As [`ColumnPlan::new`] with the method `how`.
-    pub fn with_method(
-        mesh: &Mesh,
-        sel: &Selection,
-        how: Method,
-    ) -> Result<ColumnPlan, FemError> {
+    pub fn with_method(mesh: &Mesh, sel: &Selection, how: Method) -> Result<ColumnPlan, FemError> {
         let t0 = Instant::now();
         let n = mesh.nodes.len();
         let cols = sel.cols.resolve(mesh);
@@ -564,6 +581,16 @@ impl ColumnPlan {
                         phases.w_bytes = g.w_bytes();
                         phases.method = "gram".into();
                         cols = g.touchable();
+                        if g.symmetric() {
+                            // Rows in Gram order (then the clamped ones): the columns are the
+                            // first rows, and a tile's upper rows mirror earlier tiles.
+                            let mut r = g.nodes().to_vec();
+                            r.extend(rows.iter().filter(|&&n| mesh.fixed[n as usize]));
+                            rows = r;
+                            for (i, &n) in rows.iter().enumerate() {
+                                row_of_node[n as usize] = i as u32;
+                            }
+                        }
                         let row_of: Vec<u32> =
                             g.nodes().iter().map(|&n| row_of_node[n as usize]).collect();
                         gram = Some((g, w, row_of));
@@ -578,7 +605,45 @@ impl ColumnPlan {
             stiff,
             factor,
             gram,
+            mirror_from: None,
         })
+    }
+
+    /// For a symmetric plan (every displayed free node touchable, Gram method), promises
+    /// that the batches from column `first` on will all be at hand after [`ColumnPlan::solve`]:
+    /// the solve then leaves a batch's rows `first .. its first column` zero, and
+    /// [`ColumnPlan::mirror`] fills them from those batches' lower rows, halving the products.
+    /// Returns whether the plan is symmetric (otherwise the batches come out complete).
+    pub fn mirror_from(&mut self, first: usize) -> bool {
+        let sym = self.gram.as_ref().is_some_and(|g| g.0.symmetric());
+        self.mirror_from = sym.then_some(first);
+        sym
+    }
+
+    /// Fills the rows left for mirroring in batch `b`'s `data` (see
+    /// [`ColumnPlan::mirror_from`]): `read(dof column q, first row, out)` must give rows
+    /// `first .. first + out.len()` of DOF column `q` of an earlier batch. Returns the DOF
+    /// rows filled.
+    pub fn mirror<E>(
+        &self,
+        b: usize,
+        data: &mut [f64],
+        read: &mut ReadRows<'_, E>,
+    ) -> Result<std::ops::Range<usize>, E> {
+        let Some(first) = self.mirror_from else {
+            return Ok(0..0);
+        };
+        let chunk = self.batch_cols(b);
+        let nr3 = 3 * self.rows.len();
+        let k = 3 * chunk.len();
+        let mut vals = vec![0.0f64; k];
+        for q in 3 * first..3 * chunk.start {
+            read(q, 3 * chunk.start, &mut vals)?;
+            for (j, v) in vals.iter().enumerate() {
+                data[j * nr3 + q] = *v;
+            }
+        }
+        Ok(3 * first.min(chunk.start)..3 * chunk.start)
     }
 
     /// Free DOFs of K.
@@ -744,7 +809,11 @@ impl ColumnPlan {
         let nt = 3 * chunk.len();
         let ts = Instant::now();
         let mut tile = vec![0.0f64; m * nt];
-        g.tile(w, chunk.start, chunk.end, &mut tile);
+        let skip = match self.mirror_from {
+            Some(first) => first.min(chunk.start)..chunk.start,
+            None => 0..0,
+        };
+        g.tile(w, chunk.start, chunk.end, skip.clone(), &mut tile);
         times[0] = ts.elapsed().as_secs_f64();
         let tsc = Instant::now();
         let mut out = vec![0.0f64; 9 * nr * chunk.len()];
@@ -767,7 +836,7 @@ impl ColumnPlan {
         times[2] = tsc.elapsed().as_secs_f64();
         let tc = Instant::now();
         let mut residual = 0.0f64;
-        if batch % GRAM_CHECK_EVERY == 0 {
+        if batch.is_multiple_of(GRAM_CHECK_EVERY) {
             let node = self.cols[chunk.start];
             let e = self
                 .stiff
@@ -789,13 +858,16 @@ impl ColumnPlan {
             let scale = xs.iter().fold(0.0f64, |a, v| a.max(v.abs()));
             let mut diff = 0.0f64;
             for (ri, &r) in self.rows.iter().enumerate() {
+                if skip.contains(&ri) {
+                    continue; // mirrored later
+                }
                 for a in 0..3 {
                     if let Some(d) = self.stiff.dofs.free(r, a) {
                         diff = diff.max((out[3 * ri + a] - xs[d]).abs());
                     }
                 }
             }
-            if !(diff <= 1e-8 * scale) {
+            if diff.is_nan() || diff > 1e-8 * scale {
                 return Err(FemError::Factorisation(format!(
                     "the Gram product disagrees with a direct solve by {:.1e} of max |L| \
                      (column of node {node})",

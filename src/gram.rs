@@ -178,6 +178,9 @@ impl GramPlan {
             gram += 2.0 * md * ns * mt;
             off.push(off[s] + 3 * (range[s].1 - range[s].0) * (begin[s + 1] - begin[s]));
         }
+        if t_pos.len() == nodes.len() {
+            gram /= 2.0; // symmetric: each tile's upper rows are mirrored
+        }
         Some(GramPlan {
             begin,
             sn_of,
@@ -238,7 +241,11 @@ impl GramPlan {
             let ls = MatRef::from_column_major_slice(&val[vp[s]..vp[s + 1]], ns + npat, ns);
             let (l11, l21) = ls.split_at_row(ns);
             let work = md as f64 * ns as f64 * (ns + 2 * npat) as f64;
-            let parts = if work > PARALLEL_FLOPS { threads.max(1) } else { 1 };
+            let parts = if work > PARALLEL_FLOPS {
+                threads.max(1)
+            } else {
+                1
+            };
             let rows = |t: usize| (md * t / parts)..(md * (t + 1) / parts);
             let job = |r: std::ops::Range<usize>| {
                 // SAFETY: rows `r` of W_s and of its ancestors' blocks are this job's alone.
@@ -320,9 +327,23 @@ impl GramPlan {
         }
     }
 
+    /// Whether every displayed free node is touchable (`T = S`): then `(K⁻¹)[S,T]` is
+    /// symmetric and a tile's rows above it can be mirrored from earlier tiles.
+    pub fn symmetric(&self) -> bool {
+        self.t_pos.len() == self.nodes.len()
+    }
+
     /// Columns `j0..j1` of the touchable list: `out` (`3·nodes × 3·(j1 − j0)`, column-major,
-    /// rows in Gram order) receives `(K⁻¹)[S, T_j0..j1]`; it must be zero on entry.
-    pub fn tile(&self, w: &[f64], j0: usize, j1: usize, out: &mut [f64]) {
+    /// rows in Gram order) receives `(K⁻¹)[S, T_j0..j1]` except on the node rows `skip`
+    /// (left as they are); it must be zero on entry.
+    pub fn tile(
+        &self,
+        w: &[f64],
+        j0: usize,
+        j1: usize,
+        skip: std::ops::Range<usize>,
+        out: &mut [f64],
+    ) {
         let m = 3 * self.nodes.len();
         let nt = 3 * (j1 - j0);
         let mut out = MatMut::from_column_major_slice_mut(&mut out[..m * nt], m, nt);
@@ -349,14 +370,20 @@ impl GramPlan {
                 }
             }
             let bm = MatRef::from_column_major_slice(&gather, k, ns);
-            faer::linalg::matmul::matmul(
-                out.rb_mut().submatrix_mut(3 * lo, 3 * (a - j0), md, k),
-                Accum::Add,
-                ws,
-                bm.transpose(),
-                1.0,
-                Par::Seq,
-            );
+            for (r0, r1) in [(lo, hi.min(skip.start)), (lo.max(skip.end), hi)] {
+                if r0 >= r1 {
+                    continue;
+                }
+                faer::linalg::matmul::matmul(
+                    out.rb_mut()
+                        .submatrix_mut(3 * r0, 3 * (a - j0), 3 * (r1 - r0), k),
+                    Accum::Add,
+                    ws.subrows(3 * (r0 - lo), 3 * (r1 - r0)),
+                    bm.transpose(),
+                    1.0,
+                    Par::Seq,
+                );
+            }
         }
     }
 }

@@ -80,12 +80,15 @@ pub fn precompute_until(
 ) -> Result<Report, Error> {
     let t0 = Instant::now();
     let key = cache::key(mesh, sel);
-    let plan = ColumnPlan::new(mesh, sel)?;
+    let mut plan = ColumnPlan::new(mesh, sel)?;
     let nc = plan.cols.len();
     let nr = plan.rows.len();
     let range = cache::shard_batches(plan.batches(), shard.0, shard.1);
     let col_begin = (range.start * BATCH_COLS).min(nc);
     let col_end = (range.end * BATCH_COLS).min(nc);
+    // A symmetric plan computes each batch's rows below its first column (and above the
+    // shard) and mirrors the rest from the shard's earlier batches once all are written.
+    let mirrored = plan.mirror_from(col_begin);
     let head = Header {
         n_nodes: mesh.nodes.len() as u32,
         rows: nr as u32,
@@ -120,8 +123,19 @@ pub fn precompute_until(
         .sum();
     let (residual, t) = plan.solve(
         &todo,
-        &|b, data| match writer.write_batch(b - range.start, data) {
-            Ok(()) => {
+        &|b, data| match if mirrored {
+            writer
+                .write_unfinished(b - range.start, data)
+                .map(|()| !stop(written.load(Ordering::Relaxed)))
+        } else {
+            writer.write_batch(b - range.start, data).map(|()| true)
+        } {
+            Ok(false) => {
+                stopped.store(true, Ordering::Relaxed);
+                false
+            }
+            Ok(true) if mirrored => true,
+            Ok(true) => {
                 let w = written.fetch_add(1, Ordering::Relaxed) + 1;
                 if stop(w) {
                     stopped.store(true, Ordering::Relaxed);
@@ -136,6 +150,19 @@ pub fn precompute_until(
         },
         &mut |d| progress(already + d, total),
     )?;
+    let mut mirror_s = 0.0;
+    if mirrored && !stopped.load(Ordering::Relaxed) && failed_is_none(&failed) {
+        let tm = Instant::now();
+        mirror_batches(&plan, &writer, &todo, range.start, &|| {
+            let w = written.fetch_add(1, Ordering::Relaxed) + 1;
+            let s = stop(w);
+            if s {
+                stopped.store(true, Ordering::Relaxed);
+            }
+            !s
+        })?;
+        mirror_s = tm.elapsed().as_secs_f64();
+    }
     if let Some(e) = failed.into_inner().unwrap_or_else(|e| e.into_inner()) {
         return Err(e.into());
     }
@@ -154,7 +181,7 @@ pub fn precompute_until(
     let mut phases = plan.phases.clone();
     phases.solve_s = t[0];
     phases.check_s = t[1];
-    phases.scatter_s = t[2];
+    phases.scatter_s = t[2] + mirror_s;
     Ok(Report {
         file: out.to_path_buf(),
         seconds: t0.elapsed().as_secs_f64(),
@@ -166,6 +193,60 @@ pub fn precompute_until(
         residual,
         phases,
     })
+}
+
+fn failed_is_none(f: &std::sync::Mutex<Option<CacheError>>) -> bool {
+    f.lock().unwrap_or_else(|e| e.into_inner()).is_none()
+}
+
+/// The second pass of a symmetric plan: each batch of `todo` (batch-grid indices; the file
+/// holds batches from `first`) gets its mirrored rows from the earlier batches' lower rows and
+/// is written whole, on all cores. `next()` is called after each batch; `false` stops.
+fn mirror_batches(
+    plan: &ColumnPlan,
+    writer: &Writer,
+    todo: &[usize],
+    first: usize,
+    next: &(dyn Fn() -> bool + Sync),
+) -> Result<(), Error> {
+    let at = std::sync::atomic::AtomicUsize::new(0);
+    let halt = AtomicBool::new(false);
+    let work = || -> Result<(), CacheError> {
+        let mut data = Vec::new();
+        while !halt.load(Ordering::Relaxed) {
+            let Some(&b) = todo.get(at.fetch_add(1, Ordering::Relaxed)) else {
+                return Ok(());
+            };
+            writer.read_unfinished(b - first, &mut data)?;
+            let base = 3 * first * BATCH_COLS;
+            let rows = plan.mirror(b, &mut data, &mut |q, r0, out| {
+                writer.read_column(q - base, r0, out)
+            })?;
+            writer.finish_batch(b - first, &data, rows)?;
+            if !next() {
+                halt.store(true, Ordering::Relaxed);
+            }
+        }
+        Ok(())
+    };
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get().min(16));
+    let results: Vec<Result<(), CacheError>> = std::thread::scope(|sc| {
+        let hs: Vec<_> = (1..threads).map(|_| sc.spawn(work)).collect();
+        let mut r = vec![work()];
+        r.extend(hs.into_iter().map(|h| {
+            h.join().unwrap_or_else(|_| {
+                Err(CacheError::Format {
+                    path: PathBuf::new(),
+                    msg: "a mirroring thread panicked".into(),
+                })
+            })
+        }));
+        r
+    });
+    for r in results {
+        r?;
+    }
+    Ok(())
 }
 
 /// The objects `spec` names: a scene's objects, or one mesh (loaded with `args.load`).
