@@ -13,6 +13,7 @@ fn main() {
         for o in [
             touchfem::fem::Ordering::Amd,
             touchfem::fem::Ordering::NestedDissection,
+            touchfem::fem::Ordering::Metis,
         ] {
             let (f, sym, num) = k.factorize_timed(o).expect("factor");
             println!(

@@ -477,12 +477,14 @@ pub type ReadRows<'a, E> = dyn FnMut(usize, usize, &mut [f64]) -> Result<(), E> 
 /// Batches between two checks of a Gram batch against a direct solve of its first column.
 const GRAM_CHECK_EVERY: usize = 16;
 
-/// The ordering of the precompute's factorisation: nested dissection, or AMD when the
-/// environment variable `TOUCHFEM_ORDERING` is `amd` (for comparisons; see `bench`).
+/// The ordering of the precompute's factorisation: METIS, or by the environment variable
+/// `TOUCHFEM_ORDERING` our coordinate nested dissection (`nd`) or faer's AMD (`amd`), for
+/// comparisons.
 fn ordering() -> crate::fem::Ordering {
     match std::env::var("TOUCHFEM_ORDERING").as_deref() {
         Ok("amd") => crate::fem::Ordering::Amd,
-        _ => crate::fem::Ordering::NestedDissection,
+        Ok("nd") => crate::fem::Ordering::NestedDissection,
+        _ => crate::fem::Ordering::Metis,
     }
 }
 
