@@ -190,6 +190,10 @@ fn metis_order(ptr: &[usize], idx: &[usize]) -> Option<Vec<usize>> {
     let mut opts = [0i32; metis_sys::METIS_NOPTIONS as usize];
     let mut perm = vec![0i32; n];
     let mut iperm = vec![0i32; n];
+    // METIS seeds one process-wide random generator at the start of each call: two calls at
+    // once would share it and give orderings (and factors' bits) that depend on timing.
+    static METIS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _one_at_a_time = METIS.lock().unwrap_or_else(|e| e.into_inner());
     // SAFETY: the arrays have the lengths METIS_NodeND requires (xadj n + 1, adjncy xadj[n],
     // options METIS_NOPTIONS, perm and iperm n); METIS only reads the inputs and writes the
     // outputs during the call.

@@ -209,6 +209,7 @@ fn view_window_presses_the_cube_with_the_pointer() {
         .env("WGPU_BACKEND", backend)
         .env("TOUCHFEM_VIEW_SECONDS", "60")
         .env("TOUCHFEM_VIEW_LOG", &log)
+        .env("TOUCHFEM_CACHE_DIR", "")
         .stdout(stdout)
         .stderr(stderr)
         .spawn()
@@ -347,6 +348,7 @@ fn view_window_presses_the_cube_with_the_pointer() {
     // replays through the haptic path to exactly the same forces.
     let out = Command::new(env!("CARGO_BIN_EXE_touchfem"))
         .args(["replay", session.to_str().unwrap(), "--json"])
+        .env("TOUCHFEM_CACHE_DIR", "")
         .output()
         .unwrap();
     assert!(
