@@ -333,9 +333,9 @@ impl GramPlan {
         self.t_pos.len() == self.nodes.len()
     }
 
-    /// Columns `j0..j1` of the touchable list: `out` (`3·nodes × 3·(j1 − j0)`, column-major,
-    /// rows in Gram order) receives `(K⁻¹)[S, T_j0..j1]` except on the node rows `skip`
-    /// (left as they are); it must be zero on entry.
+    /// Columns `j0..j1` of the touchable list: `out` (`3·nodes × 3·(j1 − j0)`, column-major
+    /// with column stride `ld` ≥ 3·nodes, rows in Gram order) receives `(K⁻¹)[S, T_j0..j1]`
+    /// except on the node rows `skip` (left as they are); it must be zero on entry.
     pub fn tile(
         &self,
         w: &[f64],
@@ -343,10 +343,12 @@ impl GramPlan {
         j1: usize,
         skip: std::ops::Range<usize>,
         out: &mut [f64],
+        ld: usize,
     ) {
         let m = 3 * self.nodes.len();
         let nt = 3 * (j1 - j0);
-        let mut out = MatMut::from_column_major_slice_mut(&mut out[..m * nt], m, nt);
+        assert!(ld >= m && out.len() >= ld * nt.saturating_sub(1) + m);
+        let mut out = MatMut::from_column_major_slice_with_stride_mut(out, m, nt, ld);
         let mut gather = Vec::new();
         for s in 0..self.begin.len() - 1 {
             let (tlo, thi) = self.t_range[s];

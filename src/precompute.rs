@@ -181,7 +181,8 @@ pub fn precompute_until(
     let mut phases = plan.phases.clone();
     phases.solve_s = t[0];
     phases.check_s = t[1];
-    phases.scatter_s = t[2] + mirror_s;
+    phases.scatter_s = t[2];
+    phases.mirror_s = mirror_s;
     Ok(Report {
         file: out.to_path_buf(),
         seconds: t0.elapsed().as_secs_f64(),
