@@ -755,25 +755,15 @@ impl ColumnPlan {
         let tc = Instant::now();
         // The check K·x = e costs about as much as a solve per column: it is done on one DOF
         // column per batch (the batch's first), which catches a bad factorisation all the same.
-        let mut residual = 0.0f64;
-        {
+        let residual = {
             let node = self.cols[chunk.start];
-            let e = self
-                .stiff
-                .dofs
-                .free(node, 0)
-                .ok_or(FemError::BadSelection("a touchable node is clamped".into()))?;
+            let e = self.first_dof(node)?;
             let xs: Vec<f64> = (0..nf).map(|i| b[(i, 0)]).collect();
             if xs.iter().any(|v| !v.is_finite()) {
                 return Err(FemError::Singular { node, dof: e });
             }
-            let mut kx = vec![0.0; nf];
-            self.stiff.mul(&xs, &mut kx);
-            for (i, v) in kx.iter().enumerate() {
-                let target = if i == e { 1.0 } else { 0.0 };
-                residual = residual.max((v - target).abs());
-            }
-        }
+            self.unit_residual(&xs, e)
+        };
         times[1] += tc.elapsed().as_secs_f64();
         let tsc = Instant::now();
         let mut out = vec![0.0f64; 9 * nr * chunk.len()];
@@ -795,6 +785,24 @@ impl ColumnPlan {
         }
         times[2] += tsc.elapsed().as_secs_f64();
         Ok((residual, times, out))
+    }
+
+    /// The free DOF of a touchable node's x axis.
+    fn first_dof(&self, node: u32) -> Result<usize, FemError> {
+        self.stiff
+            .dofs
+            .free(node, 0)
+            .ok_or(FemError::BadSelection("a touchable node is clamped".into()))
+    }
+
+    /// max |K·x − e_e| for a solution `x` of K·x = e_e.
+    fn unit_residual(&self, x: &[f64], e: usize) -> f64 {
+        let mut kx = vec![0.0; x.len()];
+        self.stiff.mul(x, &mut kx);
+        kx.iter().enumerate().fold(0.0f64, |r, (i, v)| {
+            let target = if i == e { 1.0 } else { 0.0 };
+            r.max((v - target).abs())
+        })
     }
 
     /// The Gram method's batch: its tile of `(K⁻¹)[S, T]` moved into this module's layout;
@@ -859,22 +867,13 @@ impl ColumnPlan {
         let mut residual = 0.0f64;
         if batch.is_multiple_of(GRAM_CHECK_EVERY) {
             let node = self.cols[chunk.start];
-            let e = self
-                .stiff
-                .dofs
-                .free(node, 0)
-                .ok_or(FemError::BadSelection("a touchable node is clamped".into()))?;
+            let e = self.first_dof(node)?;
             let nf = self.stiff.dofs.n_free;
             let mut b = Mat::<f64>::zeros(nf, 1);
             b[(e, 0)] = 1.0;
             self.factor.solve_in_place(&mut b);
             let xs: Vec<f64> = (0..nf).map(|i| b[(i, 0)]).collect();
-            let mut kx = vec![0.0; nf];
-            self.stiff.mul(&xs, &mut kx);
-            for (i, v) in kx.iter().enumerate() {
-                let target = if i == e { 1.0 } else { 0.0 };
-                residual = residual.max((v - target).abs());
-            }
+            residual = self.unit_residual(&xs, e);
             // The Gram column must be the direct solve's displayed rows.
             let scale = xs.iter().fold(0.0f64, |a, v| a.max(v.abs()));
             let mut diff = 0.0f64;
