@@ -453,8 +453,12 @@ pub const BATCH_COLS: usize = 64;
 /// How the precompute computes its columns.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Method {
-    /// A forward and a back substitution over all DOFs per touchable DOF.
+    /// A forward and a back substitution per touchable DOF, each visiting only the
+    /// supernodes the column reaches and the displayed rows need
+    /// ([`crate::gram::UnitSolver`]).
     Columns,
+    /// As `Columns` through every supernode (faer's solve; for comparisons).
+    Full,
     /// Sparse forward solves for the displayed DOFs and their Gram product
     /// ([`crate::gram`]); the column method where the factor is not supernodal.
     Gram,
@@ -463,11 +467,12 @@ pub enum Method {
     Auto,
 }
 
-/// The method named by the environment variable `TOUCHFEM_PRECOMPUTE` (`columns`, `gram`;
-/// anything else or unset: [`Method::Auto`]).
+/// The method named by the environment variable `TOUCHFEM_PRECOMPUTE` (`columns`, `gram`,
+/// `full`; anything else or unset: [`Method::Auto`]).
 pub fn method() -> Method {
     match std::env::var("TOUCHFEM_PRECOMPUTE").as_deref() {
         Ok("columns") => Method::Columns,
+        Ok("full") => Method::Full,
         Ok("gram") => Method::Gram,
         _ => Method::Auto,
     }
@@ -505,6 +510,8 @@ pub struct ColumnPlan {
     /// Symmetric Gram plans: the first column whose batch is at hand when the upper rows are
     /// mirrored (see [`ColumnPlan::mirror_from`]).
     mirror_from: Option<usize>,
+    /// The column method's pruned solver (supernodal factors).
+    units: Option<crate::gram::UnitSolver>,
 }
 
 fn solver_threads() -> usize {
@@ -570,7 +577,7 @@ impl ColumnPlan {
         phases.method = "columns".into();
         let mut cols = cols;
         let mut gram = None;
-        if how != Method::Columns {
+        if how != Method::Columns && how != Method::Full {
             let shown: Vec<u32> = rows
                 .iter()
                 .copied()
@@ -602,12 +609,23 @@ impl ColumnPlan {
                 }
             }
         }
+        let units = if gram.is_none() && how != Method::Full {
+            let d = &stiff.dofs;
+            crate::gram::UnitSolver::new(
+                &factor,
+                rows.iter()
+                    .flat_map(|&r| (0..3).filter_map(move |a| d.free(r, a))),
+            )
+        } else {
+            None
+        };
         Ok(ColumnPlan {
             rows,
             cols,
             phases,
             stiff,
             factor,
+            units,
             gram,
             mirror_from: None,
         })
@@ -750,6 +768,9 @@ impl ColumnPlan {
             }
         }
         let ts = Instant::now();
+        if let Some(u) = &self.units {
+            return self.pruned_batch(batch, u, ts);
+        }
         self.factor.solve_in_place(&mut b);
         times[0] += ts.elapsed().as_secs_f64();
         let tc = Instant::now();
@@ -785,6 +806,89 @@ impl ColumnPlan {
         }
         times[2] += tsc.elapsed().as_secs_f64();
         Ok((residual, times, out))
+    }
+
+    /// The column method's batch on a supernodal factor: pruned sweeps
+    /// ([`crate::gram::UnitSolver`]), the first column checked against a full solve.
+    fn pruned_batch(
+        &self,
+        batch: usize,
+        u: &crate::gram::UnitSolver,
+        ts: Instant,
+    ) -> Result<(f64, [f64; 3], Vec<f64>), FemError> {
+        let nr = self.rows.len();
+        let nf = self.stiff.dofs.n_free;
+        let chunk = self.batch_cols(batch);
+        let mut dofs = Vec::with_capacity(3 * chunk.len());
+        for ci in chunk.clone() {
+            for a in 0..3 {
+                dofs.push(self.first_dof(self.cols[ci])? + a);
+            }
+        }
+        let mut times = [0.0f64; 3];
+        let mut x = Mat::<f64>::zeros(nf, dofs.len());
+        u.solve(&self.factor, &dofs, &mut x);
+        times[0] = ts.elapsed().as_secs_f64();
+        let tsc = Instant::now();
+        let mut out = vec![0.0f64; 9 * nr * chunk.len()];
+        for j in 0..dofs.len() {
+            let xc = x.col(j);
+            let dst = &mut out[j * 3 * nr..][..3 * nr];
+            for (ri, &r) in self.rows.iter().enumerate() {
+                for a in 0..3 {
+                    if let Some(d) = self.stiff.dofs.free(r, a) {
+                        let v = xc[u.row(d)];
+                        if !v.is_finite() {
+                            return Err(FemError::Singular { node: r, dof: d });
+                        }
+                        dst[3 * ri + a] = v;
+                    }
+                }
+            }
+        }
+        times[2] = tsc.elapsed().as_secs_f64();
+        let tc = Instant::now();
+        let node = self.cols[chunk.start];
+        let e = self.first_dof(node)?;
+        let mut b = Mat::<f64>::zeros(nf, 1);
+        b[(e, 0)] = 1.0;
+        self.factor.solve_in_place(&mut b);
+        let xs: Vec<f64> = (0..nf).map(|i| b[(i, 0)]).collect();
+        let residual = self.unit_residual(&xs, e);
+        self.agrees(&out, &xs, 0..0, node)?;
+        times[1] = tc.elapsed().as_secs_f64();
+        Ok((residual, times, out))
+    }
+
+    /// Checks that the batch's first column `out` (this module's layout) equals the direct
+    /// solve `xs` on the displayed rows outside `skip`, to 1e-8 of max |x|.
+    fn agrees(
+        &self,
+        out: &[f64],
+        xs: &[f64],
+        skip: std::ops::Range<usize>,
+        node: u32,
+    ) -> Result<(), FemError> {
+        let scale = xs.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        let mut diff = 0.0f64;
+        for (ri, &r) in self.rows.iter().enumerate() {
+            if skip.contains(&ri) {
+                continue; // mirrored later
+            }
+            for a in 0..3 {
+                if let Some(d) = self.stiff.dofs.free(r, a) {
+                    diff = diff.max((out[3 * ri + a] - xs[d]).abs());
+                }
+            }
+        }
+        if diff.is_nan() || diff > 1e-8 * scale {
+            return Err(FemError::Factorisation(format!(
+                "the computed column disagrees with a direct solve by {:.1e} of max |L| \
+                 (column of node {node})",
+                diff / scale
+            )));
+        }
+        Ok(())
     }
 
     /// The free DOF of a touchable node's x axis.
@@ -875,25 +979,7 @@ impl ColumnPlan {
             let xs: Vec<f64> = (0..nf).map(|i| b[(i, 0)]).collect();
             residual = self.unit_residual(&xs, e);
             // The Gram column must be the direct solve's displayed rows.
-            let scale = xs.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-            let mut diff = 0.0f64;
-            for (ri, &r) in self.rows.iter().enumerate() {
-                if skip.contains(&ri) {
-                    continue; // mirrored later
-                }
-                for a in 0..3 {
-                    if let Some(d) = self.stiff.dofs.free(r, a) {
-                        diff = diff.max((out[3 * ri + a] - xs[d]).abs());
-                    }
-                }
-            }
-            if diff.is_nan() || diff > 1e-8 * scale {
-                return Err(FemError::Factorisation(format!(
-                    "the Gram product disagrees with a direct solve by {:.1e} of max |L| \
-                     (column of node {node})",
-                    diff / scale
-                )));
-            }
+            self.agrees(&out, &xs, skip, node)?;
         }
         times[1] = tc.elapsed().as_secs_f64();
         Ok((residual, times, out))

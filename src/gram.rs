@@ -389,3 +389,140 @@ impl GramPlan {
         }
     }
 }
+
+/// Solves `K x = e_d` for unit right-hand sides on the supernodal factor, skipping what the
+/// answer does not need: the forward sweep visits only the supernodes the columns reach (their
+/// supernodes' ancestors), the back sweep only those that hold or precede a wanted row.
+pub struct UnitSolver {
+    parent: Vec<usize>,
+    sn_of: Vec<u32>,
+    pos: Vec<usize>,
+    keep: Vec<bool>,
+}
+
+impl UnitSolver {
+    /// A solver whose answers are exact on the free DOFs `wanted`; `None` if the factor is not
+    /// supernodal.
+    pub fn new(f: &Factor, wanted: impl IntoIterator<Item = usize>) -> Option<UnitSolver> {
+        let (sym, _) = f.supernodal()?;
+        let nsn = sym.n_supernodes();
+        let mut sn_of = vec![0u32; sym.nrows()];
+        let (begin, end) = (sym.supernode_begin(), sym.supernode_end());
+        for s in 0..nsn {
+            sn_of[begin[s]..end[s]].fill(s as u32);
+        }
+        let parent: Vec<usize> = (0..nsn)
+            .map(|s| {
+                sym.supernode(s)
+                    .pattern()
+                    .iter()
+                    .min()
+                    .map_or(usize::MAX, |&r| sn_of[r] as usize)
+            })
+            .collect();
+        let pos = f.position_of_dof();
+        let mut keep = vec![false; nsn];
+        for d in wanted {
+            mark_path(&mut keep, &parent, sn_of[*pos.get(d)?] as usize);
+        }
+        Some(UnitSolver {
+            parent,
+            sn_of,
+            pos,
+            keep,
+        })
+    }
+
+    /// The row of the solution holding free DOF `d`.
+    pub fn row(&self, d: usize) -> usize {
+        self.pos[d]
+    }
+
+    /// Fraction of the supernodes the back sweep visits.
+    pub fn kept(&self) -> f64 {
+        self.keep.iter().filter(|&&k| k).count() as f64 / self.keep.len().max(1) as f64
+    }
+
+    /// Column `j` of `x` (zero on entry, one row per free DOF, in the factor's order: see
+    /// [`UnitSolver::row`]) becomes `K⁻¹ e_{dofs[j]}`, exact on the wanted DOFs.
+    pub fn solve(&self, f: &Factor, dofs: &[usize], x: &mut Mat<f64>) {
+        let Some((sym, val)) = f.supernodal() else {
+            return;
+        };
+        let nsn = sym.n_supernodes();
+        let k = dofs.len();
+        let mut reach = vec![false; nsn];
+        for (j, &d) in dofs.iter().enumerate() {
+            x[(self.pos[d], j)] = 1.0;
+            mark_path(&mut reach, &self.parent, self.sn_of[self.pos[d]] as usize);
+        }
+        let vp = sym.col_ptr_for_val();
+        let mut tmp: Vec<f64> = Vec::new();
+        let (begin, end) = (sym.supernode_begin(), sym.supernode_end());
+        let block = |s: usize| {
+            let pattern = sym.supernode(s).pattern();
+            let ns = end[s] - begin[s];
+            let ls =
+                MatRef::from_column_major_slice(&val[vp[s]..vp[s + 1]], ns + pattern.len(), ns);
+            (begin[s], ns, pattern, ls)
+        };
+        for s in (0..nsn).filter(|&s| reach[s]) {
+            let (start, ns, pattern, ls) = block(s);
+            let (l11, l21) = ls.split_at_row(ns);
+            let npat = pattern.len();
+            let mut xs = x.as_mut().subrows_mut(start, ns);
+            faer::linalg::triangular_solve::solve_lower_triangular_in_place(
+                l11,
+                xs.rb_mut(),
+                Par::Seq,
+            );
+            tmp.clear();
+            tmp.resize(npat * k, 0.0);
+            let mut t = MatMut::from_column_major_slice_mut(&mut tmp, npat, k);
+            faer::linalg::matmul::matmul(t.rb_mut(), Accum::Replace, l21, xs.rb(), 1.0, Par::Seq);
+            for j in 0..k {
+                let tc = &tmp[j * npat..][..npat];
+                let mut xc = x.as_mut().col_mut(j);
+                for (&r, v) in pattern.iter().zip(tc) {
+                    xc[r] -= *v;
+                }
+            }
+        }
+        for s in (0..nsn).rev().filter(|&s| self.keep[s]) {
+            let (start, ns, pattern, ls) = block(s);
+            let (l11, l21) = ls.split_at_row(ns);
+            let npat = pattern.len();
+            tmp.clear();
+            tmp.resize(npat * k, 0.0);
+            for j in 0..k {
+                let xc = x.as_ref().col(j);
+                for (t, &r) in tmp[j * npat..][..npat].iter_mut().zip(pattern) {
+                    *t = xc[r];
+                }
+            }
+            let t = MatRef::from_column_major_slice(&tmp, npat, k);
+            let mut xs = x.as_mut().subrows_mut(start, ns);
+            faer::linalg::matmul::matmul(
+                xs.rb_mut(),
+                Accum::Add,
+                l21.transpose(),
+                t,
+                -1.0,
+                Par::Seq,
+            );
+            faer::linalg::triangular_solve::solve_upper_triangular_in_place(
+                l11.transpose(),
+                xs.rb_mut(),
+                Par::Seq,
+            );
+        }
+    }
+}
+
+/// Marks `s` and its ancestors, stopping at the first already marked.
+fn mark_path(marked: &mut [bool], parent: &[usize], mut s: usize) {
+    while s != usize::MAX && !marked[s] {
+        marked[s] = true;
+        s = parent[s];
+    }
+}

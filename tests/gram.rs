@@ -108,3 +108,30 @@ fn precomputed_files_mirror_the_gram_tiles_exactly_whole_and_sharded() {
         std::fs::read(&whole).unwrap()
     );
 }
+
+#[test]
+fn pruned_columns_equal_full_solves_for_a_ball_of_columns() {
+    // A few touchable nodes near one end of the mouse, every surface node displayed: the
+    // pruned sweeps must give faer's full solve on every displayed row.
+    let m = mouse();
+    let free = m.free_surface_nodes();
+    let x_min = free
+        .iter()
+        .map(|&n| m.nodes[n as usize].x)
+        .fold(f64::INFINITY, f64::min);
+    let ball: Vec<u32> = free
+        .into_iter()
+        .filter(|&n| m.nodes[n as usize].x < x_min + 0.015)
+        .collect();
+    assert!(ball.len() > 10 && ball.len() < 200, "{}", ball.len());
+    let sel = Selection {
+        rows: NodeSet::Surface,
+        cols: NodeSet::Nodes(ball),
+    };
+    let full = Compliance::compute_with_method(&m, &sel, Method::Full, &mut |_, _| {}).unwrap();
+    let pruned =
+        Compliance::compute_with_method(&m, &sel, Method::Columns, &mut |_, _| {}).unwrap();
+    assert_eq!(pruned.stats.phases.method, "columns");
+    let d = difference(&full, &pruned);
+    assert!(d < 1e-12, "relative difference {d:.2e}");
+}
