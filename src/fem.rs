@@ -416,10 +416,10 @@ impl Stiffness {
     /// As [`Stiffness::factorize`] with the ordering `ord`, with the seconds spent on the
     /// symbolic (ordering) and the numeric factorisation.
     pub fn factorize_timed(&self, ord: Ordering) -> Result<(Factor, f64, f64), FemError> {
-        // On one core: faer's parallel factorisation is 1.5× faster on two cores, but a
-        // precompute's bits must not depend on the machine's cores or load (merged shards
-        // equal the unsharded file).
-        self.factorize_with(ord, faer::Par::Seq)
+        // faer splits the big fronts' dense work over the cores; the bits do not depend on
+        // how many (tests/precompute.rs), so merged shards made on different machines still
+        // equal the unsharded file.
+        self.factorize_with(ord, faer::Par::rayon(0))
     }
 
     /// As [`Stiffness::factorize_timed`] with the numeric factorisation's parallelism `par`.

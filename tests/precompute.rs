@@ -370,3 +370,32 @@ fn precompute_without_out_fills_the_cache_the_scene_loader_reads() {
         assert_eq!(c.l_f64(), fresh.objects[0].scene.compliance.l_f64());
     }
 }
+
+#[test]
+fn the_factor_is_the_same_bit_for_bit_on_any_number_of_threads() {
+    // Shards made on machines with different core counts must merge into the unsharded file.
+    // A 15³-cell cube: its top fronts (≈700 DOFs) are big enough for faer to split.
+    let m = touchfem::mesh::cube_with(
+        [15, 15, 15],
+        [40.0, 40.0, 40.0],
+        touchfem::Material::DEFAULT,
+    )
+    .unwrap();
+    let k = touchfem::fem::Stiffness::assemble(&m).unwrap();
+    let n = k.dofs.n_free;
+    let solve = |par| {
+        let (f, _, _) = k
+            .factorize_with(touchfem::fem::Ordering::Metis, par)
+            .unwrap();
+        let mut b = faer::Mat::<f64>::zeros(n, 1);
+        for i in 0..n {
+            b[(i, 0)] = ((i * 7919) % 101) as f64 - 50.0;
+        }
+        f.solve_in_place(&mut b);
+        (0..n).map(|i| b[(i, 0)].to_bits()).collect::<Vec<u64>>()
+    };
+    let one = solve(faer::Par::Seq);
+    for t in [1, 2, 3, 8] {
+        assert!(one == solve(faer::Par::rayon(t)), "{t} threads");
+    }
+}
