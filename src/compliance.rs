@@ -752,6 +752,9 @@ impl ColumnPlan {
         if let Some((g, w, row_of)) = &self.gram {
             return self.gram_batch(batch, g, w, row_of);
         }
+        if let Some(u) = &self.units {
+            return self.pruned_batch(batch, u);
+        }
         let nr = self.rows.len();
         let nf = self.stiff.dofs.n_free;
         let chunk = self.batch_cols(batch);
@@ -768,9 +771,6 @@ impl ColumnPlan {
             }
         }
         let ts = Instant::now();
-        if let Some(u) = &self.units {
-            return self.pruned_batch(batch, u, ts);
-        }
         self.factor.solve_in_place(&mut b);
         times[0] += ts.elapsed().as_secs_f64();
         let tc = Instant::now();
@@ -814,8 +814,8 @@ impl ColumnPlan {
         &self,
         batch: usize,
         u: &crate::gram::UnitSolver,
-        ts: Instant,
     ) -> Result<(f64, [f64; 3], Vec<f64>), FemError> {
+        let ts = Instant::now();
         let nr = self.rows.len();
         let nf = self.stiff.dofs.n_free;
         let chunk = self.batch_cols(batch);
@@ -849,12 +849,7 @@ impl ColumnPlan {
         times[2] = tsc.elapsed().as_secs_f64();
         let tc = Instant::now();
         let node = self.cols[chunk.start];
-        let e = self.first_dof(node)?;
-        let mut b = Mat::<f64>::zeros(nf, 1);
-        b[(e, 0)] = 1.0;
-        self.factor.solve_in_place(&mut b);
-        let xs: Vec<f64> = (0..nf).map(|i| b[(i, 0)]).collect();
-        let residual = self.unit_residual(&xs, e);
+        let (xs, residual) = self.check_solve(node)?;
         self.agrees(&out, &xs, 0..0, node)?;
         times[1] = tc.elapsed().as_secs_f64();
         Ok((residual, times, out))
@@ -897,6 +892,19 @@ impl ColumnPlan {
             .dofs
             .free(node, 0)
             .ok_or(FemError::BadSelection("a touchable node is clamped".into()))
+    }
+
+    /// faer's full solve of `K x = e` for `node`'s x axis, and its residual max |K·x − e|:
+    /// the independent check of the pruned and Gram batches.
+    fn check_solve(&self, node: u32) -> Result<(Vec<f64>, f64), FemError> {
+        let e = self.first_dof(node)?;
+        let nf = self.stiff.dofs.n_free;
+        let mut b = Mat::<f64>::zeros(nf, 1);
+        b[(e, 0)] = 1.0;
+        self.factor.solve_in_place(&mut b);
+        let xs: Vec<f64> = (0..nf).map(|i| b[(i, 0)]).collect();
+        let residual = self.unit_residual(&xs, e);
+        Ok((xs, residual))
     }
 
     /// max |K·x − e_e| for a solution `x` of K·x = e_e.
@@ -971,13 +979,8 @@ impl ColumnPlan {
         let mut residual = 0.0f64;
         if batch.is_multiple_of(GRAM_CHECK_EVERY) {
             let node = self.cols[chunk.start];
-            let e = self.first_dof(node)?;
-            let nf = self.stiff.dofs.n_free;
-            let mut b = Mat::<f64>::zeros(nf, 1);
-            b[(e, 0)] = 1.0;
-            self.factor.solve_in_place(&mut b);
-            let xs: Vec<f64> = (0..nf).map(|i| b[(i, 0)]).collect();
-            residual = self.unit_residual(&xs, e);
+            let (xs, r) = self.check_solve(node)?;
+            residual = r;
             // The Gram column must be the direct solve's displayed rows.
             self.agrees(&out, &xs, skip, node)?;
         }

@@ -64,19 +64,13 @@ impl GramPlan {
         let nsn = sym.n_supernodes();
         let mut begin: Vec<usize> = sym.supernode_begin().to_vec();
         begin.push(sym.nrows());
-        let mut sn_of = vec![0u32; sym.nrows()];
-        for s in 0..nsn {
-            sn_of[begin[s]..begin[s + 1]].fill(s as u32);
-        }
-        // Supernodal elimination tree: a supernode's parent holds its first off-diagonal row.
-        let mut parent = vec![usize::MAX; nsn];
-        for (s, p) in parent.iter_mut().enumerate() {
-            if let Some(&r) = sym.supernode(s).pattern().iter().min() {
-                *p = sn_of[r] as usize;
-                if *p <= s {
-                    return None;
-                }
-            }
+        let (sn_of, parent) = supernode_tree(f)?;
+        if parent
+            .iter()
+            .enumerate()
+            .any(|(s, &p)| p != usize::MAX && p <= s)
+        {
+            return None;
         }
         // Post-order: `post[s]`, and the first post-order index of s's subtree.
         let mut size = vec![1usize; nsn];
@@ -404,24 +398,9 @@ impl UnitSolver {
     /// A solver whose answers are exact on the free DOFs `wanted`; `None` if the factor is not
     /// supernodal.
     pub fn new(f: &Factor, wanted: impl IntoIterator<Item = usize>) -> Option<UnitSolver> {
-        let (sym, _) = f.supernodal()?;
-        let nsn = sym.n_supernodes();
-        let mut sn_of = vec![0u32; sym.nrows()];
-        let (begin, end) = (sym.supernode_begin(), sym.supernode_end());
-        for s in 0..nsn {
-            sn_of[begin[s]..end[s]].fill(s as u32);
-        }
-        let parent: Vec<usize> = (0..nsn)
-            .map(|s| {
-                sym.supernode(s)
-                    .pattern()
-                    .iter()
-                    .min()
-                    .map_or(usize::MAX, |&r| sn_of[r] as usize)
-            })
-            .collect();
+        let (sn_of, parent) = supernode_tree(f)?;
         let pos = f.position_of_dof();
-        let mut keep = vec![false; nsn];
+        let mut keep = vec![false; parent.len()];
         for d in wanted {
             mark_path(&mut keep, &parent, sn_of[*pos.get(d)?] as usize);
         }
@@ -517,6 +496,29 @@ impl UnitSolver {
             );
         }
     }
+}
+
+/// The supernode of each factor column, and the parent of each supernode in the supernodal
+/// elimination tree (the supernode holding its first off-diagonal row; `usize::MAX` for a
+/// root). `None` if the factor is not supernodal.
+fn supernode_tree(f: &Factor) -> Option<(Vec<u32>, Vec<usize>)> {
+    let (sym, _) = f.supernodal()?;
+    let nsn = sym.n_supernodes();
+    let mut sn_of = vec![0u32; sym.nrows()];
+    let (begin, end) = (sym.supernode_begin(), sym.supernode_end());
+    for s in 0..nsn {
+        sn_of[begin[s]..end[s]].fill(s as u32);
+    }
+    let parent = (0..nsn)
+        .map(|s| {
+            sym.supernode(s)
+                .pattern()
+                .iter()
+                .min()
+                .map_or(usize::MAX, |&r| sn_of[r] as usize)
+        })
+        .collect();
+    Some((sn_of, parent))
 }
 
 /// Marks `s` and its ancestors, stopping at the first already marked.

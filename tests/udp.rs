@@ -2,6 +2,8 @@
 //! the bridge survives lost, reordered, duplicated, malformed and random datagrams, a client
 //! that vanishes (watchdog), one that restarts, and two at once.
 
+mod common;
+
 use glam::DVec3;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::AtomicBool;
@@ -312,27 +314,18 @@ fn serve_reports_the_contract_keys() {
         .local_addr()
         .unwrap()
         .port();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
-        .args([
-            "serve",
-            "cube",
-            "--udp",
-            &format!("127.0.0.1:{port}"),
-            "--seconds",
-            "0.3",
-            "--report",
-            rep.to_str().unwrap(),
-            "--record",
-            session.to_str().unwrap(),
-        ])
-        .env("TOUCHFEM_CACHE_DIR", "")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    common::touchfem_uncached(&[
+        "serve",
+        "cube",
+        "--udp",
+        &format!("127.0.0.1:{port}"),
+        "--seconds",
+        "0.3",
+        "--report",
+        rep.to_str().unwrap(),
+        "--record",
+        session.to_str().unwrap(),
+    ]);
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&rep).unwrap()).unwrap();
     for k in [
@@ -348,17 +341,7 @@ fn serve_reports_the_contract_keys() {
     assert_eq!(v["ticks"], 300);
     // A bare mesh serves four UDP fingers; its recorded session names them all and replays.
     assert_eq!(v["limits"].as_array().map(Vec::len), Some(4), "{v}");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
-        .args(["replay", session.to_str().unwrap(), "--json"])
-        .env("TOUCHFEM_CACHE_DIR", "")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let r = common::replay_json(&session);
     assert_eq!(r["ticks"], 300, "{r}");
     assert_eq!(r["max_force_diff_n"].as_f64(), Some(0.0), "{r}");
 }

@@ -7,6 +7,8 @@
 //! The captures are saved under `target/view-test/` (`before.png`, `during.png`, the log and
 //! the binary's output).
 
+mod common;
+
 use std::io::Read as _;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -346,17 +348,7 @@ fn view_window_presses_the_cube_with_the_pointer() {
 
     // The session it recorded (the pointer's positions and the forces sent, every tick)
     // replays through the haptic path to exactly the same forces.
-    let out = Command::new(env!("CARGO_BIN_EXE_touchfem"))
-        .args(["replay", session.to_str().unwrap(), "--json"])
-        .env("TOUCHFEM_CACHE_DIR", "")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let r = common::replay_json(&session);
     eprintln!("replay: {r}");
     assert!(r["ticks"].as_u64().unwrap() > 1000, "{r}");
     assert_eq!(r["max_force_diff_n"].as_f64(), Some(0.0), "{r}");

@@ -1,4 +1,4 @@
-//! Mesh builders shared by the integration tests.
+//! Mesh builders and a command runner shared by the integration tests.
 #![allow(dead_code)]
 
 use touchfem::mesh::grid_raw;
@@ -25,4 +25,27 @@ pub fn rand01(state: &mut u64) -> f64 {
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^= z >> 31;
     (z >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// Runs the `touchfem` binary with `args` and no compliance cache (so that two runs compute
+/// the same bits whatever an older build left in the user's cache); asserts that it succeeded
+/// and returns its standard output.
+pub fn touchfem_uncached(args: &[&str]) -> Vec<u8> {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args(args)
+        .env("TOUCHFEM_CACHE_DIR", "")
+        .output()
+        .expect("run touchfem");
+    assert!(
+        out.status.success(),
+        "touchfem {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out.stdout
+}
+
+/// `touchfem replay SESSION --json`, uncached, parsed.
+pub fn replay_json(session: &std::path::Path) -> serde_json::Value {
+    let out = touchfem_uncached(&["replay", session.to_str().expect("utf-8 path"), "--json"]);
+    serde_json::from_slice(&out).expect("replay prints JSON")
 }
