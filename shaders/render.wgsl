@@ -1,4 +1,5 @@
-// touchfem renderer: the deformed surface (Blinn-Phong, two-sided) in one colour or coloured
+// touchfem renderer: the deformed surface (Blinn-Phong; back faces culled, the surface being
+// closed and counter-clockwise seen from outside) in one colour or coloured
 // by the displacement's magnitude |u| (viridis; |u| is position.w of touchfem::gpu::Vertex,
 // written by the deformation pass), an optional wireframe (line list over the surface edges,
 // pulled slightly towards the eye), the finger and god-object spheres and the force arrows
@@ -43,12 +44,30 @@ fn srgb_to_linear(c: vec3<f32>) -> vec3<f32> {
 }
 
 // The colour map at t (clamped to 0..1), linear RGB: interpolated in sRGB like the legend.
+// Piecewise linear over the table, unrolled with constant indices (on a software rasteriser
+// such as llvmpipe an array indexed per pixel is read lane by lane).
 fn viridis(t: f32) -> vec3<f32> {
     let x = clamp(t, 0.0, 1.0) * 9.0;
-    let i = min(u32(floor(x)), 8u);
-    let f = x - f32(i);
-    var table = VIRIDIS;
-    return srgb_to_linear(mix(table[i], table[i + 1u], f));
+    var c = VIRIDIS[0];
+    c = mix(c, VIRIDIS[1], clamp(x, 0.0, 1.0));
+    c = mix(c, VIRIDIS[2], clamp(x - 1.0, 0.0, 1.0));
+    c = mix(c, VIRIDIS[3], clamp(x - 2.0, 0.0, 1.0));
+    c = mix(c, VIRIDIS[4], clamp(x - 3.0, 0.0, 1.0));
+    c = mix(c, VIRIDIS[5], clamp(x - 4.0, 0.0, 1.0));
+    c = mix(c, VIRIDIS[6], clamp(x - 5.0, 0.0, 1.0));
+    c = mix(c, VIRIDIS[7], clamp(x - 6.0, 0.0, 1.0));
+    c = mix(c, VIRIDIS[8], clamp(x - 7.0, 0.0, 1.0));
+    c = mix(c, VIRIDIS[9], clamp(x - 8.0, 0.0, 1.0));
+    return srgb_to_linear(c);
+}
+
+// x^48 by multiplications (a pow per pixel is an exp and a log on a software rasteriser).
+fn pow48(x: f32) -> f32 {
+    let x3 = x * x * x;
+    let x6 = x3 * x3;
+    let x12 = x6 * x6;
+    let x24 = x12 * x12;
+    return x24 * x24;
 }
 
 fn shade(world: vec3<f32>, normal: vec3<f32>, color: vec3<f32>) -> vec3<f32> {
@@ -61,7 +80,7 @@ fn shade(world: vec3<f32>, normal: vec3<f32>, color: vec3<f32>) -> vec3<f32> {
     let l = cam.light_dir.xyz;
     let h = normalize(l + v);
     let diffuse = max(dot(n, l), 0.0);
-    let spec = pow(max(dot(n, h), 0.0), 48.0) * 0.2;
+    let spec = pow48(max(dot(n, h), 0.0)) * 0.2;
     // Hemisphere ambient: a little brighter facing up (+z).
     let ambient = 0.18 + 0.07 * n.z;
     return color * (ambient + 0.8 * diffuse) + vec3<f32>(spec);

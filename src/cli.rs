@@ -423,7 +423,19 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
     let mut scene_table = Vec::new();
     let mut scenes = bench_scenes()?;
     if let Some(spec) = &a.scene {
-        let (r, t, s) = crate::tradeoff::scene_objects(spec)?;
+        let (r, mut t, s) = crate::tradeoff::scene_objects(spec)?;
+        if let Some(g) = &gpu {
+            // One live frame per object: a contact triangle's deformation and the draw.
+            placement.enter_visual();
+            for (row, (_, scene)) in t.iter_mut().zip(&s) {
+                let ms = crate::tradeoff::frame_ms(scene, g, reps);
+                row["frame_ms"] = serde_json::json!(ms.as_ref().ok().copied().flatten());
+                if let Err(e) = ms {
+                    eprintln!("warning: frame: {e}");
+                }
+            }
+            placement.leave();
+        }
         rows.extend(r);
         scene_table = t;
         scenes.extend(s);
@@ -450,7 +462,7 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
     }
     for t in &scene_table {
         println!(
-            "{}: {} nodes, {} surface / {} free surface, {} rows × {} cols: precompute {:.2} s, L {:.0} MB (f64 + f32), peak RSS {:.2} GB",
+            "{}: {} nodes, {} surface / {} free surface, {} rows × {} cols: precompute {:.2} s, L {:.0} MB (f64 + f32), peak RSS {:.2} GB, frame {}",
             t["object"].as_str().unwrap_or("?"),
             t["nodes"],
             t["surface_nodes"],
@@ -460,6 +472,14 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
             t["precompute_s"].as_f64().unwrap_or(0.0),
             t["bytes_l"].as_f64().unwrap_or(0.0) / 1e6,
             t["peak_rss_bytes"].as_f64().unwrap_or(0.0) / 1e9,
+            match t["frame_ms"].as_f64() {
+                Some(ms) => format!(
+                    "{ms:.1} ms ({}×{}, one contact triangle: deform + draw)",
+                    crate::tradeoff::FRAME_SIZE[0],
+                    crate::tradeoff::FRAME_SIZE[1]
+                ),
+                None => "-".into(),
+            },
         );
     }
     // The answer a reader brings: the fastest method for one contact triangle (3 nodes) and

@@ -448,6 +448,114 @@ fn gpu_layout_rows(
     Ok(rows)
 }
 
+/// The frame size [`frame_ms`] draws at.
+pub const FRAME_SIZE: [u32; 2] = [640, 480];
+
+/// One live frame of `scene` on `gpu`, in ms (median of `reps`): one contact triangle pressed
+/// (the first surface triangle whose three nodes are touchable, 0.1 N each), its deformation
+/// pass and the draw at [`FRAME_SIZE`], coloured by |u|, the wireframe as a live view would
+/// draw it by default ([`crate::render::wireframe_by_default`]), the adapter's live sample
+/// count; submit and wait, no read-back, no present. `None` when no triangle is touchable.
+pub fn frame_ms(
+    scene: &Scene,
+    gpu: &crate::gpu::Gpu,
+    reps: usize,
+) -> Result<Option<f64>, crate::Error> {
+    use crate::render::{Camera, Coloring, Edges, Frame, FrameObject, RenderOptions, Renderer};
+    let c = &scene.compliance;
+    let Some(tri) = scene
+        .mesh
+        .surface
+        .iter()
+        .find(|t| t.iter().all(|&v| c.col_of(v).is_some()))
+    else {
+        return Ok(None);
+    };
+    let forces: Vec<(u32, [f32; 3])> = tri
+        .iter()
+        .filter_map(|&v| c.col_of(v))
+        .map(|col| (col as u32, [0.0, 0.0, -0.1]))
+        .collect();
+    let gerr = |e: crate::gpu::GpuError| crate::Error::Input(e.to_string());
+    let rerr = |e: crate::render::RenderError| crate::Error::Input(e.to_string());
+    let mut d = crate::gpu::Deformer::new(
+        &gpu.device,
+        &gpu.queue,
+        c,
+        &scene.mesh.nodes,
+        &scene.mesh.surface,
+        &Default::default(),
+    )
+    .map_err(gerr)?;
+    d.set_forces(&gpu.queue, &forces).map_err(gerr)?;
+    let options = RenderOptions {
+        samples: crate::render::live_samples(&gpu.adapter.get_info()),
+        ..Default::default()
+    };
+    let r = Renderer::with_options(&gpu.device, FRAME_SIZE, options).map_err(rerr)?;
+    let [w, h] = FRAME_SIZE;
+    let target = gpu.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("touchfem bench frame"),
+        size: wgpu::Extent3d {
+            width: w,
+            height: h,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: options.format,
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+        view_formats: &[],
+    });
+    let view = target.create_view(&Default::default());
+    let wireframe = crate::render::wireframe_by_default(scene.mesh.surface.len(), FRAME_SIZE);
+    let edges = wireframe.then(|| Edges::new(&gpu.device, &d));
+    let bounds = scene.mesh.bounds();
+    let scale = (bounds.1 - bounds.0).length();
+    let objects = [FrameObject {
+        deformer: &d,
+        offset: DVec3::ZERO,
+        bounds,
+        edges: edges.as_ref(),
+    }];
+    let frame = Frame {
+        objects: &objects,
+        camera: Camera::framing(bounds.0, bounds.1, f64::from(w) / f64::from(h)),
+        fingers: &[],
+        proxies: &[],
+        scale,
+        wireframe,
+        overlay: None,
+        coloring: Coloring::displacement(0.1 * scale),
+        arrows: &[],
+        legend: None,
+    };
+    let mut failed = None;
+    let draw = || -> Result<(), crate::Error> {
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        r.draw(&gpu.device, &gpu.queue, &mut enc, &view, &frame)
+            .map_err(rerr)?;
+        gpu.queue.submit([enc.finish()]);
+        gpu.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| crate::Error::Input(format!("GPU poll: {e}")))
+    };
+    for _ in 0..3 {
+        draw()?;
+    }
+    let t = median_us(reps.clamp(5, 200), || {
+        if let Err(e) = draw() {
+            failed = Some(e);
+        }
+    });
+    match failed {
+        Some(e) => Err(e),
+        None => Ok(Some(t / 1e3)),
+    }
+}
+
 /// One GPU frame: upload the forces, record, submit, wait for completion.
 fn gpu_frame(
     gpu: &crate::gpu::Gpu,

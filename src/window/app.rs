@@ -187,7 +187,14 @@ impl<'a> App<'a> {
             cursor: [0.0; 2],
             press: None,
             orbiting: false,
-            wireframe: true,
+            wireframe: crate::render::wireframe_by_default(
+                world
+                    .objects
+                    .iter()
+                    .map(|o| o.scene.mesh.surface.len())
+                    .sum(),
+                size,
+            ),
             colors: opts.colors,
             color_scale: crate::render::displacement_scale(COLOR_SCALE_OF_DIAGONAL * diag),
             arrow_m_per_n: arrow_m_per_n(world, diag),

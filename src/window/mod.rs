@@ -15,7 +15,8 @@
 //!   haptic loop misses that position, the runtime attaches a finger that appears inside at the
 //!   nearest surface point). Releasing lifts the finger (a NaN position).
 //! * **Right drag** orbits ([`Orbit`](crate::render::Orbit)), the **wheel** zooms, **W** toggles
-//!   the wireframe, **Esc** or closing the window quits (and sets [`LiveStatus::stop`]).
+//!   the wireframe (on at start while the surface has fewer edges than one per 24 pixels,
+//!   [`wireframe_by_default`](crate::render::wireframe_by_default)), **Esc** or closing the window quits (and sets [`LiveStatus::stop`]).
 //! * The status line (an overlay and the window title, which always contains `touchfem`): the
 //!   pointer finger's |F| in N, the haptic rate, the frame time. Updated 4 times a second.
 //!
