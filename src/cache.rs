@@ -331,17 +331,43 @@ impl Writer {
         Ok(())
     }
 
-    /// Writes the held batch `i` without counting it as written: a batch whose upper rows
-    /// are still to be mirrored ([`crate::compliance::ColumnPlan::mirror`]), after which
-    /// [`Writer::write_batch`] writes it whole.
-    pub fn write_unfinished(&self, i: usize, values: &[f64]) -> Result<(), CacheError> {
+    /// Writes the held batch `i` without counting it as written: a batch whose DOF rows
+    /// `skip` of each column are still to be mirrored
+    /// ([`crate::compliance::ColumnPlan::mirror`]) and are not written now;
+    /// [`Writer::finish_batch`] writes them and counts the batch.
+    pub fn write_unfinished(
+        &self,
+        i: usize,
+        values: &[f64],
+        skip: std::ops::Range<usize>,
+    ) -> Result<(), CacheError> {
         use std::os::unix::fs::FileExt;
-        self.file
-            .write_all_at(bytemuck::cast_slice(values), self.batch_offset(i))
-            .map_err(|source| CacheError::Io {
-                path: self.path.clone(),
-                source,
-            })
+        let io = |source| CacheError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        let nr3 = 3 * self.head.rows as usize;
+        if skip.is_empty() || skip.end > nr3 {
+            return self
+                .file
+                .write_all_at(bytemuck::cast_slice(values), self.batch_offset(i))
+                .map_err(io);
+        }
+        // Per column: the rows above `skip`, then the rows below it.
+        for (j, col) in values.chunks_exact(nr3).enumerate() {
+            let at = self.batch_offset(i) + 8 * (j * nr3) as u64;
+            for part in [0..skip.start, skip.end..nr3] {
+                if !part.is_empty() {
+                    self.file
+                        .write_all_at(
+                            bytemuck::cast_slice(&col[part.clone()]),
+                            at + 8 * part.start as u64,
+                        )
+                        .map_err(io)?;
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Completes held batch `i`, first written by [`Writer::write_unfinished`]: `values` is

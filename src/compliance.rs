@@ -652,20 +652,28 @@ impl ColumnPlan {
         data: &mut [f64],
         read: &mut ReadRows<'_, E>,
     ) -> Result<std::ops::Range<usize>, E> {
-        let Some(first) = self.mirror_from else {
-            return Ok(0..0);
-        };
+        let rows = self.mirror_rows(b);
         let chunk = self.batch_cols(b);
         let nr3 = 3 * self.rows.len();
         let k = 3 * chunk.len();
         let mut vals = vec![0.0f64; k];
-        for q in 3 * first..3 * chunk.start {
+        for q in rows.clone() {
             read(q, 3 * chunk.start, &mut vals)?;
             for (j, v) in vals.iter().enumerate() {
                 data[j * nr3 + q] = *v;
             }
         }
-        Ok(3 * first.min(chunk.start)..3 * chunk.start)
+        Ok(rows)
+    }
+
+    /// The DOF rows of batch `b` that [`ColumnPlan::mirror`] fills (empty unless the plan
+    /// mirrors): the solve leaves them zero, so a first write may skip them.
+    pub fn mirror_rows(&self, b: usize) -> std::ops::Range<usize> {
+        let Some(first) = self.mirror_from else {
+            return 0..0;
+        };
+        let start = self.batch_cols(b).start;
+        3 * first.min(start)..3 * start
     }
 
     /// Free DOFs of K.

@@ -125,7 +125,7 @@ pub fn precompute_until(
         &todo,
         &|b, data| match if mirrored {
             writer
-                .write_unfinished(b - range.start, data)
+                .write_unfinished(b - range.start, data, plan.mirror_rows(b))
                 .map(|()| !stop(written.load(Ordering::Relaxed)))
         } else {
             writer.write_batch(b - range.start, data).map(|()| true)
