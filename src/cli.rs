@@ -462,7 +462,7 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
     }
     for t in &scene_table {
         println!(
-            "{}: {} nodes, {} surface / {} free surface, {} rows × {} cols: precompute {:.2} s, L {:.0} MB (f64 + f32), peak RSS {:.2} GB, frame {}",
+            "{}: {} nodes, {} surface / {} free surface, {} rows × {} cols: precompute {:.2} s, L {:.0} MB (f64, host), peak RSS {:.2} GB, frame {}",
             t["object"].as_str().unwrap_or("?"),
             t["nodes"],
             t["surface_nodes"],

@@ -7,7 +7,8 @@
 //! entry (row node `r`, axis `a`; column node `c`, axis `b`) is at index
 //! `(3c + b)·3R + 3r + a`. One column node's three DOF columns are contiguous, so a frame with a
 //! few active columns touches a few contiguous runs, and the GPU's per-vertex threads read
-//! consecutive addresses. The f32 copy for the GPU has the same layout.
+//! consecutive addresses. The GPU's f32 or f16 copy has the same layout, rounded while
+//! uploading: the host holds only the f64.
 
 use faer::Mat;
 use glam::{DMat3, DVec3, Vec3};
@@ -70,7 +71,8 @@ pub struct PrecomputeStats {
     pub k_nonzeros: usize,
     /// Wall time for assembly, factorisation and the solves, seconds.
     pub seconds: f64,
-    /// Bytes held by L (f64 + f32 copies) and the diagonal blocks.
+    /// Bytes held on the host by L (f64; the GPU holds its own f32 or f16 copy) and the
+    /// diagonal blocks.
     pub bytes: usize,
     /// max |K·L − I| over the computed columns (full columns, before row selection).
     pub residual: f64,
@@ -98,7 +100,7 @@ pub struct PhaseTimes {
     pub check_s: f64,
     /// Copying rows into L, s.
     pub scatter_s: f64,
-    /// Building the result (f32 copy, diagonal inverses, symmetry check), s.
+    /// Building the result (diagonal inverses, symmetry check), s.
     pub finish_s: f64,
     /// Non-zeros of the Cholesky factor.
     pub factor_nonzeros: usize,
@@ -130,7 +132,6 @@ pub struct Compliance {
     /// Row index of each column's node.
     col_row: Vec<u32>,
     l: Vec<f64>,
-    l32: Vec<f32>,
     diag_inv: Vec<DMat3>,
     clamp_compliance: f64,
     /// Precompute cost and accuracy.
@@ -141,7 +142,11 @@ pub struct Compliance {
 /// in half floats, so that any material keeps half-float precision (1 for an empty or
 /// non-finite `L`).
 pub fn f16_scale(l: &[f32]) -> f32 {
-    let max_l = l.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    f16_scale_of_max(l.iter().fold(0.0f32, |m, v| m.max(v.abs())))
+}
+
+/// [`f16_scale`] given max |L| (rounded to f32).
+pub fn f16_scale_of_max(max_l: f32) -> f32 {
     if max_l.is_finite() && max_l > 0.0 {
         2f32.powi(max_l.log2().round() as i32)
     } else {
@@ -270,7 +275,6 @@ impl Compliance {
             }
             col_row.push(r);
         }
-        let l32 = l.iter().map(|&v| v as f32).collect();
         let mut c = Compliance {
             rows,
             cols,
@@ -278,7 +282,6 @@ impl Compliance {
             col_of_node,
             col_row,
             l,
-            l32,
             diag_inv: Vec::with_capacity(nc),
             clamp_compliance: 0.0,
             stats: PrecomputeStats::default(),
@@ -301,7 +304,7 @@ impl Compliance {
             0.0
         };
         c.stats.symmetry = c.symmetry_error();
-        c.stats.bytes = c.l.len() * 8 + c.l32.len() * 4 + c.diag_inv.len() * 72;
+        c.stats.bytes = c.l.len() * 8 + c.diag_inv.len() * 72;
         Ok(c)
     }
 
@@ -334,9 +337,9 @@ impl Compliance {
     pub fn l_f64(&self) -> &[f64] {
         &self.l
     }
-    /// The f32 copy for the GPU, same layout.
-    pub fn l_f32(&self) -> &[f32] {
-        &self.l32
+    /// `max |L|` rounded to f32 (what [`f16_scale`] of the GPU's f32 copy sees).
+    pub fn max_abs_f32(&self) -> f32 {
+        self.l.iter().fold(0.0f32, |m, &v| m.max((v as f32).abs()))
     }
     /// The 3×3 block L(row r, column c), m/N.
     #[inline]
@@ -384,7 +387,7 @@ impl Compliance {
         }
     }
 
-    /// u = L·F from the f32 copy with f32 sums — the GPU's arithmetic — into `out`.
+    /// u = L·F from `L` rounded to f32, with f32 sums — the GPU's arithmetic — into `out`.
     pub fn displace_f32(&self, forces: &[(u32, DVec3)], out: &mut [Vec3]) {
         self.displace_rounded(forces, out, 1.0, |v| v);
     }
@@ -392,7 +395,7 @@ impl Compliance {
     /// u = L·F as the GPU's half-float layouts compute it: `L / s` rounded to f16
     /// (`s` = [`f16_scale`]), the forces times `s`, f32 sums; into `out`.
     pub fn displace_f16(&self, forces: &[(u32, DVec3)], out: &mut [Vec3]) {
-        let s = f16_scale(&self.l32);
+        let s = f16_scale_of_max(self.max_abs_f32());
         self.displace_rounded(forces, out, s, |v| half::f16::from_f32(v / s).to_f32());
     }
 
@@ -408,12 +411,12 @@ impl Compliance {
         for &(c, f) in forces {
             let f = f.as_vec3() * scale;
             for b in 0..3 {
-                let run = &self.l32[(3 * c as usize + b) * 3 * nr..][..3 * nr];
+                let run = &self.l[(3 * c as usize + b) * 3 * nr..][..3 * nr];
                 for (r, o) in out[..nr].iter_mut().enumerate() {
                     let e = Vec3::new(
-                        round(run[3 * r]),
-                        round(run[3 * r + 1]),
-                        round(run[3 * r + 2]),
+                        round(run[3 * r] as f32),
+                        round(run[3 * r + 1] as f32),
+                        round(run[3 * r + 2] as f32),
                     );
                     *o += e * f[b];
                 }

@@ -39,7 +39,7 @@ pub struct Rung {
     /// Precompute of the whole free surface (rows: surface; columns: free surface), s
     /// (`None`: skipped, too large for this run).
     pub precompute_s: Option<f64>,
-    /// Bytes that precompute holds (f64 + f32 L and blocks).
+    /// Bytes that precompute holds (f64 L and blocks).
     pub bytes: Option<usize>,
     /// `u = L·F` for one contact triangle (3 columns) over every surface row, f32, µs.
     pub frame_us: Option<f64>,

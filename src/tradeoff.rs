@@ -307,7 +307,7 @@ pub type SceneObjects = (Vec<Row>, Vec<serde_json::Value>, Vec<(String, Scene)>)
 /// `bench --scene`: for each object of the scene `spec`, one `precompute` row (time of the
 /// in-memory precompute, `rel_error` = its residual max |K·x − e|) and the table row
 /// (nodes, surface and free-surface nodes, rows × cols, precompute seconds, bytes of `L` held
-/// (f64 + f32), peak RSS so far, phases); returns the objects' scenes for the other rows.
+/// (f64), peak RSS so far, phases); returns the objects' scenes for the other rows.
 pub fn scene_objects(spec: &str) -> Result<SceneObjects, crate::Error> {
     let src = match crate::scene::SceneSource::find(spec)? {
         Some(s) => s,

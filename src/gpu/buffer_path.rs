@@ -179,22 +179,18 @@ impl BufferPath {
 
         let mut chunks = Vec::with_capacity(n_chunks);
         let col_len = 9 * nr;
-        let force_scale = if sh.half {
-            crate::compliance::f16_scale(sh.l)
-        } else {
-            1.0
-        };
+        let force_scale = if sh.half { sh.l.f16_scale() } else { 1.0 };
         for k in 0..n_chunks {
             let c0 = (k * cols_per_chunk).min(nc);
             let c1 = ((k + 1) * cols_per_chunk).min(nc);
-            let data = &sh.l[c0 * col_len..c1 * col_len];
+            let data = sh.l.f32_range(c0 * col_len..c1 * col_len);
             let packed;
             let bytes: &[u8] = if sh.half {
                 let scaled: Vec<f32> = data.iter().map(|v| v / force_scale).collect();
                 packed = pack_f16(&scaled);
                 bytemuck::cast_slice(&packed)
             } else {
-                bytemuck::cast_slice(data)
+                bytemuck::cast_slice(&data[..])
             };
             let size = (bytes.len() as u64).max(16);
             let l = device.create_buffer(&wgpu::BufferDescriptor {

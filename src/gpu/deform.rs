@@ -67,7 +67,7 @@ pub struct DeformerInput<'a> {
     /// Number of touchable columns C.
     pub n_cols: usize,
     /// `L`, `9·R·C` entries, entry (row r, axis a; column c, axis b) at `(3c+b)·3R + 3r + a`.
-    pub l: &'a [f32],
+    pub l: LData<'a>,
 }
 
 impl<'a> From<&'a Compliance> for DeformerInput<'a> {
@@ -75,8 +75,56 @@ impl<'a> From<&'a Compliance> for DeformerInput<'a> {
         DeformerInput {
             rows: c.rows(),
             n_cols: c.cols().len(),
-            l: c.l_f32(),
+            l: LData::F64(c.l_f64()),
         }
+    }
+}
+
+/// `L`'s entries as the deformer reads them: f32, or f64 (a [`Compliance`]'s own), rounded to
+/// f32 a chunk at a time while uploading, so the host never holds an f32 copy of `L`.
+#[derive(Clone, Copy, Debug)]
+pub enum LData<'a> {
+    /// Single precision, as stored on the GPU.
+    F32(&'a [f32]),
+    /// Double precision, rounded on upload.
+    F64(&'a [f64]),
+}
+
+impl<'a> From<&'a [f32]> for LData<'a> {
+    fn from(l: &'a [f32]) -> Self {
+        LData::F32(l)
+    }
+}
+
+impl<'a> LData<'a> {
+    /// Number of entries.
+    pub fn len(&self) -> usize {
+        match self {
+            LData::F32(l) => l.len(),
+            LData::F64(l) => l.len(),
+        }
+    }
+
+    /// Whether there are no entries.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Entries `range` in f32 (borrowed when already f32).
+    pub fn f32_range(&self, range: std::ops::Range<usize>) -> std::borrow::Cow<'a, [f32]> {
+        match *self {
+            LData::F32(l) => std::borrow::Cow::Borrowed(&l[range]),
+            LData::F64(l) => l[range].iter().map(|&v| v as f32).collect(),
+        }
+    }
+
+    /// [`crate::compliance::f16_scale`] of the f32 entries.
+    pub fn f16_scale(&self) -> f32 {
+        let max = match *self {
+            LData::F32(l) => l.iter().fold(0.0f32, |m, v| m.max(v.abs())),
+            LData::F64(l) => l.iter().fold(0.0f32, |m, &v| m.max((v as f32).abs())),
+        };
+        crate::compliance::f16_scale_of_max(max)
     }
 }
 
@@ -155,8 +203,8 @@ pub(super) struct FrameGpu {
 pub(super) struct Shared<'a> {
     pub device: &'a wgpu::Device,
     pub queue: &'a wgpu::Queue,
-    /// Column-major f32 `L` ([`DeformerInput::l`]).
-    pub l: &'a [f32],
+    /// Column-major `L` ([`DeformerInput::l`]).
+    pub l: LData<'a>,
     pub nr: usize,
     pub nc: usize,
     /// Rest positions per row, metres, `w = 1`.
@@ -639,4 +687,23 @@ fn validate_target(
         word as u32,
         t.normal_offset.map_or(NO_NORMALS, |no| (no / 4) as u32),
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::LData;
+
+    #[test]
+    fn f64_data_uploads_as_its_f32_rounding() {
+        let l64 = [1.0e-3, -2.5e-7, 3.0e-4 + 1e-12, 0.1, -0.7];
+        let l32: Vec<f32> = l64.iter().map(|&v| v as f32).collect();
+        let (a, b) = (LData::F64(&l64), LData::F32(&l32));
+        assert_eq!(a.len(), 5);
+        assert_eq!(a.f32_range(1..4).as_ref(), b.f32_range(1..4).as_ref());
+        assert_eq!(a.f32_range(0..5).as_ref(), &l32[..]);
+        // max |L| = 0.7: the nearest power of two in the log is 0.5.
+        assert_eq!(a.f16_scale(), 0.5);
+        assert_eq!(a.f16_scale(), crate::compliance::f16_scale(&l32));
+        assert_eq!(LData::F64(&[]).f16_scale(), 1.0);
+    }
 }

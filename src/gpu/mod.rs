@@ -18,7 +18,7 @@ mod texture_path;
 
 pub use buffer_path::{deform_f16_wgsl, pack_f16};
 pub use deform::{
-    Deformer, DeformerInput, DeformerOptions, LStorage, OutputTarget, Vertex, MAX_ACTIVE,
+    Deformer, DeformerInput, DeformerOptions, LData, LStorage, OutputTarget, Vertex, MAX_ACTIVE,
     NO_NORMALS, VERTEX_STRIDE,
 };
 

@@ -236,11 +236,7 @@ impl TexturePath {
             usage: tb,
             view_formats: &[],
         });
-        let force_scale = if sh.half {
-            crate::compliance::f16_scale(sh.l)
-        } else {
-            1.0
-        };
+        let force_scale = if sh.half { sh.l.f16_scale() } else { 1.0 };
         let layer_texels = (width * height) as usize;
         let mut staging: Vec<[f32; 4]> = Vec::with_capacity(layer_texels);
         let mut staging16: Vec<[u16; 4]> = Vec::new();
@@ -249,7 +245,7 @@ impl TexturePath {
             let t1 = ((k + 1) * layer_texels).min(texels as usize);
             staging.clear();
             staging.extend(
-                sh.l[3 * t0..3 * t1]
+                sh.l.f32_range(3 * t0..3 * t1)
                     .chunks_exact(3)
                     .map(|v| [v[0], v[1], v[2], 0.0]),
             );
