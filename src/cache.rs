@@ -33,6 +33,7 @@ use xxhash_rust::xxh3::{xxh3_64, Xxh3};
 
 use crate::compliance::{Compliance, Selection, BATCH_COLS};
 use crate::mesh::Mesh;
+use crate::near::NearBlocks;
 
 const MAGIC: &[u8; 8] = b"TFEMCMP\0";
 /// The cache format version this build reads and writes.
@@ -763,24 +764,171 @@ impl Part {
     }
 }
 
+/// `L` left in a checked cache file instead of memory: read back in ranges of entries (this
+/// module's column-major layout, the file's own row and column order) when the GPU copy is
+/// built. Its checksums were verified when it was loaded ([`load_near`]).
+pub struct FileL {
+    part: Part,
+    max_abs_f32: f32,
+}
+
+impl std::fmt::Debug for FileL {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FileL")
+            .field("path", &self.part.path)
+            .field("rows", &self.part.head.rows)
+            .field("cols", &self.part.head.cols)
+            .finish()
+    }
+}
+
+impl FileL {
+    /// Number of entries of `L`.
+    pub fn len(&self) -> usize {
+        9 * self.part.head.rows as usize * self.part.head.cols as usize
+    }
+
+    /// Whether `L` has no entries.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// max |L| rounded to f32.
+    pub fn max_abs_f32(&self) -> f32 {
+        self.max_abs_f32
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.part.path
+    }
+
+    /// Entries `range`, rounded to f32.
+    pub fn read_f32(&self, range: std::ops::Range<usize>) -> Result<Vec<f32>, CacheError> {
+        use std::os::unix::fs::FileExt;
+        if range.end > self.len() || range.start > range.end {
+            return Err(CacheError::Format {
+                path: self.part.path.clone(),
+                msg: format!("entries {range:?} of {}", self.len()),
+            });
+        }
+        let h = &self.part.head;
+        let data = HEADER as u64 + h.lists_len() as u64;
+        let mut out = Vec::with_capacity(range.len());
+        let mut buf = vec![0.0f64; range.len().min(1 << 20)];
+        let mut at = range.start;
+        while at < range.end {
+            let n = (range.end - at).min(buf.len());
+            self.part
+                .file
+                .read_exact_at(
+                    bytemuck::cast_slice_mut(&mut buf[..n]),
+                    data + 8 * at as u64,
+                )
+                .map_err(|source| CacheError::Io {
+                    path: self.part.path.clone(),
+                    source,
+                })?;
+            out.extend(buf[..n].iter().map(|&v| v as f32));
+            at += n;
+        }
+        Ok(out)
+    }
+}
+
+/// Loads a complete compliance from `path` (checked as [`load`]) without holding `L`: each
+/// batch is read, checked and dropped, keeping only the blocks of the near pairs of
+/// `triangles` ([`NearBlocks::pairs`]) for the haptic path; the deformer reads `L` from the
+/// file again ([`Compliance::l_data`]).
+pub fn load_near(
+    path: &Path,
+    expected_key: u64,
+    n_nodes: usize,
+    triangles: &[[u32; 3]],
+) -> Result<Compliance, CacheError> {
+    let part = Part::open(path)?;
+    check_complete(&part, expected_key, n_nodes)?;
+    let h = &part.head;
+    let nr3 = 3 * h.rows as usize;
+    let format = |msg: String| CacheError::Format {
+        path: path.to_path_buf(),
+        msg,
+    };
+    let mut col_of_node = vec![u32::MAX; n_nodes];
+    let mut row_of_node = vec![u32::MAX; n_nodes];
+    for (i, &c) in part.cols.iter().enumerate() {
+        *col_of_node
+            .get_mut(c as usize)
+            .ok_or_else(|| format(format!("column node {c} out of range")))? = i as u32;
+    }
+    for (i, &r) in part.rows.iter().enumerate() {
+        *row_of_node
+            .get_mut(r as usize)
+            .ok_or_else(|| format(format!("row node {r} out of range")))? = i as u32;
+    }
+    let mut near = NearBlocks::pairs(part.cols.len(), triangles, &col_of_node);
+    let mut buf = Vec::new();
+    let mut max_abs = 0.0f64;
+    for b in 0..part.batches() {
+        part.read_batch(b, &mut buf)?;
+        max_abs = buf.iter().fold(max_abs, |m, v| m.max(v.abs()));
+        let c0 = b * h.batch as usize;
+        for (jj, col) in buf.chunks_exact(3 * nr3).enumerate() {
+            let j = c0 + jj;
+            for k in 0..near.neighbours(j).len() {
+                let i = near.neighbours(j)[k] as usize;
+                let r = row_of_node[part.cols[i] as usize] as usize;
+                let at = |bb: usize| {
+                    let o = bb * nr3 + 3 * r;
+                    glam::DVec3::new(col[o], col[o + 1], col[o + 2])
+                };
+                // L(node i, column j): the pairs are symmetric, so i lists j.
+                near.set(i, j, glam::DMat3::from_cols(at(0), at(1), at(2)));
+            }
+        }
+    }
+    let rows = part.rows.clone();
+    let cols = part.cols.clone();
+    let residual = f64::from_bits(h.residual_bits);
+    let file = FileL {
+        part,
+        max_abs_f32: max_abs as f32,
+    };
+    let mut c = Compliance::from_near(rows, cols, near, file, n_nodes, max_abs).map_err(|e| {
+        CacheError::Format {
+            path: path.to_path_buf(),
+            msg: e.to_string(),
+        }
+    })?;
+    c.stats.residual = residual;
+    Ok(c)
+}
+
+/// A stale (other key or node count) or partial (a shard) file is an error.
+fn check_complete(part: &Part, expected_key: u64, n_nodes: usize) -> Result<(), CacheError> {
+    let h = &part.head;
+    if h.key != expected_key || h.n_nodes as usize != n_nodes {
+        return Err(CacheError::Stale {
+            path: part.path.clone(),
+        });
+    }
+    if h.shard_count != 1 || h.col_begin != 0 || h.col_end != h.cols {
+        return Err(CacheError::Partial {
+            path: part.path.clone(),
+            index: h.shard_index,
+            count: h.shard_count,
+        });
+    }
+    Ok(())
+}
+
 /// Reads a complete compliance from `path`, checking magic, version, precision, key, length,
 /// checksums and that it is not a shard. Streams L into memory batch by batch (no second copy
 /// of the file).
 pub fn load(path: &Path, expected_key: u64, n_nodes: usize) -> Result<Compliance, CacheError> {
     let part = Part::open(path)?;
+    check_complete(&part, expected_key, n_nodes)?;
     let h = &part.head;
-    if h.key != expected_key || h.n_nodes as usize != n_nodes {
-        return Err(CacheError::Stale {
-            path: path.to_path_buf(),
-        });
-    }
-    if h.shard_count != 1 || h.col_begin != 0 || h.col_end != h.cols {
-        return Err(CacheError::Partial {
-            path: path.to_path_buf(),
-            index: h.shard_index,
-            count: h.shard_count,
-        });
-    }
     let nr = h.rows as usize;
     let nc = h.cols as usize;
     let mut l: Vec<f64> = Vec::new();

@@ -10,6 +10,7 @@
 //! consecutive addresses. The GPU's f32 or f16 copy has the same layout, rounded while
 //! uploading: the host holds only the f64.
 
+use crate::near::NearBlocks;
 use faer::Mat;
 use glam::{DMat3, DVec3, Vec3};
 use std::time::Instant;
@@ -131,7 +132,10 @@ pub struct Compliance {
     col_of_node: Vec<u32>,
     /// Row index of each column's node.
     col_row: Vec<u32>,
+    /// Dense `L`, f64; empty when only the near blocks are held (`lean`).
     l: Vec<f64>,
+    /// Instead of `l`: the haptic path's blocks, with `L` left in its cache file.
+    lean: Option<std::sync::Arc<Lean>>,
     diag_inv: Vec<DMat3>,
     clamp_compliance: f64,
     /// Precompute cost and accuracy.
@@ -253,28 +257,7 @@ impl Compliance {
                 l.len()
             )));
         }
-        let mut row_of_node = vec![u32::MAX; n_nodes];
-        let mut col_of_node = vec![u32::MAX; n_nodes];
-        for (i, &r) in rows.iter().enumerate() {
-            *row_of_node
-                .get_mut(r as usize)
-                .ok_or_else(|| FemError::BadSelection(format!("row node {r} out of range")))? =
-                i as u32;
-        }
-        let mut col_row = Vec::with_capacity(nc);
-        for (i, &c) in cols.iter().enumerate() {
-            *col_of_node
-                .get_mut(c as usize)
-                .ok_or_else(|| FemError::BadSelection(format!("column node {c} out of range")))? =
-                i as u32;
-            let r = row_of_node[c as usize];
-            if r == u32::MAX {
-                return Err(FemError::BadSelection(format!(
-                    "column node {c} is not among the rows"
-                )));
-            }
-            col_row.push(r);
-        }
+        let (row_of_node, col_of_node, col_row) = index_maps(&rows, &cols, n_nodes)?;
         let mut c = Compliance {
             rows,
             cols,
@@ -282,30 +265,78 @@ impl Compliance {
             col_of_node,
             col_row,
             l,
+            lean: None,
             diag_inv: Vec::with_capacity(nc),
             clamp_compliance: 0.0,
             stats: PrecomputeStats::default(),
         };
+        c.finish_blocks()?;
+        c.stats.symmetry = c.symmetry_error();
+        c.stats.bytes = c.l.len() * 8 + c.diag_inv.len() * 72;
+        Ok(c)
+    }
+
+    /// A compliance that holds only the haptic path's blocks (`near`, filled) while `L` stays
+    /// in `file` (read back when the GPU copy is built, see [`Compliance::l_data`]).
+    /// `max_abs` is max |L| over the whole file (for the symmetry figure).
+    pub fn from_near(
+        rows: Vec<u32>,
+        cols: Vec<u32>,
+        near: NearBlocks,
+        file: crate::cache::FileL,
+        n_nodes: usize,
+        max_abs: f64,
+    ) -> Result<Compliance, FemError> {
+        let (row_of_node, col_of_node, col_row) = index_maps(&rows, &cols, n_nodes)?;
+        if near.cols() != cols.len() {
+            return Err(FemError::BadSelection(format!(
+                "near blocks for {} columns, expected {}",
+                near.cols(),
+                cols.len()
+            )));
+        }
+        let nc = cols.len();
+        let mut c = Compliance {
+            rows,
+            cols,
+            row_of_node,
+            col_of_node,
+            col_row,
+            l: Vec::new(),
+            lean: Some(std::sync::Arc::new(Lean { near, file })),
+            diag_inv: Vec::with_capacity(nc),
+            clamp_compliance: 0.0,
+            stats: PrecomputeStats::default(),
+        };
+        c.finish_blocks()?;
+        let (asym, bytes) = c.near().map_or((0.0, 0), |n| (n.asymmetry(), n.bytes()));
+        c.stats.symmetry = if max_abs > 0.0 { asym / max_abs } else { 0.0 };
+        c.stats.bytes = bytes + c.diag_inv.len() * 72;
+        Ok(c)
+    }
+
+    /// `L_ii⁻¹` of every column and the clamp compliance, from the diagonal blocks.
+    fn finish_blocks(&mut self) -> Result<(), FemError> {
+        let nc = self.cols.len();
+        self.diag_inv.clear();
         let mut min_trace = f64::INFINITY;
         for ci in 0..nc {
-            let d = c.block(c.col_row[ci] as usize, ci);
+            let d = self.touch_block(ci, ci);
             let inv = invert3(d).ok_or(FemError::Singular {
-                node: c.cols[ci],
+                node: self.cols[ci],
                 dof: 0,
             })?;
             min_trace = min_trace.min(d.x_axis.x + d.y_axis.y + d.z_axis.z);
-            c.diag_inv.push(inv);
+            self.diag_inv.push(inv);
         }
         // A clamped node is modelled as ten times stiffer than the stiffest touchable node, so
         // that the force near the clamp is large but finite (see `clamp_compliance`).
-        c.clamp_compliance = if min_trace.is_finite() {
+        self.clamp_compliance = if min_trace.is_finite() {
             0.1 * min_trace / 3.0
         } else {
             0.0
         };
-        c.stats.symmetry = c.symmetry_error();
-        c.stats.bytes = c.l.len() * 8 + c.diag_inv.len() * 72;
-        Ok(c)
+        Ok(())
     }
 
     /// Displayed nodes (mesh indices), touchable nodes first-included in order given.
@@ -333,9 +364,26 @@ impl Compliance {
     pub fn col_row(&self, c: usize) -> usize {
         self.col_row[c] as usize
     }
-    /// The f64 matrix in this module's layout (m/N).
+    /// The f64 matrix in this module's layout (m/N); empty when `L` is not held on the host
+    /// ([`Compliance::holds_l`]).
     pub fn l_f64(&self) -> &[f64] {
         &self.l
+    }
+    /// Whether `L` is held on the host (otherwise only the haptic path's near blocks are, and
+    /// `L` is read from its cache file when the GPU copy is built).
+    pub fn holds_l(&self) -> bool {
+        self.lean.is_none()
+    }
+    /// The near blocks, when `L` is not held on the host.
+    pub fn near(&self) -> Option<&NearBlocks> {
+        self.lean.as_deref().map(|l| &l.near)
+    }
+    /// `L` for the deformer: the host's f64, or the cache file it stayed in.
+    pub fn l_data(&self) -> crate::gpu::LData<'_> {
+        match self.lean.as_deref() {
+            Some(l) => crate::gpu::LData::File(&l.file),
+            None => crate::gpu::LData::F64(&self.l),
+        }
     }
     /// `max |L|` rounded to f32 (what [`f16_scale`] of the GPU's f32 copy sees).
     pub fn max_abs_f32(&self) -> f32 {
@@ -344,6 +392,16 @@ impl Compliance {
     /// The 3×3 block L(row r, column c), m/N.
     #[inline]
     pub fn block(&self, r: usize, c: usize) -> DMat3 {
+        if let Some(near) = self.near() {
+            // Only rows of touchable nodes near column c are held.
+            let i = self
+                .rows
+                .get(r)
+                .and_then(|&n| self.col_of_node.get(n as usize))
+                .copied()
+                .unwrap_or(u32::MAX);
+            return near.get(i as usize, c).unwrap_or(DMat3::ZERO);
+        }
         let nr3 = 3 * self.rows.len();
         let base = 3 * c * nr3 + 3 * r;
         let col = |b: usize| {
@@ -355,7 +413,12 @@ impl Compliance {
     /// The 3×3 block between two touchable columns, L(node of column i, column j).
     #[inline]
     pub fn touch_block(&self, i: usize, j: usize) -> DMat3 {
-        self.block(self.col_row[i] as usize, j)
+        match self.near() {
+            // A far pair is not held: zero (lean compliances are made for one finger, whose
+            // solve reads only near pairs).
+            Some(near) => near.get(i, j).unwrap_or(DMat3::ZERO),
+            None => self.block(self.col_row[i] as usize, j),
+        }
     }
     /// `L_ii⁻¹` of column `c` (N/m): the stiffness felt at that node alone (eq. 7).
     #[inline]
@@ -369,9 +432,13 @@ impl Compliance {
     }
 
     /// u = L·F over the active columns (eq. 8), f64, into `out` (one entry per row, metres).
+    /// Zero when `L` is not held on the host ([`Compliance::holds_l`]).
     pub fn displace(&self, forces: &[(u32, DVec3)], out: &mut [DVec3]) {
         let nr = self.rows.len();
         out[..nr].iter_mut().for_each(|v| *v = DVec3::ZERO);
+        if !self.holds_l() {
+            return;
+        }
         let nr3 = 3 * nr;
         for &(c, f) in forces {
             let f = f.to_array();
@@ -408,6 +475,9 @@ impl Compliance {
     ) {
         let nr = self.rows.len();
         out[..nr].fill(Vec3::ZERO);
+        if !self.holds_l() {
+            return;
+        }
         for &(c, f) in forces {
             let f = f.as_vec3() * scale;
             for b in 0..3 {
@@ -446,6 +516,42 @@ impl Compliance {
         }
         err / maxl
     }
+}
+
+/// What a lean compliance holds instead of `L`.
+#[derive(Debug)]
+struct Lean {
+    near: NearBlocks,
+    file: crate::cache::FileL,
+}
+
+type IndexMaps = (Vec<u32>, Vec<u32>, Vec<u32>);
+
+/// Each mesh node's row and column (or `u32::MAX`), and each column's row.
+fn index_maps(rows: &[u32], cols: &[u32], n_nodes: usize) -> Result<IndexMaps, FemError> {
+    let mut row_of_node = vec![u32::MAX; n_nodes];
+    let mut col_of_node = vec![u32::MAX; n_nodes];
+    for (i, &r) in rows.iter().enumerate() {
+        *row_of_node
+            .get_mut(r as usize)
+            .ok_or_else(|| FemError::BadSelection(format!("row node {r} out of range")))? =
+            i as u32;
+    }
+    let mut col_row = Vec::with_capacity(cols.len());
+    for (i, &c) in cols.iter().enumerate() {
+        *col_of_node
+            .get_mut(c as usize)
+            .ok_or_else(|| FemError::BadSelection(format!("column node {c} out of range")))? =
+            i as u32;
+        let r = row_of_node[c as usize];
+        if r == u32::MAX {
+            return Err(FemError::BadSelection(format!(
+                "column node {c} is not among the rows"
+            )));
+        }
+        col_row.push(r);
+    }
+    Ok((row_of_node, col_of_node, col_row))
 }
 
 /// Columns per solve batch. Batches sit on a fixed grid of column indices (batch `b` holds

@@ -35,6 +35,7 @@ pub mod haptics;
 pub mod hard;
 pub mod ladder;
 pub mod mesh;
+pub mod near;
 pub mod precompute;
 pub mod render;
 pub mod runtime;

@@ -183,7 +183,7 @@ impl BufferPath {
         for k in 0..n_chunks {
             let c0 = (k * cols_per_chunk).min(nc);
             let c1 = ((k + 1) * cols_per_chunk).min(nc);
-            let data = sh.l.f32_range(c0 * col_len..c1 * col_len);
+            let data = sh.l.f32_range(c0 * col_len..c1 * col_len)?;
             let packed;
             let bytes: &[u8] = if sh.half {
                 let scaled: Vec<f32> = data.iter().map(|v| v / force_scale).collect();

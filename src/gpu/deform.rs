@@ -75,19 +75,22 @@ impl<'a> From<&'a Compliance> for DeformerInput<'a> {
         DeformerInput {
             rows: c.rows(),
             n_cols: c.cols().len(),
-            l: LData::F64(c.l_f64()),
+            l: c.l_data(),
         }
     }
 }
 
-/// `L`'s entries as the deformer reads them: f32, or f64 (a [`Compliance`]'s own), rounded to
-/// f32 a chunk at a time while uploading, so the host never holds an f32 copy of `L`.
+/// `L`'s entries as the deformer reads them: f32, f64 (a [`Compliance`]'s own) or a cache
+/// file (a compliance that holds only the haptic blocks), rounded to f32 a chunk at a time
+/// while uploading, so the host never holds an f32 copy of `L`.
 #[derive(Clone, Copy, Debug)]
 pub enum LData<'a> {
     /// Single precision, as stored on the GPU.
     F32(&'a [f32]),
     /// Double precision, rounded on upload.
     F64(&'a [f64]),
+    /// In a checked cache file, read and rounded on upload.
+    File(&'a crate::cache::FileL),
 }
 
 impl<'a> From<&'a [f32]> for LData<'a> {
@@ -102,6 +105,7 @@ impl<'a> LData<'a> {
         match self {
             LData::F32(l) => l.len(),
             LData::F64(l) => l.len(),
+            LData::File(f) => f.len(),
         }
     }
 
@@ -110,11 +114,23 @@ impl<'a> LData<'a> {
         self.len() == 0
     }
 
-    /// Entries `range` in f32 (borrowed when already f32).
-    pub fn f32_range(&self, range: std::ops::Range<usize>) -> std::borrow::Cow<'a, [f32]> {
+    /// Entries `range` in f32 (borrowed when already f32); an error if the file cannot be
+    /// read or the range is out of bounds.
+    pub fn f32_range(
+        &self,
+        range: std::ops::Range<usize>,
+    ) -> Result<std::borrow::Cow<'a, [f32]>, GpuError> {
+        let bad = || GpuError::BadInput(format!("L entries {range:?} of {}", self.len()));
         match *self {
-            LData::F32(l) => std::borrow::Cow::Borrowed(&l[range]),
-            LData::F64(l) => l[range].iter().map(|&v| v as f32).collect(),
+            LData::F32(l) => l.get(range.clone()).map(Into::into).ok_or_else(bad),
+            LData::F64(l) => l
+                .get(range.clone())
+                .map(|v| v.iter().map(|&v| v as f32).collect())
+                .ok_or_else(bad),
+            LData::File(f) => f
+                .read_f32(range)
+                .map(Into::into)
+                .map_err(|e| GpuError::BadInput(e.to_string())),
         }
     }
 
@@ -123,6 +139,7 @@ impl<'a> LData<'a> {
         let max = match *self {
             LData::F32(l) => l.iter().fold(0.0f32, |m, v| m.max(v.abs())),
             LData::F64(l) => l.iter().fold(0.0f32, |m, &v| m.max((v as f32).abs())),
+            LData::File(f) => f.max_abs_f32(),
         };
         crate::compliance::f16_scale_of_max(max)
     }
@@ -699,8 +716,13 @@ mod tests {
         let l32: Vec<f32> = l64.iter().map(|&v| v as f32).collect();
         let (a, b) = (LData::F64(&l64), LData::F32(&l32));
         assert_eq!(a.len(), 5);
-        assert_eq!(a.f32_range(1..4).as_ref(), b.f32_range(1..4).as_ref());
-        assert_eq!(a.f32_range(0..5).as_ref(), &l32[..]);
+        assert_eq!(
+            a.f32_range(1..4).unwrap().as_ref(),
+            b.f32_range(1..4).unwrap().as_ref()
+        );
+        assert_eq!(a.f32_range(0..5).unwrap().as_ref(), &l32[..]);
+        assert!(a.f32_range(3..6).is_err());
+        assert!(b.f32_range(6..6).is_err());
         // max |L| = 0.7: the nearest power of two in the log is 0.5.
         assert_eq!(a.f16_scale(), 0.5);
         assert_eq!(a.f16_scale(), crate::compliance::f16_scale(&l32));

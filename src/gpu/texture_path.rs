@@ -245,7 +245,7 @@ impl TexturePath {
             let t1 = ((k + 1) * layer_texels).min(texels as usize);
             staging.clear();
             staging.extend(
-                sh.l.f32_range(3 * t0..3 * t1)
+                sh.l.f32_range(3 * t0..3 * t1)?
                     .chunks_exact(3)
                     .map(|v| [v[0], v[1], v[2], 0.0]),
             );

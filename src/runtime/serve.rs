@@ -74,7 +74,8 @@ pub struct ServeReport {
 pub fn udp_world(spec: &str, limits: Option<&DeviceLimits>) -> Result<World, Error> {
     use crate::scene::SceneSource;
     let mut world = match SceneSource::find(spec)? {
-        Some(_) => World::load(spec, "udp")?,
+        // A scene with one finger holds only its near blocks of a large L (`Hold::Live`).
+        Some(_) => World::load_live(spec, "udp")?,
         None => {
             // A bare mesh: its one-finger scene text with as many UDP fingers as a packet may
             // carry, so that a recorded session's scene has them all and replays.

@@ -114,9 +114,12 @@ impl<'a> Visual<'a> {
         }
         let t = Instant::now();
         for (o, obj) in self.world.objects.iter().enumerate() {
-            obj.scene
-                .compliance
-                .displace(sample.bc(o).entries(), &mut self.cpu[o]);
+            // An object whose L stayed in its cache file keeps its last shape.
+            if obj.scene.compliance.holds_l() {
+                obj.scene
+                    .compliance
+                    .displace(sample.bc(o).entries(), &mut self.cpu[o]);
+            }
         }
         t.elapsed().as_secs_f64() * 1e6
     }

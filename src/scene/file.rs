@@ -234,6 +234,15 @@ impl World {
         World::from_source_with(&src, cache)
     }
 
+    /// As [`World::load`] for a live session: [`Hold::Live`].
+    pub fn load_live(spec: &str, device: &str) -> Result<World, Error> {
+        let src = match SceneSource::find(spec)? {
+            Some(s) => s,
+            None => SceneSource::for_mesh(spec, device),
+        };
+        World::from_source_holding(&src, cache_dir().as_deref(), Hold::Live)
+    }
+
     /// Parses, validates and precomputes a scene, caching compliances in [`cache_dir`].
     /// Warnings (a cache that cannot be written) go to stderr.
     pub fn from_source(src: &SceneSource) -> Result<World, Error> {
@@ -242,8 +251,23 @@ impl World {
 
     /// As [`World::from_source`], with the compliance cache in `cache` (`None`: no cache).
     pub fn from_source_with(src: &SceneSource, cache: Option<&Path>) -> Result<World, Error> {
-        World::build(src, &mut |name, mesh, sel, key| {
-            compute_cached(cache, name, mesh, sel, key).map(Some)
+        World::from_source_holding(src, cache, Hold::Dense)
+    }
+
+    /// As [`World::from_source_with`], keeping on the host what `hold` says.
+    pub fn from_source_holding(
+        src: &SceneSource,
+        cache: Option<&Path>,
+        hold: Hold,
+    ) -> Result<World, Error> {
+        World::build(src, &mut |name, mesh, sel, key, fingers| {
+            let near_from = match hold {
+                _ if fingers > 1 => None,
+                Hold::Dense => None,
+                Hold::Live => Some(NEAR_ONLY_BYTES),
+                Hold::Near => Some(0),
+            };
+            compute_cached(cache, name, mesh, sel, key, near_from).map(Some)
         })
     }
 
@@ -251,7 +275,7 @@ impl World {
     /// (scene units applied), selection and cache key (see `touchfem precompute`).
     pub fn plan(src: &SceneSource) -> Result<Vec<PlannedObject>, Error> {
         let mut out = Vec::new();
-        World::build(src, &mut |name, mesh, sel, key| {
+        World::build(src, &mut |name, mesh, sel, key, _| {
             out.push(PlannedObject {
                 name: name.to_string(),
                 mesh: mesh.clone(),
@@ -448,7 +472,7 @@ impl World {
                     .file_stem()
                     .map_or(mesh_spec.clone(), |s| s.to_string_lossy().into_owned())
             });
-            let Some(compliance) = compute(&name, &mesh, &sel, key)? else {
+            let Some(compliance) = compute(&name, &mesh, &sel, key, file.finger.len())? else {
                 continue;
             };
             objects.push(Object {
@@ -600,9 +624,30 @@ impl World {
     }
 }
 
-/// Gives an object's compliance during [`World::build`]: (name, mesh, selection, cache key).
+/// Gives an object's compliance during [`World::build`]: (name, mesh, selection, cache key,
+/// the scene's finger count).
 type Compute<'a> =
-    dyn FnMut(&str, &crate::Mesh, &Selection, u64) -> Result<Option<Compliance>, Error> + 'a;
+    dyn FnMut(&str, &crate::Mesh, &Selection, u64, usize) -> Result<Option<Compliance>, Error> + 'a;
+
+/// How much of each object's `L` a loaded scene keeps on the host.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Hold {
+    /// All of it, f64: exact CPU displacements (`poke`, `--vtu`, the demo's pictures, the CPU
+    /// fallback of the visual path) and any pair of nodes for several fingers.
+    #[default]
+    Dense,
+    /// For a live session (`view`, `serve`): when the scene has at most one finger and the
+    /// object's `L` is in the cache and at least [`NEAR_ONLY_BYTES`], only the blocks that
+    /// finger's force solve reads ([`crate::near::NearBlocks`]); the GPU copy is then read
+    /// from the cache file. `TOUCHFEM_HOST_L=dense` keeps all of it; `near` holds only the
+    /// blocks whatever the size (still one finger and a cache file at most).
+    Live,
+    /// As [`Hold::Live`] whatever the size of `L`.
+    Near,
+}
+
+/// The smallest f64 `L` (bytes) that a live session with one finger leaves in its cache file.
+pub const NEAR_ONLY_BYTES: u64 = 256 << 20;
 
 /// One object of a scene as `touchfem precompute` sees it.
 #[derive(Clone, Debug)]
@@ -627,23 +672,49 @@ pub fn cache_file(dir: &Path, name: &str, key: u64) -> PathBuf {
 }
 
 /// The compliance for `sel`, from the cache when valid; computed (and saved, if possible)
-/// otherwise.
+/// otherwise. `near_from` (a live session with one finger): an `L` of at least that many f64
+/// bytes stays in the cache file and only the near blocks are held (see [`Hold::Live`]).
 fn compute_cached(
     cache: Option<&Path>,
     name: &str,
     mesh: &crate::Mesh,
     sel: &Selection,
     key: u64,
+    near_from: Option<u64>,
 ) -> Result<Compliance, Error> {
     let Some(dir) = cache else {
         return Ok(Compliance::compute(mesh, sel)?);
     };
     let path = cache_file(dir, name, key);
-    let (c, outcome) = crate::cache::load_or_compute(&path, mesh, sel)?;
-    if let crate::cache::CacheOutcome::NotSaved(..) = outcome {
-        if let Some(m) = outcome.message() {
-            eprintln!("{m}");
+    let min_bytes = match std::env::var("TOUCHFEM_HOST_L").unwrap_or_default().trim() {
+        "dense" => None,
+        "near" => near_from.map(|_| 0),
+        _ => near_from,
+    };
+    let large =
+        |rows: usize, cols: usize| min_bytes.is_some_and(|m| 72 * rows as u64 * cols as u64 >= m);
+    let n = mesh.nodes.len();
+    if let Ok(part) = crate::cache::Part::open(&path) {
+        if large(part.rows.len(), part.cols.len()) {
+            drop(part);
+            if let Ok(c) = crate::cache::load_near(&path, key, n, &mesh.surface) {
+                return Ok(c);
+            }
         }
+    }
+    let (c, outcome) = crate::cache::load_or_compute(&path, mesh, sel)?;
+    match outcome {
+        crate::cache::CacheOutcome::NotSaved(..) => {
+            if let Some(m) = outcome.message() {
+                eprintln!("{m}");
+            }
+        }
+        crate::cache::CacheOutcome::Recomputed(_) if large(c.rows().len(), c.cols().len()) => {
+            // Just saved: hold only the blocks from the file.
+            drop(c);
+            return Ok(crate::cache::load_near(&path, key, n, &mesh.surface)?);
+        }
+        _ => {}
     }
     Ok(c)
 }

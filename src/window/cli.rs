@@ -49,7 +49,8 @@ pub fn view_command(args: &crate::cli::ViewArgs) -> Result<(), Error> {
     if std::env::var_os("LP_NUM_THREADS").is_none() {
         std::env::set_var("LP_NUM_THREADS", "0");
     }
-    let world = World::load(&args.scene, "pointer")?;
+    // One finger and a large L: only its near blocks on the host (`Hold::Live`).
+    let world = World::load_live(&args.scene, "pointer")?;
     let pointer = Arc::new(PointerShared::default());
     let mut devs = devices(&world, &pointer)?;
     let has_pointer = world
