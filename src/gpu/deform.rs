@@ -188,6 +188,32 @@ pub enum LStorage {
     /// [`BuffersF16`](Self::BuffersF16)): half the memory of the f32 texture, the software
     /// rasteriser's fast path.
     TextureF16,
+    /// [`Auto`](Self::Auto)'s layout in half floats: [`TextureF16`](Self::TextureF16) or
+    /// [`BuffersF16`](Self::BuffersF16).
+    AutoF16,
+}
+
+impl LStorage {
+    /// The storage a live session asks for in `TOUCHFEM_GPU_L`: `auto` (or unset), `f16`
+    /// (auto's layout in half floats), `buffers`, `texture`, `buffers-f16`, `texture-f16`.
+    /// Anything else is an error naming the accepted values.
+    pub fn from_env() -> Result<LStorage, GpuError> {
+        match std::env::var("TOUCHFEM_GPU_L") {
+            Err(_) => Ok(LStorage::Auto),
+            Ok(v) => match v.trim() {
+                "" | "auto" => Ok(LStorage::Auto),
+                "f16" => Ok(LStorage::AutoF16),
+                "buffers" => Ok(LStorage::Buffers),
+                "texture" => Ok(LStorage::Texture),
+                "buffers-f16" => Ok(LStorage::BuffersF16),
+                "texture-f16" => Ok(LStorage::TextureF16),
+                other => Err(GpuError::BadInput(format!(
+                    "TOUCHFEM_GPU_L={other:?}: expected auto, f16, buffers, texture, \
+                     buffers-f16 or texture-f16"
+                ))),
+            },
+        }
+    }
 }
 
 /// Options for [`Deformer::new`].
@@ -438,7 +464,10 @@ impl Deformer {
         });
 
         let shared = Shared {
-            half: matches!(options.storage, LStorage::BuffersF16 | LStorage::TextureF16),
+            half: matches!(
+                options.storage,
+                LStorage::BuffersF16 | LStorage::TextureF16 | LStorage::AutoF16
+            ),
             device,
             queue,
             l: input.l,
@@ -475,7 +504,7 @@ impl Deformer {
             }
             LStorage::Texture | LStorage::TextureF16 => true,
             LStorage::Buffers | LStorage::BuffersF16 => false,
-            LStorage::Auto => {
+            LStorage::Auto | LStorage::AutoF16 => {
                 textures_ok && device.adapter_info().device_type == wgpu::DeviceType::Cpu
             }
         };
@@ -584,7 +613,7 @@ impl Deformer {
         self.n_cols
     }
 
-    /// The layout `L` is stored in ([`LStorage::Auto`] resolved).
+    /// The layout `L` is stored in ([`LStorage::Auto`] and [`LStorage::AutoF16`] resolved).
     pub fn storage(&self) -> LStorage {
         match self.path {
             Path::Buffers(ref b) if b.half() => LStorage::BuffersF16,
@@ -708,7 +737,28 @@ fn validate_target(
 
 #[cfg(test)]
 mod tests {
-    use super::LData;
+    use super::{LData, LStorage};
+
+    #[test]
+    fn storage_from_env_names_every_layout() {
+        // The only test that touches TOUCHFEM_GPU_L.
+        for (v, want) in [
+            ("auto", LStorage::Auto),
+            ("f16", LStorage::AutoF16),
+            (" texture-f16 ", LStorage::TextureF16),
+            ("buffers", LStorage::Buffers),
+            ("buffers-f16", LStorage::BuffersF16),
+            ("texture", LStorage::Texture),
+        ] {
+            std::env::set_var("TOUCHFEM_GPU_L", v);
+            assert_eq!(LStorage::from_env().unwrap(), want, "{v}");
+        }
+        std::env::set_var("TOUCHFEM_GPU_L", "half");
+        let e = LStorage::from_env().unwrap_err().to_string();
+        assert!(e.contains("\"half\"") && e.contains("texture-f16"), "{e}");
+        std::env::remove_var("TOUCHFEM_GPU_L");
+        assert_eq!(LStorage::from_env().unwrap(), LStorage::Auto);
+    }
 
     #[test]
     fn f64_data_uploads_as_its_f32_rounding() {

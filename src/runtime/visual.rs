@@ -40,6 +40,16 @@ impl<'a> Visual<'a> {
             timeout: GPU_TIMEOUT,
         };
         if let Some(g) = gpu {
+            let options = match crate::gpu::LStorage::from_env() {
+                Ok(storage) => DeformerOptions {
+                    storage,
+                    ..Default::default()
+                },
+                Err(e) => {
+                    v.give_up(e.to_string());
+                    return v;
+                }
+            };
             for o in &world.objects {
                 let s = &o.scene;
                 match Deformer::new(
@@ -48,7 +58,7 @@ impl<'a> Visual<'a> {
                     &s.compliance,
                     &s.mesh.nodes,
                     &s.mesh.surface,
-                    &DeformerOptions::default(),
+                    &options,
                 ) {
                     Ok(d) => v.deformers.push(d),
                     Err(e) => {

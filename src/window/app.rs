@@ -336,6 +336,10 @@ impl<'a> App<'a> {
         let mut legend = Overlay::new(&device, options);
         legend.set_anchor(crate::render::Anchor::TopRight);
         let mut deformers = Vec::with_capacity(self.world.objects.len());
+        let deformer_options = DeformerOptions {
+            storage: crate::gpu::LStorage::from_env()?,
+            ..Default::default()
+        };
         for o in &self.world.objects {
             deformers.push(Deformer::new(
                 &device,
@@ -343,7 +347,7 @@ impl<'a> App<'a> {
                 &o.scene.compliance,
                 &o.scene.mesh.nodes,
                 &o.scene.mesh.surface,
-                &DeformerOptions::default(),
+                &deformer_options,
             )?);
         }
         let edges = deformers.iter().map(|d| Edges::new(&device, d)).collect();
