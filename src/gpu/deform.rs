@@ -508,8 +508,29 @@ impl Deformer {
                 textures_ok && device.adapter_info().device_type == wgpu::DeviceType::Cpu
             }
         };
+        let auto = matches!(options.storage, LStorage::Auto | LStorage::AutoF16);
         let path = if texture {
-            Path::Texture(TexturePath::new(&shared)?)
+            // A texture too large for the device's memory (the f32 texture of a 45k-node
+            // organ's whole surface, 3.8 GB, on lavapipe): `Auto` falls back to the buffers,
+            // which need a quarter less (no pad); an asked-for texture is an error that says so.
+            let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+            let invalid = device.push_error_scope(wgpu::ErrorFilter::Validation);
+            let made = TexturePath::new(&shared);
+            let invalid = pollster::block_on(invalid.pop());
+            match (made, pollster::block_on(oom.pop()), invalid) {
+                (Ok(t), None, None) => Path::Texture(t),
+                (Err(e), None, _) => return Err(e),
+                (_, None, Some(e)) => return Err(GpuError::BadInput(e.to_string())),
+                (_, Some(_), _) if auto => Path::Buffers(BufferPath::new(&shared)?),
+                (_, Some(e), _) => {
+                    return Err(GpuError::BadInput(format!(
+                        "L as a texture ({} bytes) does not fit the device's memory ({e}); \
+                         the buffers (TOUCHFEM_GPU_L=buffers) need a quarter less, half \
+                         floats (f16) half of that",
+                        shared.l.len() / 3 * 4 * if shared.half { 2 } else { 4 }
+                    )))
+                }
+            }
         } else {
             Path::Buffers(BufferPath::new(&shared)?)
         };

@@ -238,53 +238,59 @@ impl TexturePath {
         });
         let force_scale = if sh.half { sh.l.f16_scale() } else { 1.0 };
         let layer_texels = (width * height) as usize;
-        let mut staging: Vec<[f32; 4]> = Vec::with_capacity(layer_texels);
-        let mut staging16: Vec<[u16; 4]> = Vec::new();
+        // Uploaded in bands of texture rows, each read (and rounded) straight from `L`'s
+        // source, so the host holds a band, not a layer, beside wgpu's staging copy.
+        const BAND_ROWS: usize = 256;
+        let band_texels = BAND_ROWS.min(height as usize) * width as usize;
+        let mut staging: Vec<[f32; 4]> = Vec::with_capacity(band_texels);
+        let mut staging16: Vec<[u16; 4]> =
+            Vec::with_capacity(if sh.half { band_texels } else { 0 });
         for k in 0..layers as usize {
-            let t0 = (k * layer_texels).min(texels as usize);
-            let t1 = ((k + 1) * layer_texels).min(texels as usize);
-            staging.clear();
-            staging.extend(
-                sh.l.f32_range(3 * t0..3 * t1)?
-                    .chunks_exact(3)
-                    .map(|v| [v[0], v[1], v[2], 0.0]),
-            );
-            staging.resize(layer_texels, [0.0; 4]);
-            let data: &[u8] = if sh.half {
-                staging16.clear();
-                staging16.extend(
-                    staging
-                        .iter()
-                        .map(|t| t.map(|v| half::f16::from_f32(v / force_scale).to_bits())),
-                );
-                bytemuck::cast_slice(&staging16)
-            } else {
-                bytemuck::cast_slice(&staging)
-            };
-            queue.write_texture(
-                wgpu::TexelCopyTextureInfo {
-                    texture: &l_tex,
-                    mip_level: 0,
-                    origin: wgpu::Origin3d {
-                        x: 0,
-                        y: 0,
-                        z: k as u32,
+            for y0 in (0..height as usize).step_by(BAND_ROWS) {
+                let band_rows = BAND_ROWS.min(height as usize - y0);
+                let n = band_rows * width as usize;
+                let t0 = (k * layer_texels + y0 * width as usize).min(texels as usize);
+                let t1 = (t0 + n).min(texels as usize);
+                let values = sh.l.f32_range(3 * t0..3 * t1)?;
+                let data: &[u8] = if sh.half {
+                    staging16.clear();
+                    staging16.extend(values.chunks_exact(3).map(|v| {
+                        let h = |x: f32| half::f16::from_f32(x / force_scale).to_bits();
+                        [h(v[0]), h(v[1]), h(v[2]), 0]
+                    }));
+                    staging16.resize(n, [0; 4]);
+                    bytemuck::cast_slice(&staging16)
+                } else {
+                    staging.clear();
+                    staging.extend(values.chunks_exact(3).map(|v| [v[0], v[1], v[2], 0.0]));
+                    staging.resize(n, [0.0; 4]);
+                    bytemuck::cast_slice(&staging)
+                };
+                queue.write_texture(
+                    wgpu::TexelCopyTextureInfo {
+                        texture: &l_tex,
+                        mip_level: 0,
+                        origin: wgpu::Origin3d {
+                            x: 0,
+                            y: y0 as u32,
+                            z: k as u32,
+                        },
+                        aspect: wgpu::TextureAspect::All,
                     },
-                    aspect: wgpu::TextureAspect::All,
-                },
-                data,
-                wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(texel_bytes as u32 * width as u32),
-                    rows_per_image: Some(height as u32),
-                },
-                wgpu::Extent3d {
-                    width: width as u32,
-                    height: height as u32,
-                    depth_or_array_layers: 1,
-                },
-            );
-            // Flush each layer's staging copy so that peak memory stays near one layer.
+                    data,
+                    wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(texel_bytes as u32 * width as u32),
+                        rows_per_image: Some(band_rows as u32),
+                    },
+                    wgpu::Extent3d {
+                        width: width as u32,
+                        height: band_rows as u32,
+                        depth_or_array_layers: 1,
+                    },
+                );
+            }
+            // Flush each layer's staging copies so that peak memory stays near one layer.
             queue.submit([]);
         }
 
