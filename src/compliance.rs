@@ -813,9 +813,26 @@ impl ColumnPlan {
         sink: &(dyn Fn(usize, &[f64]) -> bool + Sync),
         progress: &mut dyn FnMut(usize),
     ) -> Result<(f64, [f64; 3]), FemError> {
+        self.solve_until(
+            batches,
+            sink,
+            progress,
+            &std::sync::atomic::AtomicBool::new(false),
+        )
+    }
+
+    /// As [`ColumnPlan::solve`], with the stop flag the caller's: it is set when a sink
+    /// returns `false` or a worker fails, and a sink that waits for another batch must give
+    /// up when it is set. Workers take `batches` in the order given.
+    pub fn solve_until(
+        &self,
+        batches: &[usize],
+        sink: &(dyn Fn(usize, &[f64]) -> bool + Sync),
+        progress: &mut dyn FnMut(usize),
+        stop: &std::sync::atomic::AtomicBool,
+    ) -> Result<(f64, [f64; 3]), FemError> {
         let workers = solver_threads().min(batches.len().max(1));
         let next = std::sync::atomic::AtomicUsize::new(0);
-        let stop = std::sync::atomic::AtomicBool::new(false);
         let done = std::sync::atomic::AtomicUsize::new(0);
         let work = |progress: &mut dyn FnMut(usize)| -> Result<(f64, [f64; 3]), FemError> {
             use std::sync::atomic::Ordering::Relaxed;
@@ -827,7 +844,9 @@ impl ColumnPlan {
                 let Some(&b) = batches.get(next.fetch_add(1, Relaxed)) else {
                     return Ok(acc);
                 };
-                let (res, t, data) = self.solve_batch(b)?;
+                let (res, t, data) = self.solve_batch(b).inspect_err(|_| {
+                    stop.store(true, Relaxed);
+                })?;
                 acc.0 = acc.0.max(res);
                 for (a, v) in acc.1.iter_mut().zip(t) {
                     *a += v;

@@ -87,7 +87,7 @@ pub fn precompute_until(
     let col_begin = (range.start * BATCH_COLS).min(nc);
     let col_end = (range.end * BATCH_COLS).min(nc);
     // A symmetric plan computes each batch's rows below its first column (and above the
-    // shard) and mirrors the rest from the shard's earlier batches once all are written.
+    // shard) and mirrors the rest from the shard's earlier batches (see below).
     let mirrored = plan.mirror_from(col_begin);
     let head = Header {
         n_nodes: mesh.nodes.len() as u32,
@@ -121,48 +121,62 @@ pub fn precompute_until(
         .filter(|&b| done[b - range.start])
         .map(|b| plan.batch_cols(b).len())
         .sum();
-    let (residual, t) = plan.solve(
+    // A symmetric plan's batch waits for the shard's earlier batches, fills its upper rows
+    // from their lower rows in the file and is written whole, once. Workers take the batches
+    // in order, so the batches waited for are written or being solved.
+    let complete = std::sync::Mutex::new(done.clone());
+    let written_cv = std::sync::Condvar::new();
+    let halt = AtomicBool::new(false);
+    let mirror_ns = std::sync::atomic::AtomicU64::new(0);
+    let fail = |e: CacheError| {
+        *failed.lock().unwrap_or_else(|e| e.into_inner()) = Some(e);
+        false
+    };
+    let base = 3 * range.start * BATCH_COLS;
+    let (residual, t) = plan.solve_until(
         &todo,
-        &|b, data| match if mirrored {
-            writer
-                .write_unfinished(b - range.start, data, plan.mirror_rows(b))
-                .map(|()| !stop(written.load(Ordering::Relaxed)))
-        } else {
-            writer.write_batch(b - range.start, data).map(|()| true)
-        } {
-            Ok(false) => {
-                stopped.store(true, Ordering::Relaxed);
-                false
-            }
-            Ok(true) if mirrored => true,
-            Ok(true) => {
-                let w = written.fetch_add(1, Ordering::Relaxed) + 1;
-                if stop(w) {
-                    stopped.store(true, Ordering::Relaxed);
-                    return false;
+        &|b, data| {
+            let i = b - range.start;
+            let result = if mirrored {
+                let mut g = complete.lock().unwrap_or_else(|e| e.into_inner());
+                while !g[..i].iter().all(|&d| d) {
+                    if halt.load(Ordering::Relaxed) {
+                        return false;
+                    }
+                    g = written_cv
+                        .wait_timeout(g, std::time::Duration::from_millis(20))
+                        .unwrap_or_else(|e| e.into_inner())
+                        .0;
                 }
-                true
+                drop(g);
+                let tm = Instant::now();
+                let mut full = data.to_vec();
+                let r = plan
+                    .mirror(b, &mut full, &mut |q, r0, out| {
+                        writer.read_column(q - base, r0, out)
+                    })
+                    .and_then(|_| writer.write_batch(i, &full));
+                mirror_ns.fetch_add(tm.elapsed().as_nanos() as u64, Ordering::Relaxed);
+                r
+            } else {
+                writer.write_batch(i, data)
+            };
+            if let Err(e) = result {
+                return fail(e);
             }
-            Err(e) => {
-                *failed.lock().unwrap_or_else(|e| e.into_inner()) = Some(e);
-                false
+            complete.lock().unwrap_or_else(|e| e.into_inner())[i] = true;
+            written_cv.notify_all();
+            let w = written.fetch_add(1, Ordering::Relaxed) + 1;
+            if stop(w) {
+                stopped.store(true, Ordering::Relaxed);
+                return false;
             }
+            true
         },
         &mut |d| progress(already + d, total),
+        &halt,
     )?;
-    let mut mirror_s = 0.0;
-    if mirrored && !stopped.load(Ordering::Relaxed) && failed_is_none(&failed) {
-        let tm = Instant::now();
-        mirror_batches(&plan, &writer, &todo, range.start, &|| {
-            let w = written.fetch_add(1, Ordering::Relaxed) + 1;
-            let s = stop(w);
-            if s {
-                stopped.store(true, Ordering::Relaxed);
-            }
-            !s
-        })?;
-        mirror_s = tm.elapsed().as_secs_f64();
-    }
+    let mirror_s = mirror_ns.load(Ordering::Relaxed) as f64 * 1e-9;
     if let Some(e) = failed.into_inner().unwrap_or_else(|e| e.into_inner()) {
         return Err(e.into());
     }
@@ -194,60 +208,6 @@ pub fn precompute_until(
         residual,
         phases,
     })
-}
-
-fn failed_is_none(f: &std::sync::Mutex<Option<CacheError>>) -> bool {
-    f.lock().unwrap_or_else(|e| e.into_inner()).is_none()
-}
-
-/// The second pass of a symmetric plan: each batch of `todo` (batch-grid indices; the file
-/// holds batches from `first`) gets its mirrored rows from the earlier batches' lower rows and
-/// is written whole, on all cores. `next()` is called after each batch; `false` stops.
-fn mirror_batches(
-    plan: &ColumnPlan,
-    writer: &Writer,
-    todo: &[usize],
-    first: usize,
-    next: &(dyn Fn() -> bool + Sync),
-) -> Result<(), Error> {
-    let at = std::sync::atomic::AtomicUsize::new(0);
-    let halt = AtomicBool::new(false);
-    let work = || -> Result<(), CacheError> {
-        let mut data = Vec::new();
-        while !halt.load(Ordering::Relaxed) {
-            let Some(&b) = todo.get(at.fetch_add(1, Ordering::Relaxed)) else {
-                return Ok(());
-            };
-            writer.read_unfinished(b - first, &mut data)?;
-            let base = 3 * first * BATCH_COLS;
-            let rows = plan.mirror(b, &mut data, &mut |q, r0, out| {
-                writer.read_column(q - base, r0, out)
-            })?;
-            writer.finish_batch(b - first, &data, rows)?;
-            if !next() {
-                halt.store(true, Ordering::Relaxed);
-            }
-        }
-        Ok(())
-    };
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get().min(16));
-    let results: Vec<Result<(), CacheError>> = std::thread::scope(|sc| {
-        let hs: Vec<_> = (1..threads).map(|_| sc.spawn(work)).collect();
-        let mut r = vec![work()];
-        r.extend(hs.into_iter().map(|h| {
-            h.join().unwrap_or_else(|_| {
-                Err(CacheError::Format {
-                    path: PathBuf::new(),
-                    msg: "a mirroring thread panicked".into(),
-                })
-            })
-        }));
-        r
-    });
-    for r in results {
-        r?;
-    }
-    Ok(())
 }
 
 /// The objects `spec` names: a scene's objects, or one mesh (loaded with `args.load`).
