@@ -112,7 +112,8 @@ pub struct PhaseTimes {
     pub forward_s: f64,
     /// Bytes of the Gram method's `W`; 0 for the column method.
     pub w_bytes: usize,
-    /// The symmetric Gram plan's second pass (rows mirrored from earlier batches), s.
+    /// The symmetric Gram plan's mirrored rows (copied from earlier batches and, in
+    /// `touchfem precompute`, the batch's write), s, summed over the workers.
     pub mirror_s: f64,
     /// Estimated floating-point operations of the column method's solves.
     pub column_flops: f64,
