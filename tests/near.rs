@@ -118,6 +118,22 @@ fn the_deformer_reads_the_cache_file_into_the_same_vertices() {
             g.queue.submit([enc.finish()]);
             out.push(def.read_back(&g.device, &g.queue).expect("read back"));
         }
+        // `AutoF16` is the auto layout in half floats: the f16 texture on lavapipe.
+        if storage == LStorage::TextureF16 {
+            let auto16 = Deformer::new(
+                &g.device,
+                &g.queue,
+                &n.compliance,
+                &n.mesh.nodes,
+                &n.mesh.surface,
+                &DeformerOptions {
+                    storage: LStorage::AutoF16,
+                    ..opts.clone()
+                },
+            )
+            .expect("deformer");
+            assert_eq!(auto16.storage(), LStorage::TextureF16);
+        }
         assert_eq!(out[0].0, out[1].0, "{storage:?} positions");
         assert_eq!(out[0].1, out[1].1, "{storage:?} normals");
         // And the press moved something.
