@@ -772,18 +772,9 @@ pub fn load_near(
         path: path.to_path_buf(),
         msg,
     };
-    let mut col_of_node = vec![u32::MAX; n_nodes];
-    let mut row_of_node = vec![u32::MAX; n_nodes];
-    for (i, &c) in part.cols.iter().enumerate() {
-        *col_of_node
-            .get_mut(c as usize)
-            .ok_or_else(|| format(format!("column node {c} out of range")))? = i as u32;
-    }
-    for (i, &r) in part.rows.iter().enumerate() {
-        *row_of_node
-            .get_mut(r as usize)
-            .ok_or_else(|| format(format!("row node {r} out of range")))? = i as u32;
-    }
+    let (row_of_node, col_of_node, _) =
+        crate::compliance::index_maps(&part.rows, &part.cols, n_nodes)
+            .map_err(|e| format(e.to_string()))?;
     let mut near = NearBlocks::pairs(part.cols.len(), triangles, &col_of_node);
     let mut buf = Vec::new();
     let mut max_abs = 0.0f64;

@@ -258,20 +258,7 @@ impl Compliance {
                 l.len()
             )));
         }
-        let (row_of_node, col_of_node, col_row) = index_maps(&rows, &cols, n_nodes)?;
-        let mut c = Compliance {
-            rows,
-            cols,
-            row_of_node,
-            col_of_node,
-            col_row,
-            l,
-            lean: None,
-            diag_inv: Vec::with_capacity(nc),
-            clamp_compliance: 0.0,
-            stats: PrecomputeStats::default(),
-        };
-        c.finish_blocks()?;
+        let mut c = Compliance::with_blocks(rows, cols, n_nodes, l, None)?;
         c.stats.symmetry = c.symmetry_error();
         c.stats.bytes = c.l.len() * 8 + c.diag_inv.len() * 72;
         Ok(c)
@@ -288,7 +275,6 @@ impl Compliance {
         n_nodes: usize,
         max_abs: f64,
     ) -> Result<Compliance, FemError> {
-        let (row_of_node, col_of_node, col_row) = index_maps(&rows, &cols, n_nodes)?;
         if near.cols() != cols.len() {
             return Err(FemError::BadSelection(format!(
                 "near blocks for {} columns, expected {}",
@@ -296,6 +282,23 @@ impl Compliance {
                 cols.len()
             )));
         }
+        let lean = Some(std::sync::Arc::new(Lean { near, file }));
+        let mut c = Compliance::with_blocks(rows, cols, n_nodes, Vec::new(), lean)?;
+        let (asym, bytes) = c.near().map_or((0.0, 0), |n| (n.asymmetry(), n.bytes()));
+        c.stats.symmetry = if max_abs > 0.0 { asym / max_abs } else { 0.0 };
+        c.stats.bytes = bytes + c.diag_inv.len() * 72;
+        Ok(c)
+    }
+
+    /// The index maps, then [`Compliance::finish_blocks`] from `l` or `lean`'s blocks.
+    fn with_blocks(
+        rows: Vec<u32>,
+        cols: Vec<u32>,
+        n_nodes: usize,
+        l: Vec<f64>,
+        lean: Option<std::sync::Arc<Lean>>,
+    ) -> Result<Compliance, FemError> {
+        let (row_of_node, col_of_node, col_row) = index_maps(&rows, &cols, n_nodes)?;
         let nc = cols.len();
         let mut c = Compliance {
             rows,
@@ -303,16 +306,13 @@ impl Compliance {
             row_of_node,
             col_of_node,
             col_row,
-            l: Vec::new(),
-            lean: Some(std::sync::Arc::new(Lean { near, file })),
+            l,
+            lean,
             diag_inv: Vec::with_capacity(nc),
             clamp_compliance: 0.0,
             stats: PrecomputeStats::default(),
         };
         c.finish_blocks()?;
-        let (asym, bytes) = c.near().map_or((0.0, 0), |n| (n.asymmetry(), n.bytes()));
-        c.stats.symmetry = if max_abs > 0.0 { asym / max_abs } else { 0.0 };
-        c.stats.bytes = bytes + c.diag_inv.len() * 72;
         Ok(c)
     }
 
@@ -529,7 +529,11 @@ struct Lean {
 type IndexMaps = (Vec<u32>, Vec<u32>, Vec<u32>);
 
 /// Each mesh node's row and column (or `u32::MAX`), and each column's row.
-fn index_maps(rows: &[u32], cols: &[u32], n_nodes: usize) -> Result<IndexMaps, FemError> {
+pub(crate) fn index_maps(
+    rows: &[u32],
+    cols: &[u32],
+    n_nodes: usize,
+) -> Result<IndexMaps, FemError> {
     let mut row_of_node = vec![u32::MAX; n_nodes];
     let mut col_of_node = vec![u32::MAX; n_nodes];
     for (i, &r) in rows.iter().enumerate() {
