@@ -345,6 +345,17 @@ fn view_window_presses_the_cube_with_the_pointer() {
     );
     assert!(max_force > 0.05, "the drag pressed with only {max_force} N");
     assert!(haptic > 500.0, "haptic rate {haptic} Hz");
+    // Every per-second line counts the haptic loop's missed deadlines so far: never fewer
+    // than the line before, and (at 1 kHz, a few seconds) never more than the ticks.
+    let missed: Vec<u64> = lines
+        .iter()
+        .filter(|l| l["summary"] != true)
+        .map(|l| l["haptic_missed"].as_u64().expect("haptic_missed"))
+        .collect();
+    assert!(!missed.is_empty());
+    assert!(missed.windows(2).all(|w| w[0] <= w[1]), "{missed:?}");
+    let ticks = 1000.0 * summary["seconds"].as_f64().expect("the run's seconds");
+    assert!((*missed.last().unwrap() as f64) < ticks, "{missed:?}");
 
     // The session it recorded (the pointer's positions and the forces sent, every tick)
     // replays through the haptic path to exactly the same forces.

@@ -571,6 +571,7 @@ impl<'a> App<'a> {
                 "draw_ms_median": median(&mut s.second_draw_ms),
                 "force_n": s.second_force,
                 "haptic_hz": self.status.rate_hz(),
+                "haptic_missed": self.status.missed.load(Ordering::Relaxed),
                 "touching": touching,
             });
             if let Some(f) = &mut self.log {

@@ -26,8 +26,9 @@
 //! Environment hooks (tests, measurements):
 //! * `TOUCHFEM_VIEW_SECONDS=S`: quit after S seconds;
 //! * `TOUCHFEM_VIEW_LOG=FILE`: append one JSON line per second, `{"t", "frames", "fps",
-//!   "frame_ms_median", "draw_ms_median", "force_n", "haptic_hz", "touching"}` (`frames`: so
-//!   far; `frame_ms_median`: median time between presented frames over that second;
+//!   "frame_ms_median", "draw_ms_median", "force_n", "haptic_hz", "haptic_missed",
+//!   "touching"}` (`frames`, `haptic_missed`: so far; `frame_ms_median`: median time between
+//!   presented frames over that second;
 //!   `force_n`: the largest |F| of the pointer finger over that second), and a final line with
 //!   `"summary": true`;
 //! * `TOUCHFEM_VIEW_SAMPLES=1|4`: override the MSAA sample count.
