@@ -764,8 +764,19 @@ pub fn load_near(
     n_nodes: usize,
     triangles: &[[u32; 3]],
 ) -> Result<Compliance, CacheError> {
-    let part = Part::open(path)?;
+    load_near_part(Part::open(path)?, expected_key, n_nodes, triangles)
+}
+
+/// As [`load_near`], from a part already opened (and its header checked).
+pub fn load_near_part(
+    part: Part,
+    expected_key: u64,
+    n_nodes: usize,
+    triangles: &[[u32; 3]],
+) -> Result<Compliance, CacheError> {
     check_complete(&part, expected_key, n_nodes)?;
+    let path = part.path.clone();
+    let path = path.as_path();
     let h = &part.head;
     let nr3 = 3 * h.rows as usize;
     let format = |msg: String| CacheError::Format {

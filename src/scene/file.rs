@@ -159,6 +159,12 @@ impl SceneSource {
         Ok(None)
     }
 
+    /// A bundled scene or scene file ([`SceneSource::find`]), else a mesh as one object
+    /// touched by `device` ([`SceneSource::for_mesh`]).
+    pub fn find_or_mesh(spec: &str, device: &str) -> Result<SceneSource, Error> {
+        Ok(SceneSource::find(spec)?.unwrap_or_else(|| SceneSource::for_mesh(spec, device)))
+    }
+
     /// A one-object scene around a mesh (bundled name or file) touched by `device`.
     pub fn for_mesh(spec: &str, device: &str) -> SceneSource {
         let (mesh, dir) = if crate::scene::BUNDLED.contains(&spec) {
@@ -227,19 +233,12 @@ impl World {
 
     /// As [`World::load`], with the compliance cache in `cache` (`None`: no cache).
     pub fn load_with(spec: &str, device: &str, cache: Option<&Path>) -> Result<World, Error> {
-        let src = match SceneSource::find(spec)? {
-            Some(s) => s,
-            None => SceneSource::for_mesh(spec, device),
-        };
-        World::from_source_with(&src, cache)
+        World::from_source_with(&SceneSource::find_or_mesh(spec, device)?, cache)
     }
 
     /// As [`World::load`] for a live session: [`Hold::Live`].
     pub fn load_live(spec: &str, device: &str) -> Result<World, Error> {
-        let src = match SceneSource::find(spec)? {
-            Some(s) => s,
-            None => SceneSource::for_mesh(spec, device),
-        };
+        let src = SceneSource::find_or_mesh(spec, device)?;
         World::from_source_holding(&src, cache_dir().as_deref(), Hold::Live)
     }
 
@@ -696,8 +695,7 @@ fn compute_cached(
     let n = mesh.nodes.len();
     if let Ok(part) = crate::cache::Part::open(&path) {
         if large(part.rows.len(), part.cols.len()) {
-            drop(part);
-            if let Ok(c) = crate::cache::load_near(&path, key, n, &mesh.surface) {
+            if let Ok(c) = crate::cache::load_near_part(part, key, n, &mesh.surface) {
                 return Ok(c);
             }
         }
