@@ -1,7 +1,8 @@
 // touchfem deformation passes (Hirota & Kaneko eq. 8): u = L·F over the active columns, then
 // area-weighted vertex normals of the deformed surface. Used by `touchfem::gpu::Deformer`.
 //
-// L is column-major (3R)×(3C), split by column nodes into chunks (one storage binding each, to
+// L is column-major (3R')×(3C) over the first R' rows (the free ones; the clamped rows after
+// them are zero and not stored, so those vertices stay at rest), split by column nodes into chunks (one storage binding each, to
 // stay under max_storage_buffer_binding_size). `deform` is dispatched once per chunk that has
 // active columns (chunk 0 always, it starts from the rest pose); later chunks accumulate.
 // All counts come from uniforms: nothing relies on arrayLength (VERTEX buffers are padded).
@@ -14,6 +15,11 @@ struct Frame {
     out_stride: u32,
     // Normal's first word relative to the vertex start; 0xffffffff: no normals written.
     normal_offset: u32,
+    // Rows that hold L (R' ≤ n_rows): the first ones.
+    l_rows: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 // One active column of the force boundary condition: F_c (newtons) and c, local to its chunk.
@@ -59,11 +65,13 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
     if r >= frame.n_rows {
         return;
     }
-    let nr3 = 3u * frame.n_rows;
+    let nr3 = 3u * frame.l_rows;
     var u = vec3<f32>(0.0);
-    for (var k = 0u; k < chunk.count; k += 1u) {
+    // A clamped row (r ≥ R') has no entries: it stays at rest.
+    let count = select(0u, chunk.count, r < frame.l_rows);
+    for (var k = 0u; k < count; k += 1u) {
         let a = active_list[chunk.first + k];
-        // Entry (row r, axis 0; column c, axis b) sits at (3c + b)·3R + 3r.
+        // Entry (row r, axis 0; column c, axis b) sits at (3c + b)·3R' + 3r.
         let base = 3u * a.col * nr3 + 3u * r;
         u += load_l(base) * a.force.x + load_l(base + nr3) * a.force.y
             + load_l(base + 2u * nr3) * a.force.z;

@@ -11,7 +11,9 @@
 // Layouts (all linear indices t map to texels with W = 1024 texels a row):
 //   x = t & (W − 1), y = (t >> 10) & (2^log_h − 1), layer = t >> (10 + log_h)
 // * L: texel t = c_s·R + r holds (L[3r, c_s], L[3r+1, c_s], L[3r+2, c_s], 0) for scalar column
-//   c_s = 3c + b: exactly the f32 column-major L with a zero after every third entry.
+//   c_s = 3c + b, R = the rows that hold L (frame.l_rows, the free ones; the clamped rows
+//   after them stay at rest): exactly the f32 column-major L with a zero after every third
+//   entry.
 // * rest, pos: texel r = vertex r (metres, w = 1); pos is written by `deform`, read by `normals`.
 // * fan: vertex v's neighbours as chains (touchfem::mesh::vertex_fans): an entry with FAN_START
 //   begins a chain, and consecutive entries a, b of a chain are one incident triangle (v, a, b),
@@ -48,7 +50,8 @@ struct Frame {
     log_h: u32,
     // Entries of `forces` this frame (written per frame; unused with active_immediate.wgsl).
     n_active: u32,
-    _pad0: u32,
+    // Rows that hold L (≤ n_rows): the first ones.
+    l_rows: u32,
     _pad1: u32,
 }
 
@@ -92,8 +95,10 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
     if r >= frame.n_rows {
         return;
     }
-    let nr = frame.n_rows;
-    let u = displacement(r, nr);
+    var u = vec3<f32>(0.0);
+    if r < frame.l_rows {
+        u = displacement(r, frame.l_rows);
+    }
     let p = textureLoad(rest_tex, xy(r)).xyz + u;
     store_position(r, p, u);
     if frame.normal_offset != 0xffffffffu {

@@ -1,10 +1,10 @@
 //! A cache file for the precomputed compliance, so that the factorisation and solves run once.
 //!
-//! Format (little-endian), version 2. A file holds the columns `col_begin..col_end` of L: all of
+//! Format (little-endian), version 3. A file holds the columns `col_begin..col_end` of L: all of
 //! them for a complete cache, one part of them for a shard (`touchfem precompute --shard I/N`).
 //! ```text
 //! magic        8 bytes  "TFEMCMP\0"
-//! version      u32      2
+//! version      u32      3
 //! precision    u32      8 (f64 values)
 //! n_nodes      u32
 //! rows         u32      R
@@ -14,10 +14,11 @@
 //! shard        u32 ×2   index I (1-based) and count N; a complete file is 1 of 1
 //! col range    u32 ×2   col_begin, col_end (on the batch grid)
 //! free_dofs    u32
-//! reserved     u32      0
+//! l_rows       u32      R' ≤ R: the rows that hold L (the free ones, listed first); the
+//!                       clamped rows after them are zero and not stored
 //! residual     f64      max |K·x − e| over the checked columns
 //! lists        R u32 row nodes, C u32 column nodes (all of them, also in a shard)
-//! L            9·R·(col_end − col_begin) f64 (layout of `compliance`, those columns only)
+//! L            9·R'·(col_end − col_begin) f64 (layout of `compliance`, those columns only)
 //! batch sums   one u64 per batch of the range: xxh3 of that batch's L bytes
 //! checksum     u64      xxh3 of header + lists + batch sums
 //! ```
@@ -37,7 +38,7 @@ use crate::near::NearBlocks;
 
 const MAGIC: &[u8; 8] = b"TFEMCMP\0";
 /// The cache format version this build reads and writes.
-pub const FORMAT_VERSION: u32 = 2;
+pub const FORMAT_VERSION: u32 = 3;
 const HEADER: usize = 72;
 /// Version of what [`key`] hashes (not of the file layout, which the header's version names):
 /// scene hashes and recorded sessions include the key, so it changes only when the hashed
@@ -196,6 +197,8 @@ pub struct Header {
     pub col_end: u32,
     /// Free DOFs of K.
     pub free_dofs: u32,
+    /// Rows that hold `L` (the first ones; the clamped rows after them are not stored).
+    pub l_rows: u32,
     /// max |K·x − e| over the checked columns held.
     pub residual_bits: u64,
 }
@@ -216,7 +219,7 @@ impl Header {
         put(48, self.col_begin);
         put(52, self.col_end);
         put(56, self.free_dofs);
-        put(60, 0);
+        put(60, self.l_rows);
         h[32..40].copy_from_slice(&self.key.to_le_bytes());
         h[64..72].copy_from_slice(&self.residual_bits.to_le_bytes());
         h
@@ -228,7 +231,14 @@ impl Header {
 
     /// Bytes of the L values held.
     fn l_bytes(&self) -> u64 {
-        72 * self.rows as u64 * (self.col_end - self.col_begin) as u64
+        72 * self.l_rows as u64 * (self.col_end - self.col_begin) as u64
+    }
+
+    /// Byte offset of held batch `i`.
+    fn batch_offset(&self, i: usize) -> u64 {
+        HEADER as u64
+            + self.lists_len() as u64
+            + 72 * self.l_rows as u64 * (i as u64 * self.batch as u64)
     }
 
     /// Total file length the header implies.
@@ -314,13 +324,11 @@ impl Writer {
     }
 
     /// Writes the held batch `i` (0-based within the file's range): `values` are its
-    /// `9·R·columns` f64. Callable from several threads.
+    /// `9·R'·columns` f64 ([`Header::l_rows`]). Callable from several threads.
     pub fn write_batch(&self, i: usize, values: &[f64]) -> Result<(), CacheError> {
         use std::os::unix::fs::FileExt;
         let bytes: &[u8] = bytemuck::cast_slice(values);
-        let off = HEADER as u64
-            + self.lists.len() as u64
-            + 72 * self.head.rows as u64 * (i as u64 * self.head.batch as u64);
+        let off = self.head.batch_offset(i);
         self.file
             .write_all_at(bytes, off)
             .map_err(|source| CacheError::Io {
@@ -336,19 +344,14 @@ impl Writer {
     /// column) as written so far.
     pub fn read_column(&self, q: usize, r0: usize, out: &mut [f64]) -> Result<(), CacheError> {
         use std::os::unix::fs::FileExt;
-        let off = self.batch_offset(0) + 8 * (q as u64 * 3 * self.head.rows as u64 + r0 as u64);
+        let off =
+            self.head.batch_offset(0) + 8 * (q as u64 * 3 * self.head.l_rows as u64 + r0 as u64);
         self.file
             .read_exact_at(bytemuck::cast_slice_mut(out), off)
             .map_err(|source| CacheError::Io {
                 path: self.path.clone(),
                 source,
             })
-    }
-
-    fn batch_offset(&self, i: usize) -> u64 {
-        HEADER as u64
-            + self.lists.len() as u64
-            + 72 * self.head.rows as u64 * (i as u64 * self.head.batch as u64)
     }
 
     /// Continues an interrupted write of the same `head` from `partial` (left by
@@ -503,11 +506,12 @@ impl Drop for Writer {
 /// Writes a complete compliance to `path` (atomically: a unique temporary file, synced, then a
 /// rename and a sync of the directory).
 pub fn save(path: &Path, c: &Compliance, key: u64, n_nodes: usize) -> Result<(), CacheError> {
-    let nr = c.rows().len();
+    let nr = c.l_rows();
     let nc = c.cols().len();
     let head = Header {
         n_nodes: n_nodes as u32,
-        rows: nr as u32,
+        rows: c.rows().len() as u32,
+        l_rows: nr as u32,
         cols: nc as u32,
         batch: BATCH_COLS as u32,
         key,
@@ -605,6 +609,7 @@ impl Part {
             col_begin: u32_at(&hb, 48),
             col_end: u32_at(&hb, 52),
             free_dofs: u32_at(&hb, 56),
+            l_rows: u32_at(&hb, 60),
             residual_bits: u64_at(&hb, 64),
         };
         let expected = head.file_len();
@@ -617,6 +622,7 @@ impl Part {
             });
         }
         let sane = head.batch > 0
+            && head.l_rows <= head.rows
             && head.col_begin <= head.col_end
             && head.col_end <= head.cols
             && head.shard_index >= 1
@@ -656,11 +662,10 @@ impl Part {
         let h = &self.head;
         let first = h.col_begin as usize + i * h.batch as usize;
         let ncols = (h.col_end as usize - first).min(h.batch as usize);
-        let n = 9 * h.rows as usize * ncols;
+        let n = 9 * h.l_rows as usize * ncols;
         out.clear();
         out.resize(n, 0.0);
-        let off =
-            HEADER as u64 + h.lists_len() as u64 + 72 * h.rows as u64 * (i as u64 * h.batch as u64);
+        let off = h.batch_offset(i);
         let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut out[..]);
         self.file
             .read_exact_at(bytes, off)
@@ -703,7 +708,7 @@ impl std::fmt::Debug for FileL {
 impl FileL {
     /// Number of entries of `L`.
     pub fn len(&self) -> usize {
-        9 * self.part.head.rows as usize * self.part.head.cols as usize
+        9 * self.part.head.l_rows as usize * self.part.head.cols as usize
     }
 
     /// Whether `L` has no entries.
@@ -778,7 +783,7 @@ pub fn load_near_part(
     let path = part.path.clone();
     let path = path.as_path();
     let h = &part.head;
-    let nr3 = 3 * h.rows as usize;
+    let nr3 = 3 * h.l_rows as usize;
     let format = |msg: String| CacheError::Format {
         path: path.to_path_buf(),
         msg,
@@ -808,18 +813,20 @@ pub fn load_near_part(
         }
     }
     let rows = part.rows.clone();
+    let l_rows = h.l_rows as usize;
     let cols = part.cols.clone();
     let residual = f64::from_bits(h.residual_bits);
     let file = FileL {
         part,
         max_abs_f32: max_abs as f32,
     };
-    let mut c = Compliance::from_near(rows, cols, near, file, n_nodes, max_abs).map_err(|e| {
-        CacheError::Format {
-            path: path.to_path_buf(),
-            msg: e.to_string(),
-        }
-    })?;
+    let mut c =
+        Compliance::from_near(rows, l_rows, cols, near, file, n_nodes, max_abs).map_err(|e| {
+            CacheError::Format {
+                path: path.to_path_buf(),
+                msg: e.to_string(),
+            }
+        })?;
     c.stats.residual = residual;
     Ok(c)
 }
@@ -849,7 +856,7 @@ pub fn load(path: &Path, expected_key: u64, n_nodes: usize) -> Result<Compliance
     let part = Part::open(path)?;
     check_complete(&part, expected_key, n_nodes)?;
     let h = &part.head;
-    let nr = h.rows as usize;
+    let nr = h.l_rows as usize;
     let nc = h.cols as usize;
     let mut l: Vec<f64> = Vec::new();
     l.try_reserve_exact(9 * nr * nc)
@@ -862,12 +869,10 @@ pub fn load(path: &Path, expected_key: u64, n_nodes: usize) -> Result<Compliance
         part.read_batch(i, &mut buf)?;
         l.extend_from_slice(&buf);
     }
-    let mut c =
-        Compliance::from_dense(part.rows.clone(), part.cols.clone(), l, n_nodes).map_err(|e| {
-            CacheError::Format {
-                path: path.to_path_buf(),
-                msg: format!("inconsistent contents: {e}"),
-            }
+    let mut c = Compliance::from_stored(part.rows.clone(), nr, part.cols.clone(), l, n_nodes)
+        .map_err(|e| CacheError::Format {
+            path: path.to_path_buf(),
+            msg: format!("inconsistent contents: {e}"),
         })?;
     c.stats.residual = f64::from_bits(h.residual_bits);
     c.stats.free_dofs = h.free_dofs as usize;
@@ -917,7 +922,7 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeInfo, CacheError> {
                 h0.key
             ));
         }
-        if h.batch != h0.batch || h.free_dofs != h0.free_dofs {
+        if h.batch != h0.batch || h.free_dofs != h0.free_dofs || h.l_rows != h0.l_rows {
             return bad("made with another batch size or stiffness".into());
         }
     }

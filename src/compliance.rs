@@ -5,9 +5,12 @@
 //! # Layout
 //! `L` is stored column-major as a dense `(3R) × (3C)` matrix, R = rows, C = columns:
 //! entry (row node `r`, axis `a`; column node `c`, axis `b`) is at index
-//! `(3c + b)·3R + 3r + a`. One column node's three DOF columns are contiguous, so a frame with a
+//! `(3c + b)·3R' + 3r + a`. One column node's three DOF columns are contiguous, so a frame with a
 //! few active columns touches a few contiguous runs, and the GPU's per-vertex threads read
-//! consecutive addresses. The GPU's f32 or f16 copy has the same layout, rounded while
+//! consecutive addresses.
+//!
+//! The rows of clamped nodes are identically zero and are not stored: the free displayed rows
+//! come first (`R'` = [`Compliance::l_rows`] of them), the clamped ones after. The GPU's f32 or f16 copy has the same layout, rounded while
 //! uploading: the host holds only the f64.
 
 use crate::near::NearBlocks;
@@ -133,6 +136,8 @@ pub struct Compliance {
     col_of_node: Vec<u32>,
     /// Row index of each column's node.
     col_row: Vec<u32>,
+    /// Rows that hold `L` (the free ones, first); the rest are clamped: zero, not stored.
+    l_rows: usize,
     /// Dense `L`, f64; empty when only the near blocks are held (`lean`).
     l: Vec<f64>,
     /// Instead of `l`: the haptic path's blocks, with `L` left in its cache file.
@@ -195,7 +200,7 @@ impl Compliance {
         let t0 = Instant::now();
         let mut plan = ColumnPlan::with_method(mesh, sel, how)?;
         let mirrored = plan.mirror_from(0);
-        let nr = plan.rows.len();
+        let nr = plan.l_rows;
         let nc = plan.cols.len();
         let mut l = vec![0.0f64; 9 * nr * nc];
         let out = std::sync::Mutex::new(&mut l[..]);
@@ -231,7 +236,7 @@ impl Compliance {
         phases.scatter_s = t[2];
         let t_fin = Instant::now();
         let (rows, cols) = (plan.rows.clone(), plan.cols.clone());
-        let mut c = Compliance::from_dense(rows, cols, l, mesh.nodes.len())?;
+        let mut c = Compliance::from_stored(rows, plan.l_rows, cols, l, mesh.nodes.len())?;
         phases.finish_s = t_fin.elapsed().as_secs_f64();
         c.stats.phases = phases;
         c.stats.free_dofs = plan.stiff.dofs.n_free;
@@ -241,9 +246,9 @@ impl Compliance {
         Ok(c)
     }
 
-    /// Builds a compliance from a dense column-major `(3R)×(3C)` matrix in this module's layout.
-    /// `cols` must be a subset of `rows`; `n_nodes` is the mesh's node count. Used by the cache
-    /// and by tests with synthetic data.
+    /// Builds a compliance from a dense column-major `(3R)×(3C)` matrix in this module's layout,
+    /// every row stored. `cols` must be a subset of `rows`; `n_nodes` is the mesh's node count.
+    /// Used by tests with synthetic data.
     pub fn from_dense(
         rows: Vec<u32>,
         cols: Vec<u32>,
@@ -251,14 +256,28 @@ impl Compliance {
         n_nodes: usize,
     ) -> Result<Compliance, FemError> {
         let nr = rows.len();
+        Self::from_stored(rows, nr, cols, l, n_nodes)
+    }
+
+    /// As [`Compliance::from_dense`] with only the first `l_rows` rows stored (`9·l_rows·C`
+    /// entries): `rows[l_rows..]` are clamped, their rows of `L` zero. Every column's node
+    /// must be among the stored rows. Used by the precompute and the cache.
+    pub fn from_stored(
+        rows: Vec<u32>,
+        l_rows: usize,
+        cols: Vec<u32>,
+        l: Vec<f64>,
+        n_nodes: usize,
+    ) -> Result<Compliance, FemError> {
         let nc = cols.len();
-        if l.len() != 9 * nr * nc {
+        if l_rows > rows.len() || l.len() != 9 * l_rows * nc {
             return Err(FemError::BadSelection(format!(
-                "L has {} entries, expected 9·{nr}·{nc}",
-                l.len()
+                "L has {} entries, expected 9·{l_rows}·{nc} ({} rows)",
+                l.len(),
+                rows.len()
             )));
         }
-        let mut c = Compliance::with_blocks(rows, cols, n_nodes, l, None)?;
+        let mut c = Compliance::with_blocks(rows, l_rows, cols, n_nodes, l, None)?;
         c.stats.symmetry = c.symmetry_error();
         c.stats.bytes = c.l.len() * 8 + c.diag_inv.len() * 72;
         Ok(c)
@@ -269,6 +288,7 @@ impl Compliance {
     /// `max_abs` is max |L| over the whole file (for the symmetry figure).
     pub fn from_near(
         rows: Vec<u32>,
+        l_rows: usize,
         cols: Vec<u32>,
         near: NearBlocks,
         file: crate::cache::FileL,
@@ -283,7 +303,7 @@ impl Compliance {
             )));
         }
         let lean = Some(std::sync::Arc::new(Lean { near, file }));
-        let mut c = Compliance::with_blocks(rows, cols, n_nodes, Vec::new(), lean)?;
+        let mut c = Compliance::with_blocks(rows, l_rows, cols, n_nodes, Vec::new(), lean)?;
         let (asym, bytes) = c.near().map_or((0.0, 0), |n| (n.asymmetry(), n.bytes()));
         c.stats.symmetry = if max_abs > 0.0 { asym / max_abs } else { 0.0 };
         c.stats.bytes = bytes + c.diag_inv.len() * 72;
@@ -293,12 +313,19 @@ impl Compliance {
     /// The index maps, then [`Compliance::finish_blocks`] from `l` or `lean`'s blocks.
     fn with_blocks(
         rows: Vec<u32>,
+        l_rows: usize,
         cols: Vec<u32>,
         n_nodes: usize,
         l: Vec<f64>,
         lean: Option<std::sync::Arc<Lean>>,
     ) -> Result<Compliance, FemError> {
         let (row_of_node, col_of_node, col_row) = index_maps(&rows, &cols, n_nodes)?;
+        if let Some(i) = col_row.iter().position(|&r| r as usize >= l_rows) {
+            return Err(FemError::BadSelection(format!(
+                "touchable node {} is among the clamped rows",
+                cols[i]
+            )));
+        }
         let nc = cols.len();
         let mut c = Compliance {
             rows,
@@ -306,6 +333,7 @@ impl Compliance {
             row_of_node,
             col_of_node,
             col_row,
+            l_rows,
             l,
             lean,
             diag_inv: Vec::with_capacity(nc),
@@ -340,9 +368,14 @@ impl Compliance {
         Ok(())
     }
 
-    /// Displayed nodes (mesh indices), touchable nodes first-included in order given.
+    /// Displayed nodes (mesh indices): the free ones first, then the clamped ones.
     pub fn rows(&self) -> &[u32] {
         &self.rows
+    }
+    /// How many of [`Compliance::rows`] hold `L` (`R'` of the layout): the free ones. The
+    /// rows after them are clamped nodes, whose rows of `L` are zero and not stored.
+    pub fn l_rows(&self) -> usize {
+        self.l_rows
     }
     /// Touchable nodes (mesh indices).
     pub fn cols(&self) -> &[u32] {
@@ -403,7 +436,10 @@ impl Compliance {
                 .unwrap_or(u32::MAX);
             return near.get(i as usize, c).unwrap_or(DMat3::ZERO);
         }
-        let nr3 = 3 * self.rows.len();
+        if r >= self.l_rows {
+            return DMat3::ZERO;
+        }
+        let nr3 = 3 * self.l_rows;
         let base = 3 * c * nr3 + 3 * r;
         let col = |b: usize| {
             let o = base + b * nr3;
@@ -435,11 +471,11 @@ impl Compliance {
     /// u = L·F over the active columns (eq. 8), f64, into `out` (one entry per row, metres).
     /// Zero when `L` is not held on the host ([`Compliance::holds_l`]).
     pub fn displace(&self, forces: &[(u32, DVec3)], out: &mut [DVec3]) {
-        let nr = self.rows.len();
-        out[..nr].iter_mut().for_each(|v| *v = DVec3::ZERO);
+        out[..self.rows.len()].fill(DVec3::ZERO);
         if !self.holds_l() {
             return;
         }
+        let nr = self.l_rows;
         let nr3 = 3 * nr;
         for &(c, f) in forces {
             let f = f.to_array();
@@ -474,11 +510,11 @@ impl Compliance {
         scale: f32,
         round: impl Fn(f32) -> f32,
     ) {
-        let nr = self.rows.len();
-        out[..nr].fill(Vec3::ZERO);
+        out[..self.rows.len()].fill(Vec3::ZERO);
         if !self.holds_l() {
             return;
         }
+        let nr = self.l_rows;
         for &(c, f) in forces {
             let f = f.as_vec3() * scale;
             for b in 0..3 {
@@ -611,8 +647,11 @@ fn ordering() -> crate::fem::Ordering {
 
 /// The factorised stiffness and the resolved selection, ready to solve column batches.
 pub struct ColumnPlan {
-    /// Displayed nodes (rows); the touchable nodes are included.
+    /// Displayed nodes (rows); the touchable nodes are included. The free ones come first,
+    /// then the clamped ones.
     pub rows: Vec<u32>,
+    /// The free rows, which hold `L` (see [`Compliance::l_rows`]).
+    pub l_rows: usize,
     /// Touchable nodes (columns).
     pub cols: Vec<u32>,
     /// Assembly and factorisation times (the solve phases are filled by the caller).
@@ -680,6 +719,15 @@ impl ColumnPlan {
                 rows.push(c);
             }
         }
+        // Free rows first: the clamped ones hold no `L`.
+        let (mut free, clamped): (Vec<u32>, Vec<u32>) =
+            rows.iter().partition(|&&r| !mesh.fixed[r as usize]);
+        let l_rows = free.len();
+        free.extend(clamped);
+        rows = free;
+        for (i, &r) in rows.iter().enumerate() {
+            row_of_node[r as usize] = i as u32;
+        }
         let mut phases = PhaseTimes::default();
         let stiff = Stiffness::assemble(mesh)?;
         phases.assemble_s = t0.elapsed().as_secs_f64();
@@ -735,6 +783,7 @@ impl ColumnPlan {
         };
         Ok(ColumnPlan {
             rows,
+            l_rows,
             cols,
             phases,
             stiff,
@@ -768,7 +817,7 @@ impl ColumnPlan {
     ) -> Result<std::ops::Range<usize>, E> {
         let rows = self.mirror_rows(b);
         let chunk = self.batch_cols(b);
-        let nr3 = 3 * self.rows.len();
+        let nr3 = 3 * self.l_rows;
         let k = 3 * chunk.len();
         let mut vals = vec![0.0f64; k];
         for q in rows.clone() {
@@ -807,7 +856,7 @@ impl ColumnPlan {
     }
 
     /// Solves the batches `batches` (indices on the batch grid) on all cores. For each batch, `sink(b, data)` receives its
-    /// slice of L (`9·R·batch columns` f64, this module's layout) from whichever worker solved
+    /// slice of L (`9·R'·batch columns` f64, R' = [`ColumnPlan::l_rows`], this module's layout) from whichever worker solved
     /// it; a sink returning `false` stops the work (the caller keeps its own error). Returns
     /// max |K·x − e| over one checked DOF column per batch and the slowest worker's seconds
     /// solving, checking and scattering. `progress(columns done)` is called on the calling
@@ -896,7 +945,7 @@ impl ColumnPlan {
         if let Some(u) = &self.units {
             return self.pruned_batch(batch, u);
         }
-        let nr = self.rows.len();
+        let nr = self.l_rows;
         let nf = self.stiff.dofs.n_free;
         let chunk = self.batch_cols(batch);
         let mut times = [0.0f64; 3];
@@ -929,11 +978,11 @@ impl ColumnPlan {
         times[1] += tc.elapsed().as_secs_f64();
         let tsc = Instant::now();
         let mut out = vec![0.0f64; 9 * nr * chunk.len()];
-        // Free DOF of each row entry (or none: clamped rows stay zero).
+        // Free DOF of each row entry (the free rows; clamped rows are not stored).
         for j in 0..3 * chunk.len() {
             let x = b.col(j);
             let dst = &mut out[j * 3 * nr..][..3 * nr];
-            for (ri, &r) in self.rows.iter().enumerate() {
+            for (ri, &r) in self.rows[..nr].iter().enumerate() {
                 for a in 0..3 {
                     if let Some(d) = self.stiff.dofs.free(r, a) {
                         let v = x[d];
@@ -957,7 +1006,7 @@ impl ColumnPlan {
         u: &crate::gram::UnitSolver,
     ) -> Result<(f64, [f64; 3], Vec<f64>), FemError> {
         let ts = Instant::now();
-        let nr = self.rows.len();
+        let nr = self.l_rows;
         let nf = self.stiff.dofs.n_free;
         let chunk = self.batch_cols(batch);
         let mut dofs = Vec::with_capacity(3 * chunk.len());
@@ -975,7 +1024,7 @@ impl ColumnPlan {
         for j in 0..dofs.len() {
             let xc = x.col(j);
             let dst = &mut out[j * 3 * nr..][..3 * nr];
-            for (ri, &r) in self.rows.iter().enumerate() {
+            for (ri, &r) in self.rows[..nr].iter().enumerate() {
                 for a in 0..3 {
                     if let Some(d) = self.stiff.dofs.free(r, a) {
                         let v = xc[u.row(d)];
@@ -1007,7 +1056,7 @@ impl ColumnPlan {
     ) -> Result<(), FemError> {
         let scale = xs.iter().fold(0.0f64, |a, v| a.max(v.abs()));
         let mut diff = 0.0f64;
-        for (ri, &r) in self.rows.iter().enumerate() {
+        for (ri, &r) in self.rows[..self.l_rows].iter().enumerate() {
             if skip.contains(&ri) {
                 continue; // mirrored later
             }
@@ -1067,7 +1116,7 @@ impl ColumnPlan {
         w: &[f64],
         row_of: &[u32],
     ) -> Result<(f64, [f64; 3], Vec<f64>), FemError> {
-        let nr = self.rows.len();
+        let nr = self.l_rows;
         let chunk = self.batch_cols(batch);
         let mut times = [0.0f64; 3];
         let m = 3 * g.nodes().len();

@@ -100,6 +100,7 @@ pub fn precompute_until(
         col_begin: col_begin as u32,
         col_end: col_end as u32,
         free_dofs: plan.free_dofs() as u32,
+        l_rows: plan.l_rows as u32,
         residual_bits: 0,
     };
     let partial = partial_path(out);

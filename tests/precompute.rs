@@ -332,7 +332,8 @@ fn bench_scene_gives_the_precompute_row_of_each_object() {
     assert_eq!(t["rows"], 98);
     assert_eq!(t["cols"], 33);
     assert!(t["precompute_s"].as_f64().unwrap() > 0.0);
-    assert_eq!(t["bytes_l"].as_u64().unwrap(), 8 * 9 * 98 * 33 + 72 * 33);
+    // L holds only the 73 free rows (the 25 clamped ones are zero), plus the 33 inverses.
+    assert_eq!(t["bytes_l"].as_u64().unwrap(), 8 * 9 * 73 * 33 + 72 * 33);
     assert!(t["peak_rss_bytes"].as_u64().unwrap() > 1 << 20);
     // One live frame (a contact triangle deformed and drawn at 640×480) on lavapipe: a
     // measured time, not a placeholder (a frame of the 125-node cube takes well over 10 µs and
@@ -402,5 +403,42 @@ fn the_factor_is_the_same_bit_for_bit_on_any_number_of_threads() {
     let one = solve(faer::Par::Seq);
     for t in [1, 2, 3, 8] {
         assert!(one == solve(faer::Par::rayon(t)), "{t} threads");
+    }
+}
+
+#[test]
+fn clamped_rows_are_not_stored() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, mesh) in [("cube", cube()), ("mouse", mouse())] {
+        let sel = Selection::default();
+        let c = Compliance::compute(&mesh, &sel).unwrap();
+        let (nr, nl, nc) = (c.rows().len(), c.l_rows(), c.cols().len());
+        // Free rows first, then the clamped ones, which hold nothing.
+        let clamped = c.rows().iter().filter(|&&r| mesh.fixed[r as usize]).count();
+        assert!(clamped > 0, "{name} has a clamped surface");
+        assert_eq!(nl, nr - clamped, "{name}");
+        assert!(c.rows()[..nl].iter().all(|&r| !mesh.fixed[r as usize]));
+        assert!(c.rows()[nl..].iter().all(|&r| mesh.fixed[r as usize]));
+        assert_eq!(c.l_f64().len(), 9 * nl * nc);
+        // A clamped row reads zero and stays at rest under any load.
+        let forces: Vec<(u32, glam::DVec3)> = (0..nc as u32)
+            .step_by(7)
+            .map(|j| (j, glam::DVec3::new(0.3, -1.0, 0.5)))
+            .collect();
+        let mut u = vec![glam::DVec3::splat(9.0); nr];
+        c.displace(&forces, &mut u);
+        assert!(u[nl..].iter().all(|v| *v == glam::DVec3::ZERO));
+        assert!(u[..nl].iter().any(|v| v.length() > 0.0));
+        assert_eq!(c.block(nr - 1, 0), glam::DMat3::ZERO);
+        // The file holds 9·R'·C values: 72·clamped·C bytes less than every row would.
+        let path = dir.path().join(format!("{name}.tfc"));
+        let r = precompute_to_file(&mesh, &sel, &path, (1, 1), &mut |_, _| {}).unwrap();
+        let batches = nc.div_ceil(touchfem::compliance::BATCH_COLS);
+        let expected = 72 + 4 * (nr + nc) + 72 * nl * nc + 8 * batches + 8;
+        assert_eq!(r.bytes as usize, expected, "{name}");
+        assert_eq!(std::fs::metadata(&path).unwrap().len() as usize, expected);
+        let back = cache::load(&path, cache::key(&mesh, &sel), mesh.nodes.len()).unwrap();
+        assert_eq!(back.l_rows(), nl);
+        assert_eq!(back.rows(), c.rows());
     }
 }

@@ -100,8 +100,8 @@ impl BufferPath {
         sh.check("triangle list", 4 * sh.index_words)?;
         sh.check("vertex-triangle adjacency", 4 * adj.len() as u64)?;
 
-        // f32: 9R floats per column node; f16: 9R halves (+ a pad half per chunk).
-        let bytes_per_col = if sh.half { 18 } else { 36 } * nr as u64;
+        // f32: 9R' floats per column node; f16: 9R' halves (+ a pad half per chunk).
+        let bytes_per_col = if sh.half { 18 } else { 36 } * sh.nl.max(1) as u64;
         let avail = if sh.half {
             sh.max_chunk.saturating_sub(4)
         } else {
@@ -168,7 +168,7 @@ impl BufferPath {
             label: Some("touchfem deform group 0"),
             layout: &layout0,
             entries: &[
-                buffer(0, &frame_buf, 0, 16),
+                buffer(0, &frame_buf, 0, std::mem::size_of_val(&sh.frame) as u64),
                 buffer(1, &active, 0, active.size()),
                 buffer(2, &rest_buf, 0, 16 * nr as u64),
                 buffer(3, out, out_start, out_size),
@@ -178,7 +178,7 @@ impl BufferPath {
         });
 
         let mut chunks = Vec::with_capacity(n_chunks);
-        let col_len = 9 * nr;
+        let col_len = 9 * sh.nl;
         let force_scale = if sh.half { sh.l.f16_scale() } else { 1.0 };
         for k in 0..n_chunks {
             let c0 = (k * cols_per_chunk).min(nc);

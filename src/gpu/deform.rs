@@ -64,9 +64,13 @@ impl Vertex {
 pub struct DeformerInput<'a> {
     /// Displayed mesh nodes; vertex `i` of the output is `rows[i]`.
     pub rows: &'a [u32],
+    /// How many of the first `rows` hold `L` (R'); the others (clamped nodes) stay at rest.
+    /// `rows.len()` when every row is stored.
+    pub l_rows: usize,
     /// Number of touchable columns C.
     pub n_cols: usize,
-    /// `L`, `9·R·C` entries, entry (row r, axis a; column c, axis b) at `(3c+b)·3R + 3r + a`.
+    /// `L`, `9·R'·C` entries, entry (row r, axis a; column c, axis b) at
+    /// `(3c+b)·3R' + 3r + a`.
     pub l: LData<'a>,
 }
 
@@ -74,6 +78,7 @@ impl<'a> From<&'a Compliance> for DeformerInput<'a> {
     fn from(c: &'a Compliance) -> Self {
         DeformerInput {
             rows: c.rows(),
+            l_rows: c.l_rows(),
             n_cols: c.cols().len(),
             l: c.l_data(),
         }
@@ -240,6 +245,9 @@ pub(super) struct FrameGpu {
     pub out_offset: u32,
     pub out_stride: u32,
     pub normal_offset: u32,
+    /// Rows that hold `L` (the first ones; the others stay at rest).
+    pub l_rows: u32,
+    pub _pad: [u32; 3],
 }
 
 /// What [`Deformer::new`] hands to a layout: validated input, in row indices.
@@ -249,6 +257,8 @@ pub(super) struct Shared<'a> {
     /// Column-major `L` ([`DeformerInput::l`]).
     pub l: LData<'a>,
     pub nr: usize,
+    /// Rows that hold `L` ([`DeformerInput::l_rows`]).
+    pub nl: usize,
     pub nc: usize,
     /// Rest positions per row, metres, `w = 1`.
     pub rest_rows: &'a [[f32; 4]],
@@ -346,12 +356,13 @@ impl Deformer {
         let input = input.into();
         let nr = input.rows.len();
         let nc = input.n_cols;
+        let nl = input.l_rows;
         if nr == 0 {
             return Err(GpuError::BadInput("no displayed rows".into()));
         }
-        if input.l.len() != 9 * nr * nc {
+        if nl > nr || input.l.len() != 9 * nl * nc {
             return Err(GpuError::BadInput(format!(
-                "L has {} entries, expected 9·{nr}·{nc}",
+                "L has {} entries, expected 9·{nl}·{nc} ({nl} of {nr} rows stored)",
                 input.l.len()
             )));
         }
@@ -472,6 +483,7 @@ impl Deformer {
             queue,
             l: input.l,
             nr,
+            nl,
             nc,
             rest_rows: &rest_rows,
             tris: &tris,
@@ -482,6 +494,8 @@ impl Deformer {
                 out_offset: out_word,
                 out_stride: (target.stride / 4) as u32,
                 normal_offset: normal_word,
+                l_rows: nl as u32,
+                _pad: [0; 3],
             },
             out: (&target.buffer, out_start, out_size),
             max_chunk,

@@ -36,7 +36,8 @@ struct FrameGpu {
     normal_offset: u32,
     log_h: u32,
     n_active: u32,
-    _pad: [u32; 2],
+    l_rows: u32,
+    _pad: u32,
 }
 
 /// Byte offset of `n_active` in [`FrameGpu`].
@@ -197,7 +198,7 @@ impl TexturePath {
         } else {
             rgba
         };
-        let texels = 3 * nc * nr;
+        let texels = 3 * nc * sh.nl as u64;
         let rows = texels.div_ceil(W).max(1);
         let cap_rows = (sh.max_chunk / (texel_bytes * W)).min(max_dim);
         if cap_rows == 0 {
@@ -301,7 +302,8 @@ impl TexturePath {
             normal_offset: sh.frame.normal_offset,
             log_h,
             n_active: 0,
-            _pad: [0; 2],
+            l_rows: sh.frame.l_rows,
+            _pad: 0,
         };
         let frame_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("touchfem frame"),

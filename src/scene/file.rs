@@ -694,7 +694,7 @@ fn compute_cached(
         |rows: usize, cols: usize| min_bytes.is_some_and(|m| 72 * rows as u64 * cols as u64 >= m);
     let n = mesh.nodes.len();
     if let Ok(part) = crate::cache::Part::open(&path) {
-        if large(part.rows.len(), part.cols.len()) {
+        if large(part.head.l_rows as usize, part.cols.len()) {
             if let Ok(c) = crate::cache::load_near_part(part, key, n, &mesh.surface) {
                 return Ok(c);
             }
@@ -707,7 +707,7 @@ fn compute_cached(
                 eprintln!("{m}");
             }
         }
-        crate::cache::CacheOutcome::Recomputed(_) if large(c.rows().len(), c.cols().len()) => {
+        crate::cache::CacheOutcome::Recomputed(_) if large(c.l_rows(), c.cols().len()) => {
             // Just saved: hold only the blocks from the file.
             drop(c);
             return Ok(crate::cache::load_near(&path, key, n, &mesh.surface)?);
