@@ -1,6 +1,7 @@
 //! Where the precompute time goes:
 //! `cargo run --release --example precompute_phases MESH [UNIT] [factor]`
-//! (`factor`: only the factorisation, both orderings, with the factor's non-zeros).
+//! (`factor`: only the factorisation, both orderings, with the factor's non-zeros; `forward`:
+//! the Gram method's forward solves on 1 and 2 threads, with their flop rate).
 fn main() {
     let a: Vec<String> = std::env::args().collect();
     let opts = touchfem::scene::LoadOptions {
@@ -20,6 +21,23 @@ fn main() {
                 "{}",
                 serde_json::json!({"nodes": mesh.nodes.len(), "ordering": format!("{o:?}"),
                 "factor_nonzeros": f.nonzeros(), "symbolic_s": sym, "numeric_s": num})
+            );
+        }
+        return;
+    }
+    if a.get(3).is_some_and(|s| s == "forward") {
+        let k = touchfem::fem::Stiffness::assemble(&mesh).expect("K");
+        let f = k.factorize().expect("factor");
+        let shown = mesh.free_surface_nodes();
+        let g = touchfem::gram::GramPlan::new(&f, &k.dofs, &shown, &shown).expect("supernodal");
+        for threads in [1, 2] {
+            let t = std::time::Instant::now();
+            let w = g.forward(&f, threads).expect("W");
+            let s = t.elapsed().as_secs_f64();
+            println!(
+                "{}",
+                serde_json::json!({"threads": threads, "forward_s": s, "forward_flops": g.forward_flops,
+                "gflops": g.forward_flops / s * 1e-9, "w_bytes": 8 * w.len()})
             );
         }
         return;

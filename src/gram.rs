@@ -43,10 +43,7 @@ pub struct GramPlan {
     pub gram_flops: f64,
 }
 
-/// Work in one supernode's update above which it is split over the cores.
-const PARALLEL_FLOPS: f64 = 2e7;
-
-/// A pointer to `W` shared by the threads of one supernode's update, which write disjoint rows.
+/// A pointer to `W` shared by the forward sweep's threads, which write disjoint rows.
 #[derive(Clone, Copy)]
 struct Shared(*mut f64);
 // SAFETY: the threads given a `Shared` write disjoint rows of disjoint-or-identical blocks,
@@ -204,7 +201,7 @@ impl GramPlan {
         8 * self.off.last().copied().unwrap_or(0)
     }
 
-    /// Computes `W` (bottom-up over the supernodes, the large ones split over `threads`).
+    /// Computes `W` (bottom-up over the supernodes; its rows split over `threads`).
     /// `None` if `W` does not fit in memory.
     pub fn forward(&self, f: &Factor, threads: usize) -> Option<Vec<f64>> {
         let (sym, val) = f.supernodal()?;
@@ -221,42 +218,66 @@ impl GramPlan {
                 w[self.off[s] + i * md + 3 * (g - lo) + a] = 1.0;
             }
         }
-        let ptr = Shared(w.as_mut_ptr());
+        // Each row of `W` (one displayed DOF's forward solve) depends on no other row: the
+        // threads take contiguous ranges of rows of about equal work and sweep every
+        // supernode bottom-up over their own rows, with no synchronisation.
+        let n_rows = 3 * self.nodes.len();
+        let mut per_row = vec![0.0f64; n_rows + 1];
         for s in 0..self.begin.len() - 1 {
             let (lo, hi) = self.range[s];
-            let md = 3 * (hi - lo);
-            if md == 0 {
-                continue;
+            let ns = (self.begin[s + 1] - self.begin[s]) as f64;
+            let npat = sym.supernode(s).pattern().len() as f64;
+            // The work per row, plus a fixed cost per supernode visited.
+            let cost = ns * (ns + 2.0 * npat) + 64.0;
+            per_row[3 * lo] += cost;
+            per_row[3 * hi] -= cost;
+        }
+        let mut acc = 0.0f64;
+        let mut prefix = Vec::with_capacity(n_rows + 1);
+        prefix.push(0.0f64);
+        for d in &per_row[..n_rows] {
+            acc += d;
+            let last = *prefix.last().unwrap_or(&0.0);
+            prefix.push(last + acc);
+        }
+        let parts = threads.clamp(1, n_rows.max(1));
+        let total_work = prefix[n_rows];
+        let bounds: Vec<usize> = (0..=parts)
+            .map(|t| {
+                let target = total_work * t as f64 / parts as f64;
+                prefix.partition_point(|&v| v < target).min(n_rows)
+            })
+            .collect();
+        let ptr = Shared(w.as_mut_ptr());
+        let sweep = |rows: std::ops::Range<usize>| {
+            for s in 0..self.begin.len() - 1 {
+                let (lo, hi) = self.range[s];
+                let (a, b) = ((3 * lo).max(rows.start), (3 * hi).min(rows.end));
+                if a >= b {
+                    continue;
+                }
+                let ns = self.begin[s + 1] - self.begin[s];
+                let pattern = sym.supernode(s).pattern();
+                let vp = sym.col_ptr_for_val();
+                let ls =
+                    MatRef::from_column_major_slice(&val[vp[s]..vp[s + 1]], ns + pattern.len(), ns);
+                let (l11, l21) = ls.split_at_row(ns);
+                // SAFETY: rows a..b of W (global) are this thread's alone, in W_s and in
+                // every ancestor's block.
+                unsafe { self.update(ptr, s, a - 3 * lo..b - 3 * lo, l11, l21, pattern) }
             }
-            let ns = self.begin[s + 1] - self.begin[s];
-            let pattern = sym.supernode(s).pattern();
-            let npat = pattern.len();
-            let vp = sym.col_ptr_for_val();
-            let ls = MatRef::from_column_major_slice(&val[vp[s]..vp[s + 1]], ns + npat, ns);
-            let (l11, l21) = ls.split_at_row(ns);
-            let work = md as f64 * ns as f64 * (ns + 2 * npat) as f64;
-            let parts = if work > PARALLEL_FLOPS {
-                threads.max(1)
-            } else {
-                1
-            };
-            let rows = |t: usize| (md * t / parts)..(md * (t + 1) / parts);
-            let job = |r: std::ops::Range<usize>| {
-                // SAFETY: rows `r` of W_s and of its ancestors' blocks are this job's alone.
-                unsafe { self.update(ptr, s, r, l11, l21, pattern) }
-            };
-            if parts == 1 {
-                job(0..md);
-            } else {
-                std::thread::scope(|sc| {
-                    for t in 1..parts {
-                        let r = rows(t);
-                        let job = &job;
-                        sc.spawn(move || job(r));
-                    }
-                    job(rows(0));
-                });
-            }
+        };
+        if parts == 1 {
+            sweep(0..n_rows);
+        } else {
+            std::thread::scope(|sc| {
+                for t in 1..parts {
+                    let r = bounds[t]..bounds[t + 1];
+                    let sweep = &sweep;
+                    sc.spawn(move || sweep(r));
+                }
+                sweep(bounds[0]..bounds[1]);
+            });
         }
         Some(w)
     }
@@ -526,5 +547,31 @@ fn mark_path(marked: &mut [bool], parent: &[usize], mut s: usize) {
     while s != usize::MAX && !marked[s] {
         marked[s] = true;
         s = parent[s];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Shards made on machines with different core counts must merge into the unsharded
+    /// file: `W` may not depend on how its rows are split over threads.
+    #[test]
+    fn w_is_the_same_bit_for_bit_on_any_number_of_threads() {
+        let m = crate::mesh::cube_with([14, 14, 14], [30.0, 30.0, 30.0], crate::Material::DEFAULT)
+            .expect("cube");
+        let k = crate::fem::Stiffness::assemble(&m).expect("K");
+        let f = k.factorize().expect("factor");
+        let shown = m.free_surface_nodes();
+        let g = GramPlan::new(&f, &k.dofs, &shown, &shown).expect("supernodal");
+        let one = g.forward(&f, 1).expect("W");
+        assert!(one.iter().any(|&v| v != 0.0) && one.iter().all(|v| v.is_finite()));
+        for t in [2, 3, 7] {
+            let w = g.forward(&f, t).expect("W");
+            assert!(
+                one.iter().zip(&w).all(|(a, b)| a.to_bits() == b.to_bits()),
+                "{t} threads"
+            );
+        }
     }
 }
