@@ -37,6 +37,7 @@ fn main() {
             println!(
                 "{}",
                 serde_json::json!({"threads": threads, "forward_s": s, "forward_flops": g.forward_flops,
+                "gram_flops": g.gram_flops, "factor_nonzeros": f.nonzeros(),
                 "gflops": g.forward_flops / s * 1e-9, "w_bytes": 8 * w.len()})
             );
         }

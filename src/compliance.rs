@@ -118,6 +118,9 @@ pub struct PhaseTimes {
     /// The symmetric Gram plan's mirrored rows (copied from earlier batches and, in
     /// `touchfem precompute`, the batch's write), s, summed over the workers.
     pub mirror_s: f64,
+    /// `touchfem precompute`'s last step: the checksums, the file's sync to disk, the rename
+    /// and the directory's sync, s.
+    pub sync_s: f64,
     /// Estimated floating-point operations of the column method's solves.
     pub column_flops: f64,
     /// Estimated floating-point operations of the Gram method (forward solves + products);

@@ -192,12 +192,15 @@ pub fn precompute_until(
         });
     }
     progress(total, total);
+    let ts = Instant::now();
     let bytes = writer.finish()?;
+    let sync_s = ts.elapsed().as_secs_f64();
     let mut phases = plan.phases.clone();
     phases.solve_s = t[0];
     phases.check_s = t[1];
     phases.scatter_s = t[2];
     phases.mirror_s = mirror_s;
+    phases.sync_s = sync_s;
     Ok(Report {
         file: out.to_path_buf(),
         seconds: t0.elapsed().as_secs_f64(),

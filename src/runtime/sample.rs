@@ -92,6 +92,26 @@ pub struct LiveStatus {
     pub panicked: AtomicBool,
     /// Set by anyone to ask the haptic loop to stop.
     pub stop: AtomicBool,
+    /// Set by the visual side once `L` is on the GPU: `view` starts its haptic loop only then
+    /// (or on `stop`), so that the upload's reads of a multi-gigabyte cache file cost the loop
+    /// no deadlines.
+    pub visual_ready: AtomicBool,
+}
+
+impl LiveStatus {
+    /// Waits until [`LiveStatus::visual_ready`] or [`LiveStatus::stop`] is set; `true` if the
+    /// visual side is ready.
+    pub fn wait_visual_ready(&self) -> bool {
+        loop {
+            if self.stop.load(Ordering::SeqCst) {
+                return false;
+            }
+            if self.visual_ready.load(Ordering::SeqCst) {
+                return true;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+    }
 }
 
 impl LiveStatus {
@@ -103,6 +123,31 @@ impl LiveStatus {
             (n - 1) as f64 / t
         } else {
             0.0
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_haptic_side_waits_for_the_visual_side_or_a_stop() {
+        for (ready, stop, want) in [(true, false, true), (false, true, false)] {
+            let s = LiveStatus::default();
+            let waited = std::thread::scope(|sc| {
+                let h = sc.spawn(|| {
+                    let t = std::time::Instant::now();
+                    (s.wait_visual_ready(), t.elapsed())
+                });
+                std::thread::sleep(std::time::Duration::from_millis(30));
+                assert!(!h.is_finished(), "returned before either flag");
+                s.visual_ready.store(ready, Ordering::SeqCst);
+                s.stop.store(stop, Ordering::SeqCst);
+                h.join().expect("waiter")
+            });
+            assert_eq!(waited.0, want);
+            assert!(waited.1 >= std::time::Duration::from_millis(30));
         }
     }
 }

@@ -655,6 +655,7 @@ impl ApplicationHandler for App<'_> {
                 g.window.request_redraw();
                 self.gfx = Some(g);
                 self.started = Instant::now();
+                self.status.visual_ready.store(true, Ordering::SeqCst);
             }
             Err(e) => self.fail(el, e),
         }

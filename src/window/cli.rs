@@ -75,6 +75,8 @@ pub fn view_command(args: &crate::cli::ViewArgs) -> Result<(), Error> {
         let haptic = s.spawn(|| {
             let _done = DoneGuard(&status);
             placement.enter_haptic();
+            // After the window's upload of `L` (or its failure, which sets `stop`).
+            status.wait_visual_ready();
             let realtime = crate::haptics::try_realtime_priority();
             let rec = recording.as_mut().map(|r| &mut r.0);
             let mut run = run_haptic(&world, &mut devs, None, &mut writer, &status, rec);
