@@ -177,16 +177,16 @@ pub enum LStorage {
     #[default]
     Auto,
     /// Storage buffers, split by column nodes under `max_storage_buffer_binding_size`:
-    /// coalesced reads on hardware GPUs; `9·R·C` floats.
+    /// coalesced reads on hardware GPUs; `9·R'·C` floats (R' = [`DeformerInput::l_rows`]).
     Buffers,
     /// Read-only storage textures (a 2D array for `L`) read with `textureLoad`: vector gathers
-    /// on software rasterisers, 5–7× faster than storage buffers on lavapipe; `12·R·C` floats
+    /// on software rasterisers, 5–7× faster than storage buffers on lavapipe; `12·R'·C` floats
     /// (one pad per three).
     Texture,
     /// Storage buffers of half floats (IEEE binary16, two per `u32` word, read with WGSL's
     /// `unpack2x16float`: wgpu's downlevel flag `SHADER_F16_IN_F32`, which every native
     /// backend has, not the `shader-f16` feature): half the memory of
-    /// [`Buffers`](Self::Buffers), `4.5·R·C` words. Its error against the f64 `L·F` is at most
+    /// [`Buffers`](Self::Buffers), `4.5·R'·C` words. Its error against the f64 `L·F` is at most
     /// 2·10⁻³ of the largest displacement (`tests/gpu_f16.rs`).
     BuffersF16,
     /// [`Texture`](Self::Texture) with `L` as half floats (`Rgba16Float`, scaled like

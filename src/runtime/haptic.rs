@@ -8,7 +8,7 @@
 //!   a contact.
 //! * **One contact on an object**: the finger's force model (the paper's eq. 9–12, or exact).
 //!   **Several contacts on one object** are solved together
-//!   ([`force::coupled_point_forces`]): the contact points move by their displacements under
+//!   ([`crate::force::coupled_point_forces`]): the contact points move by their displacements under
 //!   all the point forces at once. A fingertip compliance of [`SKIN`] × the point's own
 //!   compliance keeps the system well posed when two fingers touch the same triangle, or the
 //!   same point (they then share the load).

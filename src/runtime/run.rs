@@ -33,7 +33,7 @@ pub struct HapticRun {
 /// Runs the haptic loop on the calling thread at the scene's rate — or, for a device that
 /// clocks it ([`FingerDevices::clocked`]), at each of its readings — until `seconds` have
 /// passed (`None`: until `status.stop`). Each tick reads every finger's device, steps the god-objects
-/// and forces, sends each device its force, publishes the [`WorldSample`] and, if recording,
+/// and forces, sends each device its force, publishes the [`WorldSample`](crate::runtime::WorldSample) and, if recording,
 /// queues the tick's positions and forces. Allocates nothing per tick.
 pub fn run_haptic(
     world: &World,
