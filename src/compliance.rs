@@ -3,15 +3,15 @@
 //! 3×3 block `L_ii` and its inverse (eq. 7).
 //!
 //! # Layout
-//! `L` is stored column-major as a dense `(3R) × (3C)` matrix, R = rows, C = columns:
+//! `L` is stored column-major as a dense `(3R') × (3C)` matrix, R' = stored rows, C = columns:
 //! entry (row node `r`, axis `a`; column node `c`, axis `b`) is at index
 //! `(3c + b)·3R' + 3r + a`. One column node's three DOF columns are contiguous, so a frame with a
 //! few active columns touches a few contiguous runs, and the GPU's per-vertex threads read
 //! consecutive addresses.
 //!
 //! The rows of clamped nodes are identically zero and are not stored: the free displayed rows
-//! come first (`R'` = [`Compliance::l_rows`] of them), the clamped ones after. The GPU's f32 or f16 copy has the same layout, rounded while
-//! uploading: the host holds only the f64.
+//! come first (`R'` = [`Compliance::l_rows`] of them), the clamped ones after. The GPU's f32 or
+//! f16 copy has the same layout, rounded while uploading: the host holds only the f64.
 
 use crate::near::NearBlocks;
 use faer::Mat;
