@@ -14,6 +14,7 @@
 //! f16 copy has the same layout, rounded while uploading: the host holds only the f64.
 
 use crate::near::NearBlocks;
+use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::Mat;
 use glam::{DMat3, DVec3, Vec3};
 use std::time::Instant;
@@ -634,6 +635,9 @@ pub fn method() -> Method {
 /// `read(DOF column, first row, out)`: rows of an earlier batch, for [`ColumnPlan::mirror`].
 pub type ReadRows<'a, E> = dyn FnMut(usize, usize, &mut [f64]) -> Result<(), E> + 'a;
 
+/// Column nodes per pruned column solve (a batch is solved in groups of this many).
+const SOLVE_COLS: usize = 32;
+
 /// Batches between two checks of a Gram batch against a direct solve of its first column.
 const GRAM_CHECK_EVERY: usize = 16;
 
@@ -1008,7 +1012,6 @@ impl ColumnPlan {
         batch: usize,
         u: &crate::gram::UnitSolver,
     ) -> Result<(f64, [f64; 3], Vec<f64>), FemError> {
-        let ts = Instant::now();
         let nr = self.l_rows;
         let nf = self.stiff.dofs.n_free;
         let chunk = self.batch_cols(batch);
@@ -1019,27 +1022,38 @@ impl ColumnPlan {
             }
         }
         let mut times = [0.0f64; 3];
-        let mut x = Mat::<f64>::zeros(nf, dofs.len());
-        u.solve(&self.factor, &dofs, &mut x);
-        times[0] = ts.elapsed().as_secs_f64();
-        let tsc = Instant::now();
+        // Solved SOLVE_COLS column nodes at a time (a fixed grid inside the batch, so values
+        // still do not depend on threads or shards): the right-hand sides span every free DOF,
+        // and a whole batch's would hold 200 MB per worker on a 45k-node mesh.
         let mut out = vec![0.0f64; 9 * nr * chunk.len()];
-        for j in 0..dofs.len() {
-            let xc = x.col(j);
-            let dst = &mut out[j * 3 * nr..][..3 * nr];
-            for (ri, &r) in self.rows[..nr].iter().enumerate() {
-                for a in 0..3 {
-                    if let Some(d) = self.stiff.dofs.free(r, a) {
-                        let v = xc[u.row(d)];
-                        if !v.is_finite() {
-                            return Err(FemError::Singular { node: r, dof: d });
+        let per = 3 * SOLVE_COLS;
+        let mut x = Mat::<f64>::zeros(nf, per.min(dofs.len()));
+        for (g, group) in dofs.chunks(per).enumerate() {
+            let ts = Instant::now();
+            if g > 0 {
+                x.fill(0.0);
+            }
+            let mut xg = x.as_mut().subcols_mut(0, group.len());
+            u.solve_into(&self.factor, group, xg.rb_mut());
+            times[0] += ts.elapsed().as_secs_f64();
+            let tsc = Instant::now();
+            for (jj, xc) in (0..group.len()).map(|j| (j, xg.rb().col(j))) {
+                let j = g * per + jj;
+                let dst = &mut out[j * 3 * nr..][..3 * nr];
+                for (ri, &r) in self.rows[..nr].iter().enumerate() {
+                    for a in 0..3 {
+                        if let Some(d) = self.stiff.dofs.free(r, a) {
+                            let v = xc[u.row(d)];
+                            if !v.is_finite() {
+                                return Err(FemError::Singular { node: r, dof: d });
+                            }
+                            dst[3 * ri + a] = v;
                         }
-                        dst[3 * ri + a] = v;
                     }
                 }
             }
+            times[2] += tsc.elapsed().as_secs_f64();
         }
-        times[2] = tsc.elapsed().as_secs_f64();
         let tc = Instant::now();
         let node = self.cols[chunk.start];
         let (xs, residual) = self.check_solve(node)?;

@@ -242,10 +242,15 @@ impl GramPlan {
         }
         let parts = threads.clamp(1, n_rows.max(1));
         let total_work = prefix[n_rows];
+        // Non-decreasing, from 0 to every row (whatever the rounding of the targets).
         let bounds: Vec<usize> = (0..=parts)
-            .map(|t| {
-                let target = total_work * t as f64 / parts as f64;
-                prefix.partition_point(|&v| v < target).min(n_rows)
+            .map(|t| match t {
+                0 => 0,
+                t if t == parts => n_rows,
+                t => {
+                    let target = total_work * t as f64 / parts as f64;
+                    prefix.partition_point(|&v| v < target).min(n_rows)
+                }
             })
             .collect();
         let ptr = Shared(w.as_mut_ptr());
@@ -446,6 +451,11 @@ impl UnitSolver {
     /// Column `j` of `x` (zero on entry, one row per free DOF, in the factor's order: see
     /// [`UnitSolver::row`]) becomes `K⁻¹ e_{dofs[j]}`, exact on the wanted DOFs.
     pub fn solve(&self, f: &Factor, dofs: &[usize], x: &mut Mat<f64>) {
+        self.solve_into(f, dofs, x.as_mut());
+    }
+
+    /// As [`UnitSolver::solve`] into a view (`x` zero on entry, a column per DOF).
+    pub fn solve_into(&self, f: &Factor, dofs: &[usize], mut x: MatMut<'_, f64>) {
         let Some((sym, val)) = f.supernodal() else {
             return;
         };
@@ -470,7 +480,7 @@ impl UnitSolver {
             let (start, ns, pattern, ls) = block(s);
             let (l11, l21) = ls.split_at_row(ns);
             let npat = pattern.len();
-            let mut xs = x.as_mut().subrows_mut(start, ns);
+            let mut xs = x.rb_mut().subrows_mut(start, ns);
             faer::linalg::triangular_solve::solve_lower_triangular_in_place(
                 l11,
                 xs.rb_mut(),
@@ -482,7 +492,7 @@ impl UnitSolver {
             faer::linalg::matmul::matmul(t.rb_mut(), Accum::Replace, l21, xs.rb(), 1.0, Par::Seq);
             for j in 0..k {
                 let tc = &tmp[j * npat..][..npat];
-                let mut xc = x.as_mut().col_mut(j);
+                let mut xc = x.rb_mut().col_mut(j);
                 for (&r, v) in pattern.iter().zip(tc) {
                     xc[r] -= *v;
                 }
@@ -495,13 +505,13 @@ impl UnitSolver {
             tmp.clear();
             tmp.resize(npat * k, 0.0);
             for j in 0..k {
-                let xc = x.as_ref().col(j);
+                let xc = x.rb().col(j);
                 for (t, &r) in tmp[j * npat..][..npat].iter_mut().zip(pattern) {
                     *t = xc[r];
                 }
             }
             let t = MatRef::from_column_major_slice(&tmp, npat, k);
-            let mut xs = x.as_mut().subrows_mut(start, ns);
+            let mut xs = x.rb_mut().subrows_mut(start, ns);
             faer::linalg::matmul::matmul(
                 xs.rb_mut(),
                 Accum::Add,
