@@ -2,7 +2,8 @@
 // area-weighted vertex normals of the deformed surface. Used by `touchfem::gpu::Deformer`.
 //
 // L is column-major (3R')×(3C) over the first R' rows (the free ones; the clamped rows after
-// them are zero and not stored, so those vertices stay at rest), split by column nodes into chunks (one storage binding each, to
+// them are zero and not stored, so those vertices stay at rest), split by column nodes into
+// chunks (one storage binding each, to
 // stay under max_storage_buffer_binding_size). `deform` is dispatched once per chunk that has
 // active columns (chunk 0 always, it starts from the rest pose); later chunks accumulate.
 // All counts come from uniforms: nothing relies on arrayLength (VERTEX buffers are padded).

@@ -758,7 +758,7 @@ impl FileL {
             });
         }
         let h = &self.part.head;
-        let data = HEADER as u64 + h.lists_len() as u64;
+        let data = h.batch_offset(0);
         let mut out = Vec::with_capacity(range.len());
         let mut buf = vec![0.0f64; range.len().min(1 << 20)];
         let mut at = range.start;

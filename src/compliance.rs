@@ -985,21 +985,9 @@ impl ColumnPlan {
         times[1] += tc.elapsed().as_secs_f64();
         let tsc = Instant::now();
         let mut out = vec![0.0f64; 9 * nr * chunk.len()];
-        // Free DOF of each row entry (the free rows; clamped rows are not stored).
         for j in 0..3 * chunk.len() {
             let x = b.col(j);
-            let dst = &mut out[j * 3 * nr..][..3 * nr];
-            for (ri, &r) in self.rows[..nr].iter().enumerate() {
-                for a in 0..3 {
-                    if let Some(d) = self.stiff.dofs.free(r, a) {
-                        let v = x[d];
-                        if !v.is_finite() {
-                            return Err(FemError::Singular { node: r, dof: d });
-                        }
-                        dst[3 * ri + a] = v;
-                    }
-                }
-            }
+            self.scatter_rows(|d| x[d], &mut out[j * 3 * nr..][..3 * nr])?;
         }
         times[2] += tsc.elapsed().as_secs_f64();
         Ok((residual, times, out))
@@ -1034,23 +1022,13 @@ impl ColumnPlan {
                 x.fill(0.0);
             }
             let mut xg = x.as_mut().subcols_mut(0, group.len());
-            u.solve_into(&self.factor, group, xg.rb_mut());
+            u.solve(&self.factor, group, xg.rb_mut());
             times[0] += ts.elapsed().as_secs_f64();
             let tsc = Instant::now();
-            for (jj, xc) in (0..group.len()).map(|j| (j, xg.rb().col(j))) {
+            for jj in 0..group.len() {
+                let xc = xg.rb().col(jj);
                 let j = g * per + jj;
-                let dst = &mut out[j * 3 * nr..][..3 * nr];
-                for (ri, &r) in self.rows[..nr].iter().enumerate() {
-                    for a in 0..3 {
-                        if let Some(d) = self.stiff.dofs.free(r, a) {
-                            let v = xc[u.row(d)];
-                            if !v.is_finite() {
-                                return Err(FemError::Singular { node: r, dof: d });
-                            }
-                            dst[3 * ri + a] = v;
-                        }
-                    }
-                }
+                self.scatter_rows(|d| xc[u.row(d)], &mut out[j * 3 * nr..][..3 * nr])?;
             }
             times[2] += tsc.elapsed().as_secs_f64();
         }
@@ -1060,6 +1038,23 @@ impl ColumnPlan {
         self.agrees(&out, &xs, 0..0, node)?;
         times[1] = tc.elapsed().as_secs_f64();
         Ok((residual, times, out))
+    }
+
+    /// One DOF column of `L` into `dst` (3R', this module's layout): each stored row's
+    /// entries from `x(free DOF)`; a non-finite value is [`FemError::Singular`].
+    fn scatter_rows(&self, x: impl Fn(usize) -> f64, dst: &mut [f64]) -> Result<(), FemError> {
+        for (ri, &r) in self.rows[..self.l_rows].iter().enumerate() {
+            for a in 0..3 {
+                if let Some(d) = self.stiff.dofs.free(r, a) {
+                    let v = x(d);
+                    if !v.is_finite() {
+                        return Err(FemError::Singular { node: r, dof: d });
+                    }
+                    dst[3 * ri + a] = v;
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Checks that the batch's first column `out` (this module's layout) equals the direct

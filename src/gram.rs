@@ -232,14 +232,16 @@ impl GramPlan {
             per_row[3 * lo] += cost;
             per_row[3 * hi] -= cost;
         }
-        let mut acc = 0.0f64;
-        let mut prefix = Vec::with_capacity(n_rows + 1);
-        prefix.push(0.0f64);
-        for d in &per_row[..n_rows] {
-            acc += d;
-            let last = *prefix.last().unwrap_or(&0.0);
-            prefix.push(last + acc);
-        }
+        // `per_row` is a difference array: its running sum is each row's work, and the
+        // running sum of that the work up to a row.
+        let (mut row_work, mut total) = (0.0f64, 0.0f64);
+        let prefix: Vec<f64> = std::iter::once(0.0)
+            .chain(per_row[..n_rows].iter().map(|d| {
+                row_work += d;
+                total += row_work;
+                total
+            }))
+            .collect();
         let parts = threads.clamp(1, n_rows.max(1));
         let total_work = prefix[n_rows];
         // Non-decreasing, from 0 to every row (whatever the rounding of the targets).
@@ -450,12 +452,7 @@ impl UnitSolver {
 
     /// Column `j` of `x` (zero on entry, one row per free DOF, in the factor's order: see
     /// [`UnitSolver::row`]) becomes `K⁻¹ e_{dofs[j]}`, exact on the wanted DOFs.
-    pub fn solve(&self, f: &Factor, dofs: &[usize], x: &mut Mat<f64>) {
-        self.solve_into(f, dofs, x.as_mut());
-    }
-
-    /// As [`UnitSolver::solve`] into a view (`x` zero on entry, a column per DOF).
-    pub fn solve_into(&self, f: &Factor, dofs: &[usize], mut x: MatMut<'_, f64>) {
+    pub fn solve(&self, f: &Factor, dofs: &[usize], mut x: MatMut<'_, f64>) {
         let Some((sym, val)) = f.supernodal() else {
             return;
         };

@@ -112,9 +112,7 @@ impl LiveStatus {
             std::thread::sleep(std::time::Duration::from_millis(2));
         }
     }
-}
 
-impl LiveStatus {
     /// The haptic rate over the whole run so far, Hz.
     pub fn rate_hz(&self) -> f64 {
         let t = self.elapsed_ns.load(Ordering::Relaxed) as f64 * 1e-9;
