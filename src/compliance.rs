@@ -652,6 +652,32 @@ fn ordering() -> crate::fem::Ordering {
     }
 }
 
+/// Bytes of Cholesky factor above which the precompute keeps it in a file (see
+/// [`factor_store`]).
+pub const FACTOR_FILE_ABOVE: usize = 256 << 20;
+
+/// Where the precompute keeps its Cholesky factor, by the environment variable
+/// `TOUCHFEM_FACTOR`: `heap` (faer's factorisation, in memory), `file` (the out-of-core
+/// multifrontal factorisation of [`crate::frontal`]), or, unset or anything else, `file`
+/// for factors above [`FACTOR_FILE_ABOVE`]. The file is unlinked at once and lives in the
+/// cache directory ([`crate::scene::file::cache_dir`]), or the system's temporary one.
+pub fn factor_store() -> crate::fem::FactorStore {
+    use crate::fem::FactorStore;
+    let dir = crate::scene::file::cache_dir()
+        .filter(|d| std::fs::create_dir_all(d).is_ok())
+        .unwrap_or_else(std::env::temp_dir);
+    let threads = solver_threads();
+    match std::env::var("TOUCHFEM_FACTOR").as_deref() {
+        Ok("heap") => FactorStore::Heap,
+        Ok("file") => FactorStore::File { dir, threads },
+        _ => FactorStore::Auto {
+            dir,
+            threads,
+            above: FACTOR_FILE_ABOVE,
+        },
+    }
+}
+
 /// The factorised stiffness and the resolved selection, ready to solve column batches.
 pub struct ColumnPlan {
     /// Displayed nodes (rows); the touchable nodes are included. The free ones come first,
@@ -738,7 +764,7 @@ impl ColumnPlan {
         let mut phases = PhaseTimes::default();
         let stiff = Stiffness::assemble(mesh)?;
         phases.assemble_s = t0.elapsed().as_secs_f64();
-        let (factor, sym_s, num_s) = stiff.factorize_timed(ordering())?;
+        let (factor, sym_s, num_s) = stiff.factorize_in(ordering(), &factor_store())?;
         phases.symbolic_s = sym_s;
         phases.numeric_s = num_s;
         phases.factor_nonzeros = factor.nonzeros();
@@ -1102,9 +1128,19 @@ impl ColumnPlan {
         let e = self.first_dof(node)?;
         let nf = self.stiff.dofs.n_free;
         let mut b = Mat::<f64>::zeros(nf, 1);
-        b[(e, 0)] = 1.0;
-        self.factor.solve_in_place(&mut b);
-        let xs: Vec<f64> = (0..nf).map(|i| b[(i, 0)]).collect();
+        let xs: Vec<f64> = match self.units.as_ref().filter(|_| self.factor.is_mapped()) {
+            // A factor in a file: a sweep that drops the pages behind it (faer's solve
+            // would map the whole factor into this process).
+            Some(u) => {
+                u.solve_full(&self.factor, &[e], b.as_mut());
+                (0..nf).map(|d| b[(u.row(d), 0)]).collect()
+            }
+            None => {
+                b[(e, 0)] = 1.0;
+                self.factor.solve_in_place(&mut b);
+                (0..nf).map(|i| b[(i, 0)]).collect()
+            }
+        };
         let residual = self.unit_residual(&xs, e);
         Ok((xs, residual))
     }

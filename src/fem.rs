@@ -205,6 +205,31 @@ pub struct Stiffness {
     free_coords: Vec<DVec3>,
 }
 
+/// Where a factorisation keeps its factor.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum FactorStore {
+    /// In memory (faer's supernodal factorisation).
+    Heap,
+    /// In an unlinked temporary file in `dir`, written by the multifrontal sweep of
+    /// [`crate::frontal`] on `threads` threads and read through a map (supernodal analyses
+    /// only; the heap otherwise).
+    File {
+        /// Directory of the temporary file.
+        dir: std::path::PathBuf,
+        /// Threads factorising subtrees.
+        threads: usize,
+    },
+    /// `File` when the factor would take more than `above` bytes, else `Heap`.
+    Auto {
+        /// Directory of the temporary file.
+        dir: std::path::PathBuf,
+        /// Threads factorising subtrees.
+        threads: usize,
+        /// Bytes of factor above which it goes to the file.
+        above: usize,
+    },
+}
+
 /// The fill-reducing ordering of the sparse Cholesky factorisation.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Ordering {
@@ -460,9 +485,45 @@ impl Stiffness {
         ord: Ordering,
         par: faer::Par,
     ) -> Result<(Factor, f64, f64), FemError> {
-        use faer::dyn_stack::{MemBuffer, MemStack};
+        let (symbolic, sym_s) = self.analyse(ord)?;
+        let t1 = std::time::Instant::now();
+        let f = self.numeric_heap(symbolic, par)?;
+        Ok((f, sym_s, t1.elapsed().as_secs_f64()))
+    }
+
+    /// As [`Stiffness::factorize_timed`], with the factor kept where `store` says.
+    pub fn factorize_in(
+        &self,
+        ord: Ordering,
+        store: &FactorStore,
+    ) -> Result<(Factor, f64, f64), FemError> {
+        let (symbolic, sym_s) = self.analyse(ord)?;
+        let t1 = std::time::Instant::now();
+        let supernodal = matches!(
+            symbolic.raw(),
+            faer::sparse::linalg::cholesky::SymbolicCholeskyRaw::Supernodal(_)
+        );
+        let bytes = 8 * symbolic.len_val();
+        let f = match store {
+            FactorStore::File { dir, threads } if supernodal => {
+                self.numeric_file(symbolic, dir, *threads)?
+            }
+            FactorStore::Auto {
+                dir,
+                threads,
+                above,
+            } if supernodal && bytes > *above => self.numeric_file(symbolic, dir, *threads)?,
+            _ => self.numeric_heap(symbolic, faer::Par::rayon(0))?,
+        };
+        Ok((f, sym_s, t1.elapsed().as_secs_f64()))
+    }
+
+    /// The ordering and faer's symbolic analysis, with its seconds.
+    fn analyse(
+        &self,
+        ord: Ordering,
+    ) -> Result<(faer::sparse::linalg::cholesky::SymbolicCholesky<usize>, f64), FemError> {
         use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, SymmetricOrdering};
-        let fact_err = |e: &dyn std::fmt::Debug| FemError::Factorisation(format!("{e:?}"));
         let t0 = std::time::Instant::now();
         let perm = self.ordering(ord);
         let ordering = match &perm {
@@ -479,9 +540,23 @@ impl Stiffness {
             ordering,
             Default::default(),
         )
-        .map_err(|e| fact_err(&e))?;
-        let sym_s = t0.elapsed().as_secs_f64();
-        let t1 = std::time::Instant::now();
+        .map_err(|e| FemError::Factorisation(format!("{e:?}")))?;
+        Ok((symbolic, t0.elapsed().as_secs_f64()))
+    }
+
+    /// The DOF's node, for errors.
+    fn owner_of(&self, dof: usize) -> u32 {
+        self.dofs.owner.get(dof).map(|o| o.0).unwrap_or(0)
+    }
+
+    /// faer's numeric factorisation, on the heap.
+    fn numeric_heap(
+        &self,
+        symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
+        par: faer::Par,
+    ) -> Result<Factor, FemError> {
+        use faer::dyn_stack::{MemBuffer, MemStack};
+        let fact_err = |e: &dyn std::fmt::Debug| FemError::Factorisation(format!("{e:?}"));
         let mut values = Vec::new();
         values
             .try_reserve_exact(symbolic.len_val())
@@ -504,17 +579,60 @@ impl Stiffness {
             .map_err(|e| {
                 let faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } = e;
                 // `index` is in the permuted order; name the DOF's node as best we can.
-                let dof = index.min(self.dofs.n_free.saturating_sub(1));
+                let dof = symbolic
+                    .perm()
+                    .map_or(index, |p| p.arrays().0.get(index).copied().unwrap_or(0))
+                    .min(self.dofs.n_free.saturating_sub(1));
                 FemError::Singular {
-                    node: self.dofs.owner.get(dof).map(|o| o.0).unwrap_or(0),
+                    node: self.owner_of(dof),
                     dof,
                 }
             })?;
-        Ok((
-            Factor { symbolic, values },
-            sym_s,
-            t1.elapsed().as_secs_f64(),
-        ))
+        Ok(Factor {
+            symbolic,
+            values: crate::frontal::Values::Heap(values),
+            front_bytes: 0,
+        })
+    }
+
+    /// The out-of-core multifrontal factorisation of [`crate::frontal`] (`symbolic` must be
+    /// supernodal): the factor goes to an unlinked temporary file in `dir` and is read back
+    /// through a map.
+    fn numeric_file(
+        &self,
+        symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
+        dir: &std::path::Path,
+        threads: usize,
+    ) -> Result<Factor, FemError> {
+        let faer::sparse::linalg::cholesky::SymbolicCholeskyRaw::Supernodal(sn) = symbolic.raw()
+        else {
+            return Err(FemError::Factorisation(
+                "the out-of-core factorisation needs a supernodal analysis".into(),
+            ));
+        };
+        let n = self.dofs.n_free;
+        let (fwd, inv): (Vec<usize>, Vec<usize>) = match symbolic.perm() {
+            Some(p) => (p.arrays().0.to_vec(), p.arrays().1.to_vec()),
+            None => ((0..n).collect(), (0..n).collect()),
+        };
+        let file = crate::frontal::temp_file(dir).map_err(|e| {
+            FemError::Factorisation(format!("factor file in {}: {e}", dir.display()))
+        })?;
+        let owner = |dof: usize| self.owner_of(dof);
+        let (values, front_bytes) = crate::frontal::factorize_to_file(
+            sn,
+            self.k.as_ref(),
+            &fwd,
+            &inv,
+            &file,
+            threads,
+            &owner,
+        )?;
+        Ok(Factor {
+            symbolic,
+            values,
+            front_bytes,
+        })
     }
 
     /// y = K·x over free DOFs.
@@ -535,14 +653,16 @@ impl Stiffness {
 /// The Cholesky factor of K.
 pub struct Factor {
     symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
-    values: Vec<f64>,
+    values: crate::frontal::Values,
+    /// Peak bytes of the out-of-core factorisation's fronts and update stacks (0 on the heap).
+    front_bytes: usize,
 }
 
 impl Factor {
     /// Solves K X = B in place (B is n_free × m, column-major), on the calling thread.
     pub fn solve_in_place(&self, b: &mut Mat<f64>) {
         use faer::dyn_stack::{MemBuffer, MemStack};
-        let llt = faer::sparse::linalg::cholesky::LltRef::new(&self.symbolic, &self.values);
+        let llt = faer::sparse::linalg::cholesky::LltRef::new(&self.symbolic, self.values.as_slice());
         let mut buf = MemBuffer::new(
             self.symbolic
                 .solve_in_place_scratch::<f64>(b.ncols(), faer::Par::Seq),
@@ -553,6 +673,22 @@ impl Factor {
             faer::Par::Seq,
             MemStack::new(&mut buf),
         );
+    }
+
+    /// Whether the values stream from a file ([`Stiffness::factorize_to_file`]).
+    pub fn is_mapped(&self) -> bool {
+        self.values.is_mapped()
+    }
+
+    /// Drops this process's pages of the values `range` when they stream from a file (see
+    /// [`crate::frontal::Values::release`]).
+    pub fn release(&self, range: std::ops::Range<usize>) {
+        self.values.release(range);
+    }
+
+    /// Peak bytes of the out-of-core factorisation's fronts and update stacks (0 for faer's).
+    pub fn front_bytes(&self) -> usize {
+        self.front_bytes
     }
 
     /// Non-zeros of the Cholesky factor.
@@ -570,7 +706,7 @@ impl Factor {
     )> {
         match self.symbolic.raw() {
             faer::sparse::linalg::cholesky::SymbolicCholeskyRaw::Supernodal(s) => {
-                Some((s, &self.values))
+                Some((s, self.values.as_slice()))
             }
             _ => None,
         }

@@ -445,6 +445,19 @@ impl UnitSolver {
         self.pos[d]
     }
 
+    /// Fraction of the factor's values in the supernodes the back sweep visits.
+    pub fn kept_values(&self, f: &Factor) -> f64 {
+        let Some((sym, _)) = f.supernodal() else {
+            return 1.0;
+        };
+        let vp = sym.col_ptr_for_val();
+        let kept: usize = (0..self.keep.len())
+            .filter(|&s| self.keep[s])
+            .map(|s| vp[s + 1] - vp[s])
+            .sum();
+        kept as f64 / vp[self.keep.len()].max(1) as f64
+    }
+
     /// Fraction of the supernodes the back sweep visits.
     pub fn kept(&self) -> f64 {
         self.keep.iter().filter(|&&k| k).count() as f64 / self.keep.len().max(1) as f64
@@ -452,7 +465,18 @@ impl UnitSolver {
 
     /// Column `j` of `x` (zero on entry, one row per free DOF, in the factor's order: see
     /// [`UnitSolver::row`]) becomes `K⁻¹ e_{dofs[j]}`, exact on the wanted DOFs.
-    pub fn solve(&self, f: &Factor, dofs: &[usize], mut x: MatMut<'_, f64>) {
+    pub fn solve(&self, f: &Factor, dofs: &[usize], x: MatMut<'_, f64>) {
+        self.sweep(f, dofs, x, &self.keep);
+    }
+
+    /// As [`UnitSolver::solve`], exact on every DOF.
+    pub fn solve_full(&self, f: &Factor, dofs: &[usize], x: MatMut<'_, f64>) {
+        self.sweep(f, dofs, x, &vec![true; self.keep.len()]);
+    }
+
+    /// The forward sweep over the supernodes the columns reach, the back sweep over `keep`.
+    /// On a factor in a file, the pages passed are dropped every [`RELEASE`] values.
+    fn sweep(&self, f: &Factor, dofs: &[usize], mut x: MatMut<'_, f64>, keep: &[bool]) {
         let Some((sym, val)) = f.supernodal() else {
             return;
         };
@@ -472,6 +496,17 @@ impl UnitSolver {
             let ls =
                 MatRef::from_column_major_slice(&val[vp[s]..vp[s + 1]], ns + pattern.len(), ns);
             (begin[s], ns, pattern, ls)
+        };
+        // Values passed since the last release: the forward sweep climbs the values, the back
+        // sweep descends them.
+        let mut passed: Option<std::ops::Range<usize>> = None;
+        let mut pass = |s: usize| {
+            let r = passed.get_or_insert(vp[s]..vp[s + 1]);
+            *r = r.start.min(vp[s])..r.end.max(vp[s + 1]);
+            if r.len() >= RELEASE {
+                f.release(r.clone());
+                passed = None;
+            }
         };
         for s in (0..nsn).filter(|&s| reach[s]) {
             let (start, ns, pattern, ls) = block(s);
@@ -494,8 +529,9 @@ impl UnitSolver {
                     xc[r] -= *v;
                 }
             }
+            pass(s);
         }
-        for s in (0..nsn).rev().filter(|&s| self.keep[s]) {
+        for s in (0..nsn).rev().filter(|&s| keep[s]) {
             let (start, ns, pattern, ls) = block(s);
             let (l11, l21) = ls.split_at_row(ns);
             let npat = pattern.len();
@@ -522,9 +558,16 @@ impl UnitSolver {
                 xs.rb_mut(),
                 Par::Seq,
             );
+            pass(s);
+        }
+        if let Some(r) = passed {
+            f.release(r);
         }
     }
 }
+
+/// Values of a factor in a file that a solve passes before it drops their pages (32 MB).
+const RELEASE: usize = 4 << 20;
 
 /// The supernode of each factor column, and the parent of each supernode in the supernodal
 /// elimination tree (the supernode holding its first off-diagonal row; `usize::MAX` for a

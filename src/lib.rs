@@ -29,6 +29,7 @@ pub mod devices;
 pub mod error;
 pub mod fem;
 pub mod force;
+pub mod frontal;
 pub mod gpu;
 pub mod gram;
 pub mod haptics;
