@@ -25,35 +25,65 @@ fn main() {
         }
         return;
     }
-    if a.get(3).is_some_and(|s| s == "frontal" || s == "faer" || s == "both") {
+    if a.get(3)
+        .is_some_and(|s| s == "frontal" || s == "faer" || s == "both")
+    {
         let k = touchfem::fem::Stiffness::assemble(&mesh).expect("K");
         let mode = a[3].as_str();
         let o = touchfem::fem::Ordering::Metis;
         let ooc = (mode != "faer").then(|| {
-            let (f, sym, num) = k.factorize_in(o, &touchfem::fem::FactorStore::File { dir: std::env::temp_dir(), threads: std::env::var("TF_W").ok().and_then(|v| v.parse().ok()).unwrap_or(2) }).expect("frontal");
-            println!("{}", serde_json::json!({"method": "frontal", "symbolic_s": sym, "numeric_s": num,
-                "factor_bytes": 8 * f.nonzeros(), "front_peak_bytes": f.front_bytes()}));
+            let (f, sym, num) = k
+                .factorize_in(
+                    o,
+                    &touchfem::fem::FactorStore::File {
+                        dir: std::env::temp_dir(),
+                        threads: std::env::var("TF_W")
+                            .ok()
+                            .and_then(|v| v.parse().ok())
+                            .unwrap_or(2),
+                    },
+                )
+                .expect("frontal");
+            println!(
+                "{}",
+                serde_json::json!({"method": "frontal", "symbolic_s": sym, "numeric_s": num,
+                "factor_bytes": 8 * f.nonzeros(), "front_peak_bytes": f.front_bytes()})
+            );
             f
         });
         let mem = (mode != "frontal").then(|| {
             let (f, sym, num) = k.factorize_timed(o).expect("faer");
-            println!("{}", serde_json::json!({"method": "faer", "symbolic_s": sym, "numeric_s": num}));
+            println!(
+                "{}",
+                serde_json::json!({"method": "faer", "symbolic_s": sym, "numeric_s": num})
+            );
             f
         });
         if let Some(f) = &ooc {
             let shown = mesh.free_surface_nodes();
-            let u = touchfem::gram::UnitSolver::new(f, { let d = &k.dofs; shown.iter().flat_map(move |&r| (0..3).filter_map(move |a| d.free(r, a))) }).expect("units");
-            println!("{}", serde_json::json!({"kept_supernodes": u.kept(), "kept_values": u.kept_values(f)}));
-            let c = glam::DVec3::new(0.0, 0.0, 0.058);
-            let ball: Vec<u32> = shown.iter().copied().filter(|&n| (mesh.nodes[n as usize] - c).length() <= 0.020).collect();
-            let ub = touchfem::gram::UnitSolver::new(f, { let d = &k.dofs; ball.iter().flat_map(move |&r| (0..3).filter_map(move |a| d.free(r, a))) }).expect("units");
-            println!("{}", serde_json::json!({"ball_nodes": ball.len(), "reach_values": ub.kept_values(f)}));
+            let u = touchfem::gram::UnitSolver::new(f, {
+                let d = &k.dofs;
+                shown
+                    .iter()
+                    .flat_map(move |&r| (0..3).filter_map(move |a| d.free(r, a)))
+            })
+            .expect("units");
+            println!(
+                "{}",
+                serde_json::json!({"kept_supernodes": u.kept(), "kept_values": u.kept_values(f)})
+            );
         }
         if let (Some(a), Some(b)) = (ooc, mem) {
             let (x, y) = (a.supernodal().unwrap().1, b.supernodal().unwrap().1);
             let scale = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let diff = x.iter().zip(y).fold(0.0f64, |m, (p, q)| m.max((p - q).abs()));
-            println!("{}", serde_json::json!({"max_abs": scale, "max_diff": diff, "rel": diff / scale}));
+            let diff = x
+                .iter()
+                .zip(y)
+                .fold(0.0f64, |m, (p, q)| m.max((p - q).abs()));
+            println!(
+                "{}",
+                serde_json::json!({"max_abs": scale, "max_diff": diff, "rel": diff / scale})
+            );
         }
         return;
     }

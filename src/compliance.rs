@@ -124,6 +124,11 @@ pub struct PhaseTimes {
     pub sync_s: f64,
     /// Estimated floating-point operations of the column method's solves.
     pub column_flops: f64,
+    /// Whether the Cholesky factor was kept in a file (see [`factor_store`]).
+    pub factor_in_file: bool,
+    /// Peak bytes of the out-of-core factorisation's fronts and update stacks; 0 when the
+    /// factor was kept in memory.
+    pub front_bytes: usize,
     /// Estimated floating-point operations of the Gram method (forward solves + products);
     /// 0 when it does not apply.
     pub gram_flops: f64,
@@ -201,8 +206,19 @@ impl Compliance {
         how: Method,
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<Compliance, FemError> {
+        Self::compute_in(mesh, sel, how, &factor_store(), progress)
+    }
+
+    /// As [`Compliance::compute_with_method`] with the factor kept where `store` says.
+    pub fn compute_in(
+        mesh: &Mesh,
+        sel: &Selection,
+        how: Method,
+        store: &crate::fem::FactorStore,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<Compliance, FemError> {
         let t0 = Instant::now();
-        let mut plan = ColumnPlan::with_method(mesh, sel, how)?;
+        let mut plan = ColumnPlan::with_method_in(mesh, sel, how, store)?;
         let mirrored = plan.mirror_from(0);
         let nr = plan.l_rows;
         let nc = plan.cols.len();
@@ -716,6 +732,16 @@ impl ColumnPlan {
 
     /// As [`ColumnPlan::new`] with the method `how`.
     pub fn with_method(mesh: &Mesh, sel: &Selection, how: Method) -> Result<ColumnPlan, FemError> {
+        Self::with_method_in(mesh, sel, how, &factor_store())
+    }
+
+    /// As [`ColumnPlan::with_method`] with the factor kept where `store` says.
+    pub fn with_method_in(
+        mesh: &Mesh,
+        sel: &Selection,
+        how: Method,
+        store: &crate::fem::FactorStore,
+    ) -> Result<ColumnPlan, FemError> {
         let t0 = Instant::now();
         let n = mesh.nodes.len();
         let cols = sel.cols.resolve(mesh);
@@ -764,7 +790,9 @@ impl ColumnPlan {
         let mut phases = PhaseTimes::default();
         let stiff = Stiffness::assemble(mesh)?;
         phases.assemble_s = t0.elapsed().as_secs_f64();
-        let (factor, sym_s, num_s) = stiff.factorize_in(ordering(), &factor_store())?;
+        let (factor, sym_s, num_s) = stiff.factorize_in(ordering(), store)?;
+        phases.factor_in_file = factor.is_mapped();
+        phases.front_bytes = factor.front_bytes();
         phases.symbolic_s = sym_s;
         phases.numeric_s = num_s;
         phases.factor_nonzeros = factor.nonzeros();

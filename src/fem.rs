@@ -662,7 +662,8 @@ impl Factor {
     /// Solves K X = B in place (B is n_free × m, column-major), on the calling thread.
     pub fn solve_in_place(&self, b: &mut Mat<f64>) {
         use faer::dyn_stack::{MemBuffer, MemStack};
-        let llt = faer::sparse::linalg::cholesky::LltRef::new(&self.symbolic, self.values.as_slice());
+        let llt =
+            faer::sparse::linalg::cholesky::LltRef::new(&self.symbolic, self.values.as_slice());
         let mut buf = MemBuffer::new(
             self.symbolic
                 .solve_in_place_scratch::<f64>(b.ncols(), faer::Par::Seq),

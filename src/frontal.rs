@@ -15,8 +15,8 @@
 //! waiting update matrices small.
 
 use crate::fem::FemError;
-use faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky;
 use faer::reborrow::*;
+use faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky;
 use faer::{Accum, MatMut, Par};
 use std::fs::File;
 
@@ -160,12 +160,10 @@ impl FrontPlan {
             children,
         }
     }
-
 }
 
-/// Entries per block handed to the writer thread; larger blocks (the few big supernodes,
-/// whose flops dwarf their bytes) are written by the thread that factorised them.
-const HANDOFF: usize = 1 << 19;
+/// Values a worker copies into the map before it drops the pages it wrote (32 MB).
+const WRITTEN: usize = 4 << 20;
 
 /// What every worker of one factorisation reads.
 struct Shared<'a> {
@@ -214,56 +212,95 @@ impl Shared<'_> {
 struct Worker {
     local: Vec<usize>,
     stamp: Vec<usize>,
-    front: Vec<f64>,
+    /// Zero-filled anonymous memory for the largest front: the pages of the upper
+    /// triangles, never written, are never touched.
+    front: memmap2::MmapMut,
     stack: Vec<f64>,
     on_stack: Vec<(usize, usize)>,
     scratch: faer::dyn_stack::MemBuffer,
-    /// Seconds assembling, factorising, writing.
-    pub times: [f64; 3],
+    /// Values written and not yet released (see [`Out::write`]).
+    written: Option<std::ops::Range<usize>>,
 }
 
-/// Writes finished columns: small blocks through the writer thread, large ones in place.
-struct Writer<'a> {
-    file: &'a File,
-    queue: std::sync::mpsc::SyncSender<Block>,
-    /// Buffers the writer thread has written, for reuse: fresh pages are slow to touch on
-    /// some virtual machines (about 3 s per GB on the development VM).
-    spent: std::sync::mpsc::Receiver<Vec<f64>>,
-    give_back: std::sync::mpsc::Sender<Vec<f64>>,
+/// The factor file, mapped shared and writable: workers copy their finished columns into
+/// disjoint ranges of it. Page-cache writes through `pwrite` hold the file's lock, so two
+/// workers' writes would take turns; faults on a map do not.
+struct Out {
+    ptr: *mut f64,
+    len: usize,
 }
 
-/// Columns for the writer thread: their file offset in bytes, the values, and where to
-/// return the buffer.
-type Block = (u64, Vec<f64>, std::sync::mpsc::Sender<Vec<f64>>);
+// SAFETY: workers write disjoint ranges (each supernode's own values) through the pointer.
+unsafe impl Send for Out {}
+unsafe impl Sync for Out {}
 
-impl<'a> Writer<'a> {
-    fn new(file: &'a File, queue: std::sync::mpsc::SyncSender<Block>) -> Writer<'a> {
-        let (give_back, spent) = std::sync::mpsc::channel();
-        Writer {
-            file,
-            queue,
-            spent,
-            give_back,
+impl Out {
+    /// Copies `data` to values `offset..` and, every [`WRITTEN`] values, drops the pages the
+    /// worker wrote since the last time (`written`, a range of values), so the process does not
+    /// keep them: they stay in the page cache, dirty, for the kernel to write back.
+    fn write(
+        &self,
+        offset: usize,
+        data: &[f64],
+        written: &mut Option<std::ops::Range<usize>>,
+    ) -> Result<(), FemError> {
+        let end = offset
+            .checked_add(data.len())
+            .filter(|&e| e <= self.len)
+            .ok_or_else(|| {
+                FemError::Factorisation(format!("values {offset}.. are outside the factor"))
+            })?;
+        // A large block (the top supernodes, written while nothing else runs) is copied by
+        // all cores: the first touch of page-cache pages is what costs.
+        let parts = if data.len() >= 1 << 22 {
+            std::thread::available_parallelism().map_or(1, |n| n.get().min(8))
+        } else {
+            1
+        };
+        let chunk = data.len().div_ceil(parts).max(1);
+        let copy = |i: usize, part: &[f64]| {
+            // SAFETY: in bounds (checked), and no other worker writes these values: each
+            // supernode is factorised once, and the parts are disjoint.
+            unsafe {
+                std::ptr::copy_nonoverlapping(
+                    part.as_ptr(),
+                    self.ptr.add(offset + i * chunk),
+                    part.len(),
+                );
+            }
+        };
+        if parts > 1 {
+            std::thread::scope(|sc| {
+                for (i, part) in data.chunks(chunk).enumerate() {
+                    sc.spawn(move || copy(i, part));
+                }
+            });
+        } else {
+            copy(0, data);
         }
+        let r = written.get_or_insert(offset..end);
+        *r = r.start.min(offset)..r.end.max(end);
+        if r.len() >= WRITTEN {
+            self.release(r.clone());
+            *written = None;
+        }
+        Ok(())
     }
 
-    fn write(&self, offset: usize, data: &[f64]) -> Result<(), FemError> {
-        use std::os::unix::fs::FileExt;
-        if data.len() <= HANDOFF {
-            let mut buf = self
-                .spent
-                .try_recv()
-                .unwrap_or_else(|_| Vec::with_capacity(HANDOFF));
-            buf.clear();
-            buf.extend_from_slice(data);
-            let block = (8 * offset as u64, buf, self.give_back.clone());
-            if self.queue.send(block).is_ok() {
-                return Ok(());
+    /// Drops this process's pages wholly inside values `range`.
+    fn release(&self, range: std::ops::Range<usize>) {
+        const PAGE: usize = 4096;
+        let base = self.ptr as usize;
+        let lo = (base + range.start * 8).div_ceil(PAGE) * PAGE;
+        let hi = ((base + range.end * 8) / PAGE) * PAGE;
+        if hi > lo {
+            // SAFETY: the range lies in the shared map of the factor file: dropping its pages
+            // loses nothing (dirty pages stay in the page cache) and a later access maps the
+            // same bytes again.
+            unsafe {
+                libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_DONTNEED);
             }
         }
-        self.file
-            .write_all_at(bytemuck::cast_slice(data), 8 * offset as u64)
-            .map_err(|e| FemError::Factorisation(format!("factor file: {e}")))
     }
 }
 
@@ -276,15 +313,13 @@ impl Worker {
         let mut w = Worker {
             local: vec![0; n],
             stamp: vec![usize::MAX; n],
-            front: Vec::new(),
+            front: memmap2::MmapMut::map_anon(8 * front.max(1))
+                .map_err(|e| FemError::Factorisation(format!("front of {front} values: {e}")))?,
             stack: Vec::new(),
             on_stack: Vec::new(),
             scratch: faer::dyn_stack::MemBuffer::new(faer::dyn_stack::StackReq::empty()),
-            times: [0.0; 3],
+            written: None,
         };
-        w.front
-            .try_reserve_exact(front)
-            .map_err(|e| bad("front", e))?;
         w.stack
             .try_reserve_exact(stack)
             .map_err(|e| bad("update stack", e))?;
@@ -299,7 +334,7 @@ impl Worker {
         sh: &Shared<'_>,
         s: usize,
         external: &mut [Option<Vec<f64>>],
-        out: &Writer<'_>,
+        out: &Out,
     ) -> Result<(), FemError> {
         let bad = FemError::Factorisation;
         let sym = sh.sym;
@@ -315,22 +350,17 @@ impl Worker {
             self.local[r] = ns + i;
             self.stamp[r] = s;
         }
-        let t0 = std::time::Instant::now();
         let (local, stamp) = (&self.local, &self.stamp);
-        // Only the lower triangle is read or written: the upper one's pages may stay
-        // untouched.
-        if self.front.len() < m * m {
-            // SAFETY: f64 has no invalid bit patterns and every entry read below is zeroed
-            // first; the capacity was reserved for the largest front.
-            self.front.reserve(m * m - self.front.len());
-            unsafe { self.front.set_len(m * m) };
-        }
+        // Only the lower triangle is read or written (the diagonal block's upper triangle
+        // goes to the file: zeros, as faer leaves it).
+        let front: &mut [f64] = bytemuck::cast_slice_mut(&mut self.front[..]);
+        let front = front
+            .get_mut(..m * m)
+            .ok_or_else(|| bad(format!("supernode {s}'s front is larger than the plan's")))?;
         for j in 0..m {
-            // The diagonal block's upper triangle goes to the file: zeros, as faer leaves it.
             let from = if j < ns { j * m } else { j * m + j };
-            self.front[from..(j + 1) * m].fill(0.0);
+            front[from..(j + 1) * m].fill(0.0);
         }
-        let front = &mut self.front[..m * m];
         // K's entries of the supernode's columns (lower triangle, permuted).
         for j in 0..ns {
             let c = sh.fwd[b0 + j];
@@ -392,8 +422,6 @@ impl Worker {
             self.stack.truncate(off);
         }
         self.on_stack.truncate(first);
-        let t1 = std::time::Instant::now();
-        self.times[0] += (t1 - t0).as_secs_f64();
         let par = if (ns * m) as f64 * m as f64 > 1e7 {
             Par::rayon(0)
         } else {
@@ -444,11 +472,12 @@ impl Worker {
                 par,
             );
         }
-        let t2 = std::time::Instant::now();
-        self.times[1] += (t2 - t1).as_secs_f64();
-        let front = &self.front[..];
-        out.write(sym.col_ptr_for_val()[s], &front[..m * ns])?;
-        self.times[2] += t2.elapsed().as_secs_f64();
+        let front: &[f64] = bytemuck::cast_slice(&self.front[..]);
+        out.write(
+            sym.col_ptr_for_val()[s],
+            &front[..m * ns],
+            &mut self.written,
+        )?;
         if sh.plan.parent[s] != usize::MAX && nb > 0 {
             self.on_stack.push((s, self.stack.len()));
             for j in 0..nb {
@@ -533,7 +562,6 @@ pub fn factorize_to_file(
     workers: usize,
     dof_owner: &(dyn Fn(usize) -> u32 + Sync),
 ) -> Result<(Values, usize), FemError> {
-    use std::os::unix::fs::FileExt;
     let io = |e: std::io::Error| FemError::Factorisation(format!("factor file: {e}"));
     let n = sym.nrows();
     let nsn = sym.n_supernodes();
@@ -549,7 +577,11 @@ pub fn factorize_to_file(
         dof_owner,
     };
     let workers = workers.max(1);
-    let groups = if workers > 1 { split(&sh, workers) } else { Vec::new() };
+    let groups = if workers > 1 {
+        split(&sh, workers)
+    } else {
+        Vec::new()
+    };
     // Each supernode's place in the visiting order, and the size of its subtree (a
     // subtree is a contiguous run of the post-order ending at its root).
     let mut pos = vec![0usize; nsn];
@@ -577,22 +609,22 @@ pub fn factorize_to_file(
         })
         .collect();
     let top: Vec<usize> = plan.order.iter().copied().filter(|&s| !in_sub[s]).collect();
-    let (queue, inbox) = std::sync::mpsc::sync_channel::<Block>(8);
+    // SAFETY: the file is the caller's private temporary file, sized above; only the workers
+    // below write it, each its own supernodes' values.
+    let mut map = unsafe { memmap2::MmapOptions::new().map_mut(file) }.map_err(io)?;
+    let out = Out {
+        ptr: map.as_mut_ptr().cast::<f64>(),
+        len: vp[nsn],
+    };
+    if map.len() < 8 * vp[nsn] || !(map.as_ptr() as usize).is_multiple_of(8) {
+        return Err(FemError::Factorisation(
+            "the factor file's map is short".into(),
+        ));
+    }
     let mut external: Vec<Option<Vec<f64>>> = vec![None; nsn];
     let mut peak = 0usize;
     std::thread::scope(|sc| -> Result<(), FemError> {
-        let writer = sc.spawn(move || -> Result<(), FemError> {
-            let mut first = Ok(());
-            for (off, data, back) in inbox {
-                if first.is_ok() {
-                    first = file.write_all_at(bytemuck::cast_slice(&data), off).map_err(io);
-                }
-                let _ = back.send(data);
-            }
-            first
-        });
-        let out = Writer::new(file, queue);
-        let sh = &sh;
+        let (sh, out) = (&sh, &out);
         // Subtrees, one thread per group; each returns its roots' updates.
         let mut sub_peak = 0usize;
         let handles: Vec<_> = runs
@@ -601,15 +633,14 @@ pub fn factorize_to_file(
                 let nodes: Vec<usize> = runs.iter().flat_map(|r| r.iter().copied()).collect();
                 let (f, st) = sh.needs(&nodes, &|_| false);
                 sub_peak += f + st;
-                let out = Writer::new(file, out.queue.clone());
                 sc.spawn(move || -> Result<Vec<(usize, Vec<f64>)>, FemError> {
                     let mut w = Worker::new(n, f, st)?;
                     let mut none: Vec<Option<Vec<f64>>> = vec![None; nsn];
                     for &s in &nodes {
-                        w.visit(sh, s, &mut none, &out)?;
+                        w.visit(sh, s, &mut none, out)?;
                     }
-                    if std::env::var_os("TF_DEBUG").is_some() {
-                        eprintln!("worker times {:.2?}", w.times);
+                    if let Some(r) = w.written.take() {
+                        out.release(r);
                     }
                     Ok(w.on_stack
                         .iter()
@@ -618,7 +649,6 @@ pub fn factorize_to_file(
                 })
             })
             .collect();
-        let t_sub = std::time::Instant::now();
         let mut result = Ok(());
         for h in handles {
             match h.join() {
@@ -631,31 +661,23 @@ pub fn factorize_to_file(
                 }
             }
         }
-        let sub_s = t_sub.elapsed().as_secs_f64();
         if result.is_ok() {
             let held: usize = external.iter().flatten().map(Vec::len).sum();
             let (f, st) = sh.needs(&top, &|c| in_sub[c]);
             peak = sub_peak.max(held + f + st);
             result = Worker::new(n, f, st).and_then(|mut w| {
-                let r = top.iter()
-                    .try_for_each(|&s| w.visit(sh, s, &mut external, &out));
-                if std::env::var_os("TF_DEBUG").is_some() {
-                    eprintln!("top times {:.2?}", w.times);
+                let r = top
+                    .iter()
+                    .try_for_each(|&s| w.visit(sh, s, &mut external, out));
+                if let Some(r) = w.written.take() {
+                    out.release(r);
                 }
                 r
             });
         }
-        if std::env::var_os("TF_DEBUG").is_some() {
-            eprintln!("groups {:?} top {} subtree phase {:.2}s total {:.2}s", runs.iter().map(|r| r.iter().map(|x| x.len()).sum::<usize>()).collect::<Vec<_>>(), top.len(), sub_s, t_sub.elapsed().as_secs_f64());
-        }
-        drop(out);
-        let written = writer.join().unwrap_or_else(|_| {
-            Err(FemError::Factorisation("the factor writer panicked".into()))
-        });
-        result.and(written)
+        result
     })?;
-    // SAFETY: the file is the caller's private temporary file and nothing writes it after
-    // this point; the map is read-only.
-    let map = unsafe { memmap2::MmapOptions::new().map(file) }.map_err(io)?;
+    out.release(0..vp[nsn]);
+    let map = map.make_read_only().map_err(io)?;
     Ok((Values::Mapped(map), 8 * peak))
 }
