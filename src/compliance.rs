@@ -714,6 +714,9 @@ pub struct ColumnPlan {
     mirror_from: Option<usize>,
     /// The column method's pruned solver (supernodal factors).
     units: Option<crate::gram::UnitSolver>,
+    /// For the Gram method on a factor in a file: the sweeps of the check solves, which drop
+    /// the pages behind them.
+    sweeper: Option<crate::gram::UnitSolver>,
 }
 
 fn solver_threads() -> usize {
@@ -842,6 +845,11 @@ impl ColumnPlan {
         } else {
             None
         };
+        let sweeper = if units.is_none() && factor.is_mapped() {
+            crate::gram::UnitSolver::new(&factor, std::iter::empty())
+        } else {
+            None
+        };
         Ok(ColumnPlan {
             rows,
             l_rows,
@@ -850,6 +858,7 @@ impl ColumnPlan {
             stiff,
             factor,
             units,
+            sweeper,
             gram,
             mirror_from: None,
         })
@@ -1156,7 +1165,8 @@ impl ColumnPlan {
         let e = self.first_dof(node)?;
         let nf = self.stiff.dofs.n_free;
         let mut b = Mat::<f64>::zeros(nf, 1);
-        let xs: Vec<f64> = match self.units.as_ref().filter(|_| self.factor.is_mapped()) {
+        let sweeps = self.units.as_ref().or(self.sweeper.as_ref());
+        let xs: Vec<f64> = match sweeps.filter(|_| self.factor.is_mapped()) {
             // A factor in a file: a sweep that drops the pages behind it (faer's solve
             // would map the whole factor into this process).
             Some(u) => {

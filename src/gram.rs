@@ -256,8 +256,16 @@ impl GramPlan {
             })
             .collect();
         let ptr = Shared(w.as_mut_ptr());
+        let vp = sym.col_ptr_for_val();
         let sweep = |rows: std::ops::Range<usize>| {
+            // A factor in a file: drop the pages passed every RELEASE values.
+            let mut passed = 0..0;
             for s in 0..self.begin.len() - 1 {
+                if passed.end - passed.start >= RELEASE {
+                    f.release(passed.clone());
+                    passed = vp[s]..vp[s];
+                }
+                passed.end = vp[s + 1];
                 let (lo, hi) = self.range[s];
                 let (a, b) = ((3 * lo).max(rows.start), (3 * hi).min(rows.end));
                 if a >= b {
@@ -265,7 +273,6 @@ impl GramPlan {
                 }
                 let ns = self.begin[s + 1] - self.begin[s];
                 let pattern = sym.supernode(s).pattern();
-                let vp = sym.col_ptr_for_val();
                 let ls =
                     MatRef::from_column_major_slice(&val[vp[s]..vp[s + 1]], ns + pattern.len(), ns);
                 let (l11, l21) = ls.split_at_row(ns);
@@ -273,6 +280,7 @@ impl GramPlan {
                 // every ancestor's block.
                 unsafe { self.update(ptr, s, a - 3 * lo..b - 3 * lo, l11, l21, pattern) }
             }
+            f.release(passed);
         };
         if parts == 1 {
             sweep(0..n_rows);
