@@ -719,6 +719,43 @@ pub struct ColumnPlan {
     sweeper: Option<crate::gram::UnitSolver>,
 }
 
+/// The largest residual and the seconds solving, checking and scattering.
+type SolveSummary = (f64, [f64; 3]);
+
+/// A solver worker: runs until the work is out, reporting columns done to its argument.
+type SolveWork<'a> = dyn Fn(&mut dyn FnMut(usize)) -> Result<SolveSummary, FemError> + Sync + 'a;
+
+/// Runs `work` on `workers` threads, the calling one (which reports `progress`) included,
+/// and combines what they return: the largest residual and, per phase, the slowest worker's
+/// seconds.
+fn run_workers(
+    workers: usize,
+    work: &SolveWork<'_>,
+    progress: &mut dyn FnMut(usize),
+) -> Result<(f64, [f64; 3]), FemError> {
+    let mut results = Vec::with_capacity(workers);
+    std::thread::scope(|sc| {
+        let handles: Vec<_> = (1..workers)
+            .map(|_| sc.spawn(move || work(&mut |_| {})))
+            .collect();
+        results.push(work(progress));
+        for h in handles {
+            results.push(h.join().unwrap_or_else(|_| {
+                Err(FemError::Factorisation("a solver thread panicked".into()))
+            }));
+        }
+    });
+    let mut out = (0.0f64, [0.0f64; 3]);
+    for r in results {
+        let (res, t) = r?;
+        out.0 = out.0.max(res);
+        for (a, v) in out.1.iter_mut().zip(t) {
+            *a = a.max(v);
+        }
+    }
+    Ok(out)
+}
+
 fn solver_threads() -> usize {
     std::thread::available_parallelism()
         .map(|n| n.get())
@@ -955,6 +992,9 @@ impl ColumnPlan {
         progress: &mut dyn FnMut(usize),
         stop: &std::sync::atomic::AtomicBool,
     ) -> Result<(f64, [f64; 3]), FemError> {
+        if let Some(u) = &self.units {
+            return self.solve_pruned(batches, sink, progress, stop, u);
+        }
         let workers = solver_threads().min(batches.len().max(1));
         let next = std::sync::atomic::AtomicUsize::new(0);
         let done = std::sync::atomic::AtomicUsize::new(0);
@@ -982,28 +1022,108 @@ impl ColumnPlan {
                 progress(d + self.batch_cols(b).len());
             }
         };
-        let mut results = Vec::with_capacity(workers);
-        std::thread::scope(|sc| {
-            let work = &work;
-            let handles: Vec<_> = (1..workers)
-                .map(|_| sc.spawn(move || work(&mut |_| {})))
-                .collect();
-            results.push(work(progress));
-            for h in handles {
-                results.push(h.join().unwrap_or_else(|_| {
-                    Err(FemError::Factorisation("a solver thread panicked".into()))
-                }));
+        run_workers(workers, &work, progress)
+    }
+
+    /// [`ColumnPlan::solve_until`] for the column method's pruned sweeps: the work is shared
+    /// out by groups of [`SOLVE_COLS`] column nodes, not whole batches, so a few batches keep
+    /// every core busy (the 45k organ's ball: 5 batches, 10 groups). A batch goes to the sink
+    /// once its last group is in, from the worker that solved that group, after its first
+    /// column's check.
+    fn solve_pruned(
+        &self,
+        batches: &[usize],
+        sink: &(dyn Fn(usize, &[f64]) -> bool + Sync),
+        progress: &mut dyn FnMut(usize),
+        stop: &std::sync::atomic::AtomicBool,
+        u: &crate::gram::UnitSolver,
+    ) -> Result<(f64, [f64; 3]), FemError> {
+        use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
+        let groups = |b: usize| self.batch_cols(b).len().div_ceil(SOLVE_COLS);
+        let units: Vec<(usize, usize)> = batches
+            .iter()
+            .enumerate()
+            .flat_map(|(i, &b)| (0..groups(b)).map(move |g| (i, g)))
+            .collect();
+        // Each batch's slice of L while its groups come in, and the groups still out.
+        let pending: Vec<(std::sync::Mutex<Vec<f64>>, AtomicUsize)> = batches
+            .iter()
+            .map(|&b| {
+                (
+                    std::sync::Mutex::new(Vec::new()),
+                    AtomicUsize::new(groups(b)),
+                )
+            })
+            .collect();
+        let workers = solver_threads().min(units.len().max(1));
+        let next = AtomicUsize::new(0);
+        let done = AtomicUsize::new(0);
+        let (nr, nf) = (self.l_rows, self.stiff.dofs.n_free);
+        let per = 3 * SOLVE_COLS;
+        let work = |progress: &mut dyn FnMut(usize)| -> Result<(f64, [f64; 3]), FemError> {
+            let mut acc = (0.0f64, [0.0f64; 3]);
+            let mut x = Mat::<f64>::zeros(nf, 0);
+            loop {
+                if stop.load(Relaxed) {
+                    return Ok(acc);
+                }
+                let Some(&(i, g)) = units.get(next.fetch_add(1, Relaxed)) else {
+                    return Ok(acc);
+                };
+                let b = batches[i];
+                let chunk = self.batch_cols(b);
+                let mut dofs = Vec::with_capacity(per);
+                for ci in chunk.clone().skip(g * SOLVE_COLS).take(SOLVE_COLS) {
+                    for a in 0..3 {
+                        dofs.push(self.first_dof(self.cols[ci])? + a);
+                    }
+                }
+                let ts = Instant::now();
+                if x.ncols() < dofs.len() {
+                    x = Mat::zeros(nf, per);
+                } else {
+                    x.fill(0.0);
+                }
+                let mut xg = x.as_mut().subcols_mut(0, dofs.len());
+                u.solve(&self.factor, &dofs, xg.rb_mut());
+                acc.1[0] += ts.elapsed().as_secs_f64();
+                let tsc = Instant::now();
+                {
+                    let mut out = pending[i].0.lock().unwrap_or_else(|e| e.into_inner());
+                    if out.is_empty() {
+                        out.resize(9 * nr * chunk.len(), 0.0);
+                    }
+                    for jj in 0..dofs.len() {
+                        let xc = xg.rb().col(jj);
+                        let j = g * per + jj;
+                        self.scatter_rows(|d| xc[u.row(d)], &mut out[j * 3 * nr..][..3 * nr])
+                            .inspect_err(|_| stop.store(true, Relaxed))?;
+                    }
+                }
+                acc.1[2] += tsc.elapsed().as_secs_f64();
+                if pending[i].1.fetch_sub(1, Relaxed) != 1 {
+                    continue;
+                }
+                // The batch's last group: check its first column, hand it over.
+                let out =
+                    std::mem::take(&mut *pending[i].0.lock().unwrap_or_else(|e| e.into_inner()));
+                let tc = Instant::now();
+                let node = self.cols[chunk.start];
+                let (xs, residual) = self
+                    .check_solve(node)
+                    .and_then(|(xs, r)| self.agrees(&out, &xs, 0..0, node).map(|_| (xs, r)))
+                    .inspect_err(|_| stop.store(true, Relaxed))?;
+                drop(xs);
+                acc.1[1] += tc.elapsed().as_secs_f64();
+                acc.0 = acc.0.max(residual);
+                if !sink(b, &out) {
+                    stop.store(true, Relaxed);
+                }
+                let d = done.fetch_add(chunk.len(), Relaxed);
+                progress(d + chunk.len());
             }
-        });
-        let mut out = (0.0f64, [0.0f64; 3]);
-        for r in results {
-            let (res, t) = r?;
-            out.0 = out.0.max(res);
-            for (a, v) in out.1.iter_mut().zip(t) {
-                *a = a.max(v);
-            }
-        }
-        Ok(out)
+        };
+        run_workers(workers, &work, progress)
     }
 
     /// Solves one batch: its slice of L, the residual of its checked column and the seconds
@@ -1011,9 +1131,6 @@ impl ColumnPlan {
     fn solve_batch(&self, batch: usize) -> Result<(f64, [f64; 3], Vec<f64>), FemError> {
         if let Some((g, w, row_of)) = &self.gram {
             return self.gram_batch(batch, g, w, row_of);
-        }
-        if let Some(u) = &self.units {
-            return self.pruned_batch(batch, u);
         }
         let nr = self.l_rows;
         let nf = self.stiff.dofs.n_free;
@@ -1053,53 +1170,6 @@ impl ColumnPlan {
             self.scatter_rows(|d| x[d], &mut out[j * 3 * nr..][..3 * nr])?;
         }
         times[2] += tsc.elapsed().as_secs_f64();
-        Ok((residual, times, out))
-    }
-
-    /// The column method's batch on a supernodal factor: pruned sweeps
-    /// ([`crate::gram::UnitSolver`]), the first column checked against a full solve.
-    fn pruned_batch(
-        &self,
-        batch: usize,
-        u: &crate::gram::UnitSolver,
-    ) -> Result<(f64, [f64; 3], Vec<f64>), FemError> {
-        let nr = self.l_rows;
-        let nf = self.stiff.dofs.n_free;
-        let chunk = self.batch_cols(batch);
-        let mut dofs = Vec::with_capacity(3 * chunk.len());
-        for ci in chunk.clone() {
-            for a in 0..3 {
-                dofs.push(self.first_dof(self.cols[ci])? + a);
-            }
-        }
-        let mut times = [0.0f64; 3];
-        // Solved SOLVE_COLS column nodes at a time (a fixed grid inside the batch, so values
-        // still do not depend on threads or shards): the right-hand sides span every free DOF,
-        // and a whole batch's would hold 200 MB per worker on a 45k-node mesh.
-        let mut out = vec![0.0f64; 9 * nr * chunk.len()];
-        let per = 3 * SOLVE_COLS;
-        let mut x = Mat::<f64>::zeros(nf, per.min(dofs.len()));
-        for (g, group) in dofs.chunks(per).enumerate() {
-            let ts = Instant::now();
-            if g > 0 {
-                x.fill(0.0);
-            }
-            let mut xg = x.as_mut().subcols_mut(0, group.len());
-            u.solve(&self.factor, group, xg.rb_mut());
-            times[0] += ts.elapsed().as_secs_f64();
-            let tsc = Instant::now();
-            for jj in 0..group.len() {
-                let xc = xg.rb().col(jj);
-                let j = g * per + jj;
-                self.scatter_rows(|d| xc[u.row(d)], &mut out[j * 3 * nr..][..3 * nr])?;
-            }
-            times[2] += tsc.elapsed().as_secs_f64();
-        }
-        let tc = Instant::now();
-        let node = self.cols[chunk.start];
-        let (xs, residual) = self.check_solve(node)?;
-        self.agrees(&out, &xs, 0..0, node)?;
-        times[1] = tc.elapsed().as_secs_f64();
         Ok((residual, times, out))
     }
 
