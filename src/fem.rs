@@ -219,7 +219,8 @@ pub enum FactorStore {
         /// Threads factorising subtrees.
         threads: usize,
     },
-    /// `File` when the factor would take more than `above` bytes, else `Heap`.
+    /// `File` when the factor would take more than `above` bytes, else `Heap`; `Heap` too
+    /// when the file cannot be made (no directory, no room on its disk).
     Auto {
         /// Directory of the temporary file.
         dir: std::path::PathBuf,
@@ -506,13 +507,20 @@ impl Stiffness {
         let bytes = 8 * symbolic.len_val();
         let f = match store {
             FactorStore::File { dir, threads } if supernodal => {
-                self.numeric_file(symbolic, dir, *threads)?
+                let file = crate::frontal::factor_file(dir, bytes)?;
+                self.numeric_file(symbolic, &file, *threads)?
             }
             FactorStore::Auto {
                 dir,
                 threads,
                 above,
-            } if supernodal && bytes > *above => self.numeric_file(symbolic, dir, *threads)?,
+            } if supernodal && bytes > *above => {
+                // No room for the file (or no directory): memory, as before.
+                match crate::frontal::factor_file(dir, bytes) {
+                    Ok(file) => self.numeric_file(symbolic, &file, *threads)?,
+                    Err(_) => self.numeric_heap(symbolic, faer::Par::rayon(0))?,
+                }
+            }
             _ => self.numeric_heap(symbolic, faer::Par::rayon(0))?,
         };
         Ok((f, sym_s, t1.elapsed().as_secs_f64()))
@@ -596,12 +604,12 @@ impl Stiffness {
     }
 
     /// The out-of-core multifrontal factorisation of [`crate::frontal`] (`symbolic` must be
-    /// supernodal): the factor goes to an unlinked temporary file in `dir` and is read back
-    /// through a map.
+    /// supernodal): the factor goes to `file` ([`crate::frontal::factor_file`]) and is read
+    /// back through a map.
     fn numeric_file(
         &self,
         symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
-        dir: &std::path::Path,
+        file: &std::fs::File,
         threads: usize,
     ) -> Result<Factor, FemError> {
         let faer::sparse::linalg::cholesky::SymbolicCholeskyRaw::Supernodal(sn) = symbolic.raw()
@@ -615,16 +623,13 @@ impl Stiffness {
             Some(p) => (p.arrays().0.to_vec(), p.arrays().1.to_vec()),
             None => ((0..n).collect(), (0..n).collect()),
         };
-        let file = crate::frontal::temp_file(dir).map_err(|e| {
-            FemError::Factorisation(format!("factor file in {}: {e}", dir.display()))
-        })?;
         let owner = |dof: usize| self.owner_of(dof);
         let (values, front_bytes) = crate::frontal::factorize_to_file(
             sn,
             self.k.as_ref(),
             &fwd,
             &inv,
-            &file,
+            file,
             threads,
             &owner,
         )?;

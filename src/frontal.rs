@@ -84,6 +84,27 @@ pub fn temp_file(dir: &std::path::Path) -> std::io::Result<File> {
     Ok(file)
 }
 
+/// A new unlinked file in `dir` with `bytes` of disk reserved (`posix_fallocate`): a full
+/// disk is this error now, not a fault (SIGBUS) while the map is written.
+pub fn factor_file(dir: &std::path::Path, bytes: usize) -> Result<File, FemError> {
+    use std::os::fd::AsRawFd;
+    let err = |e: std::io::Error| {
+        FemError::Factorisation(format!(
+            "factor file of {bytes} bytes in {}: {e}",
+            dir.display()
+        ))
+    };
+    let file = temp_file(dir).map_err(err)?;
+    let len =
+        libc::off_t::try_from(bytes.max(1)).map_err(|_| err(std::io::Error::other("too large")))?;
+    // SAFETY: a valid open descriptor and a non-negative range.
+    let rc = unsafe { libc::posix_fallocate(file.as_raw_fd(), 0, len) };
+    if rc != 0 {
+        return Err(err(std::io::Error::from_raw_os_error(rc)));
+    }
+    Ok(file)
+}
+
 /// Entries of a packed lower triangle of order `n`.
 fn packed(n: usize) -> usize {
     n * (n + 1) / 2
@@ -623,8 +644,9 @@ pub fn factorize_to_file(
     }
     let mut external: Vec<Option<Vec<f64>>> = vec![None; nsn];
     let mut peak = 0usize;
+    let stop = std::sync::atomic::AtomicBool::new(false);
     std::thread::scope(|sc| -> Result<(), FemError> {
-        let (sh, out) = (&sh, &out);
+        let (sh, out, stop) = (&sh, &out, &stop);
         // Subtrees, one thread per group; each returns its roots' updates.
         let mut sub_peak = 0usize;
         let handles: Vec<_> = runs
@@ -637,7 +659,13 @@ pub fn factorize_to_file(
                     let mut w = Worker::new(n, f, st)?;
                     let mut none: Vec<Option<Vec<f64>>> = vec![None; nsn];
                     for &s in &nodes {
-                        w.visit(sh, s, &mut none, out)?;
+                        // Another worker's error (a negative pivot) ends this one's work.
+                        if stop.load(std::sync::atomic::Ordering::Relaxed) {
+                            return Ok(Vec::new());
+                        }
+                        w.visit(sh, s, &mut none, out).inspect_err(|_| {
+                            stop.store(true, std::sync::atomic::Ordering::Relaxed)
+                        })?;
                     }
                     if let Some(r) = w.written.take() {
                         out.release(r);
