@@ -151,12 +151,11 @@ pub fn precompute_until(
                 }
                 drop(g);
                 let tm = Instant::now();
-                let mut full = data.to_vec();
                 let r = plan
-                    .mirror(b, &mut full, &mut |q, r0, out| {
+                    .mirror(b, data, &mut |q, r0, out| {
                         writer.read_column(q - base, r0, out)
                     })
-                    .and_then(|_| writer.write_batch(i, &full));
+                    .and_then(|_| writer.write_batch(i, data));
                 mirror_ns.fetch_add(tm.elapsed().as_nanos() as u64, Ordering::Relaxed);
                 r
             } else {
