@@ -9,10 +9,12 @@
 //! read-only map of that file ([`Values::Mapped`]), and drop the pages they have passed
 //! ([`Values::release`]), so the process holds neither the whole factor nor its pages.
 //!
-//! The dense work is faer's (Cholesky, triangular solve, lower-triangular product), on all
-//! cores for the large fronts. Supernodes are visited in a post-order of the supernodal
-//! tree whose children come largest-stack first (Liu's order), which keeps the stack of
-//! waiting update matrices small.
+//! The dense work is faer's (Cholesky, triangular solve, lower-triangular product).
+//! Supernodes are visited in a post-order of the supernodal tree whose children come
+//! largest-stack first (Liu's order), which keeps the stack of waiting update matrices
+//! small. Subtrees of about equal flops go to one thread each; the few supernodes above them
+//! follow with the dense work on all cores. A supernode's arithmetic does not depend on
+//! where it runs, so neither do the factor's bits.
 
 use crate::fem::FemError;
 use faer::reborrow::*;
@@ -708,4 +710,45 @@ pub fn factorize_to_file(
     out.release(0..vp[nsn]);
     let map = map.make_read_only().map_err(io)?;
     Ok((Values::Mapped(map), 8 * peak))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The visiting order is a post-order: every supernode once, each after its children,
+    /// each subtree one contiguous run ending at its root (what the workers' runs rely on).
+    #[test]
+    fn the_plan_is_a_post_order_with_contiguous_subtrees() {
+        let m = crate::mesh::mouse();
+        let k = crate::fem::Stiffness::assemble(&m).expect("K");
+        let f = k.factorize().expect("factor");
+        let (sym, _) = f.supernodal().expect("supernodal");
+        let plan = FrontPlan::new(sym);
+        let nsn = sym.n_supernodes();
+        assert!(nsn > 100, "{nsn} supernodes");
+        let mut pos = vec![usize::MAX; nsn];
+        for (i, &s) in plan.order.iter().enumerate() {
+            assert_eq!(pos[s], usize::MAX, "supernode {s} twice");
+            pos[s] = i;
+        }
+        assert!(pos.iter().all(|&p| p < nsn));
+        let mut size = vec![1usize; nsn];
+        for &s in &plan.order {
+            if plan.parent[s] != usize::MAX {
+                assert!(pos[plan.parent[s]] > pos[s]);
+                size[plan.parent[s]] += size[s];
+            }
+        }
+        for s in 0..nsn {
+            // The run ending at `s` holds exactly `s`'s subtree.
+            for &d in &plan.order[pos[s] + 1 - size[s]..pos[s]] {
+                let mut a = d;
+                while a != s {
+                    a = plan.parent[a];
+                    assert_ne!(a, usize::MAX, "{d} is not below {s}");
+                }
+            }
+        }
+    }
 }
