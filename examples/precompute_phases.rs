@@ -1,7 +1,9 @@
 //! Where the precompute time goes:
 //! `cargo run --release --example precompute_phases MESH [UNIT] [factor]`
 //! (`factor`: only the factorisation, both orderings, with the factor's non-zeros; `forward`:
-//! the Gram method's forward solves on 1 and 2 threads, with their flop rate).
+//! the Gram method's forward solves on 1 and 2 threads, with their flop rate; `frontal`,
+//! `faer` or `both` `[THREADS]`: the out-of-core factorisation into a file on THREADS threads
+//! (default 2), faer's in memory, or both and their largest difference).
 fn main() {
     let a: Vec<String> = std::env::args().collect();
     let opts = touchfem::scene::LoadOptions {
@@ -37,10 +39,7 @@ fn main() {
                     o,
                     &touchfem::fem::FactorStore::File {
                         dir: std::env::temp_dir(),
-                        threads: std::env::var("TF_W")
-                            .ok()
-                            .and_then(|v| v.parse().ok())
-                            .unwrap_or(2),
+                        threads: a.get(4).and_then(|v| v.parse().ok()).unwrap_or(2),
                     },
                 )
                 .expect("frontal");

@@ -735,7 +735,7 @@ fn run_workers(
     workers: usize,
     work: &SolveWork<'_>,
     progress: &mut dyn FnMut(usize),
-) -> Result<(f64, [f64; 3]), FemError> {
+) -> Result<SolveSummary, FemError> {
     let mut results = Vec::with_capacity(workers);
     std::thread::scope(|sc| {
         let handles: Vec<_> = (1..workers)

@@ -681,7 +681,7 @@ impl Factor {
         );
     }
 
-    /// Whether the values stream from a file ([`Stiffness::factorize_to_file`]).
+    /// Whether the values stream from a file ([`FactorStore::File`]).
     pub fn is_mapped(&self) -> bool {
         self.values.is_mapped()
     }

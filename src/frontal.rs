@@ -48,19 +48,54 @@ impl Values {
     /// maps them again from the page cache (or the disk, if the kernel has needed the
     /// memory). Used by the solves on the ranges they have passed.
     pub fn release(&self, range: std::ops::Range<usize>) {
-        let Values::Mapped(m) = self else {
-            return;
-        };
-        const PAGE: usize = 4096;
-        let lo = (range.start * 8).div_ceil(PAGE) * PAGE;
-        let hi = (range.end * 8 / PAGE) * PAGE;
-        if hi > lo {
+        if let Values::Mapped(m) = self {
             // SAFETY: the map is a read-only shared map of a file that nothing writes any
             // more: dropping its pages loses nothing, and a later read maps the same bytes.
-            unsafe {
-                let _ = m.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, lo, hi - lo);
-            }
+            unsafe { drop_pages(m.as_ptr(), range) }
         }
+    }
+}
+
+/// Drops this process's pages wholly inside values (f64) `range` of the map at `base`.
+///
+/// # Safety
+/// `range` must lie in a shared file map starting at `base`, whose pages may be dropped: a
+/// later access maps the same bytes again (dirty pages stay in the page cache).
+unsafe fn drop_pages(base: *const u8, range: std::ops::Range<usize>) {
+    const PAGE: usize = 4096;
+    let base = base as usize;
+    let lo = (base + range.start * 8).div_ceil(PAGE) * PAGE;
+    let hi = ((base + range.end * 8) / PAGE) * PAGE;
+    if hi > lo {
+        // SAFETY: whole pages inside the map (the caller's promise).
+        unsafe { libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_DONTNEED) };
+    }
+}
+
+/// The span of factor values a sweep has passed since it last dropped their pages: the
+/// solves, the Gram forward and the factorisation's workers each drop theirs every
+/// [`Passed::EVERY`] values (32 MB), so a factor in a file never sits whole in the process.
+#[derive(Default)]
+pub struct Passed(Option<std::ops::Range<usize>>);
+
+impl Passed {
+    /// Values passed between two drops.
+    pub const EVERY: usize = 4 << 20;
+
+    /// Adds `range` to the span; returns the span to drop once it reaches [`Passed::EVERY`].
+    pub fn add(&mut self, range: std::ops::Range<usize>) -> Option<std::ops::Range<usize>> {
+        let r = self.0.get_or_insert(range.clone());
+        *r = r.start.min(range.start)..r.end.max(range.end);
+        if r.len() >= Self::EVERY {
+            self.0.take()
+        } else {
+            None
+        }
+    }
+
+    /// The span not dropped yet.
+    pub fn rest(&mut self) -> Option<std::ops::Range<usize>> {
+        self.0.take()
     }
 }
 
@@ -185,9 +220,6 @@ impl FrontPlan {
     }
 }
 
-/// Values a worker copies into the map before it drops the pages it wrote (32 MB).
-const WRITTEN: usize = 4 << 20;
-
 /// What every worker of one factorisation reads.
 struct Shared<'a> {
     sym: &'a SymbolicSupernodalCholesky<usize>,
@@ -242,7 +274,7 @@ struct Worker {
     on_stack: Vec<(usize, usize)>,
     scratch: faer::dyn_stack::MemBuffer,
     /// Values written and not yet released (see [`Out::write`]).
-    written: Option<std::ops::Range<usize>>,
+    written: Passed,
 }
 
 /// The factor file, mapped shared and writable: workers copy their finished columns into
@@ -258,15 +290,10 @@ unsafe impl Send for Out {}
 unsafe impl Sync for Out {}
 
 impl Out {
-    /// Copies `data` to values `offset..` and, every [`WRITTEN`] values, drops the pages the
+    /// Copies `data` to values `offset..` and, every [`Passed::EVERY`] values, drops the pages the
     /// worker wrote since the last time (`written`, a range of values), so the process does not
     /// keep them: they stay in the page cache, dirty, for the kernel to write back.
-    fn write(
-        &self,
-        offset: usize,
-        data: &[f64],
-        written: &mut Option<std::ops::Range<usize>>,
-    ) -> Result<(), FemError> {
+    fn write(&self, offset: usize, data: &[f64], written: &mut Passed) -> Result<(), FemError> {
         let end = offset
             .checked_add(data.len())
             .filter(|&e| e <= self.len)
@@ -301,29 +328,16 @@ impl Out {
         } else {
             copy(0, data);
         }
-        let r = written.get_or_insert(offset..end);
-        *r = r.start.min(offset)..r.end.max(end);
-        if r.len() >= WRITTEN {
-            self.release(r.clone());
-            *written = None;
+        if let Some(r) = written.add(offset..end) {
+            self.release(r);
         }
         Ok(())
     }
 
     /// Drops this process's pages wholly inside values `range`.
     fn release(&self, range: std::ops::Range<usize>) {
-        const PAGE: usize = 4096;
-        let base = self.ptr as usize;
-        let lo = (base + range.start * 8).div_ceil(PAGE) * PAGE;
-        let hi = ((base + range.end * 8) / PAGE) * PAGE;
-        if hi > lo {
-            // SAFETY: the range lies in the shared map of the factor file: dropping its pages
-            // loses nothing (dirty pages stay in the page cache) and a later access maps the
-            // same bytes again.
-            unsafe {
-                libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_DONTNEED);
-            }
-        }
+        // SAFETY: the range lies in the shared map of the factor file (`ptr` is its start).
+        unsafe { drop_pages(self.ptr.cast_const().cast(), range) }
     }
 }
 
@@ -341,7 +355,7 @@ impl Worker {
             stack: Vec::new(),
             on_stack: Vec::new(),
             scratch: faer::dyn_stack::MemBuffer::new(faer::dyn_stack::StackReq::empty()),
-            written: None,
+            written: Passed::default(),
         };
         w.stack
             .try_reserve_exact(stack)
@@ -669,7 +683,7 @@ pub fn factorize_to_file(
                             stop.store(true, std::sync::atomic::Ordering::Relaxed)
                         })?;
                     }
-                    if let Some(r) = w.written.take() {
+                    if let Some(r) = w.written.rest() {
                         out.release(r);
                     }
                     Ok(w.on_stack
@@ -699,7 +713,7 @@ pub fn factorize_to_file(
                 let r = top
                     .iter()
                     .try_for_each(|&s| w.visit(sh, s, &mut external, out));
-                if let Some(r) = w.written.take() {
+                if let Some(r) = w.written.rest() {
                     out.release(r);
                 }
                 r

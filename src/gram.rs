@@ -258,14 +258,12 @@ impl GramPlan {
         let ptr = Shared(w.as_mut_ptr());
         let vp = sym.col_ptr_for_val();
         let sweep = |rows: std::ops::Range<usize>| {
-            // A factor in a file: drop the pages passed every RELEASE values.
-            let mut passed = 0..0;
+            // A factor in a file: drop the pages passed now and then.
+            let mut passed = crate::frontal::Passed::default();
             for s in 0..self.begin.len() - 1 {
-                if passed.end - passed.start >= RELEASE {
-                    f.release(passed.clone());
-                    passed = vp[s]..vp[s];
+                if let Some(r) = passed.add(vp[s]..vp[s + 1]) {
+                    f.release(r);
                 }
-                passed.end = vp[s + 1];
                 let (lo, hi) = self.range[s];
                 let (a, b) = ((3 * lo).max(rows.start), (3 * hi).min(rows.end));
                 if a >= b {
@@ -280,7 +278,9 @@ impl GramPlan {
                 // every ancestor's block.
                 unsafe { self.update(ptr, s, a - 3 * lo..b - 3 * lo, l11, l21, pattern) }
             }
-            f.release(passed);
+            if let Some(r) = passed.rest() {
+                f.release(r);
+            }
         };
         if parts == 1 {
             sweep(0..n_rows);
@@ -483,7 +483,8 @@ impl UnitSolver {
     }
 
     /// The forward sweep over the supernodes the columns reach, the back sweep over `keep`.
-    /// On a factor in a file, the pages passed are dropped every [`RELEASE`] values.
+    /// On a factor in a file, the pages passed are dropped now and then
+    /// ([`crate::frontal::Passed`]).
     fn sweep(&self, f: &Factor, dofs: &[usize], mut x: MatMut<'_, f64>, keep: &[bool]) {
         let Some((sym, val)) = f.supernodal() else {
             return;
@@ -507,13 +508,10 @@ impl UnitSolver {
         };
         // Values passed since the last release: the forward sweep climbs the values, the back
         // sweep descends them.
-        let mut passed: Option<std::ops::Range<usize>> = None;
+        let mut passed = crate::frontal::Passed::default();
         let mut pass = |s: usize| {
-            let r = passed.get_or_insert(vp[s]..vp[s + 1]);
-            *r = r.start.min(vp[s])..r.end.max(vp[s + 1]);
-            if r.len() >= RELEASE {
-                f.release(r.clone());
-                passed = None;
+            if let Some(r) = passed.add(vp[s]..vp[s + 1]) {
+                f.release(r);
             }
         };
         for s in (0..nsn).filter(|&s| reach[s]) {
@@ -568,14 +566,11 @@ impl UnitSolver {
             );
             pass(s);
         }
-        if let Some(r) = passed {
+        if let Some(r) = passed.rest() {
             f.release(r);
         }
     }
 }
-
-/// Values of a factor in a file that a solve passes before it drops their pages (32 MB).
-const RELEASE: usize = 4 << 20;
 
 /// The supernode of each factor column, and the parent of each supernode in the supernodal
 /// elimination tree (the supernode holding its first off-diagonal row; `usize::MAX` for a

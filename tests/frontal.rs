@@ -215,29 +215,26 @@ fn a_solve_from_the_file_leaves_its_pages_unmapped() {
 }
 
 #[test]
-fn auto_falls_back_to_memory_when_the_file_cannot_be_made() {
+fn a_directory_that_cannot_hold_the_file() {
     let m = mouse();
     let k = Stiffness::assemble(&m).unwrap();
-    let store = FactorStore::Auto {
-        dir: std::path::PathBuf::from("/nonexistent/touchfem-factor"),
+    let nowhere = std::path::PathBuf::from("/nonexistent/touchfem-factor");
+    // `Auto` falls back to memory, with the same values.
+    let auto = FactorStore::Auto {
+        dir: nowhere.clone(),
         threads: 2,
         above: 0,
     };
-    let (f, _, _) = k.factorize_in(Ordering::Metis, &store).unwrap();
+    let (f, _, _) = k.factorize_in(Ordering::Metis, &auto).unwrap();
     assert!(!f.is_mapped());
     let (heap, _, _) = k.factorize_in(Ordering::Metis, &FactorStore::Heap).unwrap();
     assert_eq!(values(&f), values(&heap));
-}
-
-#[test]
-fn a_factor_directory_that_cannot_hold_the_file_is_a_typed_error() {
-    let m = mouse();
-    let k = Stiffness::assemble(&m).unwrap();
-    let store = FactorStore::File {
-        dir: std::path::PathBuf::from("/nonexistent/touchfem-factor"),
+    // `File` is a typed error naming the directory.
+    let file = FactorStore::File {
+        dir: nowhere,
         threads: 2,
     };
-    match k.factorize_in(Ordering::Metis, &store) {
+    match k.factorize_in(Ordering::Metis, &file) {
         Err(FemError::Factorisation(msg)) => {
             assert!(msg.contains("/nonexistent/touchfem-factor"), "{msg}")
         }
