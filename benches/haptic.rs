@@ -163,22 +163,36 @@ fn scene_tick(c: &mut Criterion) {
 /// What the UDP bridge adds to a haptic tick: taking the newest position and sending the
 /// force packet, over loopback, for both clocks. With the host clock the receiver thread has
 /// already taken the datagram off the socket (waited for, untimed); with the device clock the
-/// haptic thread's wait for it (untimed: it is the time between ticks) has returned.
+/// haptic thread's wait for it (untimed: it is the time between ticks) has returned. With
+/// `--key` the force packet is signed (HMAC-SHA256) on the haptic thread; the position's tag
+/// is checked on the receiver thread, timed here on its own (`verify_position_tag`).
 fn udp_bridge(c: &mut Criterion) {
     use std::net::UdpSocket;
-    use touchfem::devices::udp::{encode_position, BridgeConfig, Clock, UdpBridge};
+    use touchfem::devices::udp::{
+        encode_position, BridgeConfig, Clock, Key, UdpBridge, MAX_PACKET, TAG_LEN,
+    };
     use touchfem::devices::{FingerDevices, ForceState};
     let mut g = c.benchmark_group("udp_bridge");
-    for clock in [Clock::Host, Clock::Device] {
+    let secret = Key::new(b"benchmark secret, 32 bytes long!").unwrap();
+    for (clock, key) in [
+        (Clock::Host, None),
+        (Clock::Host, Some(secret.clone())),
+        (Clock::Device, None),
+        (Clock::Device, Some(secret.clone())),
+    ] {
+        let keyed = key.is_some();
         let cfg = BridgeConfig {
             clock,
+            key: key.clone(),
+            // Long enough that no benchmark pause makes the positions stale.
+            watchdog: Duration::from_secs(60),
             ..BridgeConfig::default()
         };
         let mut bridge = UdpBridge::bind("127.0.0.1:0".parse().unwrap(), &cfg).unwrap();
         let to = bridge.local_addr().unwrap();
         let client = UdpSocket::bind("127.0.0.1:0").unwrap();
         client.set_nonblocking(true).unwrap();
-        let mut pkt = [0u8; 64];
+        let mut pkt = [0u8; MAX_PACKET];
         let mut seq = 0u32;
         let mut pos = [DVec3::ZERO; 1];
         let forces = [DVec3::new(0.1, 0.2, 0.3)];
@@ -187,9 +201,11 @@ fn udp_bridge(c: &mut Criterion) {
             limited: false,
         }];
         let mut sink = [0u8; 256];
-        let name = match clock {
-            Clock::Host => "host_clock_read_and_send",
-            Clock::Device => "device_clock_read_and_send",
+        let name = match (clock, keyed) {
+            (Clock::Host, false) => "host_clock_read_and_send",
+            (Clock::Host, true) => "host_clock_read_and_send_keyed",
+            (Clock::Device, false) => "device_clock_read_and_send",
+            (Clock::Device, true) => "device_clock_read_and_send_keyed",
         };
         g.bench_function(name, |b| {
             b.iter_custom(|iters| {
@@ -198,7 +214,12 @@ fn udp_bridge(c: &mut Criterion) {
                     seq += 1;
                     // A new position each time, so the wait below sees this packet arrive.
                     let p = DVec3::new(0.01, 0.02, 1e-6 * f64::from(seq % 1000));
-                    let n = encode_position(seq, &[p], &mut pkt);
+                    let mut n = encode_position(seq, &[p], &mut pkt);
+                    if let Some(k) = &key {
+                        let tag = k.tag(&pkt[..n]);
+                        pkt[n..n + TAG_LEN].copy_from_slice(&tag);
+                        n += TAG_LEN;
+                    }
                     client.send_to(&pkt[..n], to).unwrap();
                     match clock {
                         Clock::Host => loop {
@@ -223,6 +244,13 @@ fn udp_bridge(c: &mut Criterion) {
             })
         });
     }
+    let mut pkt = [0u8; MAX_PACKET];
+    let n = encode_position(7, &[DVec3::new(0.01, 0.02, 0.03)], &mut pkt);
+    let tag = secret.tag(&pkt[..n]);
+    pkt[n..n + TAG_LEN].copy_from_slice(&tag);
+    g.bench_function("verify_position_tag", |b| {
+        b.iter(|| black_box(secret.open(black_box(&pkt[..n + TAG_LEN])).is_some()))
+    });
     g.finish();
 }
 

@@ -9,6 +9,8 @@
 //! ```sh
 //! WGPU_BACKEND=vulkan cargo run --example embed -- /tmp/embed.png
 //! ```
+//!
+//! More than one argument, or an option: the usage on stderr, exit status 2.
 
 use glam::{DVec3, Mat4, Vec3};
 use touchfem::compliance::{Compliance, Selection};
@@ -39,9 +41,18 @@ fn fs(in: Out) -> @location(0) vec4<f32> {
 }
 "#;
 
+const USAGE: &str = "usage: embed [OUT.png]   (default: target/embed.png)";
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let out = std::env::args()
-        .nth(1)
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.len() > 1 || args.iter().any(|a| a.starts_with('-') || a.is_empty()) {
+        eprintln!("error: expected at most one argument, the output PNG's path");
+        eprintln!("{USAGE}");
+        std::process::exit(2);
+    }
+    let out = args
+        .first()
+        .cloned()
         .unwrap_or_else(|| concat!(env!("CARGO_MANIFEST_DIR"), "/target/embed.png").into());
     let (w, h) = (400u32, 300u32);
 

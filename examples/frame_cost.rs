@@ -1,5 +1,6 @@
 //! Where a live frame's time goes, pass by pass:
 //! `WGPU_BACKEND=vulkan cargo run --release --example frame_cost SCENE [WxH]`
+//! (missing or bad arguments: the usage on stderr, exit status 2)
 //! (default 640x480; `SAMPLES=4` for MSAA). The scene's first object, one contact triangle's
 //! worth of columns pressed; each line is the median and the minimum of 80 frames, each
 //! submitted and waited for: the deformation pass alone, then the draw (which includes it)
@@ -8,15 +9,43 @@ use std::time::Instant;
 use touchfem::render::{Camera, Coloring, Edges, Frame, FrameObject, RenderOptions, Renderer};
 use touchfem::wgpu;
 
+const USAGE: &str = "usage: frame_cost SCENE [WxH]   (SCENE: a scene file, bundled scene or mesh; \
+default 640x480; SAMPLES=1|4 in the environment for MSAA)";
+
+/// Prints `error: {msg}` and the usage to stderr and exits with status 2 (bad input).
+fn usage_error(msg: &str) -> ! {
+    eprintln!("error: {msg}");
+    eprintln!("{USAGE}");
+    std::process::exit(2)
+}
+
+/// Prints `error: {msg}` to stderr and exits with `code`.
+fn die(code: i32, msg: impl std::fmt::Display) -> ! {
+    eprintln!("error: {msg}");
+    std::process::exit(code)
+}
+
 fn main() {
-    let a: Vec<String> = std::env::args().collect();
-    let size: Vec<u32> = a
-        .get(2)
-        .map(|s| s.split('x').map(|v| v.parse().unwrap()).collect())
-        .unwrap_or(vec![640, 480]);
-    let world = touchfem::scene::World::load(&a[1], "script").expect("scene");
-    let o = &world.objects[0];
-    let gpu = touchfem::gpu::Gpu::new_headless().expect("gpu");
+    let a: Vec<String> = std::env::args().skip(1).collect();
+    if a.is_empty() || a.len() > 2 || a.iter().any(|s| s == "-h" || s == "--help") {
+        usage_error("expected SCENE [WxH]");
+    }
+    let size: [u32; 2] = match a.get(1) {
+        Some(s) => touchfem::cli::parse_size(s).unwrap_or_else(|e| usage_error(&e)),
+        None => [640, 480],
+    };
+    let samples: u32 = match std::env::var("SAMPLES") {
+        Err(_) => 1,
+        Ok(s) => match s.trim().parse() {
+            Ok(n @ (1 | 4)) => n,
+            _ => usage_error(&format!("SAMPLES={s:?}: expected 1 or 4")),
+        },
+    };
+    let world = touchfem::scene::World::load(&a[0], "script").unwrap_or_else(|e| die(2, e));
+    let Some(o) = world.objects.first() else {
+        die(2, format!("{}: no object", a[0]));
+    };
+    let gpu = touchfem::gpu::Gpu::new_headless().unwrap_or_else(|e| die(1, e));
     let mut d = touchfem::gpu::Deformer::new(
         &gpu.device,
         &gpu.queue,
@@ -25,7 +54,7 @@ fn main() {
         &o.scene.mesh.surface,
         &Default::default(),
     )
-    .expect("deformer");
+    .unwrap_or_else(|e| die(1, e));
     let c = &o.scene.compliance;
     // Three columns, 0.1 N each.
     let forces: Vec<(u32, [f32; 3])> = (0..3u32.min(c.cols().len() as u32))
@@ -33,15 +62,12 @@ fn main() {
         .collect();
     d.set_forces(&gpu.queue, &forces).unwrap();
     let edges = Edges::new(&gpu.device, &d);
-    let samples: u32 = std::env::var("SAMPLES")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(1);
     let opts = RenderOptions {
         samples,
         ..Default::default()
     };
-    let r = Renderer::with_options(&gpu.device, [size[0], size[1]], opts).unwrap();
+    let r =
+        Renderer::with_options(&gpu.device, [size[0], size[1]], opts).unwrap_or_else(|e| die(1, e));
     let tex = gpu.device.create_texture(&wgpu::TextureDescriptor {
         label: None,
         size: wgpu::Extent3d {

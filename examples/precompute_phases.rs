@@ -4,13 +4,51 @@
 //! the Gram method's forward solves on 1 and 2 threads, with their flop rate; `frontal`,
 //! `faer` or `both` `[THREADS]`: the out-of-core factorisation into a file on THREADS threads
 //! (default 2), faer's in memory, or both and their largest difference).
+//!
+//! Missing or bad arguments: the usage on stderr, exit status 2.
+
+const USAGE: &str =
+    "usage: precompute_phases MESH [m|mm] [factor|forward|frontal|faer|both [THREADS]]";
+
+/// Prints `error: {msg}` and the usage to stderr and exits with status 2 (bad input).
+fn usage_error(msg: &str) -> ! {
+    eprintln!("error: {msg}");
+    eprintln!("{USAGE}");
+    std::process::exit(2)
+}
+
 fn main() {
+    // The program's name first, as the phases below index them.
     let a: Vec<String> = std::env::args().collect();
+    if a.len() < 2 || a.len() > 5 || a.iter().skip(1).any(|s| s == "-h" || s == "--help") {
+        usage_error("expected MESH [UNIT] [PHASE [THREADS]]");
+    }
+    if let Some(m) = a.get(3) {
+        if !["factor", "forward", "frontal", "faer", "both"].contains(&m.as_str()) {
+            usage_error(&format!("'{m}' is not a phase"));
+        }
+    }
+    if let Some(t) = a.get(4) {
+        if !(a[3] == "frontal" || a[3] == "both")
+            || !t.parse::<usize>().is_ok_and(|n| (1..=1024).contains(&n))
+        {
+            usage_error(&format!(
+                "THREADS '{t}': a whole number in 1..=1024, after frontal or both"
+            ));
+        }
+    }
+    let unit = a.get(2).map(|u| {
+        u.parse::<touchfem::LengthUnit>()
+            .unwrap_or_else(|e| usage_error(&format!("unit '{u}': {e}")))
+    });
     let opts = touchfem::scene::LoadOptions {
-        unit: a.get(2).map(|u| u.parse().expect("unit")),
+        unit,
         ..Default::default()
     };
-    let (mesh, _) = touchfem::scene::load_mesh(&a[1], &opts).expect("mesh");
+    let (mesh, _) = touchfem::scene::load_mesh(&a[1], &opts).unwrap_or_else(|e| {
+        eprintln!("error: {e}");
+        std::process::exit(2)
+    });
     if a.get(3).is_some_and(|s| s == "factor") {
         let k = touchfem::fem::Stiffness::assemble(&mesh).expect("K");
         for o in [

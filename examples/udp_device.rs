@@ -9,6 +9,10 @@
 //! ```sh
 //! touchfem serve cube --udp 127.0.0.1:47800 --clock device &
 //! cargo run --release --example udp_device -- 127.0.0.1:47800 3
+//! # with a shared secret: both sides sign every packet (HMAC-SHA256)
+//! head -c 32 /dev/urandom > key
+//! touchfem serve cube --udp 127.0.0.1:47800 --key key &
+//! cargo run --release --example udp_device -- 127.0.0.1:47800 3 --key key
 //! ```
 //! Prints one JSON line: round trips (send → matching force packet), forces, packets.
 
@@ -16,7 +20,9 @@ use glam::DVec3;
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
-use touchfem::devices::udp::{decode_force, encode_position, FLAG_TOUCHING};
+use touchfem::devices::udp::{
+    decode_force, encode_position, Key, FLAG_RELEASED, FLAG_TOUCHING, MAX_PACKET, TAG_LEN,
+};
 
 /// The hand: mass (kg), spring (N/m) and damper (N·s/m) towards the target.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -86,6 +92,10 @@ pub struct ClientReport {
     pub touching_ticks: u64,
     /// The hand's final position, m.
     pub final_position: [f64; 3],
+    /// Force packets whose tag did not verify under the key (dropped).
+    pub rejected: u64,
+    /// Whether a release packet (flag bit 3) arrived.
+    pub released: bool,
     /// Work the device's force has done on the hand up to each tick, J (a passivity
     /// observer in the manner of Hannaford & Ryu).
     #[serde(skip)]
@@ -101,8 +111,10 @@ pub enum Timing {
     /// Real time: one position a millisecond; the force computed from it is waited for until
     /// the next millisecond, then the newest force is held (as a driver's servo loop does).
     RealTime,
-    /// Simulated time: each tick waits for the force computed from its position (up to
-    /// 100 ms) before the hand moves on: the physics does not depend on the machine's load.
+    /// Lockstep: each tick starts on time, as in real time, and waits for the force computed
+    /// from its position (up to 100 ms) before the hand moves on, so no force is ever late
+    /// and the hand's physics does not depend on the machine's load. (touchfem measures the
+    /// time between a device's packets, so a client must not run faster than real time.)
     Lockstep,
 }
 
@@ -116,6 +128,19 @@ pub fn run_client(
     timing: Timing,
     target: impl Fn(f64) -> DVec3,
 ) -> std::io::Result<ClientReport> {
+    run_client_keyed(to, seconds, hand, timing, None, target)
+}
+
+/// [`run_client`] with a shared secret: every position packet ends with its HMAC-SHA256 tag,
+/// and force packets whose tag does not verify are dropped.
+pub fn run_client_keyed(
+    to: SocketAddr,
+    seconds: f64,
+    hand: Hand,
+    timing: Timing,
+    key: Option<&Key>,
+    target: impl Fn(f64) -> DVec3,
+) -> std::io::Result<ClientReport> {
     let sock = UdpSocket::bind("127.0.0.1:0")?;
     let dt = 1e-3;
     let sub = 10u32;
@@ -125,13 +150,13 @@ pub fn run_client(
     let mut force = DVec3::ZERO;
     let mut rtts = Vec::with_capacity(n as usize);
     let mut rep = ClientReport::default();
-    let mut out = [0u8; 64];
-    let mut inp = [0u8; 256];
+    let mut out = [0u8; MAX_PACKET];
+    let mut inp = [0u8; 512];
     let mut work = 0.0;
     let t0 = Instant::now();
     for i in 0..n {
         let due = t0 + Duration::from_secs_f64(i as f64 * dt);
-        if timing == Timing::RealTime {
+        {
             // Sleep, then spin the last 200 µs (sleeping all the way wakes late).
             let now = Instant::now();
             if due > now + Duration::from_micros(300) {
@@ -142,7 +167,12 @@ pub fn run_client(
             }
         }
         let seq = i as u32 + 1;
-        let len = encode_position(seq, &[x], &mut out);
+        let mut len = encode_position(seq, &[x], &mut out);
+        if let Some(k) = key {
+            let tag = k.tag(&out[..len]);
+            out[len..len + TAG_LEN].copy_from_slice(&tag);
+            len += TAG_LEN;
+        }
         let sent = Instant::now();
         sock.send_to(&out[..len], to)?;
         rep.ticks += 1;
@@ -162,10 +192,23 @@ pub fn run_client(
             let Ok((len, _)) = sock.recv_from(&mut inp) else {
                 break;
             };
-            let Some(p) = decode_force(&inp[..len]) else {
+            let body = match key {
+                Some(k) => match k.open(&inp[..len]) {
+                    Some(b) => b,
+                    None => {
+                        rep.rejected += 1;
+                        continue;
+                    }
+                },
+                None => &inp[..len],
+            };
+            let Some(p) = decode_force(body) else {
                 continue;
             };
             rep.forces_received += 1;
+            if p.flags[0] & FLAG_RELEASED != 0 {
+                rep.released = true;
+            }
             force = p.forces[0];
             rep.max_force_n = rep.max_force_n.max(force.length());
             if p.seq == seq {
@@ -206,15 +249,52 @@ pub fn press_cube(t: f64, seconds: f64) -> DVec3 {
     DVec3::new(0.015, 0.015, 0.036 - 0.010 * s)
 }
 
+const USAGE: &str = "usage: udp_device [ADDR [SECONDS]] [--key FILE]\n  ADDR: touchfem serve's --udp address (default 127.0.0.1:47800)\n  SECONDS: how long to press, in (0, 3600] (default 3)\n  --key FILE: the secret `serve --key FILE` was given";
+
+/// Prints `msg` and the usage, and exits with status 2.
+fn usage(msg: &str) -> ! {
+    eprintln!("error: {msg}\n{USAGE}");
+    std::process::exit(2)
+}
+
 #[allow(dead_code)]
 fn main() {
+    let mut positional = Vec::new();
+    let mut key = None;
     let mut args = std::env::args().skip(1);
-    let to: SocketAddr = args
-        .next()
-        .unwrap_or_else(|| "127.0.0.1:47800".into())
+    while let Some(a) = args.next() {
+        match a.as_str() {
+            "--key" => {
+                let Some(p) = args.next() else {
+                    usage("--key needs a FILE")
+                };
+                key = Some(
+                    Key::from_file(std::path::Path::new(&p))
+                        .unwrap_or_else(|e| usage(&format!("--key: {e}"))),
+                );
+            }
+            "-h" | "--help" => {
+                println!("{USAGE}");
+                return;
+            }
+            _ => positional.push(a),
+        }
+    }
+    if positional.len() > 2 {
+        usage("too many arguments");
+    }
+    let to: SocketAddr = positional
+        .first()
+        .map_or("127.0.0.1:47800", |s| s.as_str())
         .parse()
-        .expect("ADDR like 127.0.0.1:47800");
-    let seconds: f64 = args.next().map_or(3.0, |s| s.parse().expect("seconds"));
+        .unwrap_or_else(|_| usage("ADDR must look like 127.0.0.1:47800"));
+    let seconds: f64 = match positional.get(1) {
+        None => 3.0,
+        Some(s) => match s.parse::<f64>() {
+            Ok(v) if v.is_finite() && v > 0.0 && v <= 3600.0 => v,
+            _ => usage(&format!("SECONDS must be in (0, 3600], not {s:?}")),
+        },
+    };
     // A driver's servo loop runs at real-time priority where the OS allows it; here one step
     // below touchfem's haptic loop (SCHED_FIFO 80), so on a shared core it never delays it.
     // SAFETY: plain FFI call on the current thread with a fully initialised parameter.
@@ -223,9 +303,25 @@ fn main() {
         libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) == 0
     };
     eprintln!("client: real-time priority {realtime}");
-    let rep = run_client(to, seconds, Hand::default(), Timing::RealTime, |t| {
-        press_cube(t, seconds)
-    })
-    .expect("UDP client");
-    println!("{}", serde_json::to_string(&rep).expect("serialisable"));
+    let rep = match run_client_keyed(
+        to,
+        seconds,
+        Hand::default(),
+        Timing::RealTime,
+        key.as_ref(),
+        |t| press_cube(t, seconds),
+    ) {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("error: UDP client: {e}");
+            std::process::exit(1)
+        }
+    };
+    match serde_json::to_string(&rep) {
+        Ok(s) => println!("{s}"),
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::exit(1)
+        }
+    }
 }

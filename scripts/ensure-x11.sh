@@ -6,7 +6,8 @@ missing=()
 command -v Xvfb >/dev/null 2>&1 || missing+=(xvfb)
 command -v xdotool >/dev/null 2>&1 || missing+=(xdotool)
 command -v xwd >/dev/null 2>&1 || missing+=(x11-apps)
-command -v convert >/dev/null 2>&1 || missing+=(imagemagick)
+# The real ImageMagick (a stand-in named convert elsewhere on PATH is not enough).
+[ -x /usr/bin/convert ] || missing+=(imagemagick)
 if [ ${#missing[@]} -eq 0 ]; then
   exit 0
 fi

@@ -80,11 +80,13 @@ pub enum CacheError {
         /// The length the header implies.
         expected: usize,
     },
-    /// The checksum does not match.
-    #[error("cache {path} is corrupt (checksum mismatch)")]
+    /// The checksum does not match, or the header's sizes contradict each other.
+    #[error("cache {path} is corrupt ({why})")]
     Corrupt {
         /// The file.
         path: PathBuf,
+        /// What is wrong ("checksum mismatch", or the header's inconsistency).
+        why: String,
     },
     /// A shard (part of the columns) where a complete file is needed.
     #[error("{path} is part {index} of {count} of a sharded precompute: merge the parts first (touchfem precompute --merge)")]
@@ -143,6 +145,90 @@ fn unique_tmp(path: &Path) -> std::path::PathBuf {
     let mut name = path.file_name().unwrap_or_default().to_os_string();
     name.push(format!(".{}.{n}.{nanos:08x}.tmp", std::process::id()));
     path.with_file_name(name)
+}
+
+/// A file written under a temporary name next to its final one and renamed over it only when
+/// complete ([`AtomicFile::commit`]), so that nothing truncates or half-writes the file it
+/// replaces; dropped without a commit, the temporary is removed and the old file is untouched.
+/// A target that exists and is not a regular file (a device such as `/dev/null`, a pipe) is
+/// written in place; a symbolic link's target is replaced, the link kept.
+pub struct AtomicFile {
+    path: PathBuf,
+    tmp: Option<PathBuf>,
+    file: std::fs::File,
+    committed: bool,
+}
+
+impl AtomicFile {
+    /// Starts writing `path` (its directory must exist).
+    pub fn create(path: &Path) -> std::io::Result<AtomicFile> {
+        let (path, in_place) = match std::fs::metadata(path) {
+            Ok(m) if !m.is_file() => (path.to_path_buf(), true),
+            // Replace what a link points to, not the link.
+            Ok(_) => (
+                std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf()),
+                false,
+            ),
+            Err(_) => (path.to_path_buf(), false),
+        };
+        if in_place {
+            let file = std::fs::OpenOptions::new().write(true).open(&path)?;
+            return Ok(AtomicFile {
+                path,
+                tmp: None,
+                file,
+                committed: false,
+            });
+        }
+        let tmp = unique_tmp(&path);
+        let file = std::fs::File::create_new(&tmp)?;
+        Ok(AtomicFile {
+            path,
+            tmp: Some(tmp),
+            file,
+            committed: false,
+        })
+    }
+
+    /// Syncs the file and renames it to its final name (then syncs the directory).
+    pub fn commit(mut self) -> std::io::Result<()> {
+        use std::io::Write;
+        self.file.flush()?;
+        if let Some(tmp) = &self.tmp {
+            self.file.sync_all()?;
+            std::fs::rename(tmp, &self.path)?;
+            self.committed = true;
+            sync_dir(&self.path)?;
+        }
+        self.committed = true;
+        Ok(())
+    }
+}
+
+impl std::io::Write for AtomicFile {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.file.write(buf)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.file.flush()
+    }
+}
+
+impl Drop for AtomicFile {
+    fn drop(&mut self) {
+        if let (false, Some(tmp)) = (self.committed, &self.tmp) {
+            let _ = std::fs::remove_file(tmp);
+        }
+    }
+}
+
+/// Writes `bytes` to `path` through an [`AtomicFile`]: `path` holds either its old content or
+/// all of `bytes`, never a part.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut f = AtomicFile::create(path)?;
+    f.write_all(bytes)?;
+    f.commit()
 }
 
 /// The hash that a cache file must match: mesh geometry and topology, material, clamp set and
@@ -226,12 +312,14 @@ impl Header {
     }
 
     fn held_batches(&self) -> usize {
-        (self.col_end - self.col_begin).div_ceil(self.batch.max(1)) as usize
+        self.col_end
+            .saturating_sub(self.col_begin)
+            .div_ceil(self.batch.max(1)) as usize
     }
 
-    /// Bytes of the L values held.
+    /// Bytes of the L values held (only for a header that passed [`Header::checked_file_len`]).
     fn l_bytes(&self) -> u64 {
-        72 * self.l_rows as u64 * (self.col_end - self.col_begin) as u64
+        72 * self.l_rows as u64 * self.col_end.saturating_sub(self.col_begin) as u64
     }
 
     /// Byte offset of held batch `i`.
@@ -241,13 +329,54 @@ impl Header {
             + 72 * self.l_rows as u64 * (i as u64 * self.batch as u64)
     }
 
-    /// Total file length the header implies.
+    /// Total file length the header implies (only for a header that passed
+    /// [`Header::checked_file_len`]).
     fn file_len(&self) -> u64 {
         HEADER as u64
             + 4 * (self.rows as u64 + self.cols as u64)
             + self.l_bytes()
             + 8 * self.held_batches() as u64
             + 8
+    }
+
+    /// What is wrong with the header's sizes, if anything: the column range must lie in
+    /// `0..=cols` on the batch grid, `l_rows ≤ rows`, the shard index in `1..=count`.
+    fn inconsistency(&self) -> Option<String> {
+        let grid = |c: u32| self.batch != 0 && (c.is_multiple_of(self.batch) || c == self.cols);
+        if self.batch == 0 {
+            Some("a batch of 0 columns".into())
+        } else if self.l_rows > self.rows {
+            Some(format!("{} rows of L, {} rows", self.l_rows, self.rows))
+        } else if self.col_begin > self.col_end || self.col_end > self.cols {
+            Some(format!(
+                "columns {}..{} of {}",
+                self.col_begin, self.col_end, self.cols
+            ))
+        } else if !grid(self.col_begin) || !grid(self.col_end) {
+            Some(format!(
+                "columns {}..{} are not on the grid of {}-column batches",
+                self.col_begin, self.col_end, self.batch
+            ))
+        } else if self.shard_index == 0 || self.shard_index > self.shard_count {
+            Some(format!("part {} of {}", self.shard_index, self.shard_count))
+        } else {
+            None
+        }
+    }
+
+    /// The total file length the header implies, computed without overflow; `None` if the
+    /// header is inconsistent ([`Header::inconsistency`]) or the length does not fit a `u64`.
+    fn checked_file_len(&self) -> Option<u64> {
+        if self.inconsistency().is_some() {
+            return None;
+        }
+        let held = (self.col_end - self.col_begin) as u64;
+        let l = 72u64.checked_mul(self.l_rows as u64)?.checked_mul(held)?;
+        (HEADER as u64)
+            .checked_add(4 * (self.rows as u64 + self.cols as u64))?
+            .checked_add(l)?
+            .checked_add(8 * self.held_batches() as u64)?
+            .checked_add(8)
     }
 
     fn lists_len(&self) -> usize {
@@ -314,6 +443,31 @@ impl Writer {
             path: path.to_path_buf(),
             source,
         };
+        let Some(len) = head.checked_file_len() else {
+            return Err(CacheError::Format {
+                path: path.to_path_buf(),
+                msg: format!(
+                    "cannot write a file of {} rows ({} of L) and {} columns: {}",
+                    head.rows,
+                    head.l_rows,
+                    head.cols,
+                    head.inconsistency()
+                        .unwrap_or_else(|| "its length does not fit 64 bits".into())
+                ),
+            });
+        };
+        if rows.len() != head.rows as usize || cols.len() != head.cols as usize {
+            return Err(CacheError::Format {
+                path: path.to_path_buf(),
+                msg: format!(
+                    "{} row and {} column nodes for a header of {} and {}",
+                    rows.len(),
+                    cols.len(),
+                    head.rows,
+                    head.cols
+                ),
+            });
+        }
         if let Some(dir) = path.parent() {
             if !dir.as_os_str().is_empty() {
                 std::fs::create_dir_all(dir).map_err(io)?;
@@ -336,7 +490,7 @@ impl Writer {
         };
         use std::os::unix::fs::FileExt;
         (|| {
-            w.file.set_len(w.head.file_len())?;
+            w.file.set_len(len)?;
             w.file.write_all_at(&w.head.to_bytes(), 0)?;
             w.file.write_all_at(&w.lists, HEADER as u64)
         })()
@@ -348,6 +502,23 @@ impl Writer {
     /// `9·R'·columns` f64 ([`Header::l_rows`]). Callable from several threads.
     pub fn write_batch(&self, i: usize, values: &[f64]) -> Result<(), CacheError> {
         use std::os::unix::fs::FileExt;
+        let h = &self.head;
+        let held = h.held_batches();
+        let want = if i < held {
+            let first = h.col_begin as usize + i * h.batch as usize;
+            9 * h.l_rows as usize * (h.col_end as usize - first).min(h.batch as usize)
+        } else {
+            0
+        };
+        if i >= held || values.len() != want {
+            return Err(CacheError::Format {
+                path: self.path.clone(),
+                msg: format!(
+                    "batch {i} of {held} with {} values, expected {want}",
+                    values.len()
+                ),
+            });
+        }
         let bytes: &[u8] = bytemuck::cast_slice(values);
         let off = self.head.batch_offset(i);
         self.file
@@ -634,21 +805,31 @@ impl Part {
             l_rows: u32_at(&hb, 60),
             residual_bits: u64_at(&hb, 64),
         };
-        let expected = head.file_len();
+        // Every size is checked, without overflow, and bounded by the real length before
+        // anything is allocated: a crafted header cannot ask for more memory than the file.
+        if let Some(why) = head.inconsistency() {
+            return Err(CacheError::Corrupt {
+                path: p(),
+                why: format!("header: {why}"),
+            });
+        }
+        let Some(expected) = head.checked_file_len() else {
+            return Err(CacheError::Corrupt {
+                path: p(),
+                why: format!(
+                    "header: {} rows ({} of L) and {} columns make a length beyond 64 bits",
+                    head.rows, head.l_rows, head.cols
+                ),
+            });
+        };
         if len != expected {
             // A flipped bit in the sizes reads as a wrong length; the checksum cannot be found.
             return Err(CacheError::Truncated {
                 path: p(),
-                len: len as usize,
-                expected: expected as usize,
+                len: usize::try_from(len).unwrap_or(usize::MAX),
+                expected: usize::try_from(expected).unwrap_or(usize::MAX),
             });
         }
-        let sane = head.batch > 0
-            && head.l_rows <= head.rows
-            && head.col_begin <= head.col_end
-            && head.col_end <= head.cols
-            && head.shard_index >= 1
-            && head.shard_index <= head.shard_count;
         let mut lists = vec![0u8; head.lists_len()];
         file.read_exact_at(&mut lists, HEADER as u64).map_err(io)?;
         let nb = head.held_batches();
@@ -659,8 +840,11 @@ impl Part {
         h.update(&hb);
         h.update(&lists);
         h.update(&table[..8 * nb]);
-        if h.digest() != u64_at(&table, 8 * nb) || !sane {
-            return Err(CacheError::Corrupt { path: p() });
+        if h.digest() != u64_at(&table, 8 * nb) {
+            return Err(CacheError::Corrupt {
+                path: p(),
+                why: "checksum mismatch".into(),
+            });
         }
         let nr = head.rows as usize;
         let rows = (0..nr).map(|i| u32_at(&lists, 4 * i)).collect();
@@ -698,6 +882,7 @@ impl Part {
         if xxh3_64(bytes) != self.sums[i] {
             return Err(CacheError::Corrupt {
                 path: self.path.clone(),
+                why: format!("checksum mismatch in batch {i}"),
             });
         }
         Ok(())
@@ -810,9 +995,16 @@ pub fn load_near_part(
         path: path.to_path_buf(),
         msg,
     };
-    let (row_of_node, col_of_node, _) =
+    let (row_of_node, col_of_node, col_row) =
         crate::compliance::index_maps(&part.rows, &part.cols, n_nodes)
             .map_err(|e| format(e.to_string()))?;
+    // Every column's row holds L (is among the first `l_rows`): the blocks below read it.
+    if let Some(i) = col_row.iter().position(|&r| r >= h.l_rows) {
+        return Err(format(format!(
+            "touchable node {} is among the clamped rows",
+            part.cols[i]
+        )));
+    }
     let mut near = NearBlocks::pairs(part.cols.len(), triangles, &col_of_node);
     let mut buf = Vec::new();
     let mut max_abs = 0.0f64;

@@ -144,8 +144,8 @@ pub struct ServeArgs {
     /// Address to listen on, e.g. 127.0.0.1:47800.
     #[arg(long)]
     pub udp: std::net::SocketAddr,
-    /// Seconds to run (default: until interrupted).
-    #[arg(long)]
+    /// Seconds to run, in (0, 1e6] (default: until interrupted).
+    #[arg(long, value_name = "S", value_parser = parse_serve_seconds, allow_hyphen_values = true)]
     pub seconds: Option<f64>,
     /// Write the report as JSON here (else to stdout).
     #[arg(long)]
@@ -153,11 +153,18 @@ pub struct ServeArgs {
     /// Record the session here.
     #[arg(long)]
     pub record: Option<PathBuf>,
-    /// Allow a non-loopback address (forces reach a person's hand from the network).
+    /// Allow a non-loopback address (forces reach a person's hand from the network); needs
+    /// `--key`.
     #[arg(long)]
     pub allow_remote: bool,
-    /// Watchdog: silence longer than this (ms) gives zero force and the stale flag.
-    #[arg(long, default_value_t = 20.0)]
+    /// A file whose bytes (at least 16) are a shared secret: every packet, both ways, ends
+    /// with its HMAC-SHA256 under it, and a position packet whose tag does not verify is
+    /// dropped (`packets_rejected`).
+    #[arg(long, value_name = "FILE")]
+    pub key: Option<PathBuf>,
+    /// Watchdog: silence longer than this (ms, in (0, 60000]) gives zero force and the stale
+    /// flag.
+    #[arg(long, value_name = "MS", default_value_t = 20.0, value_parser = parse_watchdog_ms, allow_hyphen_values = true)]
     pub watchdog_ms: f64,
     /// What paces the loop: `host` (touchfem's 1 kHz deadlines) or `device` (each position
     /// packet starts a tick, answered at once: the lowest round trip).
@@ -168,9 +175,9 @@ pub struct ServeArgs {
     /// virtual coupling sized from them.
     #[arg(long)]
     pub limits: Option<String>,
-    /// First measure this machine's bare-loop floor for this many seconds (reported as
-    /// `floor`), then serve.
-    #[arg(long)]
+    /// First measure this machine's bare-loop floor for this many seconds (in [0, 3600];
+    /// reported as `floor`), then serve.
+    #[arg(long, value_name = "S", value_parser = parse_floor_seconds, allow_hyphen_values = true)]
     pub floor_seconds: Option<f64>,
     /// Show the object in the `view` window (fingers, god-objects, deformation) instead of
     /// updating it headless; closing the window ends the run.
@@ -181,10 +188,12 @@ pub struct ServeArgs {
     pub size: [u32; 2],
 }
 
-/// `touchfem replay` flags.
+/// `touchfem replay` flags. The command fails (status 2) on a session with no tick and when
+/// a recorded or replayed force is not finite (`max_force_diff_n` is then written as
+/// `f64::MAX`, never `null`).
 #[derive(Args, Debug)]
 pub struct ReplayArgs {
-    /// The session file (`--record` of `demo` or `view`).
+    /// The session file (`--record` of `demo`, `view` or `serve`).
     pub file: PathBuf,
     /// Print one JSON object.
     #[arg(long)]
@@ -196,8 +205,9 @@ pub struct ReplayArgs {
 pub struct DemoArgs {
     /// Scene files or bundled scene names (fig1, fig2, pinch); none: every bundled scene.
     pub scenes: Vec<String>,
-    /// Seconds of haptic + visual loop per scene (scripted paths are stretched to fit).
-    #[arg(long, default_value_t = 3.0)]
+    /// Seconds of haptic + visual loop per scene, in (0, 3600] (scripted paths are stretched
+    /// to fit).
+    #[arg(long, value_name = "S", default_value_t = 3.0, value_parser = parse_demo_seconds, allow_hyphen_values = true)]
     pub seconds: f64,
     /// Record each scene's session here (several scenes: FILE.SCENE.EXT).
     #[arg(long)]
@@ -223,11 +233,11 @@ pub struct LoadArgs {
     /// The Gmsh physical group (or TetGen marker) whose nodes are clamped.
     #[arg(long, default_value = "fixed")]
     pub fixed: String,
-    /// Young's modulus in Pa (default: the bundled mesh's, else 1000).
-    #[arg(long)]
+    /// Young's modulus in Pa, in (0, 1e13] (default: the bundled mesh's, else 1000).
+    #[arg(long, value_name = "PA", value_parser = parse_young, allow_hyphen_values = true)]
     pub young: Option<f64>,
-    /// Poisson's ratio (default: the bundled mesh's, else 0.3).
-    #[arg(long)]
+    /// Poisson's ratio, in (-1, 0.5) (default: the bundled mesh's, else 0.3).
+    #[arg(long, value_name = "NU", value_parser = parse_poisson, allow_hyphen_values = true)]
     pub poisson: Option<f64>,
 }
 
@@ -248,10 +258,10 @@ impl LoadArgs {
 pub struct PokeArgs {
     /// Mesh file or bundled name.
     pub mesh: String,
-    /// The point to touch, X,Y,Z in mesh units.
+    /// The point to touch, X,Y,Z in mesh units (each at most 1e9 in magnitude).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     pub at: DVec3,
-    /// The finger's motion, DX,DY,DZ in mesh units.
+    /// The finger's motion, DX,DY,DZ in mesh units (each at most 1e9 in magnitude).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     pub push: DVec3,
     /// How to load the mesh.
@@ -282,8 +292,8 @@ pub struct PokeArgs {
     /// Keep the precomputed compliance in this cache file (recomputed if stale or corrupt).
     #[arg(long)]
     pub cache: Option<PathBuf>,
-    /// Haptic ticks over which the finger moves.
-    #[arg(long, default_value_t = 50)]
+    /// Haptic ticks over which the finger moves, 1 to 1000000.
+    #[arg(long, default_value_t = 50, value_parser = parse_steps, allow_hyphen_values = true)]
     pub steps: usize,
 }
 
@@ -320,7 +330,70 @@ pub fn parse_size(s: &str) -> Result<[u32; 2], String> {
     Ok([p(w)?, p(h)?])
 }
 
-/// Parses "x,y,z" into a finite vector.
+/// The largest magnitude [`parse_vec3`] accepts for a coordinate (mesh units).
+pub const MAX_COORDINATE: f64 = 1e9;
+
+/// Parses a number for a flag: finite and within `lo..=hi`, or strictly above `lo` when
+/// `lo_open` (clap's error then names the flag: `invalid value 'X' for '--flag <V>': ...`).
+fn parse_bounded(s: &str, lo: f64, hi: f64, lo_open: bool) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|e| format!("'{s}' is not a number: {e}"))?;
+    let above = if lo_open { v > lo } else { v >= lo };
+    if !(v.is_finite() && above && v <= hi) {
+        let open = if lo_open { '(' } else { '[' };
+        return Err(format!("{v} is outside {open}{lo}, {hi}]"));
+    }
+    Ok(v)
+}
+
+/// `serve --seconds`: a finite duration in (0, 1e6] seconds.
+pub fn parse_serve_seconds(s: &str) -> Result<f64, String> {
+    parse_bounded(s, 0.0, 1e6, true)
+}
+
+/// `demo --seconds`: a finite duration in (0, 3600] seconds.
+pub fn parse_demo_seconds(s: &str) -> Result<f64, String> {
+    parse_bounded(s, 0.0, 3600.0, true)
+}
+
+/// `serve --floor-seconds`: a finite duration in [0, 3600] seconds.
+pub fn parse_floor_seconds(s: &str) -> Result<f64, String> {
+    parse_bounded(s, 0.0, 3600.0, false)
+}
+
+/// `serve --watchdog-ms`: in (0, 60000] milliseconds.
+pub fn parse_watchdog_ms(s: &str) -> Result<f64, String> {
+    parse_bounded(s, 0.0, 60_000.0, true)
+}
+
+/// `--young`: Young's modulus in (0, 1e13] Pa.
+pub fn parse_young(s: &str) -> Result<f64, String> {
+    parse_bounded(s, 0.0, 1e13, true)
+}
+
+/// `--poisson`: Poisson's ratio in (-1, 0.5).
+pub fn parse_poisson(s: &str) -> Result<f64, String> {
+    match parse_bounded(s, -1.0, 0.5, true) {
+        Ok(v) if v < 0.5 => Ok(v),
+        Ok(v) => Err(format!("{v} is outside (-1, 0.5)")),
+        Err(e) if e.ends_with(']') => Err(e.replace(", 0.5]", ", 0.5)")),
+        Err(e) => Err(e),
+    }
+}
+
+/// `poke --steps`: 1 to 1000000 haptic ticks.
+pub fn parse_steps(s: &str) -> Result<usize, String> {
+    s.trim()
+        .parse::<usize>()
+        .ok()
+        .filter(|n| (1..=1_000_000).contains(n))
+        .ok_or_else(|| format!("'{s}' is not a whole number in 1..=1000000"))
+}
+
+/// Parses "x,y,z" into a finite vector, each component at most [`MAX_COORDINATE`] in
+/// magnitude.
 pub fn parse_vec3(s: &str) -> Result<DVec3, String> {
     let parts: Vec<&str> = s.split(',').map(str::trim).collect();
     if parts.len() != 3 {
@@ -333,6 +406,11 @@ pub fn parse_vec3(s: &str) -> Result<DVec3, String> {
             .map_err(|e| format!("'{p}' is not a number: {e}"))?;
         if !o.is_finite() {
             return Err(format!("'{p}' is not finite"));
+        }
+        if o.abs() > MAX_COORDINATE {
+            return Err(format!(
+                "'{p}' is larger than {MAX_COORDINATE:e} in magnitude"
+            ));
         }
     }
     Ok(DVec3::from_array(v))
@@ -551,7 +629,21 @@ fn serve(a: &ServeArgs) -> Result<(), Error> {
             a.watchdog_ms
         )));
     }
-    if !a.udp.ip().is_loopback() && a.allow_remote {
+    let key = match &a.key {
+        Some(p) => Some(
+            crate::devices::udp::Key::from_file(p)
+                .map_err(|e| Error::Input(format!("--key: {e}")))?,
+        ),
+        None => None,
+    };
+    let remote_ok = a.allow_remote && key.is_some();
+    if !a.udp.ip().is_loopback() && !remote_ok {
+        return Err(Error::Input(format!(
+            "--udp {}: not a loopback address; serving beyond this machine needs --allow-remote and --key FILE",
+            a.udp
+        )));
+    }
+    if !a.udp.ip().is_loopback() {
         eprintln!(
             "warning: serving {} beyond this machine: anyone who can reach it drives forces into a person's hand",
             a.udp
@@ -569,6 +661,7 @@ fn serve(a: &ServeArgs) -> Result<(), Error> {
     let opts = ServeOptions {
         addr: a.udp,
         allow_remote: a.allow_remote,
+        key,
         seconds: a.seconds,
         record: a.record.clone(),
         watchdog: std::time::Duration::from_secs_f64(a.watchdog_ms * 1e-3),
@@ -584,19 +677,32 @@ fn serve(a: &ServeArgs) -> Result<(), Error> {
     };
     let json = serde_json::to_string_pretty(&report).expect("serialisable");
     match &a.report {
-        Some(path) => std::fs::write(path, json).map_err(|source| Error::Write {
-            path: path.clone(),
-            source,
-        })?,
+        Some(path) => {
+            crate::cache::write_atomic(path, json.as_bytes()).map_err(|source| Error::Write {
+                path: path.clone(),
+                source,
+            })?
+        }
         None => println!("{json}"),
     }
-    Ok(())
+    // A failed recording fails the command, after the report is written.
+    match report.recording_error {
+        Some(e) => Err(Error::Session(format!("--record: {e}"))),
+        None => Ok(()),
+    }
 }
 
 fn replay(a: &ReplayArgs) -> Result<(), Error> {
     use crate::runtime::session;
     let sess = session::read(&a.file)?;
     let h = &sess.header;
+    if sess.ticks.is_empty() {
+        return Err(Error::Session(format!(
+            "{}: the session holds no tick ({} bytes after the header): nothing to replay",
+            a.file.display(),
+            sess.trailing_bytes
+        )));
+    }
     let world = session::world(
         &sess,
         &format!("the scene recorded in {}", a.file.display()),
@@ -618,6 +724,16 @@ fn replay(a: &ReplayArgs) -> Result<(), Error> {
                 sess.trailing_bytes
             );
         }
+    }
+    // The contract: a non-finite difference (a NaN or infinite force, recorded or replayed)
+    // fails the replay; the JSON above wrote it as f64::MAX, never null.
+    if !r.max_force_diff_n.is_finite() {
+        return Err(Error::Session(format!(
+            "{}: {} tick(s) hold a non-finite force (recorded or replayed), the first at tick {}: the difference is infinite",
+            a.file.display(),
+            r.non_finite_ticks,
+            r.worst_tick
+        )));
     }
     Ok(())
 }
@@ -920,17 +1036,27 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
         });
         println!("{v}");
     } else {
+        // Six significant digits at any scale (scientific when tiny), never `-0`.
+        let g = |v: f64| crate::render::format_significant(v, 6);
         let f = p.feedback;
+        // A component below 1e-12 of |F| is rounding noise: shown as 0.
+        let c = |v: f64| {
+            g(if v.abs() <= 1e-12 * f.length() {
+                0.0
+            } else {
+                v
+            })
+        };
         println!(
-            "force fed back: ({:.6}, {:.6}, {:.6}) N, |F| = {:.6} N ({} model)",
-            f.x,
-            f.y,
-            f.z,
-            f.length(),
+            "force fed back: ({}, {}, {}) N, |F| = {} N ({} model)",
+            c(f.x),
+            c(f.y),
+            c(f.z),
+            g(f.length()),
             if a.exact { "exact" } else { "paper" }
         );
         println!("paper vs exact: |ΔF| = {diff:.3e} N");
-        println!("max displacement: {:.6} mm", max_u * 1e3);
+        println!("max displacement: {} mm", g(max_u * 1e3));
         println!(
             "precompute: {} rows × {} columns in {:.3} s, {:.1} MiB, max|K·L − I| = {:.1e}, symmetry {:.1e}",
             scene.compliance.rows().len(),

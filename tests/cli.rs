@@ -361,3 +361,203 @@ fn poke_png_flags_reject_unknown_values() {
         assert!(err.contains(value), "{err}");
     }
 }
+
+/// Every numeric flag rejects non-finite, negative and out-of-range values at parse time:
+/// exit status 2, one `error:` naming the flag, never a panic (`serve --watchdog-ms 1e300` and
+/// `serve --seconds 1e20` used to panic converting to a `Duration`).
+#[test]
+fn numeric_flags_out_of_range_name_the_flag_and_exit_2() {
+    let serve = |flag: &'static str, v: &'static str| -> Vec<&'static str> {
+        vec!["serve", "cube", "--udp", "127.0.0.1:0", flag, v]
+    };
+    let poke = |flag: &'static str, v: &'static str| -> Vec<&'static str> {
+        vec![
+            "poke", "cube", "--at", "15,15,30", "--push", "0,0,-1", flag, v,
+        ]
+    };
+    let mut cases: Vec<(Vec<&str>, &str)> = Vec::new();
+    for v in ["1e300", "1e20", "inf", "nan", "-1", "0", "abc"] {
+        cases.push((serve("--watchdog-ms", v), "--watchdog-ms"));
+        cases.push((serve("--seconds", v), "--seconds"));
+        cases.push((vec!["demo", "--seconds", v], "--seconds"));
+    }
+    for v in ["1e300", "inf", "nan", "-1", "7200"] {
+        cases.push((serve("--floor-seconds", v), "--floor-seconds"));
+    }
+    cases.push((serve("--watchdog-ms", "60001"), "--watchdog-ms"));
+    cases.push((serve("--seconds", "1000001"), "--seconds"));
+    for v in ["1e300", "inf", "nan", "-5", "0", "1e14"] {
+        cases.push((poke("--young", v), "--young"));
+        cases.push((vec!["info", "cube", "--young", v], "--young"));
+    }
+    for v in ["0.5", "0.7", "-1", "-2", "nan", "inf"] {
+        cases.push((poke("--poisson", v), "--poisson"));
+    }
+    for v in ["0", "-1", "1e12", "1000000000000", "18446744073709551615"] {
+        cases.push((poke("--steps", v), "--steps"));
+    }
+    for v in ["1e300,0,0", "0,inf,0", "0,0,1e10"] {
+        cases.push((vec!["poke", "cube", "--at", v, "--push", "0,0,-1"], "--at"));
+        cases.push((
+            vec!["poke", "cube", "--at", "15,15,30", "--push", v],
+            "--push",
+        ));
+    }
+    for v in ["0x0", "99999x10", "12"] {
+        cases.push((poke("--size", v), "--size"));
+    }
+    for v in ["0/4", "5/4", "1/0", "1/99999999"] {
+        cases.push((vec!["precompute", "cube", "--shard", v], "--shard"));
+    }
+    for (args, flag) in &cases {
+        let (code, _, err) = touchfem(args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{args:?} panicked: {err}");
+        assert!(
+            err.starts_with("error:") && err.contains(flag),
+            "{args:?}: the error should name {flag}: {err}"
+        );
+    }
+    // The documented ranges are in the help.
+    let (_, out, _) = touchfem(&["serve", "--help"]);
+    assert!(out.contains("60000") && out.contains("1e6"), "{out}");
+}
+
+/// The window's environment hooks are checked before anything loads: a bad value is an
+/// `error:` naming the variable, exit status 2 (`TOUCHFEM_VIEW_SECONDS=1e20` used to panic
+/// converting to a `Duration`, or was silently ignored).
+#[test]
+fn bad_view_environment_variables_name_the_variable() {
+    for (var, v) in [
+        ("TOUCHFEM_VIEW_SECONDS", "1e20"),
+        ("TOUCHFEM_VIEW_SECONDS", "inf"),
+        ("TOUCHFEM_VIEW_SECONDS", "-1"),
+        ("TOUCHFEM_VIEW_SECONDS", "soon"),
+        ("TOUCHFEM_VIEW_SAMPLES", "3"),
+        ("TOUCHFEM_VIEW_SAMPLES", "many"),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_touchfem"))
+            .args(["view", "cube"])
+            .env(var, v)
+            .env("TOUCHFEM_CACHE_DIR", "")
+            .env_remove("DISPLAY")
+            .env_remove("WAYLAND_DISPLAY")
+            .output()
+            .expect("runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{var}={v}: {err}");
+        assert!(
+            err.starts_with("error:") && err.contains(var),
+            "{var}={v}: {err}"
+        );
+        assert!(!err.contains("panicked"), "{var}={v}: {err}");
+    }
+}
+
+/// The examples (built by `cargo test --all-targets` or `cargo build --examples`) print their
+/// usage and exit 2 on missing or bad arguments instead of panicking on `args[1]`.
+#[test]
+fn examples_print_their_usage_on_missing_arguments() {
+    // target/<profile>/deps/cli-HASH → target/<profile>/examples/NAME
+    let exe = std::env::current_exe().unwrap();
+    let Some(examples) = exe
+        .parent()
+        .and_then(|d| d.parent())
+        .map(|d| d.join("examples"))
+    else {
+        eprintln!("skipped: no examples directory next to {}", exe.display());
+        return;
+    };
+    let cases: &[(&str, &[&str])] = &[
+        ("frame_cost", &[]),
+        ("frame_cost", &["cube", "axb"]),
+        ("frame_cost", &["cube", "640x480", "extra"]),
+        ("precompute_phases", &[]),
+        ("precompute_phases", &["cube", "furlong"]),
+        ("precompute_phases", &["cube", "mm", "nonsense"]),
+        ("precompute_phases", &["cube", "mm", "frontal", "0"]),
+        ("embed", &["a.png", "b.png"]),
+        ("embed", &["--help"]),
+    ];
+    let mut ran = 0;
+    for (name, args) in cases {
+        let bin = examples.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
+        if !bin.exists() {
+            eprintln!(
+                "skipped {name}: {} not built (cargo build --examples)",
+                bin.display()
+            );
+            continue;
+        }
+        let out = Command::new(&bin).args(*args).output().expect("runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{name} {args:?}: {err}");
+        assert!(err.contains("usage"), "{name} {args:?}: {err}");
+        assert!(!err.contains("panicked"), "{name} {args:?}: {err}");
+        ran += 1;
+    }
+    eprintln!("{ran} of {} example runs checked", cases.len());
+}
+
+/// A tiny poke's picture labels read right: the legend of `poke cube --push 0,0,-0.0001`
+/// (|u| ≈ 1e-7 m) is in nm with distinct labels and no `-0`, and the arrow's scale is not
+/// `100000000 mm/N`. The labels are built from the same functions `poke --png` uses; with a GPU
+/// adapter the command itself is run too.
+#[test]
+fn a_tiny_poke_has_readable_picture_labels() {
+    use touchfem::compliance::Selection;
+    use touchfem::render::{arrow_label, arrow_scale, length_ticks, Coloring};
+    let (mesh, _) = touchfem::scene::load_mesh("cube", &Default::default()).unwrap();
+    let scene = touchfem::scene::Scene::new(mesh, &Selection::default()).unwrap();
+    let p = scene
+        .poke(
+            glam::DVec3::new(15e-3, 15e-3, 30e-3),
+            glam::DVec3::new(0.0, 0.0, -1e-7),
+            touchfem::force::ForceModel::Paper,
+            50,
+        )
+        .unwrap();
+    let mut shown = vec![glam::DVec3::ZERO; scene.compliance.rows().len()];
+    scene.compliance.displace(p.bc.entries(), &mut shown);
+    let max_u = shown.iter().map(|v| v.length()).fold(0.0, f64::max);
+    assert!(max_u > 5e-8 && max_u < 2e-7, "{max_u}");
+    let Coloring::Displacement {
+        full_scale_m,
+        step_m,
+    } = Coloring::displacement(max_u)
+    else {
+        unreachable!()
+    };
+    let t = length_ticks(full_scale_m, step_m);
+    let labels: Vec<&str> = t.ticks.iter().map(|(_, s)| s.as_str()).collect();
+    assert_eq!(t.unit, "nm", "{labels:?}");
+    let distinct: std::collections::BTreeSet<&str> = labels.iter().copied().collect();
+    assert_eq!(distinct.len(), labels.len(), "{labels:?}");
+    assert!(labels.iter().all(|l| !l.starts_with('-')), "{labels:?}");
+    assert_eq!(labels[0], "0");
+    let arrow = arrow_label(arrow_scale(p.feedback.length(), 0.25 * 0.03 * 3f64.sqrt()));
+    assert!(!arrow.contains("00000"), "{arrow}");
+    assert!(arrow.len() < 20, "{arrow}");
+
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("tiny.png");
+    let (code, _, err) = touchfem_headless(
+        &[
+            "poke",
+            "cube",
+            "--at",
+            "15,15,30",
+            "--push",
+            "0,0,-0.0001",
+            "--png",
+            png.to_str().unwrap(),
+        ],
+        &[],
+    );
+    if err.contains("no GPU adapter") {
+        eprintln!("skipped the command: {err}");
+        return;
+    }
+    assert_eq!(code, 0, "{err}");
+    assert!(png.exists());
+}

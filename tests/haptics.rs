@@ -155,7 +155,7 @@ fn the_multi_finger_tick_and_its_recording_allocate_nothing() {
             pos[0] = DVec3::NAN; // a glitch: the finger reappears inside next tick
         }
         hw.step(&pos, &mut f, &mut sample);
-        rec.push(&session::TickRecord::new(&pos, &f));
+        rec.push(&session::TickRecord::new(1e-3, &pos, &f));
         w.write(sample);
         both += (sample.contacts(0) == 2) as usize;
     }

@@ -790,3 +790,126 @@ fn dense_but_permuted_node_tags_msh41() {
     assert_eq!(raw.nodes[1], [1.0, 0.0, 0.0]);
     assert_eq!(raw.tets, [[1, 3, 0, 2]]);
 }
+
+/// Numbers a header mutation writes: counts past u32, u64 and usize, negative, non-numeric.
+const HUGE_COUNTS: &[&str] = &[
+    "4294967295",
+    "4294967296",
+    "18446744073709551615",
+    "18446744073709551616",
+    "9223372036854775807",
+    "99999999",
+    "1e20",
+    "-1",
+    "0",
+    "nan",
+    "inf",
+    "1e308",
+];
+
+/// Byte ranges of the decimal integers and numbers in `bytes`.
+fn number_tokens(bytes: &[u8]) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < bytes.len() {
+        let at_start = i == 0 || bytes[i - 1].is_ascii_whitespace();
+        if at_start && (bytes[i].is_ascii_digit() || bytes[i] == b'-') {
+            let s = i;
+            while i < bytes.len() && !bytes[i].is_ascii_whitespace() {
+                i += 1;
+            }
+            out.push(s..i);
+        } else {
+            i += 1;
+        }
+    }
+    out
+}
+
+/// Bounded, deterministic proptest fuzzing of every fixture: header and body numbers replaced by
+/// huge, negative and non-numeric counts, bytes flipped, the file truncated; parsed as its kind
+/// and, when accepted, validated. Nothing panics (or aborts on a huge allocation), and every
+/// error has a message.
+#[test]
+fn fuzzed_mesh_files_with_huge_counts_never_panic() {
+    use proptest::prelude::*;
+    use proptest::test_runner::{Config, RngAlgorithm, TestCaseError, TestRng, TestRunner};
+    use std::cell::Cell;
+    let fixtures: Vec<Vec<u8>> = ALL_FIXTURES
+        .iter()
+        .map(|n| std::fs::read(data(n)).unwrap())
+        .collect();
+    let mut runner = TestRunner::new_with_rng(
+        Config {
+            // TOUCHFEM_FUZZ_CASES=N runs more (a deeper search than CI's few seconds).
+            cases: std::env::var("TOUCHFEM_FUZZ_CASES")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(3000),
+            failure_persistence: None,
+            ..Config::default()
+        },
+        TestRng::deterministic_rng(RngAlgorithm::ChaCha),
+    );
+    let (ran, ok, err) = (Cell::new(0u32), Cell::new(0u32), Cell::new(0u32));
+    let strategy = (
+        0..ALL_FIXTURES.len(),
+        // (which number: mostly the first few, the headers; value)
+        proptest::collection::vec(
+            (prop_oneof![0usize..8, any::<usize>()], 0..HUGE_COUNTS.len()),
+            0..3,
+        ),
+        proptest::collection::vec((any::<usize>(), any::<u8>()), 0..3),
+        prop_oneof![3 => Just(None), 1 => (0usize..1000).prop_map(Some)],
+    );
+    let result = runner.run(&strategy, |(f, numbers, flips, cut)| {
+        let name = ALL_FIXTURES[f];
+        let mut bytes = fixtures[f].clone();
+        for (n, v) in &numbers {
+            let toks = number_tokens(&bytes);
+            if toks.is_empty() {
+                break;
+            }
+            let r = toks[n % toks.len()].clone();
+            drop(bytes.splice(r, HUGE_COUNTS[*v].bytes()));
+        }
+        for (at, b) in &flips {
+            let i = at % bytes.len();
+            bytes[i] = *b;
+        }
+        if let Some(k) = cut {
+            bytes.truncate(bytes.len() * k / 1000);
+        }
+        ran.set(ran.get() + 1);
+        let r = catch_unwind(AssertUnwindSafe(|| {
+            let r = parse_as(name, &bytes);
+            let msg = r.as_ref().err().map(ToString::to_string);
+            let validated =
+                r.map(|raw| Mesh::from_raw(raw, LengthUnit::Millimetre, Material::DEFAULT));
+            (msg, validated.map(|v| v.map_err(|e| e.to_string())))
+        }));
+        match r {
+            Err(_) => Err(TestCaseError::fail(format!("{name} panicked"))),
+            Ok((Some(msg), _)) | Ok((None, Ok(Err(msg)))) => {
+                err.set(err.get() + 1);
+                if msg.trim().is_empty() {
+                    return Err(TestCaseError::fail(format!("{name}: an empty error")));
+                }
+                Ok(())
+            }
+            Ok(_) => {
+                ok.set(ok.get() + 1);
+                Ok(())
+            }
+        }
+    });
+    eprintln!(
+        "mesh fuzz: {} cases, {} Ok, {} Err",
+        ran.get(),
+        ok.get(),
+        err.get()
+    );
+    if let Err(e) = result {
+        panic!("{e}");
+    }
+}

@@ -442,3 +442,314 @@ fn clamped_rows_are_not_stored() {
         assert_eq!(back.rows(), c.rows());
     }
 }
+
+/// A cache header (format 3) with the given sizes, its other fields plausible.
+fn header_bytes(
+    rows: u32,
+    cols: u32,
+    batch: u32,
+    col_begin: u32,
+    col_end: u32,
+    l_rows: u32,
+) -> Vec<u8> {
+    let mut h = b"TFEMCMP\0".to_vec();
+    for v in [3u32, 8, 125, rows, cols, batch] {
+        h.extend_from_slice(&v.to_le_bytes());
+    }
+    h.extend_from_slice(&0x1234_5678_9abc_def0u64.to_le_bytes());
+    for v in [1u32, 1, col_begin, col_end, 0, l_rows] {
+        h.extend_from_slice(&v.to_le_bytes());
+    }
+    h.extend_from_slice(&0u64.to_le_bytes());
+    assert_eq!(h.len(), 72);
+    h
+}
+
+/// The crafted file of the issue: 80 bytes whose header sizes' product wraps to exactly 80
+/// bytes (72·l_rows·2³¹ + 8·2³¹ ≡ 0 mod 2⁶⁴ for l_rows = (2³⁰ − 1)/9), so that a loader
+/// that trusts the wrapped length allocates 16 GiB for the checksum table (debug builds
+/// panic on the overflow first).
+fn wrapping_cache_file(path: &Path) {
+    let l_rows = ((1u64 << 30) - 1) / 9;
+    assert_eq!(
+        (72 * l_rows)
+            .wrapping_mul(1 << 31)
+            .wrapping_add(8 << 31)
+            .wrapping_add(80),
+        80
+    );
+    let mut b = header_bytes(0, 0, 1, 0, 1 << 31, l_rows as u32);
+    b.extend_from_slice(&[0u8; 8]);
+    std::fs::write(path, b).unwrap();
+}
+
+#[test]
+fn a_crafted_header_whose_sizes_wrap_is_a_typed_error_before_any_allocation() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("wrap.tfc");
+    wrapping_cache_file(&bad);
+    let m = cube();
+    let key = cache::key(&m, &Selection::default());
+    let named = |e: &CacheError| {
+        let s = e.to_string();
+        assert!(s.contains("wrap.tfc") && s.contains("corrupt"), "{s}");
+    };
+    // Every loader: a typed error naming the file.
+    let e = cache::load(&bad, key, 125).unwrap_err();
+    assert!(matches!(e, CacheError::Corrupt { .. }), "{e:?}");
+    named(&e);
+    let e = cache::load_near(&bad, key, 125, &m.surface).unwrap_err();
+    assert!(matches!(e, CacheError::Corrupt { .. }), "{e:?}");
+    named(&e);
+    let e = cache::Part::open(&bad).err().expect("refused");
+    named(&e);
+    let out = dir.path().join("merged.tfc");
+    let e = cache::merge(std::slice::from_ref(&bad), &out).unwrap_err();
+    assert!(matches!(e, CacheError::Corrupt { .. }), "{e:?}");
+    named(&e);
+    assert!(!out.exists());
+    // Also sizes that overflow u64 outright, and a column range that runs backwards.
+    for (rows, cols, batch, b0, b1, lr) in [
+        (u32::MAX, u32::MAX, 1, 0, u32::MAX, u32::MAX),
+        (10, 10, 64, 5, 3, 10),
+        (10, 10, 0, 0, 10, 10),
+        (10, 10, 4, 2, 10, 10),
+    ] {
+        let p = dir.path().join("sizes.tfc");
+        let mut b = header_bytes(rows, cols, batch, b0, b1, lr);
+        b.extend_from_slice(&[0u8; 8]);
+        std::fs::write(&p, b).unwrap();
+        let e = cache::load(&p, key, 125).unwrap_err();
+        assert!(matches!(e, CacheError::Corrupt { .. }), "{e:?}");
+    }
+
+    // The command line: `precompute --merge` fails with status 2 and one `error:` line naming
+    // the file; `poke --cache` recomputes and rewrites the file.
+    let o = touchfem(&[
+        "precompute",
+        "--merge",
+        bad.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.starts_with("error:") && err.contains("wrap.tfc"),
+        "{err}"
+    );
+    let o = touchfem(&[
+        "poke",
+        "cube",
+        "--at",
+        "15,15,30",
+        "--push",
+        "0,0,-5",
+        "--json",
+        "--cache",
+        bad.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    assert!(err.contains("corrupt"), "{err}");
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v["force"][2].as_f64().unwrap() > 0.0, "{v}");
+    assert!(cache::load(&bad, key, 125).is_ok(), "rewritten");
+}
+
+/// An xorshift generator for the fuzz cases' choices (the cases themselves come from
+/// proptest's deterministic ChaCha runner).
+struct Bits(u64);
+impl Bits {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n.max(1) as u64) as usize
+    }
+}
+
+/// The layout a (possibly mutated) header implies, computed as the format says, or `None` if
+/// it overflows or is absurd: (lists bytes, L bytes, held batches).
+fn implied_layout(b: &[u8]) -> Option<(u64, u64, u64)> {
+    let u = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap()) as u64;
+    let (rows, cols, batch, c0, c1, lr) = (u(20), u(24), u(28), u(48), u(52), u(60));
+    let held = c1.checked_sub(c0)?;
+    let nb = held.div_ceil(batch.max(1));
+    Some((
+        4 * (rows + cols),
+        72u64.checked_mul(lr)?.checked_mul(held)?,
+        nb,
+    ))
+}
+
+/// Rewrites `b`'s length and checksums to match its (mutated) header, when the header
+/// implies a file of at most 4 MiB: the file then passes the checksum and reaches the deeper
+/// checks (a crafted file, not a damaged one).
+fn rechecksum(b: &mut Vec<u8>) -> bool {
+    use xxhash_rust::xxh3::{xxh3_64, Xxh3};
+    if b.len() < 72 {
+        return false;
+    }
+    let Some((lists, l, nb)) = implied_layout(b) else {
+        return false;
+    };
+    let Some(total) = (72 + lists)
+        .checked_add(l)
+        .and_then(|v| v.checked_add(8 * nb + 8))
+    else {
+        return false;
+    };
+    if total > 4 << 20 {
+        return false;
+    }
+    b.resize(total as usize, 0);
+    let batch = u32::from_le_bytes(b[28..32].try_into().unwrap()).max(1) as u64;
+    let lr = u32::from_le_bytes(b[60..64].try_into().unwrap()) as u64;
+    let c0 = u32::from_le_bytes(b[48..52].try_into().unwrap()) as u64;
+    let c1 = u32::from_le_bytes(b[52..56].try_into().unwrap()) as u64;
+    let data = 72 + lists as usize;
+    let table = data + l as usize;
+    for i in 0..nb as usize {
+        let first = c0 + i as u64 * batch;
+        let n = (c1 - first).min(batch) * 72 * lr;
+        let s = data + 72 * lr as usize * i * batch as usize;
+        let sum = xxh3_64(&b[s..s + n as usize]);
+        b[table + 8 * i..table + 8 * i + 8].copy_from_slice(&sum.to_le_bytes());
+    }
+    let mut h = Xxh3::new();
+    h.update(&b[..data]);
+    h.update(&b[table..table + 8 * nb as usize]);
+    let end = table + 8 * nb as usize;
+    b[end..end + 8].copy_from_slice(&h.digest().to_le_bytes());
+    true
+}
+
+#[test]
+fn fuzzed_cache_files_give_typed_errors_or_valid_loads_never_a_panic() {
+    use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
+    let dir = tempfile::tempdir().unwrap();
+    let m = cube();
+    let sel = Selection::default();
+    let key = cache::key(&m, &sel);
+    let full = dir.path().join("full.tfc");
+    precompute_to_file(&m, &sel, &full, (1, 1), &mut |_, _| {}).unwrap();
+    let parts = shards(&m, &sel, dir.path(), 2);
+    let originals = [
+        std::fs::read(&full).unwrap(),
+        std::fs::read(&parts[0]).unwrap(),
+        std::fs::read(&parts[1]).unwrap(),
+    ];
+    let config = Config {
+        cases: 512,
+        failure_persistence: None,
+        rng_algorithm: RngAlgorithm::ChaCha,
+        ..Config::default()
+    };
+    let mut runner =
+        TestRunner::new_with_rng(config, TestRng::deterministic_rng(RngAlgorithm::ChaCha));
+    let counts = std::cell::RefCell::new(std::collections::BTreeMap::<String, usize>::new());
+    let extremes = [
+        0u64,
+        1,
+        2,
+        63,
+        64,
+        65,
+        1 << 31,
+        u32::MAX as u64 - 1,
+        u32::MAX as u64,
+    ];
+    let case = std::cell::Cell::new(0usize);
+    runner
+        .run(
+            &(0usize..3, 0u8..5, proptest::prelude::any::<u64>()),
+            |(which, kind, seed)| {
+                case.set(case.get() + 1);
+                let mut rng = Bits(seed | 1);
+                let mut b = originals[which].clone();
+                let crafted = match kind {
+                    // Bits flipped anywhere.
+                    0 => {
+                        for _ in 0..1 + rng.below(8) {
+                            let i = rng.below(b.len());
+                            b[i] ^= 1 << rng.below(8);
+                        }
+                        false
+                    }
+                    // A header field set to a random or extreme value (checksum left stale).
+                    1 | 2 => {
+                        let o = 8 + 4 * rng.below(16);
+                        let v = if rng.below(2) == 0 {
+                            extremes[rng.below(extremes.len())]
+                        } else {
+                            rng.next()
+                        };
+                        if o == 32 || o == 64 {
+                            b[o..o + 8].copy_from_slice(&v.to_le_bytes());
+                        } else {
+                            b[o..o + 4].copy_from_slice(&(v as u32).to_le_bytes());
+                        }
+                        // Half of them with length and checksums made to match: crafted.
+                        kind == 2 && rechecksum(&mut b)
+                    }
+                    // Cut at a random length.
+                    3 => {
+                        b.truncate(rng.below(b.len()));
+                        false
+                    }
+                    // Random list entries or L values, re-checksummed.
+                    _ => {
+                        for _ in 0..1 + rng.below(4) {
+                            let i = 72 + rng.below(b.len() - 80);
+                            b[i] = rng.next() as u8;
+                        }
+                        rechecksum(&mut b)
+                    }
+                };
+                let p = dir.path().join(format!("fuzz{}.tfc", case.get()));
+                std::fs::write(&p, &b).unwrap();
+                let out = dir.path().join(format!("fuzz{}.merged.tfc", case.get()));
+                let other = if which == 1 { &parts[1] } else { &parts[0] };
+                let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    [
+                        cache::load(&p, key, 125).map(|_| ()),
+                        cache::load_near(&p, key, 125, &m.surface).map(|_| ()),
+                        cache::merge(&[p.clone(), other.clone()], &out).map(|_| ()),
+                    ]
+                }));
+                let Ok(results) = outcome else {
+                    return Err(proptest::test_runner::TestCaseError::fail(format!(
+                        "panic on case {} (file {which}, mutation {kind})",
+                        case.get()
+                    )));
+                };
+                let mut c = counts.borrow_mut();
+                for (entry, r) in ["load", "load_near", "merge"].iter().zip(results) {
+                    let tag = match r {
+                        Ok(()) => "ok".to_string(),
+                        Err(e) => format!("{e:?}")
+                            .split([' ', '{'])
+                            .next()
+                            .unwrap()
+                            .to_string(),
+                    };
+                    *c.entry(format!("{entry} {tag}")).or_default() += 1;
+                }
+                *c.entry(format!("crafted {crafted}")).or_default() += 1;
+                let _ = std::fs::remove_file(&p);
+                let _ = std::fs::remove_file(&out);
+                Ok(())
+            },
+        )
+        .unwrap();
+    eprintln!(
+        "cache fuzz: {} cases, outcomes {:?}",
+        case.get(),
+        counts.borrow()
+    );
+    assert_eq!(case.get(), 512);
+}

@@ -499,3 +499,147 @@ device = "pointer"
     c.displace(s.bc(0).entries(), &mut u);
     assert_eq!(visual.cpu_displacement(0), &u[..]);
 }
+
+/// A scene of the cube with one finger, `max_force_n`, and `limits` (TOML, or "" for none).
+fn cube_bounded(max_force_n: f64, limits: &str) -> World {
+    world(&format!(
+        "unit = \"mm\"\n[[object]]\nmesh = \"cube\"\n[[finger]]\ndevice = \"pointer\"\n{limits}\n[haptics]\nmax_force_n = {max_force_n}\n"
+    ))
+}
+
+/// Presses straight down into the top face at `speed` metres per tick for `ticks`, `dt`
+/// seconds apart; returns every force.
+fn dive(hw: &mut HapticWorld<'_>, speed: f64, ticks: usize, dt: f64) -> Vec<DVec3> {
+    let mut f = [DVec3::ZERO; 1];
+    let mut s = WorldSample::default();
+    let top = DVec3::new(14.0, 16.0, 31.0) * MM;
+    (0..ticks)
+        .map(|k| {
+            let x = top - DVec3::Z * (speed * k as f64).min(25.0 * MM);
+            hw.step_dt(dt, &[x], &mut f, &mut s);
+            f[0]
+        })
+        .collect()
+}
+
+/// The review's case: `max_force_n = 0.1` with the Falcon's limits, the finger moving 1 mm a
+/// tick. Before, the coupling's damping came after the saturation: 2.46 N.
+#[test]
+fn the_force_bound_holds_after_the_coupling_and_its_damping() {
+    for limits in ["limits = \"falcon\"", "limits = \"phantom-omni\"", ""] {
+        let w = cube_bounded(0.1, limits);
+        let mut hw = HapticWorld::new(&w);
+        assert_eq!(hw.force_bound(0), 0.1);
+        let forces = dive(&mut hw, 1.0 * MM, 60, 1e-3);
+        let max = forces.iter().map(|f| f.length()).fold(0.0, f64::max);
+        assert!(max <= 0.1 + 1e-12, "{limits}: {max} N");
+        assert!(max > 0.099, "{limits}: the bound is reached ({max} N)");
+        assert!(forces.iter().all(|f| f.is_finite()));
+    }
+    // The device's peak is the bound when it is the smaller one.
+    let w = cube_bounded(50.0, "limits = \"phantom-omni\"");
+    let mut hw = HapticWorld::new(&w);
+    assert_eq!(hw.force_bound(0), 4.0);
+    let max = dive(&mut hw, 1.0 * MM, 60, 1e-3)
+        .iter()
+        .map(|f| f.length())
+        .fold(0.0, f64::max);
+    assert!(max <= 4.0 + 1e-12, "{max}");
+}
+
+/// Without device limits a one-tick glitch of the position 5 mm into the object gave the
+/// whole force at once; now the force rises at most `bound / RISE_S`.
+#[test]
+fn a_one_tick_position_glitch_gives_no_force_step() {
+    use touchfem::runtime::bound::RISE_S;
+    let w = cube_bounded(0.2, "");
+    let mut hw = HapticWorld::new(&w);
+    let mut f = [DVec3::ZERO; 1];
+    let mut s = WorldSample::default();
+    let above = DVec3::new(14.0, 16.0, 31.0) * MM;
+    for _ in 0..10 {
+        hw.step_dt(1e-3, &[above], &mut f, &mut s);
+    }
+    // The glitch: one tick 5 mm in (the paper's force there is about 0.3 N, over the bound).
+    let inside = DVec3::new(14.0, 16.0, 25.0) * MM;
+    hw.step_dt(1e-3, &[inside], &mut f, &mut s);
+    let step = f[0].length();
+    assert!(
+        step <= 0.2 * 1e-3 / RISE_S + 1e-12,
+        "a glitch gives {step} N in one tick"
+    );
+    assert!(step > 0.0);
+    assert!(hw.limited(0));
+    // Back out at once: zero at once.
+    hw.step_dt(1e-3, &[above], &mut f, &mut s);
+    assert_eq!(f[0], DVec3::ZERO);
+}
+
+/// The ramp of a finger attached from inside, and the rate limit, count seconds: a device
+/// clocking the loop at 8 kHz gets the same ramp in time as one at 1 kHz, not 8 times faster.
+#[test]
+fn the_ramp_and_the_rate_limit_count_seconds_not_ticks() {
+    let w = world(CUBE_ONE);
+    let inside = DVec3::new(14.0, 16.0, 27.0) * MM;
+    let run = |dt: f64, seconds: f64| {
+        let mut hw = HapticWorld::new(&w);
+        let mut f = [DVec3::ZERO; 1];
+        let mut s = WorldSample::default();
+        let ticks = (seconds / dt).round() as usize;
+        for _ in 0..ticks {
+            hw.step_dt(dt, &[inside], &mut f, &mut s);
+        }
+        f[0].length()
+    };
+    let full = run(1e-3, 0.5);
+    assert!(full > 0.05, "{full}");
+    for dt in [1e-3, 2.5e-4, 1.25e-4] {
+        // Half the ramp's time: about half the force, at any tick rate.
+        let half = run(dt, RAMP_S / 2.0);
+        assert!(
+            (half / full - 0.5).abs() < 0.03,
+            "dt {dt}: {half} of {full} after RAMP_S/2"
+        );
+    }
+}
+
+/// `max_continuous_force_n` is enforced: a press held above it falls to it within seconds,
+/// while the peak is allowed at first.
+#[test]
+fn a_held_force_falls_to_the_devices_continuous_force() {
+    let limits = "limits = { max_force_n = 8.0, max_continuous_force_n = 0.05, max_stiffness_n_per_m = 3000.0, max_damping_ns_per_m = 20.0, workspace_radius_m = 0.1 }";
+    let w = cube_bounded(8.5, limits);
+    let mut hw = HapticWorld::new(&w);
+    let forces = dive(&mut hw, 0.05 * MM, 4000, 1e-3);
+    let early = forces[..300].iter().map(|f| f.length()).fold(0.0, f64::max);
+    let late = forces[3000..]
+        .iter()
+        .map(|f| f.length())
+        .fold(0.0, f64::max);
+    assert!(early > 0.06, "the peak is allowed at first: {early}");
+    assert!(late <= 0.05 + 1e-9, "held to the continuous force: {late}");
+    assert!(late > 0.045, "{late}");
+}
+
+/// `workspace_radius_m` is enforced: a device cannot move more than its workspace's diameter
+/// in one tick, so such a reading is a glitch: zero force, flagged, and the finger placed
+/// afresh (ramped in) at its next reading.
+#[test]
+fn a_jump_beyond_the_workspace_is_a_glitch() {
+    let limits = "limits = { max_force_n = 8.0, max_stiffness_n_per_m = 3000.0, max_damping_ns_per_m = 20.0, workspace_radius_m = 0.005 }";
+    let w = cube_bounded(8.5, limits);
+    let mut hw = HapticWorld::new(&w);
+    let forces = dive(&mut hw, 0.05 * MM, 200, 1e-3);
+    let held = forces[199];
+    assert!(held.length() > 0.01, "{held}");
+    let mut f = [DVec3::ZERO; 1];
+    let mut s = WorldSample::default();
+    let x = DVec3::new(14.0, 16.0, 31.0 - 0.05 * 199.0) * MM;
+    // 12 mm away in one tick: more than 2 × 5 mm.
+    hw.step_dt(1e-3, &[x + DVec3::X * 12.0 * MM], &mut f, &mut s);
+    assert_eq!(f[0], DVec3::ZERO);
+    assert!(hw.limited(0));
+    // Back at the press: attached afresh and ramped in, not the held force at once.
+    hw.step_dt(1e-3, &[x], &mut f, &mut s);
+    assert!(f[0].length() < 0.1 * held.length(), "{} vs {held}", f[0]);
+}

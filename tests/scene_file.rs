@@ -2,6 +2,7 @@
 //! typed error naming the key and line for every bad file.
 
 use glam::DVec3;
+use proptest::prelude::*;
 use touchfem::compliance::{Compliance, NodeSet, Selection};
 use touchfem::force::ForceModel;
 use touchfem::scene::{DeviceSpec, SceneSource, World};
@@ -276,4 +277,306 @@ fn a_bad_scene_on_the_command_line_is_an_error_not_a_panic() {
         .unwrap();
     assert_eq!(missing.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&missing.stderr).contains("nothere.toml"));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fuzzing: random and mutated scene files never panic
+// ---------------------------------------------------------------------------------------------
+
+/// Values a mutation writes: non-finite, negative, huge and tiny numbers, wrong types, arrays and
+/// tables of the shapes the schema uses, filled with the same.
+const FUZZ_VALUES: &[&str] = &[
+    "nan",
+    "inf",
+    "-inf",
+    "-1.0",
+    "0",
+    "-0.0",
+    "1e308",
+    "-1e308",
+    "1e-320",
+    "4.9e-324",
+    "9223372036854775807",
+    "-9223372036854775808",
+    "0.49999999999999994",
+    "0.5",
+    "\"x\"",
+    "\"\"",
+    "\"cube\"",
+    "\"mouse\"",
+    "\"/\"",
+    "\".\"",
+    "\"m.msh\"",
+    "\"mm\"",
+    "\"script\"",
+    "\"udp\"",
+    "\"falcon\"",
+    "true",
+    "[]",
+    "{}",
+    "[1, 2]",
+    "[nan, 0, 0]",
+    "[1e308, 1e308, 1e308]",
+    "[-1e308, 0, 1e308]",
+    "[[0, 0, 0, 0]]",
+    "[[0, 1e308, 0, 0], [1e308, 0, 0, 0]]",
+    "[[-1e308, 0, 0, 0], [1e308, 0, 0, 0]]",
+    "[[1e-300, 0, 0, 0], [2e-300, 0, 0, 0]]",
+    "[[0, nan, 0, 0]]",
+    "[[0, 0, 0]]",
+    "{ center = [1e308, 0, 0], radius = 1e308 }",
+    "{ center = [0, 0, 0], radius = nan }",
+    "{ center = [15, 15, 30], radius = 1e-300 }",
+    "{ center = [15, 15, 30], radius = 1e9 }",
+    "{ max_force_n = 1e308, max_stiffness_n_per_m = inf, max_damping_ns_per_m = 0, workspace_radius_m = -1 }",
+    "{ max_force_n = 5, max_stiffness_n_per_m = 1e308, max_damping_ns_per_m = 1e308, workspace_radius_m = 1e308 }",
+];
+
+/// Keys a mutation adds (the schema's and some it does not know).
+const FUZZ_KEYS: &[&str] = &[
+    "young",
+    "poisson",
+    "offset",
+    "radius",
+    "center",
+    "rate_hz",
+    "max_force_n",
+    "path",
+    "unit",
+    "mesh",
+    "mesh_unit",
+    "fixed",
+    "touchable",
+    "name",
+    "device",
+    "model",
+    "limits",
+    "bogus",
+];
+
+/// Headers a mutation adds.
+const FUZZ_TABLES: &[&str] = &["[[object]]", "[[finger]]", "[haptics]", "[object]", "[[x]]"];
+
+#[derive(Clone, Debug)]
+enum SceneMutation {
+    /// Replace the n-th number of the text with a value.
+    Number(usize, usize),
+    /// After the n-th line, insert `key = value`.
+    Key(usize, usize, usize),
+    /// After the n-th line, insert a table header.
+    Table(usize, usize),
+    /// Delete the n-th line.
+    DeleteLine(usize),
+    /// Keep only this many thousandths of the text.
+    Truncate(usize),
+    /// Set the byte at this position (of the text's length) to an ASCII character.
+    Byte(usize, u8),
+}
+
+fn scene_mutation() -> impl Strategy<Value = SceneMutation> {
+    prop_oneof![
+        4 => (any::<usize>(), 0..FUZZ_VALUES.len()).prop_map(|(n, v)| SceneMutation::Number(n, v)),
+        4 => (any::<usize>(), 0..FUZZ_KEYS.len(), 0..FUZZ_VALUES.len())
+            .prop_map(|(l, k, v)| SceneMutation::Key(l, k, v)),
+        1 => (any::<usize>(), 0..FUZZ_TABLES.len()).prop_map(|(l, t)| SceneMutation::Table(l, t)),
+        1 => any::<usize>().prop_map(SceneMutation::DeleteLine),
+        1 => (0usize..1000).prop_map(SceneMutation::Truncate),
+        1 => (any::<usize>(), 0x20u8..0x7f).prop_map(|(p, b)| SceneMutation::Byte(p, b)),
+    ]
+}
+
+/// Byte ranges of the numbers in `text` (a digit run, with a sign, point and exponent).
+fn numbers_in(text: &str) -> Vec<std::ops::Range<usize>> {
+    let b = text.as_bytes();
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < b.len() {
+        let starts =
+            b[i].is_ascii_digit() || (b[i] == b'-' && b.get(i + 1).is_some_and(u8::is_ascii_digit));
+        if starts && (i == 0 || !(b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'_')) {
+            let s = i;
+            i += 1;
+            while i < b.len() && (b[i].is_ascii_digit() || b"._eE+-".contains(&b[i])) {
+                i += 1;
+            }
+            out.push(s..i);
+        } else {
+            i += 1;
+        }
+    }
+    out
+}
+
+fn apply(text: &str, m: &SceneMutation) -> String {
+    let lines: Vec<&str> = text.lines().collect();
+    let insert = |after: usize, new: String| {
+        let at = after % (lines.len() + 1);
+        let mut l: Vec<String> = lines.iter().map(|s| s.to_string()).collect();
+        l.insert(at, new);
+        l.join("\n")
+    };
+    match *m {
+        SceneMutation::Number(n, v) => {
+            let nums = numbers_in(text);
+            if nums.is_empty() {
+                return text.to_string();
+            }
+            let r = nums[n % nums.len()].clone();
+            format!("{}{}{}", &text[..r.start], FUZZ_VALUES[v], &text[r.end..])
+        }
+        SceneMutation::Key(l, k, v) => insert(l, format!("{} = {}", FUZZ_KEYS[k], FUZZ_VALUES[v])),
+        SceneMutation::Table(l, t) => insert(l, FUZZ_TABLES[t].to_string()),
+        SceneMutation::DeleteLine(l) => {
+            let mut l2 = lines.clone();
+            if !l2.is_empty() {
+                l2.remove(l % lines.len());
+            }
+            l2.join("\n")
+        }
+        SceneMutation::Truncate(k) => {
+            let mut at = text.len() * k / 1000;
+            while !text.is_char_boundary(at) {
+                at -= 1;
+            }
+            text[..at].to_string()
+        }
+        SceneMutation::Byte(p, b) => {
+            let mut bytes = text.as_bytes().to_vec();
+            if bytes.is_empty() {
+                return text.to_string();
+            }
+            let at = p % bytes.len();
+            // Keep the text UTF-8: only an ASCII byte is replaced.
+            if bytes[at].is_ascii() {
+                bytes[at] = b;
+            }
+            String::from_utf8(bytes).unwrap_or_else(|_| text.to_string())
+        }
+    }
+}
+
+/// A small scene around a mesh file `m.msh` (a mutated fixture) in the fuzz's directory.
+const MESH_FILE_SCENE: &str = "unit = \"mm\"\n\n[[object]]\nmesh = \"m.msh\"\nmesh_unit = \"mm\"\nyoung = 3000.0\npoisson = 0.45\ntouchable = { center = [15, 15, 30], radius = 20 }\noffset = [0.0, 0.0, 1.0]\n\n[[finger]]\ndevice = \"script\"\npath = [[0.0, 15, 15, 40], [1.0, 15, 15, 25]]\nmodel = \"exact\"\nlimits = \"falcon\"\n\n[haptics]\nrate_hz = 2000.0\nmax_force_n = 3.0\n";
+
+/// Bounded, deterministic fuzzing of scene files through the real parse and validate layer
+/// ([`World::plan`]: everything but the precompute): the bundled scenes and a scene around a
+/// mesh file, mutated (numbers replaced by NaN, inf, negative, huge and tiny values or wrong
+/// types, keys and tables added, lines deleted, text truncated, bytes changed), and the mesh
+/// file's bytes flipped. Nothing panics; every error is one non-empty line naming the file.
+#[test]
+fn fuzzed_scene_files_never_panic() {
+    use proptest::test_runner::{Config, RngAlgorithm, TestCaseError, TestRng, TestRunner};
+    use std::cell::Cell;
+    use std::panic::{catch_unwind, AssertUnwindSafe};
+    let dir = tempfile::tempdir().unwrap();
+    let fixture = std::fs::read(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/box_v41.msh"),
+    )
+    .unwrap();
+    let mut bases: Vec<&str> = touchfem::scene::BUNDLED_SCENES
+        .iter()
+        .map(|(_, t)| *t)
+        .collect();
+    bases.push(MESH_FILE_SCENE);
+    let n_bases = bases.len();
+    // TOUCHFEM_FUZZ_CASES=N runs more (a deeper search than CI's few seconds).
+    let cases = std::env::var("TOUCHFEM_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1000);
+    let mut runner = TestRunner::new_with_rng(
+        Config {
+            cases,
+            failure_persistence: None,
+            ..Config::default()
+        },
+        TestRng::deterministic_rng(RngAlgorithm::ChaCha),
+    );
+    let (ran, ok, err) = (Cell::new(0u32), Cell::new(0u32), Cell::new(0u32));
+    let strategy = (
+        0..n_bases,
+        proptest::collection::vec(scene_mutation(), 0..5),
+        proptest::collection::vec((any::<usize>(), any::<u8>()), 0..4),
+    );
+    let result = runner.run(&strategy, |(base, mutations, flips)| {
+        let mut text = bases[base].to_string();
+        for m in &mutations {
+            text = apply(&text, m);
+        }
+        let mut mesh = fixture.clone();
+        for (at, b) in &flips {
+            let i = at % mesh.len();
+            mesh[i] = *b;
+        }
+        std::fs::write(dir.path().join("m.msh"), &mesh).unwrap();
+        let src = SceneSource {
+            name: "t".into(),
+            text: text.clone(),
+            dir: dir.path().into(),
+            label: "t.toml".into(),
+        };
+        ran.set(ran.get() + 1);
+        match catch_unwind(AssertUnwindSafe(|| World::plan(&src))) {
+            Err(_) => Err(TestCaseError::fail(format!("panicked on:\n{text}"))),
+            Ok(Ok(_)) => {
+                ok.set(ok.get() + 1);
+                Ok(())
+            }
+            Ok(Err(e)) => {
+                err.set(err.get() + 1);
+                let msg = e.to_string();
+                if msg.trim().is_empty() || !msg.starts_with("t.toml") {
+                    return Err(TestCaseError::fail(format!(
+                        "error '{msg}' does not name the file, for:\n{text}"
+                    )));
+                }
+                Ok(())
+            }
+        }
+    });
+    eprintln!(
+        "scene fuzz: {} cases, {} Ok, {} Err",
+        ran.get(),
+        ok.get(),
+        err.get()
+    );
+    if let Err(e) = result {
+        panic!("{e}");
+    }
+    assert!(ok.get() > 0 && err.get() > 0);
+}
+
+/// Numbers too large to mean anything are refused with the key and line, before any
+/// precompute: a Young's modulus above 1e13 Pa, offsets, ball centres and radii and keyframe
+/// coordinates above 1e9 in magnitude, keyframe times above 1e6 s.
+#[test]
+fn huge_numbers_in_scene_files_name_the_key() {
+    let cases: &[(&str, &[&str])] = &[
+        (
+            "[[object]]\nmesh = \"cube\"\nyoung = 1e300\n",
+            &["line 3", "`young`"],
+        ),
+        (
+            "[[object]]\nmesh = \"cube\"\noffset = [1e300, 0, 0]\n",
+            &["line 3", "`offset`"],
+        ),
+        (
+            "[[object]]\nmesh = \"cube\"\ntouchable = { center = [0, 0, 0], radius = 1e300 }\n",
+            &["line 3", "`touchable`"],
+        ),
+        (
+            "[[object]]\nmesh = \"cube\"\n[[finger]]\ndevice = \"script\"\npath = [[0, 0, 0, 0], [1e300, 0, 0, 0]]\n",
+            &["line 5", "`path`", "keyframe 2"],
+        ),
+        (
+            "[[object]]\nmesh = \"cube\"\n[[finger]]\ndevice = \"script\"\npath = [[0, 0, 0, 0], [1, 1e300, 0, 0]]\n",
+            &["line 5", "`path`", "keyframe 2"],
+        ),
+    ];
+    for (text, wants) in cases {
+        let e = err(text);
+        for w in *wants {
+            assert!(e.contains(w), "error for\n{text}\nlacks '{w}':\n{e}");
+        }
+    }
 }

@@ -429,7 +429,7 @@ pub fn run_scene(
                             img.save(&path)
                                 .map_err(|e| Error::Input(format!("{}: {e}", path.display())))?;
                             saved += 1;
-                            next_save = now + std::time::Duration::from_secs_f64(secs / 12.0);
+                            next_save = later(now, secs / 12.0);
                         }
                         if now >= next_gif && gif.len() < 40 {
                             gif.push(image::imageops::thumbnail(
@@ -437,7 +437,7 @@ pub fn run_scene(
                                 img.width() / 2,
                                 img.height() / 2,
                             ));
-                            next_gif = now + std::time::Duration::from_secs_f64(secs / 40.0);
+                            next_gif = later(now, secs / 40.0);
                         }
                     }
                 }
@@ -549,4 +549,12 @@ pub fn worst(stats: &[HapticStats]) -> HapticStats {
     w.ticks = stats.iter().map(|s| s.ticks).sum();
     w.missed_deadlines = stats.iter().map(|s| s.missed_deadlines).sum();
     w
+}
+
+/// `now` plus `secs` seconds; an hour on when that is not a time (huge, NaN).
+fn later(now: std::time::Instant, secs: f64) -> std::time::Instant {
+    std::time::Duration::try_from_secs_f64(secs)
+        .ok()
+        .and_then(|d| now.checked_add(d))
+        .unwrap_or(now + std::time::Duration::from_secs(3600))
 }

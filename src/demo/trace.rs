@@ -36,7 +36,7 @@ pub fn traces(world: &World, session: &Session) -> Vec<ForceTrace> {
     let mut f = [DVec3::ZERO; MAX_FINGERS];
     let mut out = vec![ForceTrace::default(); world.objects.len().min(MAX_OBJECTS)];
     for (i, tick) in session.ticks.iter().enumerate() {
-        hw.step(&tick.positions[..n], &mut f[..n], &mut sample);
+        hw.step_dt(tick.dt, &tick.positions[..n], &mut f[..n], &mut sample);
         for (o, tr) in out.iter_mut().enumerate() {
             let mut sum = DVec3::ZERO;
             let mut c = 0u8;

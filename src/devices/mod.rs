@@ -59,6 +59,9 @@ pub trait FingerDevices: Send {
         let _ = timeout;
         true
     }
+    /// The end of service: every finger's device gets zero force (and a device that can say
+    /// so, that it is released). Called once when the haptic loop ends, however it ends.
+    fn release(&mut self);
 }
 
 impl<D: HapticDevice> FingerDevices for [D] {
@@ -72,6 +75,11 @@ impl<D: HapticDevice> FingerDevices for [D] {
             d.set_force(*f);
         }
     }
+    fn release(&mut self) {
+        for d in self.iter_mut() {
+            d.set_force(DVec3::ZERO);
+        }
+    }
 }
 
 impl<D: HapticDevice> FingerDevices for Vec<D> {
@@ -80,6 +88,9 @@ impl<D: HapticDevice> FingerDevices for Vec<D> {
     }
     fn write(&mut self, forces: &[DVec3], state: &[ForceState]) {
         self.as_mut_slice().write(forces, state)
+    }
+    fn release(&mut self) {
+        self.as_mut_slice().release()
     }
 }
 

@@ -1,30 +1,39 @@
-//! The UDP device bridge ("UDP device protocol, version 1" in `../shared/CONTRACTS.md`): any
+//! The UDP device bridge ("UDP device protocol, version 1" in the reference, `docs/`): any
 //! device driver — OpenHaptics, Force Dimension, Haply, CHAI3D, a robot — sends finger positions
 //! in datagrams and receives the forces, one packet per haptic tick.
 //!
-//! * Two clocks ([`Clock`]). **Host** (default): the haptic loop keeps its own 1 kHz deadlines;
-//!   a receiver thread blocks on the socket, checks each datagram and hands the newest
-//!   accepted position to the loop through a wait-free triple buffer, so a tick never touches
-//!   the receiving side of the socket. **Device**: the device's own 1 kHz callback is the
-//!   clock, as in OpenHaptics' servo loop; the haptic thread waits for the next position
-//!   packet (between ticks, at most the watchdog), computes and answers at once, so a round
-//!   trip is one tick's work plus the kernel's wake-up.
-//! * A packet whose seq is not greater than the last accepted one is dropped; so is every
-//!   malformed packet (size, magic, finger count, non-finite numbers). All are counted.
+//! * A receiver thread blocks on the socket, checks each datagram ([`Gate`]) and hands the
+//!   newest accepted position to the haptic loop through a wait-free triple buffer, so the
+//!   haptic thread never reads the socket: a flood of junk costs it nothing.
+//! * Two clocks ([`Clock`]). **Host** (default): the haptic loop keeps its own 1 kHz deadlines.
+//!   **Device**: the device's own callback is the clock, as in OpenHaptics' servo loop; the
+//!   haptic thread parks until the receiver wakes it with the next accepted position (at most
+//!   the watchdog), computes and answers at once.
+//! * Sequence numbers compare in 32-bit serial-number arithmetic (RFC 1982, [`seq_newer`]): a
+//!   client's counter may wrap. A packet that is not newer than the last accepted one is
+//!   dropped; so is every malformed packet (size, magic, finger count, non-finite numbers),
+//!   and, with a [`Key`], every packet whose HMAC-SHA256 tag does not verify. All are counted.
 //! * The sender of the first accepted packet owns the session; packets from elsewhere are
 //!   counted and dropped until the owner has been silent for the watchdog (20 ms by default).
+//!   A new owner's first tick places its fingers afresh (ramped in if inside).
 //! * Watchdog: no accepted packet for longer than the watchdog → every finger's position is
-//!   NaN (zero force; the contact is released) and the force packets carry the stale flag.
-//!   After a stale period a client may restart with lower sequence numbers. A finger that
-//!   reappears inside the object is attached and its force ramped in (see `runtime::haptic`).
-//! * Force packets (`TFF1`, seq of the position packet used, n, n × force, n × flags) go to the
-//!   owner's address each tick from a fixed buffer with `MSG_DONTWAIT`; a send that
-//!   would block is dropped and counted.
+//!   NaN (zero force; the contact is released) and the force packets carry the stale flag,
+//!   for at most [`STALE_SEND`]; then nothing is sent until a new position arrives. After a
+//!   stale period a client may restart with any sequence number.
+//! * Release: when service ends ([`FingerDevices::release`], or the bridge is dropped) and
+//!   when another client takes over, the client gets a last zero-force packet flagged
+//!   [`FLAG_RELEASED`]; only the haptic thread sends, so that packet is the client's last.
+//! * Force packets (`TFF1`, seq of the position packet used, n, n × force, n × flags[, tag]) go
+//!   to the owner's address from a fixed buffer with `MSG_DONTWAIT`; a send that would block
+//!   is dropped and counted.
 
 use glam::DVec3;
+use hmac::{Hmac, Mac};
+use sha2::Sha256;
 use std::net::{SocketAddr, UdpSocket};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
 use super::{FingerDevices, ForceState};
@@ -40,18 +49,86 @@ pub const FLAG_TOUCHING: u32 = 1;
 pub const FLAG_LIMITED: u32 = 2;
 /// Flag: no valid position for longer than the watchdog; the force is zero.
 pub const FLAG_STALE: u32 = 4;
+/// Flag: touchfem no longer serves this client (end of service, or another client took
+/// over); the force is zero and no other packet follows.
+pub const FLAG_RELEASED: u32 = 8;
 /// The default watchdog.
 pub const WATCHDOG: Duration = Duration::from_millis(20);
+/// How long stale packets are sent after the watchdog expires; then nothing until a new
+/// position arrives.
+pub const STALE_SEND: Duration = Duration::from_millis(100);
+/// Bytes of the HMAC-SHA256 tag a keyed packet ends with.
+pub const TAG_LEN: usize = 32;
+/// The shortest key, bytes.
+pub const MIN_KEY_LEN: usize = 16;
+/// The largest datagram the bridge reads or writes, bytes.
+pub const MAX_PACKET: usize = 12 + 28 * MAX_FINGERS + TAG_LEN;
+
+/// Whether sequence number `seq` is newer than `last` in 32-bit serial-number arithmetic
+/// (RFC 1982): `(seq − last) mod 2³²` lies in `[1, 2³¹)`.
+pub fn seq_newer(seq: u32, last: u32) -> bool {
+    let d = seq.wrapping_sub(last);
+    d != 0 && d < 1 << 31
+}
+
+/// A shared secret: every packet, both ways, ends with the HMAC-SHA256 of its bytes under it.
+#[derive(Clone)]
+pub struct Key {
+    mac: Hmac<Sha256>,
+}
+
+impl std::fmt::Debug for Key {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Key(..)")
+    }
+}
+
+impl Key {
+    /// A key from the secret's bytes (at least [`MIN_KEY_LEN`]).
+    pub fn new(secret: &[u8]) -> Result<Key, UdpError> {
+        if secret.len() < MIN_KEY_LEN {
+            return Err(UdpError::ShortKey(secret.len()));
+        }
+        let mac = Hmac::<Sha256>::new_from_slice(secret).map_err(|_| UdpError::ShortKey(0))?;
+        Ok(Key { mac })
+    }
+
+    /// The key in a file: all its bytes are the secret (a trailing newline included).
+    pub fn from_file(path: &Path) -> Result<Key, UdpError> {
+        let bytes =
+            std::fs::read(path).map_err(|e| UdpError::KeyFile(path.display().to_string(), e))?;
+        Key::new(&bytes)
+    }
+
+    /// The tag of `bytes`. Allocates nothing.
+    pub fn tag(&self, bytes: &[u8]) -> [u8; TAG_LEN] {
+        let mut m = self.mac.clone();
+        m.update(bytes);
+        m.finalize().into_bytes().into()
+    }
+
+    /// Whether `packet` ends with a valid tag of the bytes before it (constant time); returns
+    /// those bytes.
+    pub fn open<'a>(&self, packet: &'a [u8]) -> Option<&'a [u8]> {
+        let body_len = packet.len().checked_sub(TAG_LEN)?;
+        let (body, tag) = packet.split_at(body_len);
+        let mut m = self.mac.clone();
+        m.update(body);
+        m.verify_slice(tag).ok().map(|_| body)
+    }
+}
 
 /// Counters of the bridge.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct UdpCounters {
     /// Datagrams read.
     pub packets_received: u64,
-    /// Datagrams dropped: malformed, old or duplicate, or from a second client.
+    /// Datagrams dropped: malformed, rejected, old or duplicate, or from a second client.
     pub packets_dropped: u64,
     /// Of those, malformed.
     pub malformed: u64,
+    /// Of those, with a tag that does not verify under the key (or none).
+    pub packets_rejected: u64,
     /// Of those, not newer than the last accepted.
     pub out_of_order: u64,
     /// Of those, from a client that does not own the session.
@@ -62,6 +139,8 @@ pub struct UdpCounters {
     pub send_errors: u64,
     /// Times the watchdog expired.
     pub stale_periods: u64,
+    /// Release packets sent (end of service, or a client taken over from).
+    pub releases_sent: u64,
 }
 
 /// A decoded position packet.
@@ -198,14 +277,16 @@ impl std::str::FromStr for Clock {
 }
 
 /// How a bridge is set up.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct BridgeConfig {
-    /// Allow a non-loopback address.
+    /// Allow a non-loopback address (needs a key too).
     pub allow_remote: bool,
     /// Silence after which positions are stale.
     pub watchdog: Duration,
     /// What paces the loop.
     pub clock: Clock,
+    /// The shared secret every packet is signed with, both ways.
+    pub key: Option<Key>,
 }
 
 impl Default for BridgeConfig {
@@ -214,6 +295,7 @@ impl Default for BridgeConfig {
             allow_remote: false,
             watchdog: WATCHDOG,
             clock: Clock::Host,
+            key: None,
         }
     }
 }
@@ -226,10 +308,11 @@ struct Accepted {
     at: Instant,
 }
 
-/// The protocol's admission rules (sequence, owner, watchdog), shared by both clocks.
+/// The protocol's admission rules (key, sequence, owner, watchdog).
 #[derive(Debug)]
 struct Gate {
     watchdog: Duration,
+    key: Option<Key>,
     owner: Option<SocketAddr>,
     last_seq: u32,
     last_accept: Option<Instant>,
@@ -250,7 +333,16 @@ impl Gate {
             which.fetch_add(1, Ordering::Relaxed);
             None
         };
-        let Some(p) = decode_position(bytes) else {
+        let body = match &self.key {
+            // The size is checked first: junk costs no hash.
+            Some(k) if bytes.len() <= MAX_PACKET => match k.open(bytes) {
+                Some(b) => b,
+                None => return drop(&c.packets_rejected),
+            },
+            Some(_) => return drop(&c.packets_rejected),
+            None => bytes,
+        };
+        let Some(p) = decode_position(body) else {
             return drop(&c.malformed);
         };
         let expired = self
@@ -259,7 +351,7 @@ impl Gate {
         if self.owner.is_some_and(|o| o != from) && !expired {
             return drop(&c.foreign);
         }
-        if !expired && self.owner == Some(from) && p.seq <= self.last_seq {
+        if !expired && self.owner == Some(from) && !seq_newer(p.seq, self.last_seq) {
             return drop(&c.out_of_order);
         }
         self.owner = Some(from);
@@ -279,11 +371,13 @@ struct AtomicCounters {
     packets_received: AtomicU64,
     packets_dropped: AtomicU64,
     malformed: AtomicU64,
+    packets_rejected: AtomicU64,
     out_of_order: AtomicU64,
     foreign: AtomicU64,
     forces_sent: AtomicU64,
     send_errors: AtomicU64,
     stale_periods: AtomicU64,
+    releases_sent: AtomicU64,
 }
 
 impl AtomicCounters {
@@ -293,25 +387,34 @@ impl AtomicCounters {
             packets_received: g(&self.packets_received),
             packets_dropped: g(&self.packets_dropped),
             malformed: g(&self.malformed),
+            packets_rejected: g(&self.packets_rejected),
             out_of_order: g(&self.out_of_order),
             foreign: g(&self.foreign),
             forces_sent: g(&self.forces_sent),
             send_errors: g(&self.send_errors),
             stale_periods: g(&self.stale_periods),
+            releases_sent: g(&self.releases_sent),
         }
     }
 }
 
-/// How the positions reach the haptic thread.
-enum Inbox {
-    /// From the receiver thread, wait-free.
-    Thread {
-        latest: triple_buffer::Output<Option<Accepted>>,
-        stop: Arc<AtomicBool>,
-        handle: Option<std::thread::JoinHandle<()>>,
-    },
-    /// Read by the haptic thread itself while it waits for the next tick.
-    Direct { gate: Gate, buf: Box<[u8; 2048]> },
+/// What the receiver thread shares with the haptic thread besides the triple buffer.
+#[derive(Debug, Default)]
+struct Shared {
+    counters: AtomicCounters,
+    stop: AtomicBool,
+    /// Accepted packets so far (the device clock's wake-up condition).
+    arrivals: AtomicU64,
+    /// The haptic thread, once it has waited for a reading (device clock).
+    waiter: OnceLock<std::thread::Thread>,
+}
+
+/// The client the haptic thread last sent to.
+#[derive(Clone, Copy, Debug)]
+struct Client {
+    addr: SocketAddr,
+    seq: u32,
+    n: usize,
 }
 
 /// The bridge: serves up to [`MAX_FINGERS`] fingers over one UDP socket (see the module docs).
@@ -319,11 +422,18 @@ pub struct UdpBridge {
     socket: UdpSocket,
     watchdog: Duration,
     clock: Clock,
-    inbox: Inbox,
-    counters: Arc<AtomicCounters>,
-    latest: Option<Accepted>,
-    stale: bool,
-    out: [u8; 12 + 28 * MAX_FINGERS],
+    key: Option<Key>,
+    latest: triple_buffer::Output<Option<Accepted>>,
+    shared: Arc<Shared>,
+    handle: Option<std::thread::JoinHandle<()>>,
+    seen_arrivals: u64,
+    /// The accepted packet this tick works from.
+    current: Option<Accepted>,
+    /// The client being served (the last one sent to, not yet released).
+    client: Option<Client>,
+    /// Since when no fresh position has been seen (`None`: fresh).
+    stale_since: Option<Instant>,
+    out: [u8; MAX_PACKET],
 }
 
 impl std::fmt::Debug for UdpBridge {
@@ -331,7 +441,8 @@ impl std::fmt::Debug for UdpBridge {
         f.debug_struct("UdpBridge")
             .field("socket", &self.socket)
             .field("clock", &self.clock)
-            .field("counters", &self.counters.snapshot())
+            .field("keyed", &self.key.is_some())
+            .field("counters", &self.shared.counters.snapshot())
             .finish_non_exhaustive()
     }
 }
@@ -339,69 +450,66 @@ impl std::fmt::Debug for UdpBridge {
 /// Why the bridge cannot start.
 #[derive(Debug, thiserror::Error)]
 pub enum UdpError {
-    /// The address is not loopback and remote clients were not allowed.
-    #[error("{0} is not a loopback address: forces would reach a person's hand from the network; pass --allow-remote to bind it")]
+    /// The address is not loopback and remote clients were not allowed, or have no key.
+    #[error("{0} is not a loopback address: forces would reach a person's hand from the network; pass --allow-remote and --key FILE to bind it")]
     NotLoopback(SocketAddr),
     /// Binding or configuring the socket failed.
     #[error("cannot bind UDP {0}: {1}")]
     Bind(SocketAddr, std::io::Error),
+    /// The key is too short.
+    #[error("the key has {0} bytes: it needs at least 16 (e.g. `head -c 32 /dev/urandom > key`)")]
+    ShortKey(usize),
+    /// The key file cannot be read.
+    #[error("cannot read the key file {0}: {1}")]
+    KeyFile(String, std::io::Error),
 }
 
 /// How long the receiver thread blocks before looking at its stop flag.
 const RECEIVER_POLL: Duration = Duration::from_millis(20);
 
 impl UdpBridge {
-    /// Binds `addr` (loopback only unless `cfg.allow_remote`); with [`Clock::Host`] starts the
+    /// Binds `addr` (loopback only unless `cfg.allow_remote` and a key) and starts the
     /// receiver thread.
     pub fn bind(addr: SocketAddr, cfg: &BridgeConfig) -> Result<UdpBridge, UdpError> {
-        if !addr.ip().is_loopback() && !cfg.allow_remote {
+        let remote_ok = cfg.allow_remote && cfg.key.is_some();
+        if !addr.ip().is_loopback() && !remote_ok {
             return Err(UdpError::NotLoopback(addr));
         }
         let e = |err| UdpError::Bind(addr, err);
         let socket = UdpSocket::bind(addr).map_err(e)?;
-        let counters = Arc::new(AtomicCounters::default());
+        let shared = Arc::new(Shared::default());
         let gate = Gate {
             watchdog: cfg.watchdog,
+            key: cfg.key.clone(),
             owner: None,
             last_seq: 0,
             last_accept: None,
         };
-        let inbox = match cfg.clock {
-            Clock::Host => {
-                let rx = socket.try_clone().map_err(e)?;
-                rx.set_read_timeout(Some(RECEIVER_POLL)).map_err(e)?;
-                let (input, latest) = triple_buffer::triple_buffer(&None);
-                let stop = Arc::new(AtomicBool::new(false));
-                let handle = std::thread::Builder::new()
-                    .name("touchfem-udp-rx".into())
-                    .spawn({
-                        let (stop, counters) = (stop.clone(), counters.clone());
-                        move || receive(rx, gate, input, &stop, &counters)
-                    })
-                    .map_err(e)?;
-                Inbox::Thread {
-                    latest,
-                    stop,
-                    handle: Some(handle),
-                }
-            }
-            Clock::Device => Inbox::Direct {
-                gate,
-                buf: Box::new([0; 2048]),
-            },
-        };
-        // The socket stays blocking: its reads are timed (the receiver thread's, or the
-        // haptic thread's between ticks with the device clock); sends pass MSG_DONTWAIT and
-        // never wait. (A cloned socket shares O_NONBLOCK, so the two cannot differ.)
+        let rx = socket.try_clone().map_err(e)?;
+        rx.set_read_timeout(Some(RECEIVER_POLL)).map_err(e)?;
+        let (input, latest) = triple_buffer::triple_buffer(&None);
+        let handle = std::thread::Builder::new()
+            .name("touchfem-udp-rx".into())
+            .spawn({
+                let shared = shared.clone();
+                move || receive(rx, gate, input, &shared)
+            })
+            .map_err(e)?;
+        // The socket stays blocking for the receiver's timed reads; sends pass MSG_DONTWAIT
+        // and never wait.
         Ok(UdpBridge {
             socket,
             watchdog: cfg.watchdog,
             clock: cfg.clock,
-            inbox,
-            counters,
-            latest: None,
-            stale: true,
-            out: [0; 12 + 28 * MAX_FINGERS],
+            key: cfg.key.clone(),
+            latest,
+            shared,
+            handle: Some(handle),
+            seen_arrivals: 0,
+            current: None,
+            client: None,
+            stale_since: None,
+            out: [0; MAX_PACKET],
         })
     }
 
@@ -412,7 +520,7 @@ impl UdpBridge {
 
     /// The counters so far.
     pub fn counters(&self) -> UdpCounters {
-        self.counters.snapshot()
+        self.shared.counters.snapshot()
     }
 
     /// What paces this bridge's loop.
@@ -420,60 +528,54 @@ impl UdpBridge {
         self.clock
     }
 
-    /// Device clock: receives until a position packet is accepted or `timeout` passes
-    /// (the caller's watchdog); returns whether one was. Host clock: returns `true` at once.
-    fn receive_direct(&mut self, timeout: Duration) -> bool {
-        let Inbox::Direct { gate, buf } = &mut self.inbox else {
-            return true;
-        };
-        let until = Instant::now() + timeout;
-        loop {
-            let now = Instant::now();
-            if now >= until {
-                return false;
-            }
-            // A zero timeout would mean "block forever".
-            let wait = (until - now).max(Duration::from_micros(1));
-            if self.socket.set_read_timeout(Some(wait)).is_err() {
-                return false;
-            }
-            match self.socket.recv_from(&mut buf[..]) {
-                Ok((len, from)) => {
-                    if let Some(a) = gate.offer(&buf[..len], from, Instant::now(), &self.counters) {
-                        self.latest = Some(a);
-                        return true;
-                    }
-                }
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                    ) =>
-                {
-                    return false
-                }
-                // ICMP errors from earlier sends (port unreachable) and the like: skip.
-                Err(_) => {}
-            }
+    /// Encodes, signs and sends a force packet to `to` from the fixed buffer; counts it.
+    fn send(&mut self, to: SocketAddr, seq: u32, forces: &[DVec3], flags: &[u32]) -> bool {
+        let mut len = encode_force(seq, forces, flags, &mut self.out);
+        if let Some(k) = &self.key {
+            let tag = k.tag(&self.out[..len]);
+            self.out[len..len + TAG_LEN].copy_from_slice(&tag);
+            len += TAG_LEN;
+        }
+        let ok = send_dontwait(&self.socket, &self.out[..len], to);
+        let c = &self.shared.counters;
+        if ok { &c.forces_sent } else { &c.send_errors }.fetch_add(1, Ordering::Relaxed);
+        ok
+    }
+
+    /// Sends the client being served its release packet (zero force, [`FLAG_RELEASED`]), once.
+    fn release_client(&mut self) {
+        if let Some(c) = self.client.take() {
+            let n = c.n.clamp(1, MAX_FINGERS);
+            let zero = [DVec3::ZERO; MAX_FINGERS];
+            let flags = [FLAG_RELEASED; MAX_FINGERS];
+            self.send(c.addr, c.seq, &zero[..n], &flags[..n]);
+            self.shared
+                .counters
+                .releases_sent
+                .fetch_add(1, Ordering::Relaxed);
         }
     }
 }
 
-/// The receiver thread: blocks on the socket, admits datagrams through the gate and publishes
-/// the newest accepted one.
+/// The receiver thread: blocks on the socket, admits datagrams through the gate, publishes
+/// the newest accepted one and wakes a waiting haptic thread.
 fn receive(
     socket: UdpSocket,
     mut gate: Gate,
     mut out: triple_buffer::Input<Option<Accepted>>,
-    stop: &AtomicBool,
-    counters: &AtomicCounters,
+    shared: &Shared,
 ) {
     let mut buf = [0u8; 2048];
-    while !stop.load(Ordering::Relaxed) {
+    while !shared.stop.load(Ordering::Relaxed) {
         match socket.recv_from(&mut buf) {
             Ok((len, from)) => {
-                if let Some(a) = gate.offer(&buf[..len], from, Instant::now(), counters) {
+                let now = Instant::now();
+                if let Some(a) = gate.offer(&buf[..len], from, now, &shared.counters) {
                     out.write(Some(a));
+                    shared.arrivals.fetch_add(1, Ordering::Release);
+                    if let Some(t) = shared.waiter.get() {
+                        t.unpark();
+                    }
                 }
             }
             Err(_) => continue,
@@ -483,11 +585,10 @@ fn receive(
 
 impl Drop for UdpBridge {
     fn drop(&mut self) {
-        if let Inbox::Thread { stop, handle, .. } = &mut self.inbox {
-            stop.store(true, Ordering::Relaxed);
-            if let Some(h) = handle.take() {
-                let _ = h.join();
-            }
+        self.release_client();
+        self.shared.stop.store(true, Ordering::Relaxed);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
         }
     }
 }
@@ -498,38 +599,76 @@ impl FingerDevices for UdpBridge {
     }
 
     fn wait_reading(&mut self, timeout: Duration) -> bool {
-        self.receive_direct(timeout.min(self.watchdog))
+        if self.clock != Clock::Device {
+            return true;
+        }
+        let until = Instant::now() + timeout.min(self.watchdog);
+        self.shared.waiter.get_or_init(std::thread::current);
+        loop {
+            let n = self.shared.arrivals.load(Ordering::Acquire);
+            if n != self.seen_arrivals {
+                self.seen_arrivals = n;
+                return true;
+            }
+            let now = Instant::now();
+            if now >= until {
+                return false;
+            }
+            std::thread::park_timeout(until - now);
+        }
     }
 
     fn read(&mut self, _t: f64, out: &mut [DVec3]) {
-        if let Inbox::Thread { latest, .. } = &mut self.inbox {
-            self.latest = *latest.read();
-        }
+        self.current = *self.latest.read();
         let now = Instant::now();
         let fresh = self
-            .latest
+            .current
             .filter(|a| now.saturating_duration_since(a.at) <= self.watchdog);
-        if fresh.is_none() && !self.stale {
-            self.counters.stale_periods.fetch_add(1, Ordering::Relaxed);
+        match (fresh, self.stale_since) {
+            (Some(_), _) => self.stale_since = None,
+            // Fresh until now, and a client was being served: a stale period starts.
+            (None, None) => {
+                self.stale_since = Some(now);
+                if self.client.is_some() {
+                    self.shared
+                        .counters
+                        .stale_periods
+                        .fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            (None, Some(_)) => {}
         }
-        self.stale = fresh.is_none();
+        // Another client took over: the previous one is released, and the new one's fingers
+        // are placed afresh at its next reading (no valid position this tick).
+        let taken_over = match (fresh, self.client) {
+            (Some(a), Some(c)) => a.from != c.addr,
+            _ => false,
+        };
+        if taken_over {
+            self.release_client();
+        }
         for (i, o) in out.iter_mut().enumerate() {
             *o = match fresh {
-                Some(a) if i < a.packet.n => a.packet.positions[i],
+                Some(a) if i < a.packet.n && !taken_over => a.packet.positions[i],
                 _ => DVec3::NAN,
             };
         }
     }
 
     fn write(&mut self, forces: &[DVec3], state: &[ForceState]) {
-        let Some(a) = self.latest else {
+        let Some(a) = self.current else {
             return;
         };
+        let stale = self.stale_since.is_some();
+        // After STALE_SEND of stale packets, silence until a new position arrives.
+        if stale && self.stale_since.is_some_and(|s| s.elapsed() > STALE_SEND) {
+            return;
+        }
         let n = a.packet.n.min(forces.len()).clamp(1, MAX_FINGERS);
         let mut f = [DVec3::ZERO; MAX_FINGERS];
         let mut flags = [0u32; MAX_FINGERS];
         for k in 0..n {
-            if self.stale {
+            if stale {
                 flags[k] = FLAG_STALE;
                 continue;
             }
@@ -542,15 +681,16 @@ impl FingerDevices for UdpBridge {
                 flags[k] |= FLAG_LIMITED;
             }
         }
-        let len = encode_force(a.packet.seq, &f[..n], &flags[..n], &mut self.out);
-        // MSG_DONTWAIT: a datagram send only copies into the socket buffer, and never waits
-        // for room.
-        let c = if send_dontwait(&self.socket, &self.out[..len], a.from) {
-            &self.counters.forces_sent
-        } else {
-            &self.counters.send_errors
-        };
-        c.fetch_add(1, Ordering::Relaxed);
+        self.client = Some(Client {
+            addr: a.from,
+            seq: a.packet.seq,
+            n,
+        });
+        self.send(a.from, a.packet.seq, &f[..n], &flags[..n]);
+    }
+
+    fn release(&mut self) {
+        self.release_client();
     }
 }
 
@@ -634,5 +774,163 @@ mod tests {
         assert_eq!(len, 12 + 56);
         let f = decode_force(&b[..len]).unwrap();
         assert_eq!((f.seq, f.n, f.forces[0], f.flags[1]), (9, 2, p[0], 6));
+    }
+}
+
+#[cfg(test)]
+mod gate_tests {
+    use super::*;
+
+    fn gate(key: Option<Key>) -> Gate {
+        Gate {
+            watchdog: WATCHDOG,
+            key,
+            owner: None,
+            last_seq: 0,
+            last_accept: None,
+        }
+    }
+
+    fn packet(seq: u32, key: Option<&Key>) -> Vec<u8> {
+        let mut b = [0u8; MAX_PACKET];
+        let mut len = encode_position(seq, &[DVec3::new(0.01, 0.02, 0.03)], &mut b);
+        if let Some(k) = key {
+            let t = k.tag(&b[..len]);
+            b[len..len + TAG_LEN].copy_from_slice(&t);
+            len += TAG_LEN;
+        }
+        b[..len].to_vec()
+    }
+
+    #[test]
+    fn sequence_numbers_compare_in_serial_arithmetic() {
+        assert!(seq_newer(1, 0));
+        assert!(seq_newer(0, u32::MAX), "the counter wraps");
+        assert!(seq_newer(5, u32::MAX - 5));
+        assert!(!seq_newer(7, 7));
+        assert!(!seq_newer(6, 7));
+        assert!(!seq_newer(u32::MAX, 100), "2³² − 101 behind, not ahead");
+        assert!(seq_newer(100 + (1 << 31) - 1, 100));
+        assert!(!seq_newer(100 + (1 << 31), 100));
+    }
+
+    #[test]
+    fn a_wrapping_counter_loses_no_packet() {
+        let c = AtomicCounters::default();
+        let mut g = gate(None);
+        let from: SocketAddr = "127.0.0.1:5000".parse().unwrap();
+        let t0 = Instant::now();
+        let mut accepted = 0;
+        for k in 0..64u32 {
+            let seq = (u32::MAX - 31).wrapping_add(k);
+            let now = t0 + Duration::from_millis(u64::from(k));
+            accepted += usize::from(g.offer(&packet(seq, None), from, now, &c).is_some());
+        }
+        assert_eq!(accepted, 64);
+        assert_eq!(c.snapshot().packets_dropped, 0);
+    }
+
+    #[test]
+    fn one_packet_with_seq_max_does_not_lock_the_client_out() {
+        let c = AtomicCounters::default();
+        let mut g = gate(None);
+        let from: SocketAddr = "127.0.0.1:5000".parse().unwrap();
+        let t0 = Instant::now();
+        assert!(g.offer(&packet(100, None), from, t0, &c).is_some());
+        // A spoofed packet from the same address, "far ahead" in plain comparison.
+        let t1 = t0 + Duration::from_millis(1);
+        assert!(g.offer(&packet(u32::MAX, None), from, t1, &c).is_none());
+        assert_eq!(c.snapshot().out_of_order, 1);
+        let t2 = t0 + Duration::from_millis(2);
+        assert!(g.offer(&packet(101, None), from, t2, &c).is_some());
+    }
+
+    #[test]
+    fn keyed_packets_verify_and_others_are_rejected() {
+        let key = Key::new(b"0123456789abcdef-secret").unwrap();
+        let other = Key::new(b"another key of 16+ bytes").unwrap();
+        let c = AtomicCounters::default();
+        let mut g = gate(Some(key.clone()));
+        let from: SocketAddr = "127.0.0.1:5000".parse().unwrap();
+        let t = Instant::now();
+        assert!(g.offer(&packet(1, None), from, t, &c).is_none(), "untagged");
+        assert!(
+            g.offer(&packet(2, Some(&other)), from, t, &c).is_none(),
+            "wrong key"
+        );
+        let mut flipped = packet(3, Some(&key));
+        flipped[14] ^= 1;
+        assert!(g.offer(&flipped, from, t, &c).is_none(), "altered");
+        assert!(g.offer(&[0u8; 4000], from, t, &c).is_none(), "junk");
+        let ok = g.offer(&packet(4, Some(&key)), from, t, &c).unwrap();
+        assert_eq!(ok.packet.seq, 4);
+        let s = c.snapshot();
+        assert_eq!(
+            (s.packets_rejected, s.packets_dropped, s.packets_received),
+            (4, 4, 5)
+        );
+        assert!(matches!(Key::new(b"short"), Err(UdpError::ShortKey(5))));
+    }
+
+    #[test]
+    fn random_and_mutated_datagrams_never_panic_the_gate() {
+        use proptest::prelude::*;
+        use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
+        let key = Key::new(b"fuzzing key, 16+ bytes").unwrap();
+        let cases = 20_000;
+        let mut runner = TestRunner::new_with_rng(
+            Config {
+                cases,
+                failure_persistence: None,
+                ..Config::default()
+            },
+            TestRng::deterministic_rng(RngAlgorithm::ChaCha),
+        );
+        let base = packet(7, None);
+        let counts = std::cell::Cell::new((0u64, 0u64));
+        let strategy = (
+            proptest::collection::vec(any::<u8>(), 0..200),
+            any::<bool>(),
+            any::<u32>(),
+            any::<u64>(),
+        );
+        runner
+            .run(&strategy, |(noise, mutate, seq, bits)| {
+                // Either random bytes, or a valid packet with a field or a byte changed.
+                let bytes = if mutate {
+                    let mut b = base.clone();
+                    b[4..8].copy_from_slice(&seq.to_le_bytes());
+                    let i = (bits as usize) % b.len();
+                    b[i] ^= (bits >> 32) as u8;
+                    if bits & 1 == 1 {
+                        b[12..20].copy_from_slice(&f64::from_bits(bits).to_le_bytes());
+                    }
+                    b
+                } else {
+                    noise
+                };
+                for k in [None, Some(key.clone())] {
+                    let c = AtomicCounters::default();
+                    let mut g = gate(k);
+                    let from: SocketAddr = "127.0.0.1:5000".parse().unwrap();
+                    let got = g.offer(&bytes, from, Instant::now(), &c);
+                    let (ok, dropped) = counts.get();
+                    if let Some(a) = got {
+                        prop_assert!(a.packet.positions[..a.packet.n]
+                            .iter()
+                            .all(|p| p.is_finite()));
+                        counts.set((ok + 1, dropped));
+                    } else {
+                        prop_assert_eq!(c.snapshot().packets_dropped, 1);
+                        counts.set((ok, dropped + 1));
+                    }
+                }
+                Ok(())
+            })
+            .unwrap();
+        let (ok, dropped) = counts.get();
+        eprintln!("gate fuzz: {cases} datagrams × 2 gates: {ok} accepted, {dropped} dropped");
+        assert_eq!(ok + dropped, 2 * u64::from(cases));
+        assert!(ok > 0 && dropped > 0);
     }
 }

@@ -1,5 +1,6 @@
-//! The displacement colour map (viridis), its legend (a colour bar labelled in mm, and the force
-//! arrow's scale in mm per N) and the "nice" scales both use.
+//! The displacement colour map (viridis), its legend (a colour bar labelled in mm, or µm or nm
+//! for small displacements, and the force arrow's scale in mm per N or a readable variant) and
+//! the "nice" scales both use.
 
 use ab_glyph::{Font, FontRef, PxScale, ScaleFont};
 
@@ -123,15 +124,152 @@ const BAR_W: u32 = 18;
 /// Margin inside the legend box, pixels.
 const MARGIN: u32 = 8;
 
-/// Formats `v` with as many decimals as `step` needs (at most 3).
+/// Formats `v` with as many decimals as `step` needs (at most 3); never `-0`.
 fn label(v: f64, step: f64) -> String {
     let decimals = (0..=3)
         .find(|&d| {
             let s = step * 10f64.powi(d);
-            (s - s.round()).abs() < 1e-6
+            (s - s.round()).abs() < 1e-6 * s.abs().max(1.0)
         })
         .unwrap_or(3);
-    format!("{v:.*}", decimals as usize)
+    no_negative_zero(format!("{v:.*}", decimals as usize))
+}
+
+/// `"0"` for a formatted number that reads as zero (`-0`, `0.000`, `-0.00`), else `s`.
+fn no_negative_zero(s: String) -> String {
+    let mantissa = s.split(['e', 'E']).next().unwrap_or("");
+    if mantissa.chars().all(|c| matches!(c, '-' | '+' | '0' | '.')) {
+        "0".into()
+    } else {
+        s
+    }
+}
+
+/// `v` in scientific notation with `digits` decimals in the mantissa (`2.50e-11`); `0` for zero.
+fn scientific(v: f64, digits: usize) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return if v.is_finite() {
+            "0".into()
+        } else {
+            format!("{v}")
+        };
+    }
+    no_negative_zero(format!("{v:.digits$e}"))
+}
+
+/// `v` with `sig` significant digits, trailing zeros dropped (`1000`, `0.676`, `25`, `1e-4`);
+/// scientific below 1e-3 or from 1e6 on; never `-0`.
+pub fn format_significant(v: f64, sig: usize) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return if v.is_finite() {
+            "0".into()
+        } else {
+            format!("{v}")
+        };
+    }
+    let sig = sig.clamp(1, 12);
+    let e = v.abs().log10().floor() as i32;
+    if !(-3..6).contains(&e) {
+        let s = scientific(v, sig - 1);
+        return match s.split_once('e') {
+            Some((m, exp)) if m.contains('.') => {
+                format!("{}e{exp}", m.trim_end_matches('0').trim_end_matches('.'))
+            }
+            _ => s,
+        };
+    }
+    let decimals = (sig as i32 - 1 - e).max(0) as usize;
+    let mut s = format!("{v:.decimals$}");
+    if s.contains('.') {
+        s = s.trim_end_matches('0').trim_end_matches('.').to_string();
+    }
+    no_negative_zero(s)
+}
+
+/// The labels of a length scale (the colour bar): the unit they are in and, for each tick
+/// from 0 to the full scale, its place on the bar (0 at the bottom, 1 at the top) and its text.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LengthTicks {
+    /// The unit of every label: `mm`, `µm`, `nm`, or `m` (scientific labels).
+    pub unit: &'static str,
+    /// (fraction of the full scale, label), from 0 up.
+    pub ticks: Vec<(f64, String)>,
+}
+
+/// The most ticks [`length_ticks`] draws; a finer step is replaced by [`displacement_scale`]'s.
+const MAX_TICKS: f64 = 50.0;
+
+/// Labels for a scale from 0 to `full_m` every `step_m` (metres) that read right at any size:
+/// the largest of mm, µm and nm in which the step is at least 0.1 (so the labels need at most
+/// two decimals and differ), else scientific notation in m with enough digits that they
+/// differ; `0` for zero, never `-0`. A step that is not positive and finite, or gives more than
+/// 50 ticks, is replaced by the nice step of [`displacement_scale`]`(full_m)`.
+/// `(1e-7, 2e-8)` gives `0, 20, 40, 60, 80, 100` nm; `(8e-3, 2e-3)` gives `0, 2, 4, 6, 8` mm.
+pub fn length_ticks(full_m: f64, step_m: f64) -> LengthTicks {
+    let ok =
+        |f: f64, s: f64| f.is_finite() && s.is_finite() && f > 0.0 && s > 0.0 && f / s <= MAX_TICKS;
+    let (full, step) = if ok(full_m, step_m) {
+        (full_m, step_m)
+    } else {
+        displacement_scale(full_m)
+    };
+    let n = (full / step).round().max(1.0) as usize;
+    let values: Vec<f64> = (0..=n).map(|i| i as f64 * step).collect();
+    let place = |v: f64| v / full;
+    for (unit, scale) in [("mm", 1e-3), ("µm", 1e-6), ("nm", 1e-9)] {
+        let s = step / scale;
+        if s >= 0.1 * (1.0 - 1e-9) && full / scale < 1e6 {
+            let ticks = values
+                .iter()
+                .map(|&v| (place(v), label(v / scale, s)))
+                .collect();
+            return LengthTicks { unit, ticks };
+        }
+    }
+    // Scientific, in metres: as many mantissa digits as the step's decade needs.
+    let mantissa_digits = |v: f64| {
+        let step_exp = step.log10().floor();
+        let step_mantissa = step / 10f64.powf(step_exp);
+        let extra = usize::from((step_mantissa * 10.0).round() % 10.0 != 0.0);
+        ((v.log10().floor() - step_exp).max(0.0) as usize + extra).min(8)
+    };
+    let ticks = values
+        .iter()
+        .map(|&v| {
+            let text = if v == 0.0 {
+                "0".to_string()
+            } else {
+                scientific(v, mantissa_digits(v))
+            };
+            (place(v), text)
+        })
+        .collect();
+    LengthTicks { unit: "m", ticks }
+}
+
+/// The force arrow's scale as the legend states it (`arrow 20 mm/N`): mm per N while that
+/// reads 0.1 to 9999, else per mN, µN or nN for small forces, µm or nm per N for large ones,
+/// else scientific in m/N.
+pub fn arrow_label(m_per_n: f64) -> String {
+    if !(m_per_n.is_finite() && m_per_n > 0.0) {
+        return "arrow - mm/N".into();
+    }
+    let mm_per_n = m_per_n * 1e3;
+    let candidates = [
+        ("mm/N", mm_per_n),
+        ("mm/mN", mm_per_n * 1e-3),
+        ("mm/µN", mm_per_n * 1e-6),
+        ("mm/nN", mm_per_n * 1e-9),
+        ("µm/N", mm_per_n * 1e3),
+        ("nm/N", mm_per_n * 1e6),
+    ];
+    match candidates
+        .iter()
+        .find(|(_, v)| (0.1 * (1.0 - 1e-9)..1e4).contains(v))
+    {
+        Some((unit, v)) => format!("arrow {} {unit}", format_significant(*v, 3)),
+        None => format!("arrow {} m/N", scientific(m_per_n, 2)),
+    }
 }
 
 /// Alpha-blends white text into `img` with its top-left corner at (`x`, `y`).
@@ -193,31 +331,23 @@ pub fn legend_image(spec: &LegendSpec) -> Option<image::RgbaImage> {
     let line = (px * 1.3).ceil() as u32;
     let mut lines: Vec<String> = Vec::new();
     if let Some(m_per_n) = spec.arrow_m_per_n {
-        lines.push(format!(
-            "arrow {} mm/N",
-            label(m_per_n * 1e3, m_per_n * 1e3)
-        ));
+        lines.push(arrow_label(m_per_n));
     }
     if let Some(f) = spec.force_n {
         lines.push(format!("|F| {} N", format_force(f)));
     }
-    let (bar_h, ticks) = match spec.displacement {
+    let (bar_h, ticks, unit) = match spec.displacement {
         Some((full, step)) => {
-            let n = (full / step).round().max(1.0) as usize;
-            let ticks: Vec<(f64, String)> = (0..=n)
-                .map(|i| {
-                    let v = i as f64 * step;
-                    (v / full, label(v * 1e3, step * 1e3))
-                })
-                .collect();
-            (spec.bar_px.max(20), ticks)
+            let t = length_ticks(full, step);
+            (spec.bar_px.max(20), t.ticks, t.unit)
         }
-        None => (0, Vec::new()),
+        None => (0, Vec::new(), "mm"),
     };
     if bar_h == 0 && lines.is_empty() {
         return None;
     }
-    let title = "|u| (mm)";
+    let title = format!("|u| ({unit})");
+    let title = title.as_str();
     let tick_w = ticks
         .iter()
         .map(|(_, s)| text_width(s, px))
@@ -269,13 +399,22 @@ pub fn legend_image(spec: &LegendSpec) -> Option<image::RgbaImage> {
     Some(img)
 }
 
-/// A force in newtons with three significant digits.
+/// A force in newtons with three significant digits (scientific below 1 mN and from 1 MN);
+/// never `-0`.
 fn format_force(f: f64) -> String {
     if f == 0.0 || !f.is_finite() {
-        return format!("{f}");
+        return if f.is_finite() {
+            "0".into()
+        } else {
+            format!("{f}")
+        };
     }
-    let digits = (2 - f.abs().log10().floor() as i32).clamp(0, 6);
-    format!("{f:.*}", digits as usize)
+    let e = f.abs().log10().floor() as i32;
+    if !(-3..6).contains(&e) {
+        return scientific(f, 2);
+    }
+    let digits = (2 - e).max(0);
+    no_negative_zero(format!("{f:.*}", digits as usize))
 }
 
 #[cfg(test)]
@@ -300,6 +439,116 @@ mod tests {
         assert_eq!(format_force(0.028036), "0.0280");
         assert_eq!(label(2.5, 2.5), "2.5");
         assert_eq!(label(8.0, 2.0), "8");
+    }
+
+    fn texts(t: &LengthTicks) -> Vec<&str> {
+        t.ticks.iter().map(|(_, s)| s.as_str()).collect()
+    }
+
+    /// Every tick label differs from the others, none reads `-0` or a bare `-`.
+    fn distinct_and_clean(t: &LengthTicks) {
+        let s = texts(t);
+        let mut seen = std::collections::BTreeSet::new();
+        for l in &s {
+            assert!(seen.insert(*l), "duplicate label {l} in {s:?}");
+            assert!(!l.starts_with('-'), "{s:?}");
+        }
+        assert_eq!(s[0], "0", "{s:?}");
+        assert_eq!(t.ticks[0].0, 0.0);
+        assert!((t.ticks.last().unwrap().0 - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn length_labels_read_right_at_any_scale() {
+        // The usual millimetre scales are as before.
+        let t = length_ticks(8e-3, 2e-3);
+        assert_eq!((t.unit, texts(&t)), ("mm", vec!["0", "2", "4", "6", "8"]));
+        let t = length_ticks(5e-3, 2.5e-3);
+        assert_eq!(texts(&t), vec!["0", "2.5", "5.0"]);
+        let t = length_ticks(0.3e-3, 0.1e-3);
+        assert_eq!((t.unit, texts(&t)), ("mm", vec!["0", "0.1", "0.2", "0.3"]));
+        // 0 .. 1e-7 m (poke --push 0,0,-0.0001 in mm): nanometres, distinct.
+        let (full, step) = displacement_scale(1e-7);
+        let t = length_ticks(full, step);
+        assert_eq!(t.unit, "nm");
+        assert_eq!(texts(&t), vec!["0", "20", "40", "60", "80", "100"]);
+        // Micrometres.
+        let t = length_ticks(5e-5, 1e-5);
+        assert_eq!(
+            (t.unit, texts(&t)),
+            ("µm", vec!["0", "10", "20", "30", "40", "50"])
+        );
+        let t = length_ticks(2e-7, 5e-8);
+        assert_eq!(t.unit, "nm");
+        // Below a tenth of a nanometre: scientific metres, still distinct.
+        let (full, step) = displacement_scale(1e-13);
+        let t = length_ticks(full, step);
+        assert_eq!(t.unit, "m");
+        assert!(texts(&t)[1].contains("e-"), "{:?}", texts(&t));
+        distinct_and_clean(&t);
+        // Every scale from 1e-15 m to 100 m gives distinct, clean labels.
+        for k in -150..=20 {
+            let max = 10f64.powf(k as f64 / 10.0) * 1.37;
+            let (full, step) = displacement_scale(max);
+            let t = length_ticks(full, step);
+            assert!(t.ticks.len() >= 2 && t.ticks.len() <= 7, "{max}: {t:?}");
+            distinct_and_clean(&t);
+        }
+        // A nonsense step is replaced by a nice one instead of drawing a million ticks.
+        for (full, step) in [
+            (1.0, 1e-300),
+            (1e-3, 0.0),
+            (1e-3, f64::NAN),
+            (f64::NAN, 1.0),
+        ] {
+            let t = length_ticks(full, step);
+            assert!(t.ticks.len() <= 51, "{full} {step}: {}", t.ticks.len());
+        }
+    }
+
+    #[test]
+    fn zero_never_reads_negative() {
+        assert_eq!(label(-0.0, 0.001), "0");
+        assert_eq!(label(-0.0001, 0.001), "0");
+        assert_eq!(label(0.0, 2.0), "0");
+        assert_eq!(format_significant(-0.0, 3), "0");
+        assert_eq!(format_significant(0.0, 3), "0");
+        assert_eq!(format_force(-0.0), "0");
+        assert_eq!(scientific(-0.0, 2), "0");
+        assert_eq!(no_negative_zero("-0.000".into()), "0");
+        assert_eq!(no_negative_zero("-0.0e0".into()), "0");
+        assert_eq!(no_negative_zero("-0.001".into()), "-0.001");
+    }
+
+    #[test]
+    fn arrow_and_force_labels_pick_a_readable_unit() {
+        assert_eq!(arrow_label(0.010), "arrow 10 mm/N");
+        assert_eq!(arrow_label(1.0), "arrow 1000 mm/N");
+        assert_eq!(arrow_label(2.5e-4), "arrow 0.25 mm/N");
+        // The tiny poke: 1e8 mm/N reads 100 mm/µN.
+        assert_eq!(arrow_label(1e5), "arrow 100 mm/µN");
+        assert_eq!(arrow_label(20.0), "arrow 20 mm/mN");
+        assert_eq!(arrow_label(5e-6), "arrow 5 µm/N");
+        assert_eq!(arrow_label(2e-9), "arrow 2 nm/N");
+        assert!(arrow_label(1e20).ends_with(" m/N"), "{}", arrow_label(1e20));
+        assert!(
+            arrow_label(1e-20).contains("e-20"),
+            "{}",
+            arrow_label(1e-20)
+        );
+        assert_eq!(format_force(2.8e-7), "2.80e-7");
+        assert_eq!(format_force(12.34), "12.3");
+        assert_eq!(format_significant(1000.0, 3), "1000");
+        assert_eq!(format_significant(0.25, 3), "0.25");
+        assert_eq!(format_significant(1e-4, 6), "1e-4");
+        assert_eq!(format_significant(-1.35124e-5, 6), "-1.35124e-5");
+    }
+
+    /// The bundled font draws the units' µ.
+    #[test]
+    fn the_font_has_micro() {
+        let font = FontRef::try_from_slice(FONT).unwrap();
+        assert_ne!(font.glyph_id('µ').0, 0);
     }
 
     #[test]

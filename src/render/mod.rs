@@ -39,8 +39,8 @@ mod pick;
 
 pub use camera::{Camera, Orbit, FULL_FRAME, VIEW_DIR};
 pub use legend::{
-    arrow_scale, displacement_scale, legend_image, nice_ceil, nice_floor, viridis, LegendSpec,
-    VIRIDIS,
+    arrow_label, arrow_scale, displacement_scale, format_significant, legend_image, length_ticks,
+    nice_ceil, nice_floor, viridis, LegendSpec, LengthTicks, VIRIDIS,
 };
 pub use overlay::{rasterize_text, Anchor, Overlay, OVERLAY_WGSL};
 pub use pick::{pick, Hit};

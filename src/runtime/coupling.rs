@@ -7,8 +7,9 @@
 //! series: the hand feels `K_eff = (K⁻¹ + I/k_c)⁻¹`, whose every eigenvalue is below `k_c`, so
 //! the rendered force is `(I + K/k_c)⁻¹ F` — no state, one 3×3 solve. A damper `b_c` on the
 //! hand's velocity while touching restores the passivity margin a sampled spring loses
-//! (Colgate's `b > K·T/2`). Force changes are rate-limited, and the force is finite and at most
-//! the device's peak. Soft objects (`K ≪ k_c`) are rendered as they are.
+//! (Colgate's `b > K·T/2`, with `T` the measured time since the last tick). Soft objects
+//! (`K ≪ k_c`) are rendered as they are. The rate limit, the continuous force and the peak
+//! force are the force bound's ([`super::bound`]), applied after the coupling.
 
 use glam::{DMat3, DVec3};
 
@@ -18,37 +19,25 @@ use crate::devices::limits::DeviceLimits;
 #[derive(Clone, Debug)]
 pub struct VirtualCoupling {
     k_c: f64,
-    b_c: f64,
-    max_force: f64,
-    max_step: f64,
-    last_force: DVec3,
+    max_damping: f64,
     last_x: Option<DVec3>,
-    dt: f64,
 }
 
 impl VirtualCoupling {
-    /// A coupling sized from `limits` at `rate_hz`: `k_c` = the device's stiffness limit,
-    /// `b_c` = `k_c·T` (twice Colgate's bound) within its damping limit, force steps of at most
-    /// 5 % of the peak force a tick.
-    pub fn new(limits: &DeviceLimits, rate_hz: f64) -> VirtualCoupling {
-        let dt = 1.0 / rate_hz;
-        let k_c = limits.max_stiffness_n_per_m;
+    /// A coupling sized from `limits`: `k_c` = the device's stiffness limit; each tick's
+    /// damping `b_c = k_c·T` (twice Colgate's bound for the measured period `T`) within the
+    /// device's damping limit.
+    pub fn new(limits: &DeviceLimits) -> VirtualCoupling {
         VirtualCoupling {
-            k_c,
-            b_c: (k_c * dt).min(limits.max_damping_ns_per_m),
-            max_force: limits.max_force_n,
-            max_step: 0.05 * limits.max_force_n,
-            last_force: DVec3::ZERO,
+            k_c: limits.max_stiffness_n_per_m,
+            max_damping: limits.max_damping_ns_per_m,
             last_x: None,
-            dt,
         }
     }
 
-    /// Forgets the hand's motion and the last force: after a tick without a valid position
-    /// the next force starts from zero (rate-limited in) and no velocity is inferred across
-    /// the gap.
+    /// Forgets the hand's motion: after a tick without a valid position no velocity is
+    /// inferred across the gap.
     pub fn reset(&mut self) {
-        self.last_force = DVec3::ZERO;
         self.last_x = None;
     }
 
@@ -57,12 +46,19 @@ impl VirtualCoupling {
         self.k_c
     }
 
-    /// The force to send the device, given the paper's force `f` on a hand at `x` and the
-    /// contact's stiffness `k` (N/m; `None` when not touching).
-    pub fn render(&mut self, f: DVec3, k: Option<DMat3>, x: DVec3) -> DVec3 {
+    /// The force for the device, given the paper's force `f` on a hand at `x`, the contact's
+    /// stiffness `k` (N/m; `None` when not touching) and the measured time `dt` (s) since
+    /// the last call. Finite; not yet bounded (the force bound comes after).
+    pub fn render(&mut self, f: DVec3, k: Option<DMat3>, x: DVec3, dt: f64) -> DVec3 {
+        let dt_ok = dt.is_finite() && dt > 0.0;
         let v = match self.last_x {
-            Some(p) if x.is_finite() && p.is_finite() => (x - p) / self.dt,
+            Some(p) if dt_ok && x.is_finite() && p.is_finite() => (x - p) / dt,
             _ => DVec3::ZERO,
+        };
+        let b_c = if dt_ok {
+            (self.k_c * dt).min(self.max_damping)
+        } else {
+            0.0
         };
         self.last_x = Some(x);
         let target = match k {
@@ -73,17 +69,14 @@ impl VirtualCoupling {
                 } else {
                     DVec3::ZERO
                 };
-                spring - v * self.b_c
+                spring - v * b_c
             }
             _ => DVec3::ZERO,
         };
-        let step = (target - self.last_force).clamp_length_max(self.max_step);
-        let mut out = self.last_force + step;
-        if !out.is_finite() {
-            out = DVec3::ZERO;
+        if target.is_finite() {
+            target
+        } else {
+            DVec3::ZERO
         }
-        out = out.clamp_length_max(self.max_force);
-        self.last_force = out;
-        out
     }
 }

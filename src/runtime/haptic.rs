@@ -14,7 +14,12 @@
 //!   same point (they then share the load).
 //! * **Bounded**: each finger's force is saturated at the scene's `max_force_n`, and the nodal
 //!   forces it causes are scaled by the same factor, so the visual path shows what the finger
-//!   feels.
+//!   feels. After the model, the ramp and the coupling, every finger's force passes its
+//!   [`ForceBound`] last: finite, rate-limited in measured time, held to the device's
+//!   continuous force, and at most the smaller of the scene's and the device's peak force.
+//! * **Time is measured**: [`HapticWorld::step_dt`] takes the seconds since the last tick (the
+//!   device's clock may tick at 4–8 kHz); the ramp, the coupling's damping and the force
+//!   bound's rate are per second, not per tick.
 //! * **A finger that starts inside an object** — or reappears there after a tick without a
 //!   valid position (NaN from the device, or the window's pointer being lifted) — is attached
 //!   to the nearest point of that object's surface, as if it had pressed in from there, and
@@ -22,11 +27,16 @@
 //! * **No valid position** (NaN or infinite): zero force for that finger, no contact.
 //! * **A finger with device limits** ([`crate::scene::FingerSpec::limits`]) feels the force
 //!   through a [`VirtualCoupling`] sized from them: stiffness at most the device's, damped,
-//!   rate-limited, reset after a tick without a valid position. The displayed deformation
-//!   and the god-object stay the paper's.
+//!   reset after a tick without a valid position. The displayed deformation and the
+//!   god-object stay the paper's.
+//! * **A device cannot leave its workspace in a tick**: a position more than the workspace's
+//!   diameter (`2 · workspace_radius_m`) from the finger's last valid one is a glitch, and
+//!   counts as no valid position (zero force; the finger is placed afresh, and ramped in if
+//!   inside, at its next reading).
 
 use glam::{DMat3, DVec3};
 
+use super::bound::ForceBound;
 use super::coupling::VirtualCoupling;
 use super::sample::{FingerView, WorldSample, MAX_OBJECTS};
 use crate::contact::{ContactPoint, GodObject};
@@ -45,6 +55,10 @@ struct FingerState {
     gods: [GodObject; MAX_OBJECTS],
     /// True until a valid position has been seen (and after an invalid one).
     absent: bool,
+    /// The last valid position (NaN while absent).
+    last_x: DVec3,
+    /// The largest move in one tick the device can make (its workspace's diameter), m.
+    max_jump: f64,
     /// Force ramp, 0..=1.
     ramp: f64,
     model: ForceModel,
@@ -55,8 +69,9 @@ pub struct HapticWorld<'w> {
     world: &'w World,
     fingers: [FingerState; MAX_FINGERS],
     n_fingers: usize,
-    ramp_step: f64,
+    period: f64,
     max_force: f64,
+    bounds: [ForceBound; MAX_FINGERS],
     ticks: u64,
     contacts: [Option<(usize, ContactPoint)>; MAX_FINGERS],
     couplings: [Option<VirtualCoupling>; MAX_FINGERS],
@@ -69,20 +84,30 @@ impl<'w> HapticWorld<'w> {
         let absent = FingerState {
             gods: [GodObject::new(DVec3::NAN); MAX_OBJECTS],
             absent: true,
+            last_x: DVec3::NAN,
+            max_jump: f64::INFINITY,
             ramp: 1.0,
             model: ForceModel::Paper,
         };
         let mut fingers = [absent; MAX_FINGERS];
         let n_fingers = world.fingers.len().min(MAX_FINGERS);
-        for (f, spec) in fingers.iter_mut().zip(&world.fingers) {
+        let max_force = world.haptics.max_force_n;
+        let mut bounds = [ForceBound::new(max_force, None); MAX_FINGERS];
+        for ((f, b), spec) in fingers.iter_mut().zip(&mut bounds).zip(&world.fingers) {
             f.model = spec.model;
+            *b = ForceBound::new(max_force, spec.limits.as_ref());
+            if let Some(l) = &spec.limits {
+                if l.workspace_radius_m.is_finite() && l.workspace_radius_m > 0.0 {
+                    f.max_jump = 2.0 * l.workspace_radius_m;
+                }
+            }
         }
         let couplings = std::array::from_fn(|i| {
             world
                 .fingers
                 .get(i)
                 .and_then(|f| f.limits.as_ref())
-                .map(|l| VirtualCoupling::new(l, world.haptics.rate_hz))
+                .map(VirtualCoupling::new)
         });
         HapticWorld {
             world,
@@ -90,8 +115,9 @@ impl<'w> HapticWorld<'w> {
             limited: [false; MAX_FINGERS],
             fingers,
             n_fingers,
-            ramp_step: 1.0 / (RAMP_S * world.haptics.rate_hz).max(1.0),
-            max_force: world.haptics.max_force_n,
+            period: 1.0 / world.haptics.rate_hz,
+            max_force,
+            bounds,
             ticks: 0,
             contacts: [None; MAX_FINGERS],
         }
@@ -102,11 +128,30 @@ impl<'w> HapticWorld<'w> {
         self.n_fingers
     }
 
-    /// One tick: `positions[i]` is finger i's device position (metres, scene frame). Writes the
-    /// force for each finger's device into `forces[i]` and the tick's boundary conditions and
-    /// finger views into `sample`, every field a reader looks at (so `sample` may be a stale
-    /// buffer, written in place). Allocates nothing.
+    /// The force bound of finger `i` (N): the smaller of the scene's `max_force_n` and its
+    /// device's peak force.
+    pub fn force_bound(&self, i: usize) -> f64 {
+        self.bounds.get(i).map_or(0.0, |b| b.bound())
+    }
+
+    /// [`HapticWorld::step_dt`] one nominal period (`1 / rate_hz`) after the last tick.
     pub fn step(&mut self, positions: &[DVec3], forces: &mut [DVec3], sample: &mut WorldSample) {
+        self.step_dt(self.period, positions, forces, sample)
+    }
+
+    /// One tick, `dt` seconds (measured) after the last: `positions[i]` is finger i's device
+    /// position (metres, scene frame). Writes the force for each finger's device into
+    /// `forces[i]` — finite, within its [`ForceBound`] — and the tick's boundary conditions
+    /// and finger views into `sample`, every field a reader looks at (so `sample` may be a
+    /// stale buffer, written in place). Allocates nothing.
+    pub fn step_dt(
+        &mut self,
+        dt: f64,
+        positions: &[DVec3],
+        forces: &mut [DVec3],
+        sample: &mut WorldSample,
+    ) {
+        let dt = if dt.is_finite() { dt.max(0.0) } else { 0.0 };
         let objects = &self.world.objects;
         let n_obj = objects.len().min(MAX_OBJECTS);
         let n = self.n_fingers.min(positions.len()).min(forces.len());
@@ -117,16 +162,22 @@ impl<'w> HapticWorld<'w> {
         }
         // God-objects: which object each finger touches, and where.
         let mut touch: [Option<(usize, ContactPoint)>; MAX_FINGERS] = [None; MAX_FINGERS];
+        let mut valid = [false; MAX_FINGERS];
+        let mut glitch = [false; MAX_FINGERS];
         for i in 0..n {
             let x = positions[i];
             let f = &mut self.fingers[i];
-            if !x.is_finite() {
+            glitch[i] = x.is_finite() && !f.absent && x.distance(f.last_x) > f.max_jump;
+            if !x.is_finite() || glitch[i] {
                 f.absent = true;
+                f.last_x = DVec3::NAN;
                 if let Some(c) = &mut self.couplings[i] {
                     c.reset();
                 }
                 continue;
             }
+            valid[i] = true;
+            f.last_x = x;
             if f.absent {
                 f.absent = false;
                 f.ramp = 1.0;
@@ -148,7 +199,7 @@ impl<'w> HapticWorld<'w> {
                 }
             }
             if touch[i].is_some() {
-                f.ramp = (f.ramp + self.ramp_step).min(1.0);
+                f.ramp = (f.ramp + dt / RAMP_S).min(1.0);
             }
         }
         // Forces, object by object.
@@ -210,18 +261,30 @@ impl<'w> HapticWorld<'w> {
         // What each hand feels: through its device's coupling, where it has one.
         for i in 0..n {
             let x = positions[i];
-            if !x.is_finite() || self.couplings[i].is_none() {
+            if !valid[i] || self.couplings[i].is_none() {
                 continue;
             }
             // Only a coupled finger needs its contact's stiffness (a 3×3 inverse).
             let k = self.contact_stiffness(i);
             if let Some(c) = &mut self.couplings[i] {
                 let paper = forces[i];
-                forces[i] = c.render(paper, k, x);
+                forces[i] = c.render(paper, k, x, dt);
                 if (forces[i] - paper).length() > 0.01 * paper.length() + 1e-9 {
                     self.limited[i] = true;
                 }
             }
+        }
+        // The force bound, last of all.
+        for i in 0..n {
+            if !valid[i] {
+                self.bounds[i].reset();
+                forces[i] = DVec3::ZERO;
+                self.limited[i] = glitch[i];
+                continue;
+            }
+            let (f, limited) = self.bounds[i].apply(forces[i], dt);
+            forces[i] = f;
+            self.limited[i] |= limited;
         }
         for i in 0..n {
             let x = positions[i];

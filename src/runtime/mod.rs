@@ -2,6 +2,7 @@
 //! finger of a scene at 1 kHz on its own core; the visual loop reads the latest [`WorldSample`]
 //! through a wait-free triple buffer and draws asynchronously.
 
+pub mod bound;
 pub mod coupling;
 pub mod haptic;
 pub mod pacer;

@@ -53,10 +53,13 @@ pub fn run_haptic(
     let mut state = [ForceState::default(); MAX_FINGERS];
     let mut out = HapticRun::default();
     let mut max_force: f64 = 0.0;
+    let period = 1.0 / rate;
+    let mut last_t: Option<f64> = None;
     // A device that clocks the loop (the UDP bridge with `--clock device`) starts each tick
     // with its reading; the run then ends on wall time.
     let clocked = devices.clocked();
-    let until = seconds.map(|s| std::time::Duration::from_secs_f64(s.max(0.0)));
+    // A span too long for a Duration (or infinite) runs until `status.stop`.
+    let until = seconds.and_then(|s| std::time::Duration::try_from_secs_f64(s.max(0.0)).ok());
     let more = |p: &Pacer| match (clocked, limit, until) {
         (false, Some(l), _) => p.ticks() < l,
         (true, _, Some(u)) => p.elapsed() < u,
@@ -69,11 +72,19 @@ pub fn run_haptic(
         } else {
             pacer.wait()
         };
+        // Time-based quantities (the ramp, the coupling, the force bound's rate) take the
+        // measured time between the device's readings; the host clock's ticks are its
+        // deadlines, one period apart.
+        let dt = match last_t {
+            Some(l) if clocked => (t - l).max(0.0),
+            _ => period,
+        };
+        last_t = Some(t);
         devices.read(t, &mut pos[..n]);
         // Written in place into the triple buffer's back buffer: only the cache lines this
         // tick uses move between the cores (copying the whole sample cost ~3 µs a tick).
         let sample = publish.input_buffer_mut();
-        hw.step(&pos[..n], &mut force[..n], sample);
+        hw.step_dt(dt, &pos[..n], &mut force[..n], sample);
         for (i, (s, f)) in state.iter_mut().zip(sample.fingers()).enumerate() {
             *s = ForceState {
                 touching: f.object.is_some(),
@@ -94,7 +105,7 @@ pub fn run_haptic(
             max_force = max_force.max(f.length());
         }
         if let Some(r) = recorder.as_deref_mut() {
-            r.push(&TickRecord::new(&pos[..n], &force[..n]));
+            r.push(&TickRecord::new(dt, &pos[..n], &force[..n]));
         }
         pacer.end(start);
         status.ticks.store(pacer.ticks(), Ordering::Relaxed);
@@ -103,6 +114,8 @@ pub fn run_haptic(
             .store(pacer.elapsed().as_nanos() as u64, Ordering::Relaxed);
         status.missed.store(pacer.missed(), Ordering::Relaxed);
     }
+    // The end of service, however it came: every device is released (zero force).
+    devices.release();
     out.stats = pacer.stats();
     out.stats.max_force_n = max_force;
     out.records_dropped = recorder.map_or(0, |r| r.dropped());

@@ -10,7 +10,7 @@ use super::{
     join_haptic, run_haptic, sample_channel, session, DoneGuard, LiveStatus, SampleReader, Visual,
 };
 use crate::devices::limits::DeviceLimits;
-use crate::devices::udp::{BridgeConfig, Clock, UdpBridge, UdpCounters};
+use crate::devices::udp::{BridgeConfig, Clock, Key, UdpBridge, UdpCounters};
 use crate::haptics::HapticStats;
 use crate::scene::DeviceSpec;
 use crate::scene::World;
@@ -21,8 +21,10 @@ use crate::Error;
 pub struct ServeOptions {
     /// Where to listen.
     pub addr: SocketAddr,
-    /// Allow a non-loopback address.
+    /// Allow a non-loopback address (needs `key` too).
     pub allow_remote: bool,
+    /// The shared secret every packet is signed with, both ways (`--key FILE`).
+    pub key: Option<Key>,
     /// Seconds to run (`None`: until `stop`).
     pub seconds: Option<f64>,
     /// Record the session here.
@@ -48,8 +50,12 @@ pub struct ServeReport {
     pub ticks: u64,
     /// Datagrams read.
     pub packets_received: u64,
-    /// Datagrams dropped (malformed, old, duplicate, foreign).
+    /// Datagrams dropped (malformed, rejected, old, duplicate, foreign).
     pub packets_dropped: u64,
+    /// Of those, packets whose tag did not verify under `--key`.
+    pub packets_rejected: u64,
+    /// Times the watchdog expired with a client being served.
+    pub stale_periods: u64,
     /// Missed haptic deadlines.
     pub missed_deadlines: u64,
     /// p99.9 of the period error, µs.
@@ -67,6 +73,14 @@ pub struct ServeReport {
     /// The bare-loop floor measured before serving (`--floor-seconds`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub floor: Option<HapticStats>,
+    /// With `--record`: ticks whose record was not kept — the ring to the writer overflowed,
+    /// or, when the recording failed, every tick (the file is then left as it was).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub records_dropped: Option<u64>,
+    /// With `--record`, why the recording failed (the report is still written; the command
+    /// then exits with this error).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub recording_error: Option<String>,
 }
 
 /// The world `serve` runs: a scene whose fingers are all UDP fingers, or a bare mesh (then as
@@ -155,6 +169,7 @@ pub fn serve_with(
         allow_remote: opts.allow_remote,
         watchdog: opts.watchdog,
         clock: opts.clock,
+        key: opts.key.clone(),
     };
     let mut bridge = UdpBridge::bind(opts.addr, &cfg).map_err(|e| Error::Input(e.to_string()))?;
     let addr = bridge
@@ -193,16 +208,28 @@ pub fn serve_with(
         join_haptic(h).map(|(run, counters)| (run, counters, shown))
     })?;
     shown?;
+    // A failed recording keeps the report: the error goes into it (and `serve` fails after
+    // writing it).
+    let (mut records_dropped, mut recording_error) = (None, None);
     if let Some((rec, w)) = recording {
         drop(rec);
-        w.join()
-            .map_err(|_| Error::Input("the session writer panicked".into()))??;
+        let written = w
+            .join()
+            .map_err(|_| Error::Input("the session writer panicked".into()))
+            .and_then(|r| r);
+        records_dropped = Some(match &written {
+            Ok(_) => run.records_dropped,
+            Err(_) => run.stats.ticks,
+        });
+        recording_error = written.err().map(|e| e.to_string());
     }
     Ok(ServeReport {
         address: addr.to_string(),
         ticks: run.stats.ticks,
         packets_received: counters.packets_received,
         packets_dropped: counters.packets_dropped,
+        packets_rejected: counters.packets_rejected,
+        stale_periods: counters.stale_periods,
         missed_deadlines: run.stats.missed_deadlines,
         period_error_us_p999: run.stats.period_error_us_p999,
         max_force_n: run.stats.max_force_n,
@@ -214,23 +241,27 @@ pub fn serve_with(
         udp: counters,
         haptic: run.stats,
         floor,
+        records_dropped,
+        recording_error,
     })
 }
 
-/// Set by SIGINT (Ctrl-C) once [`stop_on_interrupt`] has been called.
+/// Set by SIGINT (Ctrl-C) or SIGTERM once [`stop_on_interrupt`] has been called.
 pub static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
-/// Makes Ctrl-C set [`INTERRUPTED`] instead of killing the process, so a run without
-/// `--seconds` ends cleanly and writes its report.
+/// Makes SIGINT (Ctrl-C) and SIGTERM set [`INTERRUPTED`] instead of killing the process, so a
+/// run without `--seconds` ends cleanly: its devices are released and its report written.
 pub fn stop_on_interrupt() {
-    extern "C" fn on_sigint(_: libc::c_int) {
+    extern "C" fn on_signal(_: libc::c_int) {
         INTERRUPTED.store(true, Ordering::Relaxed);
     }
-    // SAFETY: installs an async-signal-safe handler that only stores to an atomic.
-    unsafe {
-        libc::signal(
-            libc::SIGINT,
-            on_sigint as extern "C" fn(libc::c_int) as libc::sighandler_t,
-        );
+    for sig in [libc::SIGINT, libc::SIGTERM] {
+        // SAFETY: installs an async-signal-safe handler that only stores to an atomic.
+        unsafe {
+            libc::signal(
+                sig,
+                on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t,
+            );
+        }
     }
 }

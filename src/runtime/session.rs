@@ -2,12 +2,15 @@
 //! self-describing file that carries its scene, so `touchfem replay` can run the positions
 //! through the haptic path again and compare the forces.
 //!
-//! # File format (version 1)
+//! # File format (header version 2)
 //! ```text
-//! TFSESSION 1\n                      magic and version
-//! {JSON header}\n                    one line: see SessionHeader (scene text, scene hash, layout)
-//! records                            ticks × (fingers × 3 f64 position, m; fingers × 3 f64 force, N), little-endian
+//! TFSESSION 1\n                      magic
+//! {JSON header}\n                    one line: see SessionHeader (version, scene text, scene hash, layout)
+//! records                            ticks × (f64 dt, s; fingers × 3 f64 position, m; fingers × 3 f64 force, N), little-endian
 //! ```
+//! `dt` is the measured time since the previous tick that the haptic path used (the ramp,
+//! the coupling and the force bound count seconds), so a session replays bit for bit under
+//! either clock. Header version 1 (no `dt`; one nominal period a tick) still reads.
 //! The haptic loop pushes each tick into a wait-free ring ([`rtrb`]); a writer thread drains
 //! it to disk, so the loop never blocks on the file and allocates nothing.
 
@@ -33,7 +36,7 @@ const RING: usize = 1 << 14;
 pub struct SessionHeader {
     /// Always "touchfem-session".
     pub format: String,
-    /// File format version (1).
+    /// File format version (2; 1 has no `dt` in its records).
     pub version: u32,
     /// The touchfem version that wrote it.
     pub touchfem: String,
@@ -43,7 +46,11 @@ pub struct SessionHeader {
     pub scene_hash: String,
     /// The scene file's text.
     pub scene_toml: String,
-    /// The directory the scene's relative mesh paths are resolved from.
+    /// The directory the scene's relative mesh paths are resolved from: absolute in files
+    /// written by this version, so a session replays from any directory (a relative one, from
+    /// older files, is tried from the working directory, then from the session file's). A
+    /// name that is not UTF-8 is stored as `{"os_bytes": [...]}` (its bytes, Unix).
+    #[serde(with = "os_path")]
     pub scene_dir: PathBuf,
     /// The haptic loop's rate, Hz.
     pub rate_hz: f64,
@@ -59,9 +66,59 @@ pub struct SessionHeader {
     pub finger_limits: Vec<Option<crate::devices::limits::DeviceLimits>>,
 }
 
-/// One tick: the fingers' positions (m) and the forces sent (N).
+/// A path in the header: a string when it is UTF-8, else its bytes (Unix), so that nothing is
+/// lost and nothing fails on a directory whose name is not UTF-8.
+mod os_path {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+    use std::path::{Path, PathBuf};
+
+    #[derive(Serialize, Deserialize)]
+    #[serde(untagged)]
+    enum Repr {
+        Text(String),
+        Bytes { os_bytes: Vec<u8> },
+    }
+
+    pub fn serialize<S: Serializer>(p: &Path, s: S) -> Result<S::Ok, S::Error> {
+        if let Some(t) = p.to_str() {
+            return t.serialize(s);
+        }
+        #[cfg(unix)]
+        {
+            use std::os::unix::ffi::OsStrExt;
+            Repr::Bytes {
+                os_bytes: p.as_os_str().as_bytes().to_vec(),
+            }
+            .serialize(s)
+        }
+        #[cfg(not(unix))]
+        Err(serde::ser::Error::custom(format!(
+            "the directory {} is not valid Unicode",
+            p.display()
+        )))
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<PathBuf, D::Error> {
+        match Repr::deserialize(d)? {
+            Repr::Text(t) => Ok(PathBuf::from(t)),
+            #[cfg(unix)]
+            Repr::Bytes { os_bytes } => {
+                use std::os::unix::ffi::OsStringExt;
+                Ok(PathBuf::from(std::ffi::OsString::from_vec(os_bytes)))
+            }
+            #[cfg(not(unix))]
+            Repr::Bytes { os_bytes } => String::from_utf8(os_bytes)
+                .map(PathBuf::from)
+                .map_err(|_| serde::de::Error::custom("a directory name that is not UTF-8")),
+        }
+    }
+}
+
+/// One tick: the time since the last (s), the fingers' positions (m) and the forces sent (N).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct TickRecord {
+    /// Seconds since the previous tick, as the haptic path used them.
+    pub dt: f64,
     /// Number of fingers.
     pub n: usize,
     /// Positions, m, scene frame.
@@ -71,9 +128,11 @@ pub struct TickRecord {
 }
 
 impl TickRecord {
-    /// A record of `positions` and `forces` (equal lengths, at most [`MAX_FINGERS`]).
-    pub fn new(positions: &[DVec3], forces: &[DVec3]) -> TickRecord {
+    /// A record of a tick `dt` seconds after the last, with `positions` and `forces` (equal
+    /// lengths, at most [`MAX_FINGERS`]).
+    pub fn new(dt: f64, positions: &[DVec3], forces: &[DVec3]) -> TickRecord {
         let mut r = TickRecord {
+            dt,
             n: positions.len().min(MAX_FINGERS),
             ..Default::default()
         };
@@ -106,6 +165,11 @@ impl Recorder {
 /// Starts recording `world`'s session to `path`: writes the header, and returns the loop's
 /// [`Recorder`] and the writer thread (join it after the loop to flush; it ends when the
 /// recorder is dropped). Returns the number of ticks written.
+///
+/// The session is written under a temporary name next to `path` and renamed to `path` when
+/// the writer ends without error ([`crate::cache::AtomicFile`]): a recording that fails (a full
+/// disk) leaves an existing `path` as it was, and the writer's error says so. Nothing is
+/// created before the header is ready.
 pub fn record(
     path: &Path,
     world: &World,
@@ -113,17 +177,17 @@ pub fn record(
     let n = world.fingers.len();
     let header = SessionHeader {
         format: "touchfem-session".into(),
-        version: 1,
+        version: 2,
         touchfem: env!("CARGO_PKG_VERSION").into(),
         scene_name: world.name.clone(),
         scene_hash: format!("{:016x}", world.hash),
         scene_toml: world.source.clone(),
-        scene_dir: world.dir.clone(),
+        scene_dir: absolute(&world.dir),
         rate_hz: world.haptics.rate_hz,
         fingers: n,
-        record_bytes: 48 * n,
+        record_bytes: 8 + 48 * n,
         layout: format!(
-            "per tick, little-endian f64: {n} finger position(s) [x, y, z] in m, scene frame; then {n} force(s) [fx, fy, fz] in N, as sent to the devices"
+            "per tick, little-endian f64: the seconds since the previous tick; then {n} finger position(s) [x, y, z] in m, scene frame; then {n} force(s) [fx, fy, fz] in N, as sent to the devices"
         ),
         finger_limits: if world.fingers.iter().any(|f| f.limits.is_some()) {
             world.fingers.iter().map(|f| f.limits.clone()).collect()
@@ -135,9 +199,10 @@ pub fn record(
         path: path.to_path_buf(),
         source,
     };
-    let file = std::fs::File::create(path).map_err(werr)?;
+    let json = serde_json::to_string(&header)
+        .map_err(|e| Error::Session(format!("{}: cannot write the header: {e}", path.display())))?;
+    let file = crate::cache::AtomicFile::create(path).map_err(werr)?;
     let mut w = BufWriter::new(file);
-    let json = serde_json::to_string(&header).expect("serialisable");
     writeln!(w, "{MAGIC}\n{json}").map_err(werr)?;
     let (producer, mut consumer) = rtrb::RingBuffer::<TickRecord>::new(RING);
     let path = path.to_path_buf();
@@ -149,11 +214,12 @@ pub fn record(
                 source,
             };
             let mut ticks = 0u64;
-            let mut buf = Vec::with_capacity(48 * MAX_FINGERS);
+            let mut buf = Vec::with_capacity(8 + 48 * MAX_FINGERS);
             loop {
                 let abandoned = consumer.is_abandoned();
                 while let Ok(r) = consumer.pop() {
                     buf.clear();
+                    buf.extend_from_slice(&r.dt.to_le_bytes());
                     for v in r.positions[..n].iter().chain(&r.forces[..n]) {
                         for c in v.to_array() {
                             buf.extend_from_slice(&c.to_le_bytes());
@@ -167,7 +233,10 @@ pub fn record(
                 }
                 std::thread::sleep(Duration::from_millis(5));
             }
-            w.flush().map_err(werr)?;
+            w.into_inner()
+                .map_err(|e| werr(e.into_error()))?
+                .commit()
+                .map_err(werr)?;
             Ok(ticks)
         })
         .map_err(|e| Error::Input(format!("cannot start the recorder thread: {e}")))?;
@@ -180,9 +249,24 @@ pub fn record(
     ))
 }
 
+/// `dir` made absolute (canonical where it exists), so that a session records where its
+/// relative mesh paths really are.
+fn absolute(dir: &Path) -> PathBuf {
+    let d = if dir.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        dir
+    };
+    d.canonicalize()
+        .or_else(|_| std::env::current_dir().map(|c| c.join(d)))
+        .unwrap_or_else(|_| d.to_path_buf())
+}
+
 /// A session read back.
 #[derive(Clone, Debug)]
 pub struct Session {
+    /// The file it was read from.
+    pub path: PathBuf,
     /// Its header.
     pub header: SessionHeader,
     /// Its ticks.
@@ -216,7 +300,16 @@ pub fn read(path: &Path) -> Result<Session, Error> {
     let header: SessionHeader =
         serde_json::from_slice(&bytes[c..d]).map_err(|e| bad(format!("bad header: {e}")))?;
     let n = header.fingers;
-    if header.version != 1 || n == 0 || n > MAX_FINGERS || header.record_bytes != 48 * n {
+    let with_dt = header.version == 2;
+    let want_bytes = 48usize
+        .saturating_mul(n)
+        .saturating_add(if with_dt { 8 } else { 0 });
+    if !(1..=2).contains(&header.version)
+        || n == 0
+        || n > MAX_FINGERS
+        || header.record_bytes != want_bytes
+        || !(header.rate_hz.is_finite() && header.rate_hz > 0.0)
+    {
         return Err(bad(format!(
             "unsupported header: version {}, {} finger(s), {} bytes a record",
             header.version, n, header.record_bytes
@@ -225,9 +318,17 @@ pub fn read(path: &Path) -> Result<Session, Error> {
     let body = &bytes[d + 1..];
     let rb = header.record_bytes;
     let mut ticks = Vec::with_capacity(body.len() / rb);
+    let period = 1.0 / header.rate_hz;
     for rec in body.chunks_exact(rb) {
+        let (dt, rec) = if with_dt {
+            let (d, rest) = rec.split_at(8);
+            (f64::from_le_bytes(d.try_into().expect("8 bytes")), rest)
+        } else {
+            (period, rec)
+        };
         let f = |i: usize| f64::from_le_bytes(rec[8 * i..8 * i + 8].try_into().expect("8 bytes"));
         let mut t = TickRecord {
+            dt,
             n,
             ..Default::default()
         };
@@ -239,6 +340,7 @@ pub fn read(path: &Path) -> Result<Session, Error> {
         ticks.push(t);
     }
     Ok(Session {
+        path: path.to_path_buf(),
         trailing_bytes: body.len() % rb,
         header,
         ticks,
@@ -246,32 +348,71 @@ pub fn read(path: &Path) -> Result<Session, Error> {
 }
 
 /// What a replay found.
+///
+/// A recorded or replayed force that is not finite (NaN, infinite) makes that tick's
+/// difference infinite: `max_force_diff_n` is then `+∞` and `non_finite_ticks` counts such
+/// ticks. JSON has no infinity, so the number is written as `1.7976931348623157e308`
+/// (`f64::MAX`), never `null`; `touchfem replay` then exits with an error.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct ReplayReport {
     /// Ticks replayed.
     pub ticks: usize,
-    /// Largest |recorded force − replayed force| over ticks and fingers, N.
+    /// Largest |recorded force − replayed force| over ticks and fingers, N (`+∞` if a force
+    /// was not finite).
+    #[serde(serialize_with = "finite_or_max")]
     pub max_force_diff_n: f64,
-    /// The tick where it occurred.
+    /// The tick where it occurred (the first non-finite one, if any).
     pub worst_tick: usize,
-    /// Largest recorded force, N.
+    /// Largest finite recorded force, N.
+    #[serde(serialize_with = "finite_or_max")]
     pub max_force_n: f64,
+    /// Ticks where a recorded or replayed force was not finite.
+    pub non_finite_ticks: usize,
+}
+
+/// Writes a non-finite number as the largest finite one of its sign (NaN as `f64::MAX`):
+/// JSON has no infinity, and `null` would read as "no value".
+fn finite_or_max<S: serde::Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+    let v = if v.is_finite() {
+        *v
+    } else if *v == f64::NEG_INFINITY {
+        f64::MIN
+    } else {
+        f64::MAX
+    };
+    s.serialize_f64(v)
+}
+
+/// Where a session's relative mesh paths are: its header's directory; a relative one (an older
+/// file) from the working directory if it exists there, else from the session file's.
+fn scene_dir(session: &Session) -> PathBuf {
+    let d = &session.header.scene_dir;
+    if d.is_absolute() || d.as_os_str().is_empty() || d.is_dir() {
+        return d.clone();
+    }
+    match session.path.parent() {
+        Some(p) if p.join(d).is_dir() => p.join(d),
+        _ => d.clone(),
+    }
 }
 
 /// The scene a session was recorded with, loaded from its header (its errors are named by
-/// `label`), with each finger's device limits as they were when it ran.
+/// `label`), with each finger's device limits as they were when it ran. The scene's hash is
+/// checked against the recorded one before anything is precomputed.
 pub fn world(session: &Session, label: &str) -> Result<World, Error> {
     let h = &session.header;
+    let bad = |msg: String| Error::Session(format!("{}: {msg}", session.path.display()));
     let src = crate::scene::SceneSource {
         name: h.scene_name.clone(),
         text: h.scene_toml.clone(),
-        dir: h.scene_dir.clone(),
+        dir: scene_dir(session),
         label: label.into(),
     };
+    check_hash(session, World::hash_of(&src)?)?;
     let mut world = World::from_source(&src)?;
     if !h.finger_limits.is_empty() {
         if h.finger_limits.len() != world.fingers.len() {
-            return Err(Error::Session(format!(
+            return Err(bad(format!(
                 "the header gives limits for {} finger(s), the scene has {}",
                 h.finger_limits.len(),
                 world.fingers.len()
@@ -280,7 +421,7 @@ pub fn world(session: &Session, label: &str) -> Result<World, Error> {
         for (f, l) in world.fingers.iter_mut().zip(&h.finger_limits) {
             if let Some(l) = l {
                 l.validate()
-                    .map_err(|e| Error::Session(format!("bad finger limits: {e}")))?;
+                    .map_err(|e| bad(format!("bad finger limits: {e}")))?;
             }
             f.limits = l.clone();
         }
@@ -288,21 +429,36 @@ pub fn world(session: &Session, label: &str) -> Result<World, Error> {
     Ok(world)
 }
 
-/// Runs a session's positions through `world`'s haptic path, tick by tick, and compares the
-/// forces with the recorded ones. `world` must be the session's scene (same hash).
-pub fn replay(world: &World, session: &Session) -> Result<ReplayReport, Error> {
+/// The scene hash `have` must be the recorded one.
+fn check_hash(session: &Session, have: u64) -> Result<(), Error> {
     let want = &session.header.scene_hash;
-    let have = format!("{:016x}", world.hash);
+    let have = format!("{have:016x}");
     if *want != have {
         return Err(Error::Session(format!(
-            "the scene differs from the recorded one (hash {have}, recorded {want}): a mesh or the scene file changed"
+            "{}: the scene differs from the recorded one (hash {have}, recorded {want}): a mesh or the scene file changed",
+            session.path.display()
         )));
     }
+    Ok(())
+}
+
+/// Runs a session's positions through `world`'s haptic path, tick by tick, and compares the
+/// forces with the recorded ones. `world` must be the session's scene (same hash), and the
+/// session must hold a tick.
+pub fn replay(world: &World, session: &Session) -> Result<ReplayReport, Error> {
+    check_hash(session, world.hash)?;
     if world.fingers.len() != session.header.fingers {
         return Err(Error::Session(format!(
-            "the scene has {} finger(s), the session {}",
+            "{}: the scene has {} finger(s), the session {}",
+            session.path.display(),
             world.fingers.len(),
             session.header.fingers
+        )));
+    }
+    if session.ticks.is_empty() {
+        return Err(Error::Session(format!(
+            "{}: the session holds no tick: nothing to replay",
+            session.path.display()
         )));
     }
     let mut hw = HapticWorld::new(world);
@@ -314,19 +470,30 @@ pub fn replay(world: &World, session: &Session) -> Result<ReplayReport, Error> {
         max_force_diff_n: 0.0,
         worst_tick: 0,
         max_force_n: 0.0,
+        non_finite_ticks: 0,
     };
     for (i, t) in session.ticks.iter().enumerate() {
-        hw.step(&t.positions[..n], &mut forces[..n], &mut sample);
+        hw.step_dt(t.dt, &t.positions[..n], &mut forces[..n], &mut sample);
+        let mut finite = true;
         for (k, f) in forces.iter().enumerate().take(n) {
             let d = (*f - t.forces[k]).length();
-            // NaN differences count as infinitely large.
-            let d = if d.is_nan() { f64::INFINITY } else { d };
+            // NaN or infinite differences count as infinitely large.
+            let d = if d.is_finite() {
+                d
+            } else {
+                finite = false;
+                f64::INFINITY
+            };
             if d > rep.max_force_diff_n {
                 rep.max_force_diff_n = d;
                 rep.worst_tick = i;
             }
-            rep.max_force_n = rep.max_force_n.max(t.forces[k].length());
+            let r = t.forces[k].length();
+            if r.is_finite() {
+                rep.max_force_n = rep.max_force_n.max(r);
+            }
         }
+        rep.non_finite_ticks += usize::from(!finite);
     }
     Ok(rep)
 }

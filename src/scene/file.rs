@@ -199,6 +199,18 @@ impl SceneSource {
     }
 }
 
+/// The largest Young's modulus a scene accepts, Pa (diamond is about 1.2e12).
+pub const MAX_YOUNG_PA: f64 = 1e13;
+/// The largest magnitude of a coordinate, offset or radius in a scene file, in its unit.
+pub const MAX_COORDINATE: f64 = 1e9;
+/// The largest magnitude of a keyframe time in a scene file, s (about 11.6 days).
+pub const MAX_KEYFRAME_SECONDS: f64 = 1e6;
+
+/// Whether every component of `v` is finite and at most [`MAX_COORDINATE`] in magnitude.
+fn coordinates_ok(v: &[f64]) -> bool {
+    v.iter().all(|x| x.is_finite() && x.abs() <= MAX_COORDINATE)
+}
+
 /// The 1-based line of a byte offset in `text`.
 fn line_of(text: &str, offset: usize) -> usize {
     text[..offset.min(text.len())].matches('\n').count() + 1
@@ -286,6 +298,12 @@ impl World {
         Ok(out)
     }
 
+    /// The hash a load of `src` gives ([`World::hash`]: its text and each object's cache key),
+    /// without precomputing anything (the meshes are read).
+    pub fn hash_of(src: &SceneSource) -> Result<u64, Error> {
+        Ok(World::build(src, &mut |_, _, _, _, _| Ok(None))?.hash)
+    }
+
     /// Parses and validates a scene; `compute` gives each object's compliance (`None`: leave the
     /// object out).
     fn build(src: &SceneSource, compute: &mut Compute<'_>) -> Result<World, Error> {
@@ -348,6 +366,25 @@ impl World {
                     )
                 })?),
             };
+            if let Some(y) = &o.young {
+                let v = *y.get_ref();
+                if !(v.is_finite() && v > 0.0 && v <= MAX_YOUNG_PA) {
+                    return Err(at(
+                        y.span(),
+                        "young",
+                        format!("{v} is outside (0, {MAX_YOUNG_PA:e}] Pa"),
+                    ));
+                }
+            }
+            if let Some(off) = &o.offset {
+                if !coordinates_ok(off.get_ref()) {
+                    return Err(at(
+                        off.span(),
+                        "offset",
+                        format!("each coordinate must be finite and at most {MAX_COORDINATE:e} in magnitude"),
+                    ));
+                }
+            }
             let fixed = o
                 .fixed
                 .as_ref()
@@ -432,6 +469,13 @@ impl World {
                         NodeSet::Nodes(nodes)
                     }
                     TouchableToml::Ball(b) => {
+                        if !(coordinates_ok(&b.center) && coordinates_ok(&[b.radius])) {
+                            return Err(at(
+                                t.span(),
+                                "touchable",
+                                format!("the ball's center and radius must be finite and at most {MAX_COORDINATE:e} in magnitude"),
+                            ));
+                        }
                         let c = DVec3::from_array(b.center) * s - offset;
                         let r = b.radius * s;
                         if !(c.is_finite() && r.is_finite() && r > 0.0) {
@@ -513,6 +557,16 @@ impl World {
                                 p.span(),
                                 "path",
                                 format!("keyframe {} is not finite", i + 1),
+                            ));
+                        }
+                        if k[0].abs() > MAX_KEYFRAME_SECONDS || !coordinates_ok(&k[1..]) {
+                            return Err(at(
+                                p.span(),
+                                "path",
+                                format!(
+                                    "keyframe {}: |t| must be at most {MAX_KEYFRAME_SECONDS:e} s and each coordinate at most {MAX_COORDINATE:e} in magnitude",
+                                    i + 1
+                                ),
                             ));
                         }
                         if i > 0 && k[0] <= keys[i - 1][0] {

@@ -124,6 +124,58 @@ fn arrow_m_per_n(world: &World, diag: f64) -> f64 {
     crate::render::arrow_scale(k * COLOR_SCALE_OF_DIAGONAL * diag, 0.25 * diag)
 }
 
+/// The largest `TOUCHFEM_VIEW_SECONDS` accepted (about 11.6 days).
+pub(super) const MAX_VIEW_SECONDS: f64 = 1e6;
+
+/// The window's environment hooks (see the module documentation), checked.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(super) struct EnvHooks {
+    /// `TOUCHFEM_VIEW_SECONDS`: quit after this long.
+    pub quit_after: Option<Duration>,
+    /// `TOUCHFEM_VIEW_SAMPLES`: the MSAA sample count, 1 or 4.
+    pub samples: Option<u32>,
+}
+
+impl EnvHooks {
+    /// Reads `TOUCHFEM_VIEW_SECONDS` (a number of seconds in [0, 1e6]) and
+    /// `TOUCHFEM_VIEW_SAMPLES` (1 or 4); unset or empty means no hook. A value that is not one
+    /// of those is an error naming the variable.
+    pub(super) fn from_env() -> Result<EnvHooks, String> {
+        let var = |name: &str| {
+            std::env::var_os(name)
+                .map(|v| v.to_string_lossy().trim().to_string())
+                .filter(|v| !v.is_empty())
+        };
+        Ok(EnvHooks {
+            quit_after: var("TOUCHFEM_VIEW_SECONDS")
+                .map(|v| parse_view_seconds(&v))
+                .transpose()?,
+            samples: var("TOUCHFEM_VIEW_SAMPLES")
+                .map(|v| parse_view_samples(&v))
+                .transpose()?,
+        })
+    }
+}
+
+/// `TOUCHFEM_VIEW_SECONDS`: a finite number of seconds in [0, [`MAX_VIEW_SECONDS`]].
+pub(super) fn parse_view_seconds(v: &str) -> Result<Duration, String> {
+    v.parse::<f64>()
+        .ok()
+        .filter(|s| s.is_finite() && (0.0..=MAX_VIEW_SECONDS).contains(s))
+        .and_then(|s| Duration::try_from_secs_f64(s).ok())
+        .ok_or_else(|| {
+            format!("TOUCHFEM_VIEW_SECONDS={v:?}: expected seconds in [0, {MAX_VIEW_SECONDS:e}]")
+        })
+}
+
+/// `TOUCHFEM_VIEW_SAMPLES`: 1 or 4.
+pub(super) fn parse_view_samples(v: &str) -> Result<u32, String> {
+    match v.parse::<u32>() {
+        Ok(n @ (1 | 4)) => Ok(n),
+        _ => Err(format!("TOUCHFEM_VIEW_SAMPLES={v:?}: expected 1 or 4")),
+    }
+}
+
 fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() {
         return 0.0;
@@ -144,6 +196,7 @@ impl<'a> App<'a> {
         status: &'a LiveStatus,
         pointer: Option<Arc<PointerShared>>,
         opts: &WindowOptions,
+        hooks: &EnvHooks,
     ) -> App<'a> {
         let (lo, hi) = world.bounds();
         let (lo, hi) = if lo.is_finite() && hi.is_finite() {
@@ -153,11 +206,10 @@ impl<'a> App<'a> {
         };
         let size = [opts.size[0].max(1), opts.size[1].max(1)];
         let diag = (hi - lo).length();
-        let quit_after = std::env::var("TOUCHFEM_VIEW_SECONDS")
-            .ok()
-            .and_then(|s| s.trim().parse::<f64>().ok())
-            .filter(|s| s.is_finite() && *s >= 0.0)
-            .map(Duration::from_secs_f64);
+        let EnvHooks {
+            quit_after,
+            samples: samples_override,
+        } = *hooks;
         let log = std::env::var_os("TOUCHFEM_VIEW_LOG").and_then(|p| {
             std::fs::OpenOptions::new()
                 .create(true)
@@ -171,9 +223,6 @@ impl<'a> App<'a> {
                 })
                 .ok()
         });
-        let samples_override = std::env::var("TOUCHFEM_VIEW_SAMPLES")
-            .ok()
-            .and_then(|s| s.trim().parse::<u32>().ok());
         App {
             world,
             reader,

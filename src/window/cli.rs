@@ -46,6 +46,7 @@ fn devices(
 /// one-object scene touched by the pointer. `--record FILE` records the session. Prints the
 /// window's summary.
 pub fn view_command(args: &crate::cli::ViewArgs) -> Result<(), Error> {
+    super::check_env()?;
     if std::env::var_os("LP_NUM_THREADS").is_none() {
         std::env::set_var("LP_NUM_THREADS", "0");
     }
@@ -130,6 +131,7 @@ pub fn serve_view(
     size: [u32; 2],
     bound: impl FnOnce(std::net::SocketAddr),
 ) -> Result<crate::runtime::serve::ServeReport, Error> {
+    super::check_env()?;
     if std::env::var_os("LP_NUM_THREADS").is_none() {
         std::env::set_var("LP_NUM_THREADS", "0");
     }

@@ -24,14 +24,16 @@
 //! frame is drawn without MSAA ([`live_samples`](crate::render::live_samples)).
 //!
 //! Environment hooks (tests, measurements):
-//! * `TOUCHFEM_VIEW_SECONDS=S`: quit after S seconds;
+//! * `TOUCHFEM_VIEW_SECONDS=S`: quit after S seconds (0 to 1e6; another value is an error
+//!   naming the variable);
 //! * `TOUCHFEM_VIEW_LOG=FILE`: append one JSON line per second, `{"t", "frames", "fps",
 //!   "frame_ms_median", "draw_ms_median", "force_n", "haptic_hz", "haptic_missed",
 //!   "touching"}` (`frames`, `haptic_missed`: so far; `frame_ms_median`: median time between
 //!   presented frames over that second;
 //!   `force_n`: the largest |F| of the pointer finger over that second), and a final line with
 //!   `"summary": true`;
-//! * `TOUCHFEM_VIEW_SAMPLES=1|4`: override the MSAA sample count.
+//! * `TOUCHFEM_VIEW_SAMPLES=1|4`: override the MSAA sample count (another value is an error
+//!   naming the variable).
 //!
 //! `WGPU_BACKEND` and `WGPU_ADAPTER_NAME` choose the adapter as for
 //! [`Gpu::new`](crate::gpu::Gpu::new), among adapters that can present to the window.
@@ -104,6 +106,18 @@ pub enum ViewError {
     /// The haptic loop ended by a panic.
     #[error("the haptic thread panicked")]
     HapticPanicked,
+    /// An environment hook (`TOUCHFEM_VIEW_SECONDS`, `TOUCHFEM_VIEW_SAMPLES`) has a bad value.
+    #[error("{0}")]
+    Env(String),
+}
+
+/// Checks the window's environment hooks (`TOUCHFEM_VIEW_SECONDS`: seconds in [0, 1e6];
+/// `TOUCHFEM_VIEW_SAMPLES`: 1 or 4): an error names the variable. [`run`] checks them too; call
+/// this first to fail before anything is loaded.
+pub fn check_env() -> Result<(), ViewError> {
+    app::EnvHooks::from_env()
+        .map(|_| ())
+        .map_err(ViewError::Env)
 }
 
 impl From<ViewError> for crate::Error {
@@ -131,8 +145,9 @@ pub fn run(
             crate::render::MAX_FRAME_OBJECTS,
         ));
     }
+    let hooks = app::EnvHooks::from_env().map_err(ViewError::Env)?;
     let event_loop = winit::event_loop::EventLoop::new()?;
-    let mut app = app::App::new(world, reader, status, pointer.clone(), opts);
+    let mut app = app::App::new(world, reader, status, pointer.clone(), opts, &hooks);
     let ran = event_loop.run_app(&mut app);
     status.stop.store(true, std::sync::atomic::Ordering::SeqCst);
     if let Some(p) = &pointer {
