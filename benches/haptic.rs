@@ -7,8 +7,8 @@ use std::hint::black_box;
 use std::time::Duration;
 use touchfem::compliance::{Compliance, Selection};
 use touchfem::contact::Surface;
+use touchfem::finger::Finger;
 use touchfem::force::{ForceBc, ForceModel};
-use touchfem::haptics::Finger;
 use touchfem::mesh::{cube, cube_with};
 use touchfem::{Material, Mesh};
 

@@ -31,7 +31,7 @@ fn main() {
         usage_error("expected SCENE [WxH]");
     }
     let size: [u32; 2] = match a.get(1) {
-        Some(s) => touchfem::cli::parse_size(s).unwrap_or_else(|e| usage_error(&e)),
+        Some(s) => touchfem_app::args::parse_size(s).unwrap_or_else(|e| usage_error(&e)),
         None => [640, 480],
     };
     let samples: u32 = match std::env::var("SAMPLES") {

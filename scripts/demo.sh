@@ -4,4 +4,4 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/ensure-vulkan.sh
 export WGPU_BACKEND="${WGPU_BACKEND:-vulkan}"
-cargo run --release --bin touchfem -- demo "$@"
+cargo run --release --features app --bin touchfem -- demo "$@"

@@ -18,7 +18,7 @@ if [ "$keyed" = "--key" ]; then
   key_args=(--key "$out/key")
 fi
 target/release/touchfem serve cube --udp 127.0.0.1:$port --seconds "$((secs + 3))" \
-  --floor-seconds 20 --report "$out/report.json" "${key_args[@]}" 2> "$out/serve.log" &
+  --floor-seconds "${FLOOR:-20}" --report "$out/report.json" "${key_args[@]}" 2> "$out/serve.log" &
 server=$!
 until grep -q "listening on udp" "$out/serve.log"; do sleep 0.2; done
 python3 - "$port" "$flood" "$((secs + 2))" <<'PY' &

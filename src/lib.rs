@@ -5,52 +5,40 @@
 //! is precomputed once for the displayed rows and touchable columns; the finger's displacement is
 //! turned into an equivalent nodal force with 3×3 blocks `L_ii⁻¹` (so `L` never changes); the
 //! haptic loop runs that small solve at 1 kHz on the CPU, and the visual loop computes
-//! `u = L·F` over the active columns.
+//! `u = L·F` over the active columns on the GPU, straight into a vertex buffer.
 //!
-//! Units are SI throughout (m, N, Pa, s); mesh files may declare millimetres (see [`units`]).
+//! This crate is the one to depend on. It re-exports the engine (`touchfem-core`: every module
+//! at the top level, no GPU) and, with the default `gpu` feature, the GPU pass and renderer
+//! (`touchfem-gpu`) as [`gpu`], [`render`] and [`visual`]. The `app` feature adds the `touchfem`
+//! program.
 //!
-//! Data flows one way:
-//! * precompute: [`mesh`] → [`fem`] (sparse K, Cholesky) → [`compliance`] (L, L_ii⁻¹) → [`cache`]
-//! * haptic path: [`contact`] (god-object) → [`force`] (eq. 9–12) → [`haptics`] (lock-free publish)
-//! * visual path: [`compliance::Compliance::displace`] on the CPU (f64 reference) or the GPU pass
-//!   ([`gpu`], [`render`]); [`threads`] places the two loops on their own cores.
+//! ```no_run
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! // A scene with the paper's cube and a scripted finger, its compliance precomputed.
+//! let world = touchfem::scene::World::load_with("fig1", "script", None)?;
+//! let mut haptic = touchfem::runtime::HapticWorld::new(&world);
+//! let mut sample = touchfem::runtime::WorldSample::default();
+//! let mut force = [glam::DVec3::ZERO; 1];
+//! haptic.step(&[glam::DVec3::new(0.015, 0.015, 0.028)], &mut force, &mut sample);
+//! assert!(force[0].length() <= world.haptics.max_force_n);
+//! # Ok(())
+//! # }
+//! ```
 
-#![warn(missing_docs)]
+pub use touchfem_core::*;
 
-pub mod bench_plot;
-pub mod cache;
-pub mod cg;
-pub mod cli;
-pub mod compliance;
-pub mod conditioning;
-pub mod contact;
-pub mod demo;
-pub mod devices;
-pub mod error;
-pub mod fem;
-pub mod force;
-pub mod frontal;
-pub mod gpu;
-pub mod gram;
-pub mod haptics;
-pub mod hard;
-pub mod ladder;
-pub mod mesh;
-pub mod near;
-pub mod precompute;
-pub mod render;
-pub mod runtime;
-pub mod scene;
-pub mod threads;
-pub mod tradeoff;
-pub mod units;
-pub mod vtu;
-pub mod window;
-
-pub use error::Error;
-pub use mesh::{Mesh, MeshError, RawMesh};
-pub use units::{LengthUnit, Material};
-pub use wgpu;
+/// The GPU pass ([`gpu::Deformer`]), its headless context ([`gpu::Gpu`]) and `wgpu` itself.
+#[cfg(feature = "gpu")]
+pub use touchfem_gpu as gpu;
+/// The offscreen renderer.
+#[cfg(feature = "gpu")]
+pub use touchfem_gpu::render;
+/// The visual loop's displacement update from a haptic sample (GPU, CPU fallback).
+#[cfg(feature = "gpu")]
+pub use touchfem_gpu::visual;
+/// The wgpu this crate was built with.
+#[cfg(feature = "gpu")]
+pub use touchfem_gpu::wgpu;
 
 /// The README's code runs as a doc test.
 #[doc = include_str!("../README.md")]

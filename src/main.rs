@@ -1,12 +1,5 @@
-use clap::Parser;
+//! The `touchfem` program (the `app` feature): see the `touchfem-app` crate.
 
 fn main() -> std::process::ExitCode {
-    let cli = touchfem::cli::Cli::parse();
-    match touchfem::cli::run(cli) {
-        Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            std::process::ExitCode::from(2)
-        }
-    }
+    touchfem_app::main()
 }

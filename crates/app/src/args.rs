@@ -1,0 +1,414 @@
+//! The command line's flags and subcommands (clap), and the parsers of their values: each
+//! numeric flag has a range, and a value outside it is an error naming the flag.
+
+use clap::{Args, Parser, Subcommand};
+use glam::DVec3;
+use std::path::PathBuf;
+
+use touchfem_core::scene::LoadOptions;
+use touchfem_core::units::LengthUnit;
+
+/// Touch and see soft objects in real time (Hirota & Kaneko's precomputed-compliance FEM).
+#[derive(Parser, Debug)]
+#[command(name = "touchfem", version, about)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Print the paper's Table 1 row of a mesh.
+    Info {
+        /// Mesh file (.msh, .node/.ele) or bundled name (cube).
+        mesh: String,
+        /// How to load the mesh.
+        #[command(flatten)]
+        load: LoadArgs,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Touch the surface at the point nearest --at, push by --push, print the force fed back.
+    Poke(PokeArgs),
+    /// The main job: scenes headless (the bundled ones by default) with the 1 kHz haptic loop
+    /// and the visual loop; frames, GIF, force traces, the session and the paper's Table 2.
+    Demo(DemoArgs),
+    /// Run the haptic loop for fingers driven over UDP (the protocol in CONTRACTS.md).
+    Serve(ServeArgs),
+    /// Run a recorded session's finger positions through the haptic path again and compare
+    /// the forces with the recorded ones.
+    Replay(ReplayArgs),
+    /// Speed against error: every method on the same meshes in one run.
+    Bench(BenchArgs),
+    /// An interactive window: a left drag presses the pointer into the object, a right drag
+    /// orbits, the wheel zooms, Esc quits.
+    View(ViewArgs),
+    /// Precompute the compliance a scene needs into a cache file; `--shard I/N` computes one
+    /// part of the columns (for N machines), `--merge` joins the parts.
+    Precompute(PrecomputeArgs),
+}
+
+/// `touchfem precompute` flags.
+#[derive(Args, Debug)]
+pub struct PrecomputeArgs {
+    /// Scene file, bundled scene, mesh file or bundled mesh.
+    #[arg(required_unless_present = "merge")]
+    pub scene: Option<String>,
+    /// How to load a mesh given as SCENE (a scene file says it itself).
+    #[command(flatten)]
+    pub load: LoadArgs,
+    /// Output file (a directory for a scene of several objects). Default: the cache file the
+    /// scene loader reads ($TOUCHFEM_CACHE_DIR), with `.part-I-of-N` appended for a shard.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Compute only the I-th of N parts of the columns (1-based), e.g. 3/8.
+    #[arg(long, value_parser = parse_shard)]
+    pub shard: Option<(usize, usize)>,
+    /// Join these shard files into --out (equal to the unsharded file).
+    #[arg(long, num_args = 1.., conflicts_with_all = ["scene", "shard"], requires = "out")]
+    pub merge: Vec<PathBuf>,
+    /// Print one JSON object (`seconds`, `rows`, `cols`, `bytes`, ...).
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Parses "I/N" (1 ≤ I ≤ N ≤ 65536) into a shard index and count.
+pub fn parse_shard(s: &str) -> Result<(usize, usize), String> {
+    let bad = || format!("expected I/N with 1 <= I <= N <= 65536 (e.g. 3/8), got '{s}'");
+    let (i, n) = s.split_once('/').ok_or_else(bad)?;
+    let i: usize = i.trim().parse().map_err(|_| bad())?;
+    let n: usize = n.trim().parse().map_err(|_| bad())?;
+    if i == 0 || i > n || n > 65536 {
+        return Err(bad());
+    }
+    Ok((i, n))
+}
+
+/// `touchfem view` flags.
+#[derive(Args, Debug)]
+pub struct ViewArgs {
+    /// Scene file, bundled scene, mesh file or bundled mesh (cube, mouse).
+    pub scene: String,
+    /// Window size, WxH pixels.
+    #[arg(long, default_value = "640x480", value_parser = parse_size)]
+    pub size: [u32; 2],
+    /// Record the session to this file.
+    #[arg(long)]
+    pub record: Option<PathBuf>,
+    /// Surface colour: by the displacement's magnitude with a legend in mm (the key C toggles
+    /// it), or plain.
+    #[arg(long, value_enum, default_value_t = ColorArg::Displacement)]
+    pub color: ColorArg,
+}
+
+/// `touchfem bench` flags.
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// Fewer repetitions and active-column counts (for CI smoke runs).
+    #[arg(long)]
+    pub quick: bool,
+    /// Write the rows as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Draw time against error (log–log, one panel per mesh but the cube) into this PNG.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+    /// Only the hard cases (nearly incompressible, slivers and needles, extreme scales,
+    /// locking): their accuracy in f64 and f32.
+    #[arg(long)]
+    pub hard: bool,
+    /// Only the mesh-resolution ladder: the paper's cube at 4³ … 32³ cells, Fig. 1b's press as
+    /// a point and as a 5 mm punch, errors against the extrapolated limit.
+    #[arg(long)]
+    pub ladder: bool,
+    /// Where the ladder's mouse meshes are (`mouse_hH.msh`, made by scripts/make_mouse.py).
+    #[arg(long, default_value = "out/ladder")]
+    pub ladder_dir: PathBuf,
+    /// Add rows for this scene's objects (a scene file, bundled scene or mesh): its precompute
+    /// (time, memory, peak RSS; the JSON's `scene` array) and the displacement methods.
+    #[arg(long)]
+    pub scene: Option<String>,
+}
+
+/// `touchfem serve` flags.
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    /// Scene file, bundled scene, or mesh (then up to four UDP fingers).
+    pub scene: String,
+    /// Address to listen on, e.g. 127.0.0.1:47800.
+    #[arg(long)]
+    pub udp: std::net::SocketAddr,
+    /// Seconds to run, in (0, 1e6] (default: until interrupted).
+    #[arg(long, value_name = "S", value_parser = parse_serve_seconds, allow_hyphen_values = true)]
+    pub seconds: Option<f64>,
+    /// Write the report as JSON here (else to stdout).
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Record the session here.
+    #[arg(long)]
+    pub record: Option<PathBuf>,
+    /// Allow a non-loopback address (forces reach a person's hand from the network); needs
+    /// `--key`.
+    #[arg(long)]
+    pub allow_remote: bool,
+    /// A file whose bytes (at least 16) are a shared secret: every packet, both ways, ends
+    /// with its HMAC-SHA256 under it, and a position packet whose tag does not verify is
+    /// dropped (`packets_rejected`).
+    #[arg(long, value_name = "FILE")]
+    pub key: Option<PathBuf>,
+    /// Watchdog: silence longer than this (ms, in (0, 60000]) gives zero force and the stale
+    /// flag.
+    #[arg(long, value_name = "MS", default_value_t = 20.0, value_parser = parse_watchdog_ms, allow_hyphen_values = true)]
+    pub watchdog_ms: f64,
+    /// What paces the loop: `host` (touchfem's 1 kHz deadlines) or `device` (each position
+    /// packet starts a tick, answered at once: the lowest round trip).
+    #[arg(long, default_value = "host")]
+    pub clock: touchfem_core::devices::udp::Clock,
+    /// Device limits for UDP fingers whose scene gives none: a preset (falcon, phantom-omni,
+    /// phantom-premium-1.5, delta.3, omega.3, sigma.7). The force is then rendered through a
+    /// virtual coupling sized from them.
+    #[arg(long)]
+    pub limits: Option<String>,
+    /// First measure this machine's bare-loop floor for this many seconds (in [0, 3600];
+    /// reported as `floor`), then serve.
+    #[arg(long, value_name = "S", value_parser = parse_floor_seconds, allow_hyphen_values = true)]
+    pub floor_seconds: Option<f64>,
+    /// Show the object in the `view` window (fingers, god-objects, deformation) instead of
+    /// updating it headless; closing the window ends the run.
+    #[arg(long)]
+    pub view: bool,
+    /// The window's size with `--view`, WxH pixels.
+    #[arg(long, default_value = "640x480", value_parser = parse_size)]
+    pub size: [u32; 2],
+}
+
+/// `touchfem replay` flags. The command fails (status 2) on a session with no tick and when
+/// a recorded or replayed force is not finite (`max_force_diff_n` is then written as
+/// `f64::MAX`, never `null`).
+#[derive(Args, Debug)]
+pub struct ReplayArgs {
+    /// The session file (`--record` of `demo`, `view` or `serve`).
+    pub file: PathBuf,
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `touchfem demo` flags.
+#[derive(Args, Debug)]
+pub struct DemoArgs {
+    /// Scene files or bundled scene names (fig1, fig2, pinch); none: every bundled scene.
+    pub scenes: Vec<String>,
+    /// Seconds of haptic + visual loop per scene, in (0, 3600] (scripted paths are stretched
+    /// to fit).
+    #[arg(long, value_name = "S", default_value_t = 3.0, value_parser = parse_demo_seconds, allow_hyphen_values = true)]
+    pub seconds: f64,
+    /// Record each scene's session here (several scenes: FILE.SCENE.EXT).
+    #[arg(long)]
+    pub record: Option<PathBuf>,
+    /// Write the report as JSON here.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Directory for frames and the report.
+    #[arg(long, default_value = "out/demo")]
+    pub out: PathBuf,
+    /// Frame colour: by the displacement's magnitude with a legend in mm (one scale per scene),
+    /// or plain.
+    #[arg(long, value_enum, default_value_t = ColorArg::Displacement)]
+    pub color: ColorArg,
+}
+
+/// Flags that say how to load a mesh.
+#[derive(Args, Debug, Clone)]
+pub struct LoadArgs {
+    /// Length unit of the mesh file: mm or m (default m; bundled meshes know their own).
+    #[arg(long)]
+    pub unit: Option<LengthUnit>,
+    /// The Gmsh physical group (or TetGen marker) whose nodes are clamped.
+    #[arg(long, default_value = "fixed")]
+    pub fixed: String,
+    /// Young's modulus in Pa, in (0, 1e13] (default: the bundled mesh's, else 1000).
+    #[arg(long, value_name = "PA", value_parser = parse_young, allow_hyphen_values = true)]
+    pub young: Option<f64>,
+    /// Poisson's ratio, in (-1, 0.5) (default: the bundled mesh's, else 0.3).
+    #[arg(long, value_name = "NU", value_parser = parse_poisson, allow_hyphen_values = true)]
+    pub poisson: Option<f64>,
+}
+
+impl LoadArgs {
+    /// The mesh-loading options these flags name.
+    pub fn options(&self) -> LoadOptions {
+        LoadOptions {
+            unit: self.unit,
+            young_pa: self.young,
+            poisson: self.poisson,
+            fixed_group: self.fixed.clone(),
+        }
+    }
+}
+
+/// `touchfem poke` flags.
+#[derive(Args, Debug)]
+pub struct PokeArgs {
+    /// Mesh file or bundled name.
+    pub mesh: String,
+    /// The point to touch, X,Y,Z in mesh units (each at most 1e9 in magnitude).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub at: DVec3,
+    /// The finger's motion, DX,DY,DZ in mesh units (each at most 1e9 in magnitude).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub push: DVec3,
+    /// How to load the mesh.
+    #[command(flatten)]
+    pub load: LoadArgs,
+    /// Use the exact contact-point compliance instead of the paper's interpolation.
+    #[arg(long)]
+    pub exact: bool,
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
+    /// Write a VTK XML unstructured grid with displacement, force and fixed arrays.
+    #[arg(long)]
+    pub vtu: Option<PathBuf>,
+    /// Render the poke (deformed surface, finger and god-object) to this PNG (GPU; lavapipe
+    /// works).
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// Image size for --png, WxH pixels.
+    #[arg(long, default_value = "640x480", value_parser = parse_size)]
+    pub size: [u32; 2],
+    /// Surface colour for --png: by the displacement's magnitude with a legend in mm, or plain.
+    #[arg(long, value_enum, default_value_t = ColorArg::Displacement)]
+    pub color: ColorArg,
+    /// Camera for --png: the 3/4 view of the whole object, or the touched point from outside.
+    #[arg(long, value_enum, default_value_t = ViewArg::Auto)]
+    pub view: ViewArg,
+    /// Keep the precomputed compliance in this cache file (recomputed if stale or corrupt).
+    #[arg(long)]
+    pub cache: Option<PathBuf>,
+    /// Haptic ticks over which the finger moves, 1 to 1000000.
+    #[arg(long, default_value_t = 50, value_parser = parse_steps, allow_hyphen_values = true)]
+    pub steps: usize,
+}
+
+/// `--color`: how pictures colour the surface.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ColorArg {
+    /// By |u|, viridis, with a legend in mm.
+    Displacement,
+    /// One colour.
+    Plain,
+}
+
+/// `--view`: where a picture's camera looks from.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ViewArg {
+    /// The 3/4 view, the object filling the frame.
+    Auto,
+    /// The touched point from outside the surface.
+    Contact,
+}
+
+/// Parses "WxH" into an image size.
+pub fn parse_size(s: &str) -> Result<[u32; 2], String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected WxH, got '{s}'"))?;
+    let p = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|&n| (1..=16384).contains(&n))
+            .ok_or_else(|| format!("'{v}' is not a size in 1..=16384"))
+    };
+    Ok([p(w)?, p(h)?])
+}
+
+/// The largest magnitude [`parse_vec3`] accepts for a coordinate (mesh units).
+pub const MAX_COORDINATE: f64 = 1e9;
+
+/// Parses a number for a flag: finite and within `lo..=hi`, or strictly above `lo` when
+/// `lo_open` (clap's error then names the flag: `invalid value 'X' for '--flag <V>': ...`).
+fn parse_bounded(s: &str, lo: f64, hi: f64, lo_open: bool) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|e| format!("'{s}' is not a number: {e}"))?;
+    let above = if lo_open { v > lo } else { v >= lo };
+    if !(v.is_finite() && above && v <= hi) {
+        let open = if lo_open { '(' } else { '[' };
+        return Err(format!("{v} is outside {open}{lo}, {hi}]"));
+    }
+    Ok(v)
+}
+
+/// `serve --seconds`: a finite duration in (0, 1e6] seconds.
+pub fn parse_serve_seconds(s: &str) -> Result<f64, String> {
+    parse_bounded(s, 0.0, 1e6, true)
+}
+
+/// `demo --seconds`: a finite duration in (0, 3600] seconds.
+pub fn parse_demo_seconds(s: &str) -> Result<f64, String> {
+    parse_bounded(s, 0.0, 3600.0, true)
+}
+
+/// `serve --floor-seconds`: a finite duration in [0, 3600] seconds.
+pub fn parse_floor_seconds(s: &str) -> Result<f64, String> {
+    parse_bounded(s, 0.0, 3600.0, false)
+}
+
+/// `serve --watchdog-ms`: in (0, 60000] milliseconds.
+pub fn parse_watchdog_ms(s: &str) -> Result<f64, String> {
+    parse_bounded(s, 0.0, 60_000.0, true)
+}
+
+/// `--young`: Young's modulus in (0, 1e13] Pa.
+pub fn parse_young(s: &str) -> Result<f64, String> {
+    parse_bounded(s, 0.0, 1e13, true)
+}
+
+/// `--poisson`: Poisson's ratio in (-1, 0.5).
+pub fn parse_poisson(s: &str) -> Result<f64, String> {
+    match parse_bounded(s, -1.0, 0.5, true) {
+        Ok(v) if v < 0.5 => Ok(v),
+        Ok(v) => Err(format!("{v} is outside (-1, 0.5)")),
+        Err(e) if e.ends_with(']') => Err(e.replace(", 0.5]", ", 0.5)")),
+        Err(e) => Err(e),
+    }
+}
+
+/// `poke --steps`: 1 to 1000000 haptic ticks.
+pub fn parse_steps(s: &str) -> Result<usize, String> {
+    s.trim()
+        .parse::<usize>()
+        .ok()
+        .filter(|n| (1..=1_000_000).contains(n))
+        .ok_or_else(|| format!("'{s}' is not a whole number in 1..=1000000"))
+}
+
+/// Parses "x,y,z" into a finite vector, each component at most [`MAX_COORDINATE`] in
+/// magnitude.
+pub fn parse_vec3(s: &str) -> Result<DVec3, String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(format!("expected X,Y,Z, got '{s}'"));
+    }
+    let mut v = [0.0; 3];
+    for (o, p) in v.iter_mut().zip(&parts) {
+        *o = p
+            .parse::<f64>()
+            .map_err(|e| format!("'{p}' is not a number: {e}"))?;
+        if !o.is_finite() {
+            return Err(format!("'{p}' is not finite"));
+        }
+        if o.abs() > MAX_COORDINATE {
+            return Err(format!(
+                "'{p}' is larger than {MAX_COORDINATE:e} in magnitude"
+            ));
+        }
+    }
+    Ok(DVec3::from_array(v))
+}

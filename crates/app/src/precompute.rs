@@ -1,0 +1,167 @@
+//! `touchfem precompute`: a scene's or mesh's compliance into cache files, with a progress bar,
+//! shards and merging; Ctrl-C keeps the finished batches for a resume.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use touchfem_core::cache;
+use touchfem_core::compliance::Selection;
+use touchfem_core::precompute::precompute_to_file;
+use touchfem_core::scene::file::{cache_dir, cache_file, PlannedObject};
+use touchfem_core::scene::{load_mesh, SceneSource, World};
+use touchfem_core::Error;
+
+use crate::args::PrecomputeArgs;
+
+/// Set by SIGINT/SIGTERM during `touchfem precompute`: the batches in flight finish, the rest
+/// wait for a resume.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: libc::c_int) {
+    INTERRUPTED.store(true, Ordering::Relaxed);
+}
+
+/// The objects `spec` names: a scene's objects, or one mesh (loaded with `args.load`).
+fn objects(args: &PrecomputeArgs, spec: &str) -> Result<Vec<PlannedObject>, Error> {
+    if let Some(src) = SceneSource::find(spec)? {
+        return World::plan(&src);
+    }
+    let (mesh, _) = load_mesh(spec, &args.load.options())?;
+    let selection = Selection::default();
+    let key = cache::key(&mesh, &selection);
+    let name = Path::new(spec)
+        .file_stem()
+        .map_or(spec.into(), |s| s.to_string_lossy().into_owned());
+    Ok(vec![PlannedObject {
+        name,
+        mesh,
+        selection,
+        key,
+    }])
+}
+
+/// `touchfem precompute`. Ctrl-C (or SIGTERM) keeps the finished batches in `OUT.partial`;
+/// the same command again resumes from them.
+pub fn command(args: &PrecomputeArgs) -> Result<(), Error> {
+    let t0 = Instant::now();
+    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+    unsafe {
+        let h = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
+        libc::signal(libc::SIGINT, h);
+        libc::signal(libc::SIGTERM, h);
+    }
+    if !args.merge.is_empty() {
+        let out = args
+            .out
+            .as_ref()
+            .ok_or_else(|| Error::Input("--merge needs --out FILE".into()))?;
+        let m = cache::merge(&args.merge, out)?;
+        let seconds = t0.elapsed().as_secs_f64();
+        if args.json {
+            println!(
+                "{}",
+                serde_json::json!({
+                    "seconds": seconds, "rows": m.rows, "cols": m.cols, "bytes": m.bytes,
+                    "parts": args.merge.len(), "file": out,
+                })
+            );
+        } else {
+            println!(
+                "merged {} parts into {} ({} rows × {} columns, {} bytes) in {seconds:.2} s",
+                args.merge.len(),
+                out.display(),
+                m.rows,
+                m.cols,
+                m.bytes
+            );
+        }
+        return Ok(());
+    }
+    let spec = args
+        .scene
+        .as_deref()
+        .ok_or_else(|| Error::Input("name a scene or mesh (or --merge PART...)".into()))?;
+    let objs = objects(args, spec)?;
+    let shard = args.shard.unwrap_or((1, 1));
+    let suffix = |p: PathBuf| -> PathBuf {
+        if shard.1 == 1 {
+            return p;
+        }
+        let mut s = p.into_os_string();
+        s.push(format!(".part-{}-of-{}", shard.0, shard.1));
+        PathBuf::from(s)
+    };
+    let mut reports = Vec::new();
+    for o in &objs {
+        let out = match (&args.out, objs.len()) {
+            (Some(f), 1) => f.clone(),
+            (Some(dir), _) => suffix(cache_file(dir, &o.name, o.key)),
+            (None, _) => {
+                let dir = cache_dir().ok_or_else(|| {
+                    Error::Input(
+                        "caching is off (TOUCHFEM_CACHE_DIR is empty): give --out FILE".into(),
+                    )
+                })?;
+                suffix(cache_file(&dir, &o.name, o.key))
+            }
+        };
+        let bar = progress_bar(o.mesh.nodes.len());
+        let r = precompute_to_file(
+            &o.mesh,
+            &o.selection,
+            &out,
+            shard,
+            &mut |done, total| {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+            },
+            &INTERRUPTED,
+        )?;
+        bar.finish_and_clear();
+        if !args.json {
+            println!(
+                "{}: {} rows × columns {}..{} of {} in {:.2} s ({:.0} MB) -> {}",
+                o.name,
+                r.rows,
+                r.col_begin,
+                r.col_end,
+                r.cols,
+                r.seconds,
+                r.bytes as f64 / 1e6,
+                r.file.display()
+            );
+        }
+        reports.push(r);
+    }
+    if args.json {
+        let v = serde_json::json!({
+            "seconds": t0.elapsed().as_secs_f64(),
+            "rows": reports.iter().map(|r| r.rows).sum::<usize>(),
+            "cols": reports.iter().map(|r| r.cols).sum::<usize>(),
+            "bytes": reports.iter().map(|r| r.bytes).sum::<u64>(),
+            "shard": [shard.0, shard.1],
+            "objects": reports,
+            "units": {"seconds": "s", "bytes": "B"},
+        });
+        println!("{v}");
+    }
+    Ok(())
+}
+
+/// A progress bar with an ETA on a terminal for large meshes; hidden otherwise.
+fn progress_bar(nodes: usize) -> indicatif::ProgressBar {
+    use std::io::IsTerminal;
+    let bar = if std::io::stderr().is_terminal() && nodes > 5000 {
+        indicatif::ProgressBar::new(0)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "precompute {bar:40} {pos}/{len} columns, {elapsed} elapsed, ETA {eta}",
+        )
+        .expect("valid template"),
+    );
+    bar
+}

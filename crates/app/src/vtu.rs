@@ -1,0 +1,71 @@
+//! VTK XML UnstructuredGrid output (readable by ParaView and meshio): the tets with point arrays
+//! `displacement` (m), `force` (N, the external nodal force applied) and `fixed` (1 on clamped
+//! nodes). Points in metres.
+
+use glam::DVec3;
+use std::fmt::Write as _;
+use std::path::Path;
+
+use touchfem_core::mesh::Mesh;
+
+/// Writes the mesh with its displacement and applied nodal forces (one entry per node).
+pub fn write_vtu(
+    path: &Path,
+    mesh: &Mesh,
+    displacement: &[DVec3],
+    force: &[DVec3],
+) -> Result<(), touchfem_core::Error> {
+    let n = mesh.nodes.len();
+    if displacement.len() != n || force.len() != n {
+        return Err(touchfem_core::Error::Input(format!(
+            "vtu: {n} nodes but {} displacements and {} forces",
+            displacement.len(),
+            force.len()
+        )));
+    }
+    let mut s = String::with_capacity(200 * n + 64 * mesh.tets.len());
+    s.push_str("<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n<UnstructuredGrid>\n");
+    let _ = writeln!(
+        s,
+        "<Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{}\">",
+        mesh.tets.len()
+    );
+    s.push_str(
+        "<Points>\n<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n",
+    );
+    for p in &mesh.nodes {
+        let _ = writeln!(s, "{:e} {:e} {:e}", p.x, p.y, p.z);
+    }
+    s.push_str("</DataArray>\n</Points>\n<Cells>\n<DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n");
+    for t in &mesh.tets {
+        let _ = writeln!(s, "{} {} {} {}", t[0], t[1], t[2], t[3]);
+    }
+    s.push_str("</DataArray>\n<DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">\n");
+    for i in 0..mesh.tets.len() {
+        let _ = writeln!(s, "{}", 4 * (i + 1));
+    }
+    s.push_str("</DataArray>\n<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">\n");
+    for _ in 0..mesh.tets.len() {
+        s.push_str("10\n");
+    }
+    s.push_str("</DataArray>\n</Cells>\n<PointData Vectors=\"displacement\">\n");
+    for (name, v) in [("displacement", displacement), ("force", force)] {
+        let _ = writeln!(
+            s,
+            "<DataArray type=\"Float64\" Name=\"{name}\" NumberOfComponents=\"3\" format=\"ascii\">"
+        );
+        for p in v {
+            let _ = writeln!(s, "{:e} {:e} {:e}", p.x, p.y, p.z);
+        }
+        s.push_str("</DataArray>\n");
+    }
+    s.push_str("<DataArray type=\"Int32\" Name=\"fixed\" format=\"ascii\">\n");
+    for &f in &mesh.fixed {
+        s.push_str(if f { "1\n" } else { "0\n" });
+    }
+    s.push_str("</DataArray>\n</PointData>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
+    std::fs::write(path, s).map_err(|source| touchfem_core::Error::Write {
+        path: path.to_path_buf(),
+        source,
+    })
+}

@@ -1,0 +1,149 @@
+//! `touchfem view`: loads the scene, starts the haptic loop and runs the window.
+
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+
+use super::WindowOptions;
+use touchfem_core::devices::pointer::{PointerDevice, PointerShared};
+use touchfem_core::devices::{HapticDevice, KeyframePath};
+use touchfem_core::runtime::{
+    join_haptic, run_haptic, sample_channel, session, DoneGuard, LiveStatus,
+};
+use touchfem_core::scene::{DeviceSpec, World};
+use touchfem_core::Error;
+
+/// The devices of a scene's fingers in `view`: the first `pointer` finger is the window's
+/// pointer, scripted fingers follow their paths; other devices are refused.
+fn devices(
+    world: &World,
+    pointer: &Arc<PointerShared>,
+) -> Result<Vec<Box<dyn HapticDevice>>, Error> {
+    let mut out: Vec<Box<dyn HapticDevice>> = Vec::new();
+    let mut pointers = 0;
+    for (i, f) in world.fingers.iter().enumerate() {
+        match &f.device {
+            DeviceSpec::Pointer if pointers == 0 => {
+                pointers += 1;
+                out.push(Box::new(PointerDevice(pointer.clone())));
+            }
+            DeviceSpec::Script(keys) => out.push(Box::new(
+                KeyframePath::new(keys.clone())
+                    .ok_or_else(|| Error::Scene(format!("finger {}: bad path", i + 1)))?,
+            )),
+            other => {
+                return Err(Error::Scene(format!(
+                    "scene '{}': finger {} uses device {other:?}, which `view` cannot drive (one pointer finger, and scripted ones)",
+                    world.name,
+                    i + 1
+                )))
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Runs `touchfem view SCENE|MESH`: the window on the main thread (the visual core), the
+/// haptic loop ([`run_haptic`], the same as the demo's) on its own thread (the haptic core),
+/// lavapipe inline on its queue thread (`LP_NUM_THREADS=0` unless set). A mesh is shown as a
+/// one-object scene touched by the pointer. `--record FILE` records the session. Prints the
+/// window's summary.
+pub fn view_command(args: &crate::args::ViewArgs) -> Result<(), Error> {
+    super::check_env()?;
+    if std::env::var_os("LP_NUM_THREADS").is_none() {
+        std::env::set_var("LP_NUM_THREADS", "0");
+    }
+    // One finger and a large L: only its near blocks on the host (`Hold::Live`).
+    let world = World::load_live(&args.scene, "pointer")?;
+    let pointer = Arc::new(PointerShared::default());
+    let mut devs = devices(&world, &pointer)?;
+    let has_pointer = world
+        .fingers
+        .iter()
+        .any(|f| matches!(f.device, DeviceSpec::Pointer));
+    let placement = touchfem_core::threads::VisualPlacement::split();
+    // The recorder's writer thread starts on the visual core, away from the haptic loop's.
+    placement.enter_visual();
+    let mut recording = match &args.record {
+        Some(path) => Some(session::record(path, &world)?),
+        None => None,
+    };
+    let (mut writer, reader) = sample_channel();
+    let status = LiveStatus::default();
+    let opts = WindowOptions {
+        size: args.size,
+        title: format!("touchfem view: {}", world.name),
+        colors: args.color == crate::args::ColorArg::Displacement,
+    };
+    let (result, haptic) = std::thread::scope(|s| {
+        let haptic = s.spawn(|| {
+            let _done = DoneGuard(&status);
+            placement.enter_haptic();
+            // After the window's upload of `L` (or its failure, which sets `stop`).
+            status.wait_visual_ready();
+            let realtime = touchfem_core::threads::try_realtime_priority();
+            let rec = recording.as_mut().map(|r| &mut r.0);
+            let mut run = run_haptic(&world, &mut devs, None, &mut writer, &status, rec);
+            run.stats.realtime = realtime;
+            run
+        });
+        placement.enter_visual();
+        let r = super::run(
+            &world,
+            reader,
+            &status,
+            has_pointer.then(|| pointer.clone()),
+            &opts,
+        );
+        status.stop.store(true, Ordering::SeqCst);
+        let joined = join_haptic(haptic);
+        placement.leave();
+        (r, joined)
+    });
+    let run = haptic?;
+    let summary = result?;
+    if let Some((rec, writer)) = recording {
+        drop(rec);
+        let ticks = writer
+            .join()
+            .map_err(|_| Error::Input("the session writer panicked".into()))??;
+        eprintln!(
+            "recorded {ticks} ticks to {}",
+            args.record.as_ref().expect("recording").display()
+        );
+    }
+    println!(
+        "touchfem view: {} frames in {:.1} s, median frame {:.2} ms, haptic {:.0} Hz ({} missed), max |F| {:.3} N",
+        summary.frames,
+        summary.seconds,
+        summary.frame_ms_median,
+        run.stats.haptic_rate_hz,
+        run.stats.missed_deadlines,
+        summary.max_force_n
+    );
+    Ok(())
+}
+
+/// `touchfem serve … --view`: the UDP fingers' haptic loop ([`touchfem_core::runtime::serve`]) with
+/// the window as its visual loop (on this thread; it closes when the loop ends, and closing it
+/// ends the loop).
+pub fn serve_view(
+    world: &World,
+    opts: &touchfem_core::runtime::serve::ServeOptions,
+    stop: &std::sync::atomic::AtomicBool,
+    size: [u32; 2],
+    bound: impl FnOnce(std::net::SocketAddr),
+) -> Result<touchfem_core::runtime::serve::ServeReport, Error> {
+    super::check_env()?;
+    if std::env::var_os("LP_NUM_THREADS").is_none() {
+        std::env::set_var("LP_NUM_THREADS", "0");
+    }
+    let wopts = WindowOptions {
+        size,
+        title: format!("touchfem serve: {}", world.name),
+        colors: true,
+    };
+    touchfem_core::runtime::serve::serve_with(world, opts, stop, bound, |reader, status| {
+        super::run(world, reader, status, None, &wopts)?;
+        Ok(())
+    })
+}

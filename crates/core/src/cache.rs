@@ -1,0 +1,1255 @@
+//! A cache file for the precomputed compliance, so that the factorisation and solves run once.
+//!
+//! Format (little-endian), version 3. A file holds the columns `col_begin..col_end` of L: all of
+//! them for a complete cache, one part of them for a shard (`touchfem precompute --shard I/N`).
+//! ```text
+//! magic        8 bytes  "TFEMCMP\0"
+//! version      u32      3
+//! precision    u32      8 (f64 values)
+//! n_nodes      u32
+//! rows         u32      R
+//! cols         u32      C
+//! batch        u32      columns per batch (compliance::BATCH_COLS)
+//! key          u64      xxh3 of mesh nodes + tets + material + fixed set + row/column selection
+//! shard        u32 ×2   index I (1-based) and count N; a complete file is 1 of 1
+//! col range    u32 ×2   col_begin, col_end (on the batch grid)
+//! free_dofs    u32
+//! l_rows       u32      R' ≤ R: the rows that hold L (the free ones, listed first); the
+//!                       clamped rows after them are zero and not stored
+//! residual     f64      max |K·x − e| over the checked columns
+//! lists        R u32 row nodes, C u32 column nodes (all of them, also in a shard)
+//! L            9·R'·(col_end − col_begin) f64 (layout of `compliance`, those columns only)
+//! batch sums   one u64 per batch of the range: xxh3 of that batch's L bytes
+//! checksum     u64      xxh3 of header + lists + batch sums
+//! ```
+//! Every file is self-describing (the key names the mesh, material and selection), so a merge of
+//! parts made for different meshes, materials or selections is refused ([`CacheError::Mismatch`]).
+//! A missing, stale (other key), truncated or corrupt (bad checksum) file is reported as a
+//! [`CacheError`] and [`load_or_compute`] recomputes and rewrites it; nothing stale is used.
+//! Files are written to a unique temporary name, synced, renamed, and the directory synced.
+
+use std::path::{Path, PathBuf};
+use thiserror::Error;
+use xxhash_rust::xxh3::{xxh3_64, Xxh3};
+
+use crate::compliance::{Compliance, Selection, BATCH_COLS};
+use crate::mesh::Mesh;
+use crate::near::NearBlocks;
+
+const MAGIC: &[u8; 8] = b"TFEMCMP\0";
+/// The cache format version this build reads and writes.
+pub const FORMAT_VERSION: u32 = 3;
+const HEADER: usize = 72;
+/// Version of what [`key`] hashes (not of the file layout, which the header's version names):
+/// scene hashes and recorded sessions include the key, so it changes only when the hashed
+/// content does.
+const KEY_VERSION: u32 = 1;
+
+/// Why a cache file was not used.
+#[derive(Debug, Error)]
+pub enum CacheError {
+    /// No file, or it cannot be read or written.
+    #[error("cache {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// Not a touchfem cache, or another format version or precision.
+    #[error("cache {path}: {msg}")]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        msg: String,
+    },
+    /// Made for another mesh, material, clamp set or selection.
+    #[error("cache {path} is stale (made for another mesh, material or selection)")]
+    Stale {
+        /// The file.
+        path: PathBuf,
+    },
+    /// Shorter than its header says.
+    #[error("cache {path} is truncated ({len} bytes, expected {expected})")]
+    Truncated {
+        /// The file.
+        path: PathBuf,
+        /// Its length.
+        len: usize,
+        /// The length the header implies.
+        expected: usize,
+    },
+    /// The checksum does not match, or the header's sizes contradict each other.
+    #[error("cache {path} is corrupt ({why})")]
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong ("checksum mismatch", or the header's inconsistency).
+        why: String,
+    },
+    /// A shard (part of the columns) where a complete file is needed.
+    #[error("{path} is part {index} of {count} of a sharded precompute: merge the parts first (touchfem precompute --merge)")]
+    Partial {
+        /// The file.
+        path: PathBuf,
+        /// Its shard index (1-based).
+        index: u32,
+        /// The shard count.
+        count: u32,
+    },
+    /// Parts that do not belong together (another mesh, material or selection; a missing,
+    /// repeated or overlapping part).
+    #[error("cannot merge {path}: {msg}")]
+    Mismatch {
+        /// The offending part.
+        path: PathBuf,
+        /// What does not match.
+        msg: String,
+    },
+}
+
+/// What happened when loading through the cache.
+#[derive(Debug)]
+pub enum CacheOutcome {
+    /// The file was valid and used.
+    Hit,
+    /// The file could not be used (the reason), so L was recomputed and the file rewritten.
+    Recomputed(CacheError),
+    /// L was computed (the first error says why the file could not be used) but the file could
+    /// not be written (the second): the compliance is kept in memory and the session goes on.
+    NotSaved(CacheError, CacheError),
+}
+
+impl CacheOutcome {
+    /// A one-line note (`note: …`) or warning (`warning: …`) for the user; `None` on a hit.
+    pub fn message(&self) -> Option<String> {
+        match self {
+            CacheOutcome::Hit => None,
+            CacheOutcome::Recomputed(why) => Some(format!("note: compliance recomputed ({why})")),
+            CacheOutcome::NotSaved(_, e) => Some(format!(
+                "warning: the compliance cache could not be written ({e}); going on with the computed compliance"
+            )),
+        }
+    }
+}
+
+/// A temporary file name next to `path`, unique to this process, thread and call.
+fn unique_tmp(path: &Path) -> std::path::PathBuf {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static N: AtomicU64 = AtomicU64::new(0);
+    let n = N.fetch_add(1, Ordering::Relaxed);
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos());
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(format!(".{}.{n}.{nanos:08x}.tmp", std::process::id()));
+    path.with_file_name(name)
+}
+
+/// A file written under a temporary name next to its final one and renamed over it only when
+/// complete ([`AtomicFile::commit`]), so that nothing truncates or half-writes the file it
+/// replaces; dropped without a commit, the temporary is removed and the old file is untouched.
+/// A target that exists and is not a regular file (a device such as `/dev/null`, a pipe) is
+/// written in place; a symbolic link's target is replaced, the link kept.
+pub struct AtomicFile {
+    path: PathBuf,
+    tmp: Option<PathBuf>,
+    file: std::fs::File,
+    committed: bool,
+}
+
+impl AtomicFile {
+    /// Starts writing `path` (its directory must exist).
+    pub fn create(path: &Path) -> std::io::Result<AtomicFile> {
+        let (path, in_place) = match std::fs::metadata(path) {
+            Ok(m) if !m.is_file() => (path.to_path_buf(), true),
+            // Replace what a link points to, not the link.
+            Ok(_) => (
+                std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf()),
+                false,
+            ),
+            Err(_) => (path.to_path_buf(), false),
+        };
+        if in_place {
+            let file = std::fs::OpenOptions::new().write(true).open(&path)?;
+            return Ok(AtomicFile {
+                path,
+                tmp: None,
+                file,
+                committed: false,
+            });
+        }
+        let tmp = unique_tmp(&path);
+        let file = std::fs::File::create_new(&tmp)?;
+        Ok(AtomicFile {
+            path,
+            tmp: Some(tmp),
+            file,
+            committed: false,
+        })
+    }
+
+    /// Syncs the file and renames it to its final name (then syncs the directory).
+    pub fn commit(mut self) -> std::io::Result<()> {
+        use std::io::Write;
+        self.file.flush()?;
+        if let Some(tmp) = &self.tmp {
+            self.file.sync_all()?;
+            std::fs::rename(tmp, &self.path)?;
+            self.committed = true;
+            sync_dir(&self.path)?;
+        }
+        self.committed = true;
+        Ok(())
+    }
+}
+
+impl std::io::Write for AtomicFile {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.file.write(buf)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.file.flush()
+    }
+}
+
+impl Drop for AtomicFile {
+    fn drop(&mut self) {
+        if let (false, Some(tmp)) = (self.committed, &self.tmp) {
+            let _ = std::fs::remove_file(tmp);
+        }
+    }
+}
+
+/// Writes `bytes` to `path` through an [`AtomicFile`]: `path` holds either its old content or
+/// all of `bytes`, never a part.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut f = AtomicFile::create(path)?;
+    f.write_all(bytes)?;
+    f.commit()
+}
+
+/// The hash that a cache file must match: mesh geometry and topology, material, clamp set and
+/// the row/column selection.
+pub fn key(mesh: &Mesh, sel: &Selection) -> u64 {
+    let mut h = Xxh3::new();
+    h.update(&KEY_VERSION.to_le_bytes());
+    for p in &mesh.nodes {
+        for c in p.to_array() {
+            h.update(&c.to_bits().to_le_bytes());
+        }
+    }
+    for t in &mesh.tets {
+        for i in t {
+            h.update(&i.to_le_bytes());
+        }
+    }
+    h.update(&mesh.material.young_pa.to_bits().to_le_bytes());
+    h.update(&mesh.material.poisson.to_bits().to_le_bytes());
+    for &f in &mesh.fixed {
+        h.update(&[f as u8]);
+    }
+    for set in [&sel.rows, &sel.cols] {
+        h.update(b"|");
+        for n in set.resolve(mesh) {
+            h.update(&n.to_le_bytes());
+        }
+    }
+    h.digest()
+}
+
+/// The header of a cache file or shard: what it was made for and which columns it holds.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Header {
+    /// Mesh node count.
+    pub n_nodes: u32,
+    /// Displayed nodes R.
+    pub rows: u32,
+    /// Touchable nodes C (all of them, also in a shard).
+    pub cols: u32,
+    /// Columns per batch.
+    pub batch: u32,
+    /// Mesh + material + selection hash ([`key`]).
+    pub key: u64,
+    /// Shard index, 1-based.
+    pub shard_index: u32,
+    /// Shard count (1: a complete file).
+    pub shard_count: u32,
+    /// First column held.
+    pub col_begin: u32,
+    /// One past the last column held.
+    pub col_end: u32,
+    /// Free DOFs of K.
+    pub free_dofs: u32,
+    /// Rows that hold `L` (the first ones; the clamped rows after them are not stored).
+    pub l_rows: u32,
+    /// max |K·x − e| over the checked columns held.
+    pub residual_bits: u64,
+}
+
+impl Header {
+    fn to_bytes(&self) -> [u8; HEADER] {
+        let mut h = [0u8; HEADER];
+        h[..8].copy_from_slice(MAGIC);
+        let mut put = |o: usize, v: u32| h[o..o + 4].copy_from_slice(&v.to_le_bytes());
+        put(8, FORMAT_VERSION);
+        put(12, 8);
+        put(16, self.n_nodes);
+        put(20, self.rows);
+        put(24, self.cols);
+        put(28, self.batch);
+        put(40, self.shard_index);
+        put(44, self.shard_count);
+        put(48, self.col_begin);
+        put(52, self.col_end);
+        put(56, self.free_dofs);
+        put(60, self.l_rows);
+        h[32..40].copy_from_slice(&self.key.to_le_bytes());
+        h[64..72].copy_from_slice(&self.residual_bits.to_le_bytes());
+        h
+    }
+
+    fn held_batches(&self) -> usize {
+        self.col_end
+            .saturating_sub(self.col_begin)
+            .div_ceil(self.batch.max(1)) as usize
+    }
+
+    /// Bytes of the L values held (only for a header that passed [`Header::checked_file_len`]).
+    fn l_bytes(&self) -> u64 {
+        72 * self.l_rows as u64 * self.col_end.saturating_sub(self.col_begin) as u64
+    }
+
+    /// Byte offset of held batch `i`.
+    fn batch_offset(&self, i: usize) -> u64 {
+        HEADER as u64
+            + self.lists_len() as u64
+            + 72 * self.l_rows as u64 * (i as u64 * self.batch as u64)
+    }
+
+    /// Total file length the header implies (only for a header that passed
+    /// [`Header::checked_file_len`]).
+    fn file_len(&self) -> u64 {
+        HEADER as u64
+            + 4 * (self.rows as u64 + self.cols as u64)
+            + self.l_bytes()
+            + 8 * self.held_batches() as u64
+            + 8
+    }
+
+    /// What is wrong with the header's sizes, if anything: the column range must lie in
+    /// `0..=cols` on the batch grid, `l_rows ≤ rows`, the shard index in `1..=count`.
+    fn inconsistency(&self) -> Option<String> {
+        let grid = |c: u32| self.batch != 0 && (c.is_multiple_of(self.batch) || c == self.cols);
+        if self.batch == 0 {
+            Some("a batch of 0 columns".into())
+        } else if self.l_rows > self.rows {
+            Some(format!("{} rows of L, {} rows", self.l_rows, self.rows))
+        } else if self.col_begin > self.col_end || self.col_end > self.cols {
+            Some(format!(
+                "columns {}..{} of {}",
+                self.col_begin, self.col_end, self.cols
+            ))
+        } else if !grid(self.col_begin) || !grid(self.col_end) {
+            Some(format!(
+                "columns {}..{} are not on the grid of {}-column batches",
+                self.col_begin, self.col_end, self.batch
+            ))
+        } else if self.shard_index == 0 || self.shard_index > self.shard_count {
+            Some(format!("part {} of {}", self.shard_index, self.shard_count))
+        } else {
+            None
+        }
+    }
+
+    /// The total file length the header implies, computed without overflow; `None` if the
+    /// header is inconsistent ([`Header::inconsistency`]) or the length does not fit a `u64`.
+    fn checked_file_len(&self) -> Option<u64> {
+        if self.inconsistency().is_some() {
+            return None;
+        }
+        let held = (self.col_end - self.col_begin) as u64;
+        let l = 72u64.checked_mul(self.l_rows as u64)?.checked_mul(held)?;
+        (HEADER as u64)
+            .checked_add(4 * (self.rows as u64 + self.cols as u64))?
+            .checked_add(l)?
+            .checked_add(8 * self.held_batches() as u64)?
+            .checked_add(8)
+    }
+
+    fn lists_len(&self) -> usize {
+        4 * (self.rows as usize + self.cols as usize)
+    }
+
+    /// The column range held.
+    pub fn col_range(&self) -> std::ops::Range<usize> {
+        self.col_begin as usize..self.col_end as usize
+    }
+}
+
+/// A cache file or shard being written: a unique temporary file of the final size, filled
+/// batch by batch (from any thread, in any order), then checksummed, synced and renamed.
+/// Dropped without [`Writer::finish`], the temporary is removed.
+pub struct Writer {
+    path: PathBuf,
+    tmp: PathBuf,
+    file: std::fs::File,
+    head: Header,
+    lists: Vec<u8>,
+    sums: std::sync::Mutex<Vec<Option<u64>>>,
+    done: bool,
+}
+
+fn sync_dir(path: &Path) -> std::io::Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    std::fs::File::open(dir)?.sync_all()
+}
+
+/// Asks the kernel to start writing `len` bytes at `off` to disk now, without waiting, so
+/// that the final sync of a multi-gigabyte file finds little left to write. Advisory: the
+/// final `sync_all` is what guarantees the data.
+fn start_writeback(file: &std::fs::File, off: u64, len: usize) {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::fd::AsRawFd;
+        // SAFETY: a valid open descriptor; the call only schedules writeback of its pages.
+        unsafe {
+            libc::sync_file_range(
+                file.as_raw_fd(),
+                off as libc::off64_t,
+                len as libc::off64_t,
+                libc::SYNC_FILE_RANGE_WRITE,
+            );
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = (file, off, len);
+}
+
+impl Writer {
+    /// Starts writing `head` with the row and column node lists to `path`.
+    pub fn create(
+        path: &Path,
+        head: Header,
+        rows: &[u32],
+        cols: &[u32],
+    ) -> Result<Writer, CacheError> {
+        let io = |source| CacheError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let Some(len) = head.checked_file_len() else {
+            return Err(CacheError::Format {
+                path: path.to_path_buf(),
+                msg: format!(
+                    "cannot write a file of {} rows ({} of L) and {} columns: {}",
+                    head.rows,
+                    head.l_rows,
+                    head.cols,
+                    head.inconsistency()
+                        .unwrap_or_else(|| "its length does not fit 64 bits".into())
+                ),
+            });
+        };
+        if rows.len() != head.rows as usize || cols.len() != head.cols as usize {
+            return Err(CacheError::Format {
+                path: path.to_path_buf(),
+                msg: format!(
+                    "{} row and {} column nodes for a header of {} and {}",
+                    rows.len(),
+                    cols.len(),
+                    head.rows,
+                    head.cols
+                ),
+            });
+        }
+        if let Some(dir) = path.parent() {
+            if !dir.as_os_str().is_empty() {
+                std::fs::create_dir_all(dir).map_err(io)?;
+            }
+        }
+        let mut lists = Vec::with_capacity(4 * (rows.len() + cols.len()));
+        for &v in rows.iter().chain(cols) {
+            lists.extend_from_slice(&v.to_le_bytes());
+        }
+        let tmp = unique_tmp(path);
+        let file = std::fs::File::create_new(&tmp).map_err(io)?;
+        let w = Writer {
+            path: path.to_path_buf(),
+            tmp,
+            file,
+            sums: std::sync::Mutex::new(vec![None; head.held_batches()]),
+            head,
+            lists,
+            done: false,
+        };
+        use std::os::unix::fs::FileExt;
+        (|| {
+            w.file.set_len(len)?;
+            w.file.write_all_at(&w.head.to_bytes(), 0)?;
+            w.file.write_all_at(&w.lists, HEADER as u64)
+        })()
+        .map_err(io)?;
+        Ok(w)
+    }
+
+    /// Writes the held batch `i` (0-based within the file's range): `values` are its
+    /// `9·R'·columns` f64 ([`Header::l_rows`]). Callable from several threads.
+    pub fn write_batch(&self, i: usize, values: &[f64]) -> Result<(), CacheError> {
+        use std::os::unix::fs::FileExt;
+        let h = &self.head;
+        let held = h.held_batches();
+        let want = if i < held {
+            let first = h.col_begin as usize + i * h.batch as usize;
+            9 * h.l_rows as usize * (h.col_end as usize - first).min(h.batch as usize)
+        } else {
+            0
+        };
+        if i >= held || values.len() != want {
+            return Err(CacheError::Format {
+                path: self.path.clone(),
+                msg: format!(
+                    "batch {i} of {held} with {} values, expected {want}",
+                    values.len()
+                ),
+            });
+        }
+        let bytes: &[u8] = bytemuck::cast_slice(values);
+        let off = self.head.batch_offset(i);
+        self.file
+            .write_all_at(bytes, off)
+            .map_err(|source| CacheError::Io {
+                path: self.path.clone(),
+                source,
+            })?;
+        start_writeback(&self.file, off, bytes.len());
+        let sum = xxh3_64(bytes);
+        self.sums.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(sum);
+        Ok(())
+    }
+
+    /// Reads rows `r0 .. r0 + out.len()` of DOF column `q` (counted from the file's first
+    /// column) as written so far.
+    pub fn read_column(&self, q: usize, r0: usize, out: &mut [f64]) -> Result<(), CacheError> {
+        use std::os::unix::fs::FileExt;
+        let off =
+            self.head.batch_offset(0) + 8 * (q as u64 * 3 * self.head.l_rows as u64 + r0 as u64);
+        self.file
+            .read_exact_at(bytemuck::cast_slice_mut(out), off)
+            .map_err(|source| CacheError::Io {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    /// Continues an interrupted write of the same `head` from `partial` (left by
+    /// [`Writer::keep_partial`]): its complete batches (checksums verified) are kept. Returns the
+    /// writer, the held batches already done and the residual over them. `None` if `partial`
+    /// does not exist; an error if it was made for another mesh, selection or shard.
+    pub fn resume(
+        path: &Path,
+        partial: &Path,
+        head: &Header,
+    ) -> Result<Option<(Writer, Vec<bool>, f64)>, CacheError> {
+        if !partial.exists() {
+            return Ok(None);
+        }
+        let part = Part::open(partial)?;
+        let same = Header {
+            residual_bits: head.residual_bits,
+            ..part.head.clone()
+        };
+        if &same != head {
+            return Err(CacheError::Mismatch {
+                path: partial.to_path_buf(),
+                msg: "an interrupted precompute of another mesh, material, selection or shard:                       delete it to start afresh"
+                    .into(),
+            });
+        }
+        let mut done = vec![false; part.batches()];
+        let mut sums = vec![None; part.batches()];
+        let mut buf = Vec::new();
+        for (i, d) in done.iter_mut().enumerate() {
+            if part.sums[i] != 0 && part.read_batch(i, &mut buf).is_ok() {
+                *d = true;
+                sums[i] = Some(part.sums[i]);
+            }
+        }
+        let residual = f64::from_bits(part.head.residual_bits);
+        let mut lists = Vec::with_capacity(4 * (part.rows.len() + part.cols.len()));
+        for &v in part.rows.iter().chain(&part.cols) {
+            lists.extend_from_slice(&v.to_le_bytes());
+        }
+        drop(part);
+        let io = |source| CacheError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let tmp = unique_tmp(path);
+        std::fs::rename(partial, &tmp).map_err(io)?;
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(&tmp)
+            .map_err(io)?;
+        Ok(Some((
+            Writer {
+                path: path.to_path_buf(),
+                tmp,
+                file,
+                head: head.clone(),
+                lists,
+                sums: std::sync::Mutex::new(sums),
+                done: false,
+            },
+            done,
+            residual,
+        )))
+    }
+
+    /// Stops an interrupted write: the batches written so far stay in `partial` (a valid file
+    /// whose missing batches have checksum 0), from which [`Writer::resume`] continues.
+    pub fn keep_partial(mut self, partial: &Path) -> Result<(), CacheError> {
+        let sums: Vec<u64> = self
+            .sums
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .map(|s| s.unwrap_or(0))
+            .collect();
+        let tmp = self.tmp.clone();
+        self.write_tail(&sums)?;
+        std::fs::rename(&tmp, partial).map_err(|source| CacheError::Io {
+            path: partial.to_path_buf(),
+            source,
+        })?;
+        self.done = true;
+        sync_dir(partial).map_err(|source| CacheError::Io {
+            path: partial.to_path_buf(),
+            source,
+        })
+    }
+
+    /// Writes header, batch sums and checksum, and syncs the file.
+    fn write_tail(&self, sums: &[u64]) -> Result<(), CacheError> {
+        use std::os::unix::fs::FileExt;
+        let io = |source| CacheError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        let mut table = Vec::with_capacity(8 * sums.len());
+        for s in sums {
+            table.extend_from_slice(&s.to_le_bytes());
+        }
+        let head = self.head.to_bytes();
+        let mut h = Xxh3::new();
+        h.update(&head);
+        h.update(&self.lists);
+        h.update(&table);
+        let l_end = HEADER as u64 + self.lists.len() as u64 + self.head.l_bytes();
+        self.file.write_all_at(&head, 0).map_err(io)?;
+        self.file.write_all_at(&table, l_end).map_err(io)?;
+        self.file
+            .write_all_at(&h.digest().to_le_bytes(), l_end + table.len() as u64)
+            .map_err(io)?;
+        self.file.sync_all().map_err(io)
+    }
+
+    /// Sets the residual stored in the header.
+    pub fn set_residual(&mut self, residual: f64) {
+        self.head.residual_bits = residual.to_bits();
+    }
+
+    /// Writes the checksums, syncs, renames to the final name and syncs the directory. Fails
+    /// if a batch was not written.
+    pub fn finish(mut self) -> Result<u64, CacheError> {
+        let io = |source| CacheError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        let sums = std::mem::take(&mut *self.sums.lock().unwrap_or_else(|e| e.into_inner()));
+        let mut table = Vec::with_capacity(sums.len());
+        for (i, s) in sums.iter().enumerate() {
+            table.push(s.ok_or_else(|| CacheError::Format {
+                path: self.path.clone(),
+                msg: format!("batch {i} was never written"),
+            })?);
+        }
+        self.write_tail(&table)?;
+        std::fs::rename(&self.tmp, &self.path).map_err(io)?;
+        self.done = true;
+        sync_dir(&self.path).map_err(io)?;
+        Ok(self.head.file_len())
+    }
+}
+
+impl Drop for Writer {
+    fn drop(&mut self) {
+        if !self.done {
+            let _ = std::fs::remove_file(&self.tmp);
+        }
+    }
+}
+
+/// Writes a complete compliance to `path` (atomically: a unique temporary file, synced, then a
+/// rename and a sync of the directory).
+pub fn save(path: &Path, c: &Compliance, key: u64, n_nodes: usize) -> Result<(), CacheError> {
+    let nr = c.l_rows();
+    let nc = c.cols().len();
+    let head = Header {
+        n_nodes: n_nodes as u32,
+        rows: c.rows().len() as u32,
+        l_rows: nr as u32,
+        cols: nc as u32,
+        batch: BATCH_COLS as u32,
+        key,
+        shard_index: 1,
+        shard_count: 1,
+        col_begin: 0,
+        col_end: nc as u32,
+        free_dofs: c.stats.free_dofs as u32,
+        residual_bits: c.stats.residual.to_bits(),
+    };
+    let w = Writer::create(path, head, c.rows(), c.cols())?;
+    let l = c.l_f64();
+    for (i, chunk) in l.chunks(9 * nr * BATCH_COLS).enumerate() {
+        w.write_batch(i, chunk)?;
+    }
+    w.finish().map(|_| ())
+}
+
+fn u32_at(b: &[u8], o: usize) -> u32 {
+    u32::from_le_bytes(b[o..o + 4].try_into().expect("4 bytes"))
+}
+fn u64_at(b: &[u8], o: usize) -> u64 {
+    u64::from_le_bytes(b[o..o + 8].try_into().expect("8 bytes"))
+}
+
+/// An opened cache file or shard whose header, lists and checksum table were checked; the L
+/// values are read (and checked batch by batch) on demand.
+pub struct Part {
+    /// The file.
+    pub path: PathBuf,
+    /// Its header.
+    pub head: Header,
+    /// Row nodes.
+    pub rows: Vec<u32>,
+    /// Column nodes.
+    pub cols: Vec<u32>,
+    sums: Vec<u64>,
+    file: std::fs::File,
+}
+
+impl Part {
+    /// Opens `path`: checks magic, version, precision, length and the checksum of header,
+    /// lists and batch sums.
+    pub fn open(path: &Path) -> Result<Part, CacheError> {
+        use std::io::Read;
+        use std::os::unix::fs::FileExt;
+        let p = || path.to_path_buf();
+        let io = |source| CacheError::Io { path: p(), source };
+        let mut file = std::fs::File::open(path).map_err(io)?;
+        let len = file.metadata().map_err(io)?.len();
+        let mut hb = [0u8; HEADER];
+        let got = (&mut file).take(HEADER as u64).read(&mut hb).map_err(io)?;
+        let mut got = got;
+        while got < HEADER {
+            let n = file.read(&mut hb[got..]).map_err(io)?;
+            if n == 0 {
+                break;
+            }
+            got += n;
+        }
+        if got >= 8 && &hb[..8] != MAGIC {
+            return Err(CacheError::Format {
+                path: p(),
+                msg: "not a touchfem compliance cache".into(),
+            });
+        }
+        if got < HEADER {
+            return Err(CacheError::Truncated {
+                path: p(),
+                len: len as usize,
+                expected: HEADER,
+            });
+        }
+        let version = u32_at(&hb, 8);
+        if version != FORMAT_VERSION {
+            return Err(CacheError::Format {
+                path: p(),
+                msg: format!("format version {version}, this build reads {FORMAT_VERSION}"),
+            });
+        }
+        if u32_at(&hb, 12) != 8 {
+            return Err(CacheError::Format {
+                path: p(),
+                msg: format!("precision {} bytes, expected 8", u32_at(&hb, 12)),
+            });
+        }
+        let head = Header {
+            n_nodes: u32_at(&hb, 16),
+            rows: u32_at(&hb, 20),
+            cols: u32_at(&hb, 24),
+            batch: u32_at(&hb, 28),
+            key: u64_at(&hb, 32),
+            shard_index: u32_at(&hb, 40),
+            shard_count: u32_at(&hb, 44),
+            col_begin: u32_at(&hb, 48),
+            col_end: u32_at(&hb, 52),
+            free_dofs: u32_at(&hb, 56),
+            l_rows: u32_at(&hb, 60),
+            residual_bits: u64_at(&hb, 64),
+        };
+        // Every size is checked, without overflow, and bounded by the real length before
+        // anything is allocated: a crafted header cannot ask for more memory than the file.
+        if let Some(why) = head.inconsistency() {
+            return Err(CacheError::Corrupt {
+                path: p(),
+                why: format!("header: {why}"),
+            });
+        }
+        let Some(expected) = head.checked_file_len() else {
+            return Err(CacheError::Corrupt {
+                path: p(),
+                why: format!(
+                    "header: {} rows ({} of L) and {} columns make a length beyond 64 bits",
+                    head.rows, head.l_rows, head.cols
+                ),
+            });
+        };
+        if len != expected {
+            // A flipped bit in the sizes reads as a wrong length; the checksum cannot be found.
+            return Err(CacheError::Truncated {
+                path: p(),
+                len: usize::try_from(len).unwrap_or(usize::MAX),
+                expected: usize::try_from(expected).unwrap_or(usize::MAX),
+            });
+        }
+        let mut lists = vec![0u8; head.lists_len()];
+        file.read_exact_at(&mut lists, HEADER as u64).map_err(io)?;
+        let nb = head.held_batches();
+        let mut table = vec![0u8; 8 * nb + 8];
+        file.read_exact_at(&mut table, expected - 8 * nb as u64 - 8)
+            .map_err(io)?;
+        let mut h = Xxh3::new();
+        h.update(&hb);
+        h.update(&lists);
+        h.update(&table[..8 * nb]);
+        if h.digest() != u64_at(&table, 8 * nb) {
+            return Err(CacheError::Corrupt {
+                path: p(),
+                why: "checksum mismatch".into(),
+            });
+        }
+        let nr = head.rows as usize;
+        let rows = (0..nr).map(|i| u32_at(&lists, 4 * i)).collect();
+        let cols = (0..head.cols as usize)
+            .map(|i| u32_at(&lists, 4 * (nr + i)))
+            .collect();
+        let sums = (0..nb).map(|i| u64_at(&table, 8 * i)).collect();
+        Ok(Part {
+            path: p(),
+            head,
+            rows,
+            cols,
+            sums,
+            file,
+        })
+    }
+
+    /// Reads held batch `i` into `out` (resized to its length) and checks its checksum.
+    pub fn read_batch(&self, i: usize, out: &mut Vec<f64>) -> Result<(), CacheError> {
+        use std::os::unix::fs::FileExt;
+        let h = &self.head;
+        let first = h.col_begin as usize + i * h.batch as usize;
+        let ncols = (h.col_end as usize - first).min(h.batch as usize);
+        let n = 9 * h.l_rows as usize * ncols;
+        out.clear();
+        out.resize(n, 0.0);
+        let off = h.batch_offset(i);
+        let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut out[..]);
+        self.file
+            .read_exact_at(bytes, off)
+            .map_err(|source| CacheError::Io {
+                path: self.path.clone(),
+                source,
+            })?;
+        if xxh3_64(bytes) != self.sums[i] {
+            return Err(CacheError::Corrupt {
+                path: self.path.clone(),
+                why: format!("checksum mismatch in batch {i}"),
+            });
+        }
+        Ok(())
+    }
+
+    /// Batches held.
+    pub fn batches(&self) -> usize {
+        self.sums.len()
+    }
+}
+
+/// `L` left in a checked cache file instead of memory: read back in ranges of entries (this
+/// module's column-major layout, the file's own row and column order) when the GPU copy is
+/// built. Its checksums were verified when it was loaded ([`load_near`]).
+pub struct FileL {
+    part: Part,
+    max_abs_f32: f32,
+}
+
+impl std::fmt::Debug for FileL {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FileL")
+            .field("path", &self.part.path)
+            .field("rows", &self.part.head.rows)
+            .field("cols", &self.part.head.cols)
+            .finish()
+    }
+}
+
+impl FileL {
+    /// Number of entries of `L`.
+    pub fn len(&self) -> usize {
+        9 * self.part.head.l_rows as usize * self.part.head.cols as usize
+    }
+
+    /// Whether `L` has no entries.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// max |L| rounded to f32.
+    pub fn max_abs_f32(&self) -> f32 {
+        self.max_abs_f32
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.part.path
+    }
+
+    /// Entries `range`, rounded to f32.
+    pub fn read_f32(&self, range: std::ops::Range<usize>) -> Result<Vec<f32>, CacheError> {
+        use std::os::unix::fs::FileExt;
+        if range.end > self.len() || range.start > range.end {
+            return Err(CacheError::Format {
+                path: self.part.path.clone(),
+                msg: format!("entries {range:?} of {}", self.len()),
+            });
+        }
+        let h = &self.part.head;
+        let data = h.batch_offset(0);
+        let mut out = Vec::with_capacity(range.len());
+        let mut buf = vec![0.0f64; range.len().min(1 << 20)];
+        let mut at = range.start;
+        while at < range.end {
+            let n = (range.end - at).min(buf.len());
+            self.part
+                .file
+                .read_exact_at(
+                    bytemuck::cast_slice_mut(&mut buf[..n]),
+                    data + 8 * at as u64,
+                )
+                .map_err(|source| CacheError::Io {
+                    path: self.part.path.clone(),
+                    source,
+                })?;
+            out.extend(buf[..n].iter().map(|&v| v as f32));
+            at += n;
+        }
+        Ok(out)
+    }
+}
+
+impl crate::compliance::LSource for FileL {
+    fn len(&self) -> usize {
+        FileL::len(self)
+    }
+    fn max_abs_f32(&self) -> f32 {
+        FileL::max_abs_f32(self)
+    }
+    fn read_f32(&self, range: std::ops::Range<usize>) -> std::io::Result<Vec<f32>> {
+        FileL::read_f32(self, range).map_err(std::io::Error::other)
+    }
+}
+
+/// Loads a complete compliance from `path` (checked as [`load`]) without holding `L`: each
+/// batch is read, checked and dropped, keeping only the blocks of the near pairs of
+/// `triangles` ([`NearBlocks::pairs`]) for the haptic path; the deformer reads `L` from the
+/// file again ([`Compliance::stored_l`]).
+pub fn load_near(
+    path: &Path,
+    expected_key: u64,
+    n_nodes: usize,
+    triangles: &[[u32; 3]],
+) -> Result<Compliance, CacheError> {
+    load_near_part(Part::open(path)?, expected_key, n_nodes, triangles)
+}
+
+/// As [`load_near`], from a part already opened (and its header checked).
+pub fn load_near_part(
+    part: Part,
+    expected_key: u64,
+    n_nodes: usize,
+    triangles: &[[u32; 3]],
+) -> Result<Compliance, CacheError> {
+    check_complete(&part, expected_key, n_nodes)?;
+    let path = part.path.clone();
+    let path = path.as_path();
+    let h = &part.head;
+    let nr3 = 3 * h.l_rows as usize;
+    let format = |msg: String| CacheError::Format {
+        path: path.to_path_buf(),
+        msg,
+    };
+    let (row_of_node, col_of_node, col_row) =
+        crate::compliance::index_maps(&part.rows, &part.cols, n_nodes)
+            .map_err(|e| format(e.to_string()))?;
+    // Every column's row holds L (is among the first `l_rows`): the blocks below read it.
+    if let Some(i) = col_row.iter().position(|&r| r >= h.l_rows) {
+        return Err(format(format!(
+            "touchable node {} is among the clamped rows",
+            part.cols[i]
+        )));
+    }
+    let mut near = NearBlocks::pairs(part.cols.len(), triangles, &col_of_node);
+    let mut buf = Vec::new();
+    let mut max_abs = 0.0f64;
+    for b in 0..part.batches() {
+        part.read_batch(b, &mut buf)?;
+        max_abs = buf.iter().fold(max_abs, |m, v| m.max(v.abs()));
+        let c0 = b * h.batch as usize;
+        for (jj, col) in buf.chunks_exact(3 * nr3).enumerate() {
+            let j = c0 + jj;
+            for k in 0..near.neighbours(j).len() {
+                let i = near.neighbours(j)[k] as usize;
+                let r = row_of_node[part.cols[i] as usize] as usize;
+                let at = |bb: usize| {
+                    let o = bb * nr3 + 3 * r;
+                    glam::DVec3::new(col[o], col[o + 1], col[o + 2])
+                };
+                // L(node i, column j): the pairs are symmetric, so i lists j.
+                near.set(i, j, glam::DMat3::from_cols(at(0), at(1), at(2)));
+            }
+        }
+    }
+    let rows = part.rows.clone();
+    let l_rows = h.l_rows as usize;
+    let cols = part.cols.clone();
+    let residual = f64::from_bits(h.residual_bits);
+    let file = FileL {
+        part,
+        max_abs_f32: max_abs as f32,
+    };
+    let mut c = Compliance::from_near(rows, l_rows, cols, near, Box::new(file), n_nodes, max_abs)
+        .map_err(|e| CacheError::Format {
+        path: path.to_path_buf(),
+        msg: e.to_string(),
+    })?;
+    c.stats.residual = residual;
+    Ok(c)
+}
+
+/// A stale (other key or node count) or partial (a shard) file is an error.
+fn check_complete(part: &Part, expected_key: u64, n_nodes: usize) -> Result<(), CacheError> {
+    let h = &part.head;
+    if h.key != expected_key || h.n_nodes as usize != n_nodes {
+        return Err(CacheError::Stale {
+            path: part.path.clone(),
+        });
+    }
+    if h.shard_count != 1 || h.col_begin != 0 || h.col_end != h.cols {
+        return Err(CacheError::Partial {
+            path: part.path.clone(),
+            index: h.shard_index,
+            count: h.shard_count,
+        });
+    }
+    Ok(())
+}
+
+/// Reads a complete compliance from `path`, checking magic, version, precision, key, length,
+/// checksums and that it is not a shard. Streams L into memory batch by batch (no second copy
+/// of the file).
+pub fn load(path: &Path, expected_key: u64, n_nodes: usize) -> Result<Compliance, CacheError> {
+    let part = Part::open(path)?;
+    check_complete(&part, expected_key, n_nodes)?;
+    let h = &part.head;
+    let nr = h.l_rows as usize;
+    let nc = h.cols as usize;
+    let mut l: Vec<f64> = Vec::new();
+    l.try_reserve_exact(9 * nr * nc)
+        .map_err(|e| CacheError::Format {
+            path: path.to_path_buf(),
+            msg: format!("cannot hold L: {e}"),
+        })?;
+    let mut buf = Vec::new();
+    for i in 0..part.batches() {
+        part.read_batch(i, &mut buf)?;
+        l.extend_from_slice(&buf);
+    }
+    let mut c = Compliance::from_stored(part.rows.clone(), nr, part.cols.clone(), l, n_nodes)
+        .map_err(|e| CacheError::Format {
+            path: path.to_path_buf(),
+            msg: format!("inconsistent contents: {e}"),
+        })?;
+    c.stats.residual = f64::from_bits(h.residual_bits);
+    c.stats.free_dofs = h.free_dofs as usize;
+    Ok(c)
+}
+
+/// What a merge wrote.
+#[derive(Clone, Debug)]
+pub struct MergeInfo {
+    /// Displayed nodes.
+    pub rows: usize,
+    /// Touchable nodes.
+    pub cols: usize,
+    /// Bytes of the merged file.
+    pub bytes: u64,
+}
+
+/// Joins the shards `parts` (any order) into one complete file at `out`, equal byte for byte to
+/// the unsharded precompute. Refuses parts made for another mesh, material or selection, and a
+/// missing, repeated or overlapping part ([`CacheError::Mismatch`]); checks every batch's
+/// checksum while copying.
+pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeInfo, CacheError> {
+    let mut opened = parts
+        .iter()
+        .map(|p| Part::open(p))
+        .collect::<Result<Vec<_>, _>>()?;
+    let Some(first) = opened.first() else {
+        return Err(CacheError::Mismatch {
+            path: out.to_path_buf(),
+            msg: "no parts given".into(),
+        });
+    };
+    let (h0, rows0, cols0) = (first.head.clone(), first.rows.clone(), first.cols.clone());
+    for p in &opened {
+        let h = &p.head;
+        let bad = |msg: String| {
+            Err(CacheError::Mismatch {
+                path: p.path.clone(),
+                msg,
+            })
+        };
+        if h.key != h0.key || h.n_nodes != h0.n_nodes || p.rows != rows0 || p.cols != cols0 {
+            return bad(format!(
+                "made for another mesh, material or selection than {} (key {:016x}, not {:016x})",
+                parts[0].display(),
+                h.key,
+                h0.key
+            ));
+        }
+        if h.batch != h0.batch || h.free_dofs != h0.free_dofs || h.l_rows != h0.l_rows {
+            return bad("made with another batch size or stiffness".into());
+        }
+    }
+    for p in &opened {
+        let h = &p.head;
+        let bad = |msg: String| {
+            Err(CacheError::Mismatch {
+                path: p.path.clone(),
+                msg,
+            })
+        };
+        if h.shard_count as usize != parts.len() {
+            return bad(format!(
+                "is part {} of {}, but {} parts were given",
+                h.shard_index,
+                h.shard_count,
+                parts.len()
+            ));
+        }
+    }
+    opened.sort_by_key(|p| p.head.shard_index);
+    let mut next_col = 0u32;
+    for (i, p) in opened.iter().enumerate() {
+        if p.head.shard_index as usize != i + 1 {
+            return Err(CacheError::Mismatch {
+                path: p.path.clone(),
+                msg: format!(
+                    "part {} is given twice or part {} is missing",
+                    p.head.shard_index,
+                    i + 1
+                ),
+            });
+        }
+        if p.head.col_begin != next_col {
+            return Err(CacheError::Mismatch {
+                path: p.path.clone(),
+                msg: format!(
+                    "holds columns {}..{}, expected them to start at {next_col}",
+                    p.head.col_begin, p.head.col_end
+                ),
+            });
+        }
+        next_col = p.head.col_end;
+    }
+    if next_col != h0.cols {
+        return Err(CacheError::Mismatch {
+            path: opened[opened.len() - 1].path.clone(),
+            msg: format!("the parts end at column {next_col} of {}", h0.cols),
+        });
+    }
+    let residual = opened
+        .iter()
+        .map(|p| f64::from_bits(p.head.residual_bits))
+        .fold(0.0f64, f64::max);
+    let head = Header {
+        shard_index: 1,
+        shard_count: 1,
+        col_begin: 0,
+        col_end: h0.cols,
+        residual_bits: residual.to_bits(),
+        ..h0
+    };
+    let w = Writer::create(out, head, &rows0, &cols0)?;
+    let mut buf = Vec::new();
+    let mut b = 0;
+    for p in &opened {
+        for i in 0..p.batches() {
+            p.read_batch(i, &mut buf)?;
+            w.write_batch(b, &buf)?;
+            b += 1;
+        }
+    }
+    let bytes = w.finish()?;
+    Ok(MergeInfo {
+        rows: rows0.len(),
+        cols: cols0.len(),
+        bytes,
+    })
+}
+
+/// The batch range of shard `index` (1-based) of `count` over `batches` batches.
+pub fn shard_batches(batches: usize, index: usize, count: usize) -> std::ops::Range<usize> {
+    (batches * (index - 1) / count)..(batches * index / count)
+}
+
+/// Loads the compliance from `path` if it is valid for this mesh and selection; otherwise
+/// computes it and (re)writes the file. Never uses a stale, truncated or corrupt file; a file
+/// that cannot be written never throws the computed compliance away
+/// ([`CacheOutcome::NotSaved`]).
+pub fn load_or_compute(
+    path: &Path,
+    mesh: &Mesh,
+    sel: &Selection,
+) -> Result<(Compliance, CacheOutcome), crate::Error> {
+    let k = key(mesh, sel);
+    match load(path, k, mesh.nodes.len()) {
+        Ok(c) => Ok((c, CacheOutcome::Hit)),
+        Err(why) => {
+            let c = Compliance::compute(mesh, sel)?;
+            match save(path, &c, k, mesh.nodes.len()) {
+                Ok(()) => Ok((c, CacheOutcome::Recomputed(why))),
+                Err(e) => Ok((c, CacheOutcome::NotSaved(why, e))),
+            }
+        }
+    }
+}

@@ -1,0 +1,859 @@
+//! Linear-elastic constant-strain tetrahedra: element and global stiffness (the paper's eq. 1),
+//! elimination of the clamped DOFs, and the sparse Cholesky factorisation of `K` (faer, supernodal
+//! with AMD ordering).
+
+use faer::sparse::SparseColMat;
+use faer::{Mat, Side};
+use glam::DVec3;
+
+use crate::mesh::Mesh;
+use crate::units::Material;
+
+pub mod error;
+pub use error::FemError;
+
+/// The numbering of free (unclamped) DOFs: DOF `3·node + axis` → free index.
+#[derive(Clone, Debug)]
+pub struct Dofs {
+    map: Vec<u32>,
+    /// Number of free DOFs.
+    pub n_free: usize,
+    /// The node and axis of each free DOF.
+    pub owner: Vec<(u32, u8)>,
+}
+
+impl Dofs {
+    /// Numbers the DOFs of the unclamped nodes in node order.
+    pub fn new(fixed: &[bool]) -> Dofs {
+        let mut map = vec![u32::MAX; fixed.len() * 3];
+        let mut owner = Vec::new();
+        for (n, &f) in fixed.iter().enumerate() {
+            if !f {
+                for a in 0..3 {
+                    map[3 * n + a] = owner.len() as u32;
+                    owner.push((n as u32, a as u8));
+                }
+            }
+        }
+        Dofs {
+            n_free: owner.len(),
+            map,
+            owner,
+        }
+    }
+    /// The free index of (node, axis), or `None` if the node is clamped.
+    #[inline]
+    pub fn free(&self, node: u32, axis: usize) -> Option<usize> {
+        let d = self.map[3 * node as usize + axis];
+        (d != u32::MAX).then_some(d as usize)
+    }
+}
+
+/// K in compressed columns from its 3×3 node-pair blocks (`blocks[a]`: `(b, K_ab)` row-major,
+/// clamped nodes absent), built directly — a count, then a fill in row order, so every
+/// column's rows come out sorted — instead of sorting triplets: the same matrix bit for bit
+/// (each entry is one block value), several times faster on large meshes.
+fn csc_from_blocks(
+    dofs: &Dofs,
+    blocks: &[Vec<(u32, [f64; 9])>],
+) -> Result<SparseColMat<usize, f64>, FemError> {
+    let n = dofs.n_free;
+    let mut col_ptr = vec![0usize; n + 1];
+    for row in blocks {
+        for (nb, _) in row {
+            for j in 0..3 {
+                if let Some(c) = dofs.free(*nb, j) {
+                    col_ptr[c + 1] += 3;
+                }
+            }
+        }
+    }
+    for c in 0..n {
+        col_ptr[c + 1] += col_ptr[c];
+    }
+    let nnz = col_ptr[n];
+    let mut row_idx = vec![0usize; nnz];
+    let mut val = vec![0.0f64; nnz];
+    let mut next = col_ptr[..n].to_vec();
+    // Rows in increasing order: nodes in order, then axes (`Dofs` numbers them so).
+    for (na, row) in blocks.iter().enumerate() {
+        for i in 0..3 {
+            let Some(r) = dofs.free(na as u32, i) else {
+                continue;
+            };
+            for (nb, m) in row {
+                for j in 0..3 {
+                    if let Some(c) = dofs.free(*nb, j) {
+                        row_idx[next[c]] = r;
+                        val[next[c]] = m[3 * i + j];
+                        next[c] += 1;
+                    }
+                }
+            }
+        }
+    }
+    // Sorted and without repeats by construction (one block per node pair).
+    let sym = faer::sparse::SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
+    Ok(SparseColMat::new(sym, val))
+}
+
+/// Gradients of the four linear shape functions of a tet and its volume.
+pub fn shape_gradients(p: [DVec3; 4]) -> ([DVec3; 4], f64) {
+    let j = glam::DMat3::from_cols(p[1] - p[0], p[2] - p[0], p[3] - p[0]);
+    let vol = j.determinant() / 6.0;
+    // Rows of J⁻¹ are ∇N₁, ∇N₂, ∇N₃.
+    let inv = j.inverse().transpose();
+    let g1 = inv.x_axis;
+    let g2 = inv.y_axis;
+    let g3 = inv.z_axis;
+    ([-(g1 + g2 + g3), g1, g2, g3], vol)
+}
+
+/// The 12×12 stiffness of a constant-strain tet, `V·Bᵀ D B`, DOFs ordered (node, axis).
+pub fn element_stiffness(p: [DVec3; 4], mat: &Material) -> [[f64; 12]; 12] {
+    let (g, vol) = shape_gradients(p);
+    let (lambda, mu) = mat.lame();
+    let mut k = [[0.0; 12]; 12];
+    // K_ab(i,j) = V (λ g_a,i g_b,j + μ g_a,j g_b,i + μ δ_ij g_a·g_b)
+    for a in 0..4 {
+        for b in 0..4 {
+            let ga = g[a].to_array();
+            let gb = g[b].to_array();
+            let dot = g[a].dot(g[b]);
+            for i in 0..3 {
+                for jx in 0..3 {
+                    let mut v = lambda * ga[i] * gb[jx] + mu * ga[jx] * gb[i];
+                    if i == jx {
+                        v += mu * dot;
+                    }
+                    k[3 * a + i][3 * b + jx] = vol * v;
+                }
+            }
+        }
+    }
+    k
+}
+
+/// The full (unconstrained) global stiffness as a dense matrix, for tests on small meshes.
+pub fn dense_stiffness(mesh: &Mesh) -> Vec<Vec<f64>> {
+    let n = mesh.nodes.len() * 3;
+    let mut k = vec![vec![0.0; n]; n];
+    for t in &mesh.tets {
+        let ke = element_stiffness(t.map(|i| mesh.nodes[i as usize]), &mesh.material);
+        for a in 0..4 {
+            for b in 0..4 {
+                for i in 0..3 {
+                    for j in 0..3 {
+                        k[3 * t[a] as usize + i][3 * t[b] as usize + j] += ke[3 * a + i][3 * b + j];
+                    }
+                }
+            }
+        }
+    }
+    k
+}
+
+/// The stiffness over the free DOFs (`K` of the paper's eq. 1), sparse, both triangles stored.
+pub struct Stiffness {
+    /// Free-DOF numbering.
+    pub dofs: Dofs,
+    /// K over free DOFs, N/m.
+    pub k: SparseColMat<usize, f64>,
+    /// Position of each free node (free DOFs `3i..3i + 3` belong to free node `i`), metres:
+    /// the geometry the nested-dissection ordering cuts.
+    free_coords: Vec<DVec3>,
+}
+
+/// Where a factorisation keeps its factor.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum FactorStore {
+    /// In memory (faer's supernodal factorisation).
+    Heap,
+    /// In an unlinked temporary file in `dir`, written by the multifrontal sweep of
+    /// [`crate::frontal`] on `threads` threads and read through a map (supernodal analyses
+    /// only; the heap otherwise).
+    File {
+        /// Directory of the temporary file.
+        dir: std::path::PathBuf,
+        /// Threads factorising subtrees.
+        threads: usize,
+    },
+    /// `File` when the factor would take more than `above` bytes, else `Heap`; `Heap` too
+    /// when the file cannot be made (no directory, no room on its disk).
+    Auto {
+        /// Directory of the temporary file.
+        dir: std::path::PathBuf,
+        /// Threads factorising subtrees.
+        threads: usize,
+        /// Bytes of factor above which it goes to the file.
+        above: usize,
+    },
+}
+
+/// The fill-reducing ordering of the sparse Cholesky factorisation.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Ordering {
+    /// faer's approximate minimum degree.
+    Amd,
+    /// Nested dissection of the node graph by coordinate bisection (separators last), on
+    /// 3-DOF node blocks: less fill than AMD on 3D meshes (see README, precompute).
+    NestedDissection,
+    /// METIS's multilevel nested dissection (`METIS_NodeND`) of the node graph, on 3-DOF
+    /// node blocks: the least fill of the three (falls back to `NestedDissection` if METIS
+    /// fails).
+    #[default]
+    Metis,
+}
+
+/// METIS's fill-reducing order of the graph `ptr`/`idx` (new → old), `None` if METIS fails.
+fn metis_order(ptr: &[usize], idx: &[usize]) -> Option<Vec<usize>> {
+    let n = ptr.len().checked_sub(1)?;
+    if n == 0 {
+        return Some(Vec::new());
+    }
+    let mut nv = i32::try_from(n).ok()?;
+    let mut xadj: Vec<i32> = ptr
+        .iter()
+        .map(|&p| i32::try_from(p).ok())
+        .collect::<Option<_>>()?;
+    let mut adj: Vec<i32> = idx
+        .iter()
+        .map(|&p| i32::try_from(p).ok())
+        .collect::<Option<_>>()?;
+    let mut opts = [0i32; metis_sys::METIS_NOPTIONS as usize];
+    let mut perm = vec![0i32; n];
+    let mut iperm = vec![0i32; n];
+    // METIS seeds one process-wide random generator at the start of each call: two calls at
+    // once would share it and give orderings (and factors' bits) that depend on timing.
+    static METIS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _one_at_a_time = METIS.lock().unwrap_or_else(|e| e.into_inner());
+    // SAFETY: the arrays have the lengths METIS_NodeND requires (xadj n + 1, adjncy xadj[n],
+    // options METIS_NOPTIONS, perm and iperm n); METIS only reads the inputs and writes the
+    // outputs during the call.
+    let rc = unsafe {
+        metis_sys::METIS_SetDefaultOptions(opts.as_mut_ptr());
+        metis_sys::METIS_NodeND(
+            &mut nv,
+            xadj.as_mut_ptr(),
+            adj.as_mut_ptr(),
+            std::ptr::null_mut(),
+            opts.as_mut_ptr(),
+            perm.as_mut_ptr(),
+            iperm.as_mut_ptr(),
+        )
+    };
+    if rc != metis_sys::rstatus_et_METIS_OK {
+        return None;
+    }
+    let order: Vec<usize> = perm.iter().map(|&p| p as usize).collect();
+    let mut seen = vec![false; n];
+    for &o in &order {
+        if o >= n || std::mem::replace(&mut seen[o], true) {
+            return None;
+        }
+    }
+    Some(order)
+}
+
+/// Leaves of the nested dissection hold at most this many nodes.
+const ND_LEAF: usize = 96;
+
+/// Nested dissection of the node graph `adj` (CSR: `ptr`, `idx`) by coordinate bisection:
+/// the nodes are split at the median of the bounding box's longest axis, the nodes of the first
+/// half that touch the second half form the separator, which is ordered after both halves.
+/// Returns the nodes in elimination order.
+fn nested_dissection(coords: &[DVec3], ptr: &[usize], idx: &[usize]) -> Vec<usize> {
+    fn rec(
+        nodes: &mut [usize],
+        coords: &[DVec3],
+        ptr: &[usize],
+        idx: &[usize],
+        side: &mut [u8],
+        order: &mut Vec<usize>,
+    ) {
+        if nodes.len() <= ND_LEAF {
+            order.extend_from_slice(nodes);
+            return;
+        }
+        // Try a median cut across each axis; keep the one with the smallest separator.
+        let mid = nodes.len() / 2;
+        let mut best: Option<(usize, usize)> = None; // (separator size, axis)
+        for ax in 0..3 {
+            split(nodes, coords, ax, mid);
+            let sep = separator(nodes, mid, ptr, idx, side).len();
+            if best.is_none_or(|(s, _)| sep < s) {
+                best = Some((sep, ax));
+            }
+        }
+        let ax = best.map_or(0, |b| b.1);
+        split(nodes, coords, ax, mid);
+        let sep = separator(nodes, mid, ptr, idx, side);
+        for &i in sep.iter() {
+            side[i] = 3;
+        }
+        let mut a: Vec<usize> = nodes[..mid]
+            .iter()
+            .copied()
+            .filter(|&i| side[i] != 3)
+            .collect();
+        for &i in sep.iter() {
+            side[i] = 0;
+        }
+        let mut b = nodes[mid..].to_vec();
+        rec(&mut a, coords, ptr, idx, side, order);
+        rec(&mut b, coords, ptr, idx, side, order);
+        order.extend_from_slice(&sep);
+    }
+    /// Puts the nodes below the median of axis `ax` first.
+    fn split(nodes: &mut [usize], coords: &[DVec3], ax: usize, mid: usize) {
+        nodes.select_nth_unstable_by(mid, |&a, &b| {
+            coords[a][ax]
+                .partial_cmp(&coords[b][ax])
+                .unwrap_or(std::cmp::Ordering::Equal)
+                .then(a.cmp(&b))
+        });
+    }
+    /// The nodes of `nodes[..mid]` with a neighbour in `nodes[mid..]`.
+    fn separator(
+        nodes: &[usize],
+        mid: usize,
+        ptr: &[usize],
+        idx: &[usize],
+        side: &mut [u8],
+    ) -> Vec<usize> {
+        for &i in &nodes[mid..] {
+            side[i] = 2;
+        }
+        let sep = nodes[..mid]
+            .iter()
+            .copied()
+            .filter(|&i| idx[ptr[i]..ptr[i + 1]].iter().any(|&j| side[j] == 2))
+            .collect();
+        for &i in &nodes[mid..] {
+            side[i] = 0;
+        }
+        sep
+    }
+    let n = coords.len();
+    let mut nodes: Vec<usize> = (0..n).collect();
+    let mut side = vec![0u8; n];
+    let mut order = Vec::with_capacity(n);
+    rec(&mut nodes, coords, ptr, idx, &mut side, &mut order);
+    order
+}
+
+impl Stiffness {
+    /// Assembles K with the clamped DOFs eliminated. Checks the material and that every
+    /// connected part of the mesh is held by at least three non-collinear clamped nodes.
+    pub fn assemble(mesh: &Mesh) -> Result<Stiffness, FemError> {
+        mesh.material.validate()?;
+        check_constrained(mesh)?;
+        let dofs = Dofs::new(&mesh.fixed);
+        // Sum element matrices into 3×3 node-pair blocks first (each node has a few dozen
+        // neighbours), so the sparse constructor sorts ~9× fewer triplets.
+        let mut blocks: Vec<Vec<(u32, [f64; 9])>> = vec![Vec::new(); mesh.nodes.len()];
+        for t in &mesh.tets {
+            let ke = element_stiffness(t.map(|i| mesh.nodes[i as usize]), &mesh.material);
+            for a in 0..4 {
+                if mesh.fixed[t[a] as usize] {
+                    continue;
+                }
+                let row = &mut blocks[t[a] as usize];
+                for b in 0..4 {
+                    if mesh.fixed[t[b] as usize] {
+                        continue;
+                    }
+                    let slot = match row.iter().position(|e| e.0 == t[b]) {
+                        Some(p) => p,
+                        None => {
+                            row.push((t[b], [0.0; 9]));
+                            row.len() - 1
+                        }
+                    };
+                    for i in 0..3 {
+                        for j in 0..3 {
+                            row[slot].1[3 * i + j] += ke[3 * a + i][3 * b + j];
+                        }
+                    }
+                }
+            }
+        }
+        let k = csc_from_blocks(&dofs, &blocks)?;
+        let free_coords = (0..dofs.n_free / 3)
+            .map(|i| mesh.nodes[dofs.owner[3 * i].0 as usize])
+            .collect();
+        Ok(Stiffness {
+            dofs,
+            k,
+            free_coords,
+        })
+    }
+
+    /// Factorises K = LLᵀ (METIS ordering; faer's supernodal or simplicial factorisation as it
+    /// sees fit).
+    pub fn factorize(&self) -> Result<Factor, FemError> {
+        self.factorize_timed(Ordering::default()).map(|(f, _, _)| f)
+    }
+
+    /// The fill-reducing permutation of the free DOFs (forward: new → old; inverse), `None`
+    /// for faer's AMD.
+    fn ordering(&self, ord: Ordering) -> Option<(Vec<usize>, Vec<usize>)> {
+        if ord == Ordering::Amd {
+            return None;
+        }
+        let nn = self.free_coords.len();
+        let k = self.k.symbolic();
+        let mut ptr = Vec::with_capacity(nn + 1);
+        let mut idx = Vec::new();
+        ptr.push(0);
+        for i in 0..nn {
+            idx.extend(
+                k.row_idx_of_col(3 * i)
+                    .filter(|r| r % 3 == 0 && r / 3 != i)
+                    .map(|r| r / 3),
+            );
+            ptr.push(idx.len());
+        }
+        let order = match ord {
+            Ordering::Metis => metis_order(&ptr, &idx)
+                .unwrap_or_else(|| nested_dissection(&self.free_coords, &ptr, &idx)),
+            _ => nested_dissection(&self.free_coords, &ptr, &idx),
+        };
+        let fwd: Vec<usize> = order
+            .iter()
+            .flat_map(|&n| [3 * n, 3 * n + 1, 3 * n + 2])
+            .collect();
+        let mut inv = vec![0usize; fwd.len()];
+        for (new, &old) in fwd.iter().enumerate() {
+            inv[old] = new;
+        }
+        Some((fwd, inv))
+    }
+
+    /// As [`Stiffness::factorize`] with the ordering `ord`, with the seconds spent on the
+    /// symbolic (ordering) and the numeric factorisation.
+    pub fn factorize_timed(&self, ord: Ordering) -> Result<(Factor, f64, f64), FemError> {
+        // faer splits the big fronts' dense work over the cores; the bits do not depend on
+        // how many (tests/precompute.rs), so merged shards made on different machines still
+        // equal the unsharded file.
+        self.factorize_with(ord, faer::Par::rayon(0))
+    }
+
+    /// As [`Stiffness::factorize_timed`] with the numeric factorisation's parallelism `par`.
+    pub fn factorize_with(
+        &self,
+        ord: Ordering,
+        par: faer::Par,
+    ) -> Result<(Factor, f64, f64), FemError> {
+        let (symbolic, sym_s) = self.analyse(ord)?;
+        let t1 = std::time::Instant::now();
+        let f = self.numeric_heap(symbolic, par)?;
+        Ok((f, sym_s, t1.elapsed().as_secs_f64()))
+    }
+
+    /// As [`Stiffness::factorize_timed`], with the factor kept where `store` says.
+    pub fn factorize_in(
+        &self,
+        ord: Ordering,
+        store: &FactorStore,
+    ) -> Result<(Factor, f64, f64), FemError> {
+        let (symbolic, sym_s) = self.analyse(ord)?;
+        let t1 = std::time::Instant::now();
+        let supernodal = matches!(
+            symbolic.raw(),
+            faer::sparse::linalg::cholesky::SymbolicCholeskyRaw::Supernodal(_)
+        );
+        let bytes = 8 * symbolic.len_val();
+        let f = match store {
+            FactorStore::File { dir, threads } if supernodal => {
+                let file = crate::frontal::factor_file(dir, bytes)?;
+                self.numeric_file(symbolic, &file, *threads)?
+            }
+            FactorStore::Auto {
+                dir,
+                threads,
+                above,
+            } if supernodal && bytes > *above => {
+                // No room for the file (or no directory): memory, as before.
+                match crate::frontal::factor_file(dir, bytes) {
+                    Ok(file) => self.numeric_file(symbolic, &file, *threads)?,
+                    Err(_) => self.numeric_heap(symbolic, faer::Par::rayon(0))?,
+                }
+            }
+            _ => self.numeric_heap(symbolic, faer::Par::rayon(0))?,
+        };
+        Ok((f, sym_s, t1.elapsed().as_secs_f64()))
+    }
+
+    /// The ordering and faer's symbolic analysis, with its seconds.
+    fn analyse(
+        &self,
+        ord: Ordering,
+    ) -> Result<(faer::sparse::linalg::cholesky::SymbolicCholesky<usize>, f64), FemError> {
+        use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, SymmetricOrdering};
+        let t0 = std::time::Instant::now();
+        let perm = self.ordering(ord);
+        let ordering = match &perm {
+            None => SymmetricOrdering::Amd,
+            Some((fwd, inv)) => SymmetricOrdering::Custom(faer::perm::PermRef::new_checked(
+                fwd,
+                inv,
+                self.dofs.n_free,
+            )),
+        };
+        let symbolic = factorize_symbolic_cholesky(
+            self.k.symbolic(),
+            Side::Lower,
+            ordering,
+            Default::default(),
+        )
+        .map_err(|e| FemError::Factorisation(format!("{e:?}")))?;
+        Ok((symbolic, t0.elapsed().as_secs_f64()))
+    }
+
+    /// The DOF's node, for errors.
+    fn owner_of(&self, dof: usize) -> u32 {
+        self.dofs.owner.get(dof).map(|o| o.0).unwrap_or(0)
+    }
+
+    /// faer's numeric factorisation, on the heap.
+    fn numeric_heap(
+        &self,
+        symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
+        par: faer::Par,
+    ) -> Result<Factor, FemError> {
+        use faer::dyn_stack::{MemBuffer, MemStack};
+        let fact_err = |e: &dyn std::fmt::Debug| FemError::Factorisation(format!("{e:?}"));
+        let mut values = Vec::new();
+        values
+            .try_reserve_exact(symbolic.len_val())
+            .map_err(|e| fact_err(&e))?;
+        values.resize(symbolic.len_val(), 0.0f64);
+        let mut buf = MemBuffer::try_new(
+            symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
+        )
+        .map_err(|e| fact_err(&e))?;
+        symbolic
+            .factorize_numeric_llt::<f64>(
+                &mut values,
+                self.k.as_ref(),
+                Side::Lower,
+                Default::default(),
+                par,
+                MemStack::new(&mut buf),
+                Default::default(),
+            )
+            .map_err(|e| {
+                let faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } = e;
+                // `index` is in the permuted order; name the DOF's node as best we can.
+                let dof = symbolic
+                    .perm()
+                    .map_or(index, |p| p.arrays().0.get(index).copied().unwrap_or(0))
+                    .min(self.dofs.n_free.saturating_sub(1));
+                FemError::Singular {
+                    node: self.owner_of(dof),
+                    dof,
+                }
+            })?;
+        Ok(Factor {
+            symbolic,
+            values: crate::frontal::Values::Heap(values),
+            front_bytes: 0,
+        })
+    }
+
+    /// The out-of-core multifrontal factorisation of [`crate::frontal`] (`symbolic` must be
+    /// supernodal): the factor goes to `file` ([`crate::frontal::factor_file`]) and is read
+    /// back through a map.
+    fn numeric_file(
+        &self,
+        symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
+        file: &std::fs::File,
+        threads: usize,
+    ) -> Result<Factor, FemError> {
+        let faer::sparse::linalg::cholesky::SymbolicCholeskyRaw::Supernodal(sn) = symbolic.raw()
+        else {
+            return Err(FemError::Factorisation(
+                "the out-of-core factorisation needs a supernodal analysis".into(),
+            ));
+        };
+        let n = self.dofs.n_free;
+        let (fwd, inv): (Vec<usize>, Vec<usize>) = match symbolic.perm() {
+            Some(p) => (p.arrays().0.to_vec(), p.arrays().1.to_vec()),
+            None => ((0..n).collect(), (0..n).collect()),
+        };
+        let owner = |dof: usize| self.owner_of(dof);
+        let (values, front_bytes) = crate::frontal::factorize_to_file(
+            sn,
+            self.k.as_ref(),
+            &fwd,
+            &inv,
+            file,
+            threads,
+            &owner,
+        )?;
+        Ok(Factor {
+            symbolic,
+            values,
+            front_bytes,
+        })
+    }
+
+    /// y = K·x over free DOFs.
+    pub fn mul(&self, x: &[f64], y: &mut [f64]) {
+        y.iter_mut().for_each(|v| *v = 0.0);
+        let k = self.k.as_ref();
+        for (c, &xc) in x.iter().enumerate().take(k.ncols()) {
+            if xc == 0.0 {
+                continue;
+            }
+            for (r, v) in k.row_idx_of_col(c).zip(k.val_of_col(c)) {
+                y[r] += v * xc;
+            }
+        }
+    }
+}
+
+/// The Cholesky factor of K.
+pub struct Factor {
+    symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
+    values: crate::frontal::Values,
+    /// Peak bytes of the out-of-core factorisation's fronts and update stacks (0 on the heap).
+    front_bytes: usize,
+}
+
+impl Factor {
+    /// Solves K X = B in place (B is n_free × m, column-major), on the calling thread.
+    pub fn solve_in_place(&self, b: &mut Mat<f64>) {
+        use faer::dyn_stack::{MemBuffer, MemStack};
+        let llt =
+            faer::sparse::linalg::cholesky::LltRef::new(&self.symbolic, self.values.as_slice());
+        let mut buf = MemBuffer::new(
+            self.symbolic
+                .solve_in_place_scratch::<f64>(b.ncols(), faer::Par::Seq),
+        );
+        llt.solve_in_place_with_conj(
+            faer::Conj::No,
+            b.as_mut(),
+            faer::Par::Seq,
+            MemStack::new(&mut buf),
+        );
+    }
+
+    /// Whether the values stream from a file ([`FactorStore::File`]).
+    pub fn is_mapped(&self) -> bool {
+        self.values.is_mapped()
+    }
+
+    /// Drops this process's pages of the values `range` when they stream from a file (see
+    /// [`crate::frontal::Values::release`]).
+    pub fn release(&self, range: std::ops::Range<usize>) {
+        self.values.release(range);
+    }
+
+    /// Peak bytes of the out-of-core factorisation's fronts and update stacks (0 for faer's).
+    pub fn front_bytes(&self) -> usize {
+        self.front_bytes
+    }
+
+    /// Non-zeros of the Cholesky factor.
+    pub fn nonzeros(&self) -> usize {
+        self.symbolic.len_val()
+    }
+
+    /// The supernodal structure and values of the factor of the permuted K, or `None` when
+    /// faer chose a simplicial factorisation (small or very sparse K).
+    pub fn supernodal(
+        &self,
+    ) -> Option<(
+        &faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky<usize>,
+        &[f64],
+    )> {
+        match self.symbolic.raw() {
+            faer::sparse::linalg::cholesky::SymbolicCholeskyRaw::Supernodal(s) => {
+                Some((s, self.values.as_slice()))
+            }
+            _ => None,
+        }
+    }
+
+    /// The position of each free DOF in the factor's elimination order.
+    pub fn position_of_dof(&self) -> Vec<usize> {
+        match self.symbolic.perm() {
+            Some(p) => p.arrays().1.to_vec(),
+            None => (0..self.symbolic.nrows()).collect(),
+        }
+    }
+}
+
+/// Solves the static problem K u = f on the whole mesh (a fresh factorisation): `forces` are
+/// (node, force in N); returns the displacement of every node in metres (zero on clamped nodes).
+/// This is the direct reference that the precomputed `L·F` must reproduce.
+pub fn solve_static(mesh: &Mesh, forces: &[(u32, DVec3)]) -> Result<Vec<DVec3>, FemError> {
+    let stiff = Stiffness::assemble(mesh)?;
+    let factor = stiff.factorize()?;
+    let mut b = Mat::<f64>::zeros(stiff.dofs.n_free, 1);
+    for &(node, f) in forces {
+        if node as usize >= mesh.nodes.len() {
+            return Err(FemError::BadSelection(format!(
+                "force on node {node} out of range"
+            )));
+        }
+        for a in 0..3 {
+            if let Some(d) = stiff.dofs.free(node, a) {
+                b[(d, 0)] += f[a];
+            }
+        }
+    }
+    factor.solve_in_place(&mut b);
+    let mut u = vec![DVec3::ZERO; mesh.nodes.len()];
+    for (d, &(node, a)) in stiff.dofs.owner.iter().enumerate() {
+        u[node as usize][a as usize] = b[(d, 0)];
+    }
+    Ok(u)
+}
+
+/// Checks that every connected part of the mesh has at least three non-collinear clamped nodes.
+fn check_constrained(mesh: &Mesh) -> Result<(), FemError> {
+    if mesh.fixed_count() == 0 {
+        return Err(FemError::NoFixedNodes);
+    }
+    let n = mesh.nodes.len();
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    fn find(p: &mut [u32], mut x: u32) -> u32 {
+        while p[x as usize] != x {
+            p[x as usize] = p[p[x as usize] as usize];
+            x = p[x as usize];
+        }
+        x
+    }
+    for t in &mesh.tets {
+        let r0 = find(&mut parent, t[0]);
+        for &v in &t[1..] {
+            let r = find(&mut parent, v);
+            if r != r0 {
+                parent[r as usize] = r0;
+            }
+        }
+    }
+    // Per component: node count, fixed nodes.
+    let mut comp_nodes: std::collections::HashMap<u32, (usize, Vec<DVec3>)> = Default::default();
+    for i in 0..n as u32 {
+        let r = find(&mut parent, i);
+        let e = comp_nodes.entry(r).or_insert((0, Vec::new()));
+        e.0 += 1;
+        if mesh.fixed[i as usize] {
+            e.1.push(mesh.nodes[i as usize]);
+        }
+    }
+    let (lo, hi) = mesh.bounds();
+    let scale = (hi - lo).length().max(f64::MIN_POSITIVE);
+    for (root, (count, fixed)) in comp_nodes {
+        let ok = fixed.len() >= 3 && !collinear(&fixed, scale);
+        if !ok {
+            return Err(FemError::Unconstrained {
+                part_nodes: count,
+                example_node: root,
+                fixed_in_part: fixed.len(),
+                how: if fixed.len() >= 3 {
+                    "that are collinear"
+                } else {
+                    ""
+                },
+            });
+        }
+    }
+    Ok(())
+}
+
+/// True when all points lie (to 1e-9 of `scale`) on one line.
+fn collinear(p: &[DVec3], scale: f64) -> bool {
+    let a = p[0];
+    let Some(b) = p.iter().copied().max_by(|x, y| {
+        x.distance(a)
+            .partial_cmp(&y.distance(a))
+            .unwrap_or(std::cmp::Ordering::Equal)
+    }) else {
+        return true;
+    };
+    let d = b - a;
+    if d.length() <= 1e-9 * scale {
+        return true;
+    }
+    let dir = d.normalize();
+    p.iter()
+        .all(|&q| (q - a).cross(dir).length() <= 1e-9 * scale)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::cube;
+
+    /// The direct CSC assembly equals the dense assembly of the element matrices on the free
+    /// DOFs (to round-off: the sums run in another order), zero off its pattern.
+    #[test]
+    fn direct_assembly_equals_the_dense_assembly() {
+        let mesh =
+            crate::mesh::cube_with([5, 4, 6], [30.0, 20.0, 40.0], Material::DEFAULT).expect("mesh");
+        let k = Stiffness::assemble(&mesh).unwrap();
+        let dense = dense_stiffness(&mesh);
+        let owner = &k.dofs.owner;
+        let max = dense.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+        let mut seen = 0usize;
+        for (c, &(nc, ac)) in owner.iter().enumerate() {
+            let rows = k.k.symbolic().row_idx_of_col(c).collect::<Vec<_>>();
+            assert!(rows.windows(2).all(|w| w[0] < w[1]), "sorted, no repeats");
+            let vals = k.k.val_of_col(c);
+            for (r, &(nr, ar)) in owner.iter().enumerate() {
+                let want = dense[3 * nr as usize + ar as usize][3 * nc as usize + ac as usize];
+                let got = rows.iter().position(|&x| x == r).map_or(0.0, |i| vals[i]);
+                assert!(
+                    (got - want).abs() <= 1e-13 * max,
+                    "({r}, {c}): {got} vs {want}"
+                );
+            }
+            seen += rows.len();
+        }
+        assert_eq!(seen, k.k.compute_nnz());
+        assert!(max > 0.0);
+    }
+
+    #[test]
+    fn element_stiffness_is_symmetric_and_kills_rigid_modes() {
+        let p = [
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(1.0, 0.1, 0.0),
+            DVec3::new(0.2, 1.0, 0.1),
+            DVec3::new(0.1, 0.3, 1.2),
+        ];
+        let k = element_stiffness(p, &Material::DEFAULT);
+        for (i, row) in k.iter().enumerate() {
+            for (j, v) in row.iter().enumerate() {
+                assert!((v - k[j][i]).abs() < 1e-12 * 1000.0);
+            }
+        }
+        // Translation along x and rotation about z.
+        let mut t = [0.0; 12];
+        let mut r = [0.0; 12];
+        for a in 0..4 {
+            t[3 * a] = 1.0;
+            r[3 * a] = -p[a].y;
+            r[3 * a + 1] = p[a].x;
+        }
+        for v in [t, r] {
+            for row in &k {
+                let s: f64 = row.iter().zip(&v).map(|(a, b)| a * b).sum();
+                assert!(s.abs() < 1e-10, "{s}");
+            }
+        }
+    }
+
+    #[test]
+    fn cube_assembles_and_factorizes() {
+        let m = cube();
+        let s = Stiffness::assemble(&m).unwrap();
+        assert_eq!(s.dofs.n_free, (125 - 25) * 3);
+        s.factorize().unwrap();
+    }
+}

@@ -1,0 +1,175 @@
+//! The paper's cube (Table 1): 30 mm edge, 4×4×4 cells of five tets each, bottom face clamped.
+
+use super::{Mesh, MeshError, RawMesh};
+use crate::units::{LengthUnit, Material};
+use std::collections::BTreeMap;
+
+/// Edge length of the paper's cube, in millimetres.
+pub const CUBE_EDGE_MM: f64 = 30.0;
+
+/// The paper's cube: [0, 30 mm]³, 4×4×4 cells, 5 tets per cell, E = 10 kPa, ν = 0.49, the bottom
+/// face z = 0 clamped (group `fixed`). 125 nodes, 98 surface nodes, 73 free, 192 triangles, 320 tets.
+pub fn cube() -> Mesh {
+    cube_with(
+        [4, 4, 4],
+        [CUBE_EDGE_MM; 3],
+        Material {
+            young_pa: 10_000.0,
+            poisson: 0.49,
+        },
+    )
+    .expect("the bundled cube is valid")
+}
+
+/// A box of `cells` cells spanning `[0, size_mm]` (millimetres), each cell cut into five tets with
+/// alternating orientation so that neighbouring cells' face diagonals match. The bottom face
+/// (z = 0) is the group `fixed` and is clamped.
+pub fn cube_with(
+    cells: [usize; 3],
+    size_mm: [f64; 3],
+    material: Material,
+) -> Result<Mesh, MeshError> {
+    let raw = grid_raw(cells, size_mm, |_, _, _| true);
+    let mut mesh = Mesh::from_raw(raw, LengthUnit::Millimetre, material)?;
+    mesh.set_fixed_group("fixed")?;
+    Ok(mesh)
+}
+
+/// A structured grid of `cells` cells spanning `[0, size]` (any unit), five tets per cell with
+/// alternating orientation, keeping only the cells for which `keep(i, j, k)` holds (nodes of
+/// dropped cells are removed by validation). The nodes at z = 0 form the group `fixed`.
+pub fn grid_raw(
+    cells: [usize; 3],
+    size: [f64; 3],
+    keep: impl Fn(usize, usize, usize) -> bool,
+) -> RawMesh {
+    let [nx, ny, nz] = cells;
+    let id = |i: usize, j: usize, k: usize| (k * (ny + 1) + j) * (nx + 1) + i;
+    let mut nodes = Vec::with_capacity((nx + 1) * (ny + 1) * (nz + 1));
+    for k in 0..=nz {
+        for j in 0..=ny {
+            for i in 0..=nx {
+                nodes.push([
+                    size[0] * i as f64 / nx as f64,
+                    size[1] * j as f64 / ny as f64,
+                    size[2] * k as f64 / nz as f64,
+                ]);
+            }
+        }
+    }
+    let mut tets = Vec::with_capacity(nx * ny * nz * 5);
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                if !keep(i, j, k) {
+                    continue;
+                }
+                // Corner c = (dx, dy, dz) of this cell.
+                let c = |dx: usize, dy: usize, dz: usize| id(i + dx, j + dy, k + dz);
+                if (i + j + k) % 2 == 0 {
+                    // Central tet on the odd corners; one tet at each even corner.
+                    tets.push([c(1, 0, 0), c(0, 1, 0), c(0, 0, 1), c(1, 1, 1)]);
+                    tets.push([c(0, 0, 0), c(1, 0, 0), c(0, 1, 0), c(0, 0, 1)]);
+                    tets.push([c(1, 1, 0), c(0, 1, 0), c(1, 0, 0), c(1, 1, 1)]);
+                    tets.push([c(1, 0, 1), c(1, 0, 0), c(0, 0, 1), c(1, 1, 1)]);
+                    tets.push([c(0, 1, 1), c(0, 0, 1), c(0, 1, 0), c(1, 1, 1)]);
+                } else {
+                    // Mirror image in x of the even cell (so the last two nodes are swapped to
+                    // keep the orientation positive).
+                    tets.push([c(0, 0, 0), c(1, 1, 0), c(0, 1, 1), c(1, 0, 1)]);
+                    tets.push([c(1, 0, 0), c(0, 0, 0), c(1, 0, 1), c(1, 1, 0)]);
+                    tets.push([c(0, 1, 0), c(1, 1, 0), c(0, 1, 1), c(0, 0, 0)]);
+                    tets.push([c(0, 0, 1), c(0, 0, 0), c(0, 1, 1), c(1, 0, 1)]);
+                    tets.push([c(1, 1, 1), c(1, 1, 0), c(1, 0, 1), c(0, 1, 1)]);
+                }
+            }
+        }
+    }
+    let bottom: Vec<usize> = (0..=ny)
+        .flat_map(|j| (0..=nx).map(move |i| (i, j)))
+        .map(|(i, j)| id(i, j, 0))
+        .collect();
+    let mut node_groups = BTreeMap::new();
+    node_groups.insert("fixed".to_string(), bottom);
+    RawMesh {
+        nodes,
+        tets,
+        node_groups,
+    }
+}
+
+/// The Gmsh file of the bundled mouse (MSH 4.1, millimetres), made by `scripts/make_mouse.py`.
+const MOUSE_MSH: &[u8] = include_bytes!("../../../../meshes/mouse.msh");
+
+/// The paper's mouse (Table 1), remade with Gmsh: about 120 mm long along x, standing on z = 0
+/// on four clamped pads (group `fixed`), E = 1000 Pa, ν = 0.3. 1699 nodes, 1169 surface nodes,
+/// 1029 free surface nodes, 2334 surface triangles, 6139 tets (the paper: 1713, 1175, 1036,
+/// 2346, 6312).
+pub fn mouse() -> Mesh {
+    let raw = super::io::parse_msh(MOUSE_MSH, std::path::Path::new("meshes/mouse.msh"))
+        .expect("the bundled mouse parses");
+    let mut m = Mesh::from_raw(raw, LengthUnit::Millimetre, Material::DEFAULT)
+        .expect("the bundled mouse is valid");
+    m.set_fixed_group("fixed").expect("the mouse has pads");
+    m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cube_table1_counts_are_the_papers() {
+        let m = cube();
+        let t = m.table1();
+        assert_eq!(t.nodes, 125);
+        assert_eq!(t.surface_nodes, 98);
+        assert_eq!(t.free_surface_nodes, 73);
+        assert_eq!(t.surface_triangles, 192);
+        assert_eq!(t.tets, 320);
+        assert_eq!(t.young_pa, 10_000.0);
+        assert_eq!(t.poisson, 0.49);
+        assert!(m.report.is_clean(), "{:?}", m.report);
+    }
+
+    #[test]
+    fn mouse_table1_counts_and_pads() {
+        let m = mouse();
+        let t = m.table1();
+        assert_eq!(
+            (
+                t.nodes,
+                t.surface_nodes,
+                t.free_surface_nodes,
+                t.surface_triangles,
+                t.tets
+            ),
+            (1699, 1169, 1029, 2334, 6139)
+        );
+        assert_eq!((t.young_pa, t.poisson), (1000.0, 0.3));
+        assert_eq!(m.fixed_count(), 140);
+        // The pads stand on z = 0; the mouse is about 120 mm long along x.
+        assert!(m
+            .nodes
+            .iter()
+            .zip(&m.fixed)
+            .all(|(p, &f)| !f || p.z.abs() < 1e-12));
+        let (lo, hi) = m.bounds();
+        assert!(lo.z.abs() < 1e-12 && (0.11..0.13).contains(&(hi.x - lo.x)));
+        assert!(m.report.is_clean());
+    }
+
+    #[test]
+    fn cube_volume_is_exact() {
+        let m = cube();
+        let v: f64 = m
+            .tets
+            .iter()
+            .map(|t| {
+                let p = t.map(|i| m.nodes[i as usize]);
+                super::super::tet_volume(p[0], p[1], p[2], p[3])
+            })
+            .sum();
+        assert!((v - 0.03f64.powi(3)).abs() < 1e-15, "{v}");
+    }
+}

@@ -1,0 +1,148 @@
+//! The haptic loop on its thread: devices → [`HapticWorld`] → devices, the sample published
+//! lock-free, the tick recorded lock-free, and the thread's end (normal or by a panic) made
+//! visible to the visual loop.
+
+use glam::DVec3;
+use std::sync::atomic::Ordering;
+
+use super::haptic::HapticWorld;
+use super::pacer::Pacer;
+use super::sample::{LiveStatus, SampleWriter, MAX_OBJECTS};
+use super::session::{Recorder, TickRecord};
+use crate::devices::{FingerDevices, ForceState};
+use crate::force::MAX_FINGERS;
+use crate::runtime::pacer::HapticStats;
+use crate::scene::World;
+use crate::Error;
+
+/// The longest a clocked loop waits for its device's reading before it ticks anyway (the
+/// device's own watchdog may be shorter) and looks at its stop flag.
+const CLOCKED_WAIT: std::time::Duration = std::time::Duration::from_millis(20);
+
+/// What a haptic run measured.
+#[derive(Clone, Debug, Default)]
+pub struct HapticRun {
+    /// Timing and largest force.
+    pub stats: HapticStats,
+    /// Per object, the most fingers touching it at once.
+    pub max_contacts: [usize; MAX_OBJECTS],
+    /// Ticks whose record did not fit the recorder's ring (0 unless the disk stalled).
+    pub records_dropped: u64,
+}
+
+/// Runs the haptic loop on the calling thread at the scene's rate — or, for a device that
+/// clocks it ([`FingerDevices::clocked`]), at each of its readings — until `seconds` have
+/// passed (`None`: until `status.stop`). Each tick reads every finger's device, steps the god-objects
+/// and forces, sends each device its force, publishes the [`WorldSample`](crate::runtime::WorldSample) and, if recording,
+/// queues the tick's positions and forces. Allocates nothing per tick.
+pub fn run_haptic(
+    world: &World,
+    devices: &mut (impl FingerDevices + ?Sized),
+    seconds: Option<f64>,
+    publish: &mut SampleWriter,
+    status: &LiveStatus,
+    mut recorder: Option<&mut Recorder>,
+) -> HapticRun {
+    let mut hw = HapticWorld::new(world);
+    let n = hw.fingers();
+    let rate = world.haptics.rate_hz;
+    let limit = seconds.map(|s| (s * rate).ceil().max(1.0) as u64);
+    let mut pacer = Pacer::new(rate);
+    let mut pos = [DVec3::ZERO; MAX_FINGERS];
+    let mut force = [DVec3::ZERO; MAX_FINGERS];
+    let mut state = [ForceState::default(); MAX_FINGERS];
+    let mut out = HapticRun::default();
+    let mut max_force: f64 = 0.0;
+    let period = 1.0 / rate;
+    let mut last_t: Option<f64> = None;
+    // A device that clocks the loop (the UDP bridge with `--clock device`) starts each tick
+    // with its reading; the run then ends on wall time.
+    let clocked = devices.clocked();
+    // A span too long for a Duration (or infinite) runs until `status.stop`.
+    let until = seconds.and_then(|s| std::time::Duration::try_from_secs_f64(s.max(0.0)).ok());
+    let more = |p: &Pacer| match (clocked, limit, until) {
+        (false, Some(l), _) => p.ticks() < l,
+        (true, _, Some(u)) => p.elapsed() < u,
+        _ => true,
+    };
+    while more(&pacer) && !status.stop.load(Ordering::Relaxed) {
+        let (start, t) = if clocked {
+            let reading = devices.wait_reading(CLOCKED_WAIT);
+            pacer.arrived(reading)
+        } else {
+            pacer.wait()
+        };
+        // Time-based quantities (the ramp, the coupling, the force bound's rate) take the
+        // measured time between the device's readings; the host clock's ticks are its
+        // deadlines, one period apart.
+        let dt = match last_t {
+            Some(l) if clocked => (t - l).max(0.0),
+            _ => period,
+        };
+        last_t = Some(t);
+        devices.read(t, &mut pos[..n]);
+        // Written in place into the triple buffer's back buffer: only the cache lines this
+        // tick uses move between the cores (copying the whole sample cost ~3 µs a tick).
+        let sample = publish.input_buffer_mut();
+        hw.step_dt(dt, &pos[..n], &mut force[..n], sample);
+        for (i, (s, f)) in state.iter_mut().zip(sample.fingers()).enumerate() {
+            *s = ForceState {
+                touching: f.object.is_some(),
+                limited: hw.limited(i),
+            };
+        }
+        for (o, m) in out
+            .max_contacts
+            .iter_mut()
+            .enumerate()
+            .take(sample.n_objects)
+        {
+            *m = (*m).max(sample.contacts(o));
+        }
+        publish.publish();
+        devices.write(&force[..n], &state[..n]);
+        for f in &force[..n] {
+            max_force = max_force.max(f.length());
+        }
+        if let Some(r) = recorder.as_deref_mut() {
+            r.push(&TickRecord::new(dt, &pos[..n], &force[..n]));
+        }
+        pacer.end(start);
+        status.ticks.store(pacer.ticks(), Ordering::Relaxed);
+        status
+            .elapsed_ns
+            .store(pacer.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        status.missed.store(pacer.missed(), Ordering::Relaxed);
+    }
+    // The end of service, however it came: every device is released (zero force).
+    devices.release();
+    out.stats = pacer.stats();
+    out.stats.max_force_n = max_force;
+    out.records_dropped = recorder.map_or(0, |r| r.dropped());
+    out
+}
+
+/// Marks `status` done when dropped — also when the haptic thread unwinds from a panic, which
+/// it then records, so a visual loop waiting on `status.done` never spins forever.
+pub struct DoneGuard<'a>(pub &'a LiveStatus);
+
+impl Drop for DoneGuard<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0.panicked.store(true, Ordering::Release);
+        }
+        self.0.done.store(true, Ordering::Release);
+    }
+}
+
+/// Joins a haptic thread, turning a panic into [`Error::HapticThread`].
+pub fn join_haptic<T>(h: std::thread::ScopedJoinHandle<'_, T>) -> Result<T, Error> {
+    h.join().map_err(|p| {
+        let msg = p
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| p.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown panic".into());
+        Error::HapticThread(msg)
+    })
+}

@@ -1,0 +1,774 @@
+//! Scene files (TOML; the schema is in `../shared/CONTRACTS.md`): parsing with serde and the
+//! `toml` crate, then validation and loading into a [`World`]. Every error names the file, the
+//! line and the key.
+//!
+//! Only what the scene names is precomputed: rows for each object's displayed surface, columns
+//! for its touchable nodes (`touchable`: the free surface, a group, or a ball). Compliances are
+//! cached by a key that includes the selection (see [`crate::cache`]) in
+//! `$TOUCHFEM_CACHE_DIR` (default `$XDG_CACHE_HOME/touchfem` or `~/.cache/touchfem`; set it to
+//! an empty string to turn caching off). A cache that cannot be written costs a warning, never
+//! the computed compliance.
+
+use glam::DVec3;
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+use toml::Spanned;
+
+use super::world::{DeviceSpec, FingerSpec, HapticSettings, Object, World};
+use super::{load_mesh, LoadOptions, Scene};
+use crate::compliance::{Compliance, NodeSet, Selection};
+use crate::devices::limits::DeviceLimits;
+use crate::force::{ForceModel, MAX_FINGERS};
+use crate::runtime::MAX_OBJECTS;
+use crate::units::LengthUnit;
+use crate::Error;
+
+/// The bundled scenes: (name, TOML text).
+pub const BUNDLED_SCENES: &[(&str, &str)] = &[
+    ("fig1", include_str!("../../../../scenes/fig1.toml")),
+    ("fig2", include_str!("../../../../scenes/fig2.toml")),
+    ("pinch", include_str!("../../../../scenes/pinch.toml")),
+];
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileToml {
+    #[serde(default)]
+    unit: Option<Spanned<String>>,
+    #[serde(default)]
+    object: Vec<Spanned<ObjectToml>>,
+    #[serde(default)]
+    finger: Vec<Spanned<FingerToml>>,
+    #[serde(default)]
+    haptics: Option<HapticsToml>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ObjectToml {
+    name: Option<String>,
+    mesh: Spanned<String>,
+    mesh_unit: Option<Spanned<String>>,
+    young: Option<Spanned<f64>>,
+    poisson: Option<Spanned<f64>>,
+    fixed: Option<Spanned<String>>,
+    touchable: Option<Spanned<TouchableToml>>,
+    offset: Option<Spanned<[f64; 3]>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum TouchableToml {
+    Name(String),
+    Ball(BallToml),
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BallToml {
+    center: [f64; 3],
+    radius: f64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FingerToml {
+    device: Spanned<String>,
+    path: Option<Spanned<Vec<[f64; 4]>>>,
+    model: Option<Spanned<String>>,
+    limits: Option<Spanned<LimitsToml>>,
+}
+
+/// A finger's device limits: a preset's name, or the numbers (SI, the unit in each key).
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum LimitsToml {
+    Preset(String),
+    Numbers(LimitNumbersToml),
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LimitNumbersToml {
+    name: Option<String>,
+    max_force_n: f64,
+    max_continuous_force_n: Option<f64>,
+    max_stiffness_n_per_m: f64,
+    max_damping_ns_per_m: f64,
+    workspace_radius_m: f64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HapticsToml {
+    rate_hz: Option<Spanned<f64>>,
+    max_force_n: Option<Spanned<f64>>,
+}
+
+/// Where a scene comes from: its name, text and the directory relative paths start from.
+#[derive(Clone, Debug)]
+pub struct SceneSource {
+    /// The scene's name (file stem or bundled name).
+    pub name: String,
+    /// The file's text.
+    pub text: String,
+    /// Relative mesh paths are resolved from here.
+    pub dir: PathBuf,
+    /// How errors name the file.
+    pub label: String,
+}
+
+impl SceneSource {
+    /// A bundled scene (`fig1`, `fig2`, `pinch`) or a scene file; `None` if `spec` is neither a
+    /// bundled name nor a `.toml` path.
+    pub fn find(spec: &str) -> Result<Option<SceneSource>, Error> {
+        if let Some((name, text)) = BUNDLED_SCENES.iter().find(|(n, _)| *n == spec) {
+            return Ok(Some(SceneSource {
+                name: name.to_string(),
+                text: text.to_string(),
+                dir: PathBuf::from("."),
+                label: format!("bundled scene '{name}'"),
+            }));
+        }
+        let path = Path::new(spec);
+        if path.extension().is_some_and(|e| e == "toml") {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| Error::Scene(format!("{spec}: cannot read the scene file: {e}")))?;
+            // Absolute, so a recorded session replays from any directory.
+            let dir = path
+                .parent()
+                .map(|p| {
+                    if p.as_os_str().is_empty() {
+                        Path::new(".")
+                    } else {
+                        p
+                    }
+                })
+                .and_then(|p| p.canonicalize().ok())
+                .unwrap_or_else(|| PathBuf::from("."));
+            let name = path
+                .file_stem()
+                .map_or("scene".into(), |s| s.to_string_lossy().into_owned());
+            return Ok(Some(SceneSource {
+                name,
+                text,
+                dir,
+                label: spec.to_string(),
+            }));
+        }
+        Ok(None)
+    }
+
+    /// A bundled scene or scene file ([`SceneSource::find`]), else a mesh as one object
+    /// touched by `device` ([`SceneSource::for_mesh`]).
+    pub fn find_or_mesh(spec: &str, device: &str) -> Result<SceneSource, Error> {
+        Ok(SceneSource::find(spec)?.unwrap_or_else(|| SceneSource::for_mesh(spec, device)))
+    }
+
+    /// A one-object scene around a mesh (bundled name or file) touched by `device`.
+    pub fn for_mesh(spec: &str, device: &str) -> SceneSource {
+        let (mesh, dir) = if crate::scene::BUNDLED.contains(&spec) {
+            (spec.to_string(), PathBuf::from("."))
+        } else {
+            let p = Path::new(spec);
+            let dir = p
+                .parent()
+                .map(Path::to_path_buf)
+                .unwrap_or_else(|| PathBuf::from("."));
+            let file = p
+                .file_name()
+                .map_or(spec.into(), |f| f.to_string_lossy().into_owned());
+            (file, dir)
+        };
+        let unit = if crate::scene::BUNDLED.contains(&spec) {
+            "mm"
+        } else {
+            "m"
+        };
+        let text = format!(
+            "unit = \"{unit}\"\n\n[[object]]\nmesh = {mesh:?}\n\n[[finger]]\ndevice = {device:?}\n"
+        );
+        SceneSource {
+            name: Path::new(spec)
+                .file_stem()
+                .map_or(spec.into(), |s| s.to_string_lossy().into_owned()),
+            text,
+            dir,
+            label: format!("mesh '{spec}'"),
+        }
+    }
+}
+
+/// The largest Young's modulus a scene accepts, Pa (diamond is about 1.2e12).
+pub const MAX_YOUNG_PA: f64 = 1e13;
+/// The largest magnitude of a coordinate, offset or radius in a scene file, in its unit.
+pub const MAX_COORDINATE: f64 = 1e9;
+/// The largest magnitude of a keyframe time in a scene file, s (about 11.6 days).
+pub const MAX_KEYFRAME_SECONDS: f64 = 1e6;
+
+/// Whether every component of `v` is finite and at most [`MAX_COORDINATE`] in magnitude.
+fn coordinates_ok(v: &[f64]) -> bool {
+    v.iter().all(|x| x.is_finite() && x.abs() <= MAX_COORDINATE)
+}
+
+/// The 1-based line of a byte offset in `text`.
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+fn unit_of(s: &str) -> Option<LengthUnit> {
+    match s {
+        "m" => Some(LengthUnit::Metre),
+        "mm" => Some(LengthUnit::Millimetre),
+        _ => None,
+    }
+}
+
+pub use crate::options::cache_dir;
+
+impl World {
+    /// Loads a scene: a bundled scene's name, a `.toml` scene file, or a mesh (bundled name or
+    /// file) as a one-object scene touched by one `device` finger.
+    pub fn load(spec: &str, device: &str) -> Result<World, Error> {
+        World::load_with(spec, device, cache_dir().as_deref())
+    }
+
+    /// As [`World::load`], with the compliance cache in `cache` (`None`: no cache).
+    pub fn load_with(spec: &str, device: &str, cache: Option<&Path>) -> Result<World, Error> {
+        World::from_source_with(&SceneSource::find_or_mesh(spec, device)?, cache)
+    }
+
+    /// As [`World::load`] for a live session: [`Hold::Live`].
+    pub fn load_live(spec: &str, device: &str) -> Result<World, Error> {
+        let src = SceneSource::find_or_mesh(spec, device)?;
+        World::from_source_holding(&src, cache_dir().as_deref(), Hold::Live)
+    }
+
+    /// Parses, validates and precomputes a scene, caching compliances in [`cache_dir`].
+    /// Warnings (a cache that cannot be written) go to stderr.
+    pub fn from_source(src: &SceneSource) -> Result<World, Error> {
+        World::from_source_with(src, cache_dir().as_deref())
+    }
+
+    /// As [`World::from_source`], with the compliance cache in `cache` (`None`: no cache).
+    pub fn from_source_with(src: &SceneSource, cache: Option<&Path>) -> Result<World, Error> {
+        World::from_source_holding(src, cache, Hold::Dense)
+    }
+
+    /// As [`World::from_source_with`], keeping on the host what `hold` says.
+    pub fn from_source_holding(
+        src: &SceneSource,
+        cache: Option<&Path>,
+        hold: Hold,
+    ) -> Result<World, Error> {
+        World::build(src, &mut |name, mesh, sel, key, fingers| {
+            let near_from = match hold {
+                _ if fingers > 1 => None,
+                Hold::Dense => None,
+                Hold::Live => Some(NEAR_ONLY_BYTES),
+                Hold::Near => Some(0),
+            };
+            compute_cached(cache, name, mesh, sel, key, near_from).map(Some)
+        })
+    }
+
+    /// What a scene asks to precompute, without computing it: for each object its name, mesh
+    /// (scene units applied), selection and cache key (see `touchfem precompute`).
+    pub fn plan(src: &SceneSource) -> Result<Vec<PlannedObject>, Error> {
+        let mut out = Vec::new();
+        World::build(src, &mut |name, mesh, sel, key, _| {
+            out.push(PlannedObject {
+                name: name.to_string(),
+                mesh: mesh.clone(),
+                selection: sel.clone(),
+                key,
+            });
+            Ok(None)
+        })?;
+        Ok(out)
+    }
+
+    /// The hash a load of `src` gives ([`World::hash`]: its text and each object's cache key),
+    /// without precomputing anything (the meshes are read).
+    pub fn hash_of(src: &SceneSource) -> Result<u64, Error> {
+        Ok(World::build(src, &mut |_, _, _, _, _| Ok(None))?.hash)
+    }
+
+    /// Parses and validates a scene; `compute` gives each object's compliance (`None`: leave the
+    /// object out).
+    fn build(src: &SceneSource, compute: &mut Compute<'_>) -> Result<World, Error> {
+        let text = &src.text;
+        let at = |span: std::ops::Range<usize>, key: &str, msg: String| {
+            Error::Scene(format!(
+                "{}: line {}, key `{key}`: {msg}",
+                src.label,
+                line_of(text, span.start)
+            ))
+        };
+        let file: FileToml = toml::from_str(text)
+            .map_err(|e| Error::Scene(format!("{}: {}", src.label, e.to_string().trim_end())))?;
+        let unit = match &file.unit {
+            None => LengthUnit::Metre,
+            Some(u) => unit_of(u.get_ref()).ok_or_else(|| {
+                at(
+                    u.span(),
+                    "unit",
+                    format!("'{}' is not a unit: use \"m\" or \"mm\"", u.get_ref()),
+                )
+            })?,
+        };
+        let s = unit.to_metres();
+        if file.object.is_empty() {
+            return Err(Error::Scene(format!(
+                "{}: no [[object]]: a scene needs at least one",
+                src.label
+            )));
+        }
+        if file.object.len() > MAX_OBJECTS {
+            let span = file.object[MAX_OBJECTS].span();
+            return Err(at(
+                span,
+                "object",
+                format!("at most {MAX_OBJECTS} objects in a scene"),
+            ));
+        }
+        if file.finger.len() > MAX_FINGERS {
+            let span = file.finger[MAX_FINGERS].span();
+            return Err(at(
+                span,
+                "finger",
+                format!("at most {MAX_FINGERS} fingers in a scene"),
+            ));
+        }
+        let mut hasher = xxhash_rust::xxh3::Xxh3::new();
+        hasher.update(text.as_bytes());
+        let mut objects = Vec::new();
+        for o in &file.object {
+            let o = o.get_ref();
+            let mesh_spec = o.mesh.get_ref();
+            let mesh_unit = match &o.mesh_unit {
+                None => None,
+                Some(u) => Some(unit_of(u.get_ref()).ok_or_else(|| {
+                    at(
+                        u.span(),
+                        "mesh_unit",
+                        format!("'{}' is not a unit: use \"m\" or \"mm\"", u.get_ref()),
+                    )
+                })?),
+            };
+            if let Some(y) = &o.young {
+                let v = *y.get_ref();
+                if !(v.is_finite() && v > 0.0 && v <= MAX_YOUNG_PA) {
+                    return Err(at(
+                        y.span(),
+                        "young",
+                        format!("{v} is outside (0, {MAX_YOUNG_PA:e}] Pa"),
+                    ));
+                }
+            }
+            if let Some(off) = &o.offset {
+                if !coordinates_ok(off.get_ref()) {
+                    return Err(at(
+                        off.span(),
+                        "offset",
+                        format!("each coordinate must be finite and at most {MAX_COORDINATE:e} in magnitude"),
+                    ));
+                }
+            }
+            let fixed = o
+                .fixed
+                .as_ref()
+                .map_or("fixed".to_string(), |f| f.get_ref().clone());
+            let opts = LoadOptions {
+                unit: mesh_unit,
+                young_pa: o.young.as_ref().map(|v| *v.get_ref()),
+                poisson: o.poisson.as_ref().map(|v| *v.get_ref()),
+                fixed_group: fixed,
+            };
+            let path = if crate::scene::BUNDLED.contains(&mesh_spec.as_str()) {
+                mesh_spec.clone()
+            } else {
+                let p = src.dir.join(mesh_spec);
+                if !p.exists() {
+                    return Err(at(
+                        o.mesh.span(),
+                        "mesh",
+                        format!(
+                            "'{mesh_spec}' is neither a bundled mesh ({}) nor a file ({} does not exist)",
+                            crate::scene::BUNDLED.join(", "),
+                            p.display()
+                        ),
+                    ));
+                }
+                p.to_string_lossy().into_owned()
+            };
+            let key_span = |k: &str| match k {
+                "young" => o.young.as_ref().map(|v| v.span()),
+                "poisson" => o.poisson.as_ref().map(|v| v.span()),
+                "fixed" => o.fixed.as_ref().map(|v| v.span()),
+                _ => None,
+            };
+            let (mesh, _) = load_mesh(&path, &opts).map_err(|e| {
+                let key = match &e {
+                    Error::Mesh(crate::MeshError::MissingGroup { .. }) => "fixed",
+                    Error::Fem(crate::fem::FemError::BadMaterial(..)) => {
+                        if key_span("poisson").is_some() {
+                            "poisson"
+                        } else {
+                            "young"
+                        }
+                    }
+                    _ => "mesh",
+                };
+                at(key_span(key).unwrap_or(o.mesh.span()), key, e.to_string())
+            })?;
+            let offset = o
+                .offset
+                .as_ref()
+                .map_or(DVec3::ZERO, |v| DVec3::from_array(*v.get_ref()) * s);
+            if !offset.is_finite() {
+                let span = o.offset.as_ref().map(|v| v.span()).unwrap_or(o.mesh.span());
+                return Err(at(span, "offset", "not finite".into()));
+            }
+            let free = mesh.free_surface_nodes();
+            let cols = match &o.touchable {
+                None => NodeSet::FreeSurface,
+                Some(t) => match t.get_ref() {
+                    TouchableToml::Name(n) if n == "all" => NodeSet::FreeSurface,
+                    TouchableToml::Name(g) => {
+                        let Some(ids) = mesh.groups.get(g) else {
+                            return Err(at(
+                                t.span(),
+                                "touchable",
+                                format!(
+                                    "no group '{g}' in the mesh (groups: {})",
+                                    mesh.groups.keys().cloned().collect::<Vec<_>>().join(", ")
+                                ),
+                            ));
+                        };
+                        let set: std::collections::BTreeSet<u32> = ids.iter().copied().collect();
+                        let nodes: Vec<u32> =
+                            free.iter().copied().filter(|n| set.contains(n)).collect();
+                        if nodes.is_empty() {
+                            return Err(at(
+                                t.span(),
+                                "touchable",
+                                format!("group '{g}' holds no free-surface node"),
+                            ));
+                        }
+                        NodeSet::Nodes(nodes)
+                    }
+                    TouchableToml::Ball(b) => {
+                        if !(coordinates_ok(&b.center) && coordinates_ok(&[b.radius])) {
+                            return Err(at(
+                                t.span(),
+                                "touchable",
+                                format!("the ball's center and radius must be finite and at most {MAX_COORDINATE:e} in magnitude"),
+                            ));
+                        }
+                        let c = DVec3::from_array(b.center) * s - offset;
+                        let r = b.radius * s;
+                        if !(c.is_finite() && r.is_finite() && r > 0.0) {
+                            return Err(at(
+                                t.span(),
+                                "touchable",
+                                "a ball needs a finite center and a positive radius".into(),
+                            ));
+                        }
+                        let nodes: Vec<u32> = free
+                            .iter()
+                            .copied()
+                            .filter(|&n| mesh.nodes[n as usize].distance(c) <= r)
+                            .collect();
+                        if nodes.is_empty() {
+                            return Err(at(
+                                t.span(),
+                                "touchable",
+                                format!(
+                                    "the ball (center {:?}, radius {}) holds no free-surface node of '{mesh_spec}'",
+                                    b.center, b.radius
+                                ),
+                            ));
+                        }
+                        NodeSet::Nodes(nodes)
+                    }
+                },
+            };
+            let sel = Selection {
+                rows: NodeSet::Surface,
+                cols,
+            };
+            let key = crate::cache::key(&mesh, &sel);
+            hasher.update(&key.to_le_bytes());
+            let name = o.name.clone().unwrap_or_else(|| {
+                Path::new(mesh_spec)
+                    .file_stem()
+                    .map_or(mesh_spec.clone(), |s| s.to_string_lossy().into_owned())
+            });
+            let Some(compliance) = compute(&name, &mesh, &sel, key, file.finger.len())? else {
+                continue;
+            };
+            objects.push(Object {
+                name,
+                scene: Scene::with_compliance(mesh, compliance),
+                offset,
+            });
+        }
+        let mut fingers = Vec::new();
+        for f in &file.finger {
+            let f = f.get_ref();
+            let model = match f.model.as_ref().map(|m| (m.get_ref().as_str(), m.span())) {
+                None | Some(("paper", _)) => ForceModel::Paper,
+                Some(("exact", _)) => ForceModel::Exact,
+                Some((other, span)) => {
+                    return Err(at(
+                        span,
+                        "model",
+                        format!("'{other}' is not a force model: use \"paper\" or \"exact\""),
+                    ))
+                }
+            };
+            let device = match f.device.get_ref().as_str() {
+                "script" => {
+                    let Some(p) = &f.path else {
+                        return Err(at(
+                            f.device.span(),
+                            "path",
+                            "a script finger needs a path of [t, x, y, z] keyframes".into(),
+                        ));
+                    };
+                    let keys = p.get_ref();
+                    if keys.is_empty() {
+                        return Err(at(p.span(), "path", "the path is empty".into()));
+                    }
+                    for (i, k) in keys.iter().enumerate() {
+                        if !k.iter().all(|v| v.is_finite()) {
+                            return Err(at(
+                                p.span(),
+                                "path",
+                                format!("keyframe {} is not finite", i + 1),
+                            ));
+                        }
+                        if k[0].abs() > MAX_KEYFRAME_SECONDS || !coordinates_ok(&k[1..]) {
+                            return Err(at(
+                                p.span(),
+                                "path",
+                                format!(
+                                    "keyframe {}: |t| must be at most {MAX_KEYFRAME_SECONDS:e} s and each coordinate at most {MAX_COORDINATE:e} in magnitude",
+                                    i + 1
+                                ),
+                            ));
+                        }
+                        if i > 0 && k[0] <= keys[i - 1][0] {
+                            return Err(at(
+                                p.span(),
+                                "path",
+                                format!(
+                                    "times must increase: keyframe {} has t = {} after t = {}",
+                                    i + 1,
+                                    k[0],
+                                    keys[i - 1][0]
+                                ),
+                            ));
+                        }
+                    }
+                    DeviceSpec::Script(
+                        keys.iter()
+                            .map(|k| (k[0], DVec3::new(k[1], k[2], k[3]) * s))
+                            .collect(),
+                    )
+                }
+                "pointer" => DeviceSpec::Pointer,
+                "udp" => DeviceSpec::Udp,
+                "replay" => DeviceSpec::Replay,
+                other => {
+                    return Err(at(
+                        f.device.span(),
+                        "device",
+                        format!(
+                            "'{other}' is not a device: use \"script\", \"udp\", \"pointer\" or \"replay\""
+                        ),
+                    ))
+                }
+            };
+            if f.path.is_some() && !matches!(device, DeviceSpec::Script(_)) {
+                let span = f.path.as_ref().map(|p| p.span()).unwrap_or(0..0);
+                return Err(at(span, "path", "only a script finger takes a path".into()));
+            }
+            let limits = match &f.limits {
+                None => None,
+                Some(l) => {
+                    let span = l.span();
+                    let limits = match l.get_ref() {
+                        LimitsToml::Preset(name) => DeviceLimits::named(name),
+                        LimitsToml::Numbers(n) => {
+                            let d = DeviceLimits {
+                                name: n.name.clone().unwrap_or_else(|| "custom".into()),
+                                max_force_n: n.max_force_n,
+                                max_continuous_force_n: n.max_continuous_force_n,
+                                max_stiffness_n_per_m: n.max_stiffness_n_per_m,
+                                max_damping_ns_per_m: n.max_damping_ns_per_m,
+                                workspace_radius_m: n.workspace_radius_m,
+                            };
+                            d.validate().map(|_| d)
+                        }
+                    };
+                    Some(limits.map_err(|e| at(span, "limits", e.to_string()))?)
+                }
+            };
+            fingers.push(FingerSpec {
+                device,
+                model,
+                limits,
+            });
+        }
+        let mut haptics = HapticSettings::default();
+        if let Some(h) = &file.haptics {
+            if let Some(r) = &h.rate_hz {
+                let v = *r.get_ref();
+                if !(v.is_finite() && (100.0..=20_000.0).contains(&v)) {
+                    return Err(at(
+                        r.span(),
+                        "rate_hz",
+                        format!("{v} is outside 100 ..= 20000 Hz"),
+                    ));
+                }
+                haptics.rate_hz = v;
+            }
+            if let Some(m) = &h.max_force_n {
+                let v = *m.get_ref();
+                if !(v.is_finite() && v > 0.0) {
+                    return Err(at(
+                        m.span(),
+                        "max_force_n",
+                        format!("{v} is not a positive force"),
+                    ));
+                }
+                haptics.max_force_n = v;
+            }
+        }
+        // Early warning: a body whose compliance loses more than 1e-3 in f32 or f16 storage.
+        for o in &objects {
+            let (e32, e16) = crate::conditioning::storage_error(&o.scene.compliance);
+            if let Some(w) = crate::conditioning::storage_warning(&o.name, e32, e16) {
+                eprintln!("{w}");
+            }
+        }
+        Ok(World {
+            name: src.name.clone(),
+            unit,
+            objects,
+            fingers,
+            haptics,
+            source: text.clone(),
+            dir: src.dir.clone(),
+            hash: hasher.digest(),
+        })
+    }
+}
+
+/// Gives an object's compliance during [`World::build`]: (name, mesh, selection, cache key,
+/// the scene's finger count).
+type Compute<'a> =
+    dyn FnMut(&str, &crate::Mesh, &Selection, u64, usize) -> Result<Option<Compliance>, Error> + 'a;
+
+/// How much of each object's `L` a loaded scene keeps on the host.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Hold {
+    /// All of it, f64: exact CPU displacements (`poke`, `--vtu`, the demo's pictures, the CPU
+    /// fallback of the visual path) and any pair of nodes for several fingers.
+    #[default]
+    Dense,
+    /// For a live session (`view`, `serve`): when the scene has at most one finger and the
+    /// object's `L` is in the cache and at least [`NEAR_ONLY_BYTES`], only the blocks that
+    /// finger's force solve reads ([`crate::near::NearBlocks`]); the GPU copy is then read
+    /// from the cache file. `TOUCHFEM_HOST_L=dense` keeps all of it; `near` holds only the
+    /// blocks whatever the size (still one finger and a cache file at most).
+    Live,
+    /// As [`Hold::Live`] whatever the size of `L`.
+    Near,
+}
+
+/// The smallest f64 `L` (bytes) that a live session with one finger leaves in its cache file.
+pub const NEAR_ONLY_BYTES: u64 = 256 << 20;
+
+/// One object of a scene as `touchfem precompute` sees it.
+#[derive(Clone, Debug)]
+pub struct PlannedObject {
+    /// The object's name (file names of its cache derive from it).
+    pub name: String,
+    /// Its mesh, in metres.
+    pub mesh: crate::Mesh,
+    /// Rows and columns to precompute.
+    pub selection: Selection,
+    /// The cache key ([`crate::cache::key`]).
+    pub key: u64,
+}
+
+/// The cache file name of an object: `NAME-KEY.tfc` (name made file-safe) in `dir`.
+pub fn cache_file(dir: &Path, name: &str, key: u64) -> PathBuf {
+    let safe: String = name
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .collect();
+    dir.join(format!("{safe}-{key:016x}.tfc"))
+}
+
+/// The compliance for `sel`, from the cache when valid; computed (and saved, if possible)
+/// otherwise. `near_from` (a live session with one finger): an `L` of at least that many f64
+/// bytes stays in the cache file and only the near blocks are held (see [`Hold::Live`]).
+fn compute_cached(
+    cache: Option<&Path>,
+    name: &str,
+    mesh: &crate::Mesh,
+    sel: &Selection,
+    key: u64,
+    near_from: Option<u64>,
+) -> Result<Compliance, Error> {
+    let Some(dir) = cache else {
+        return Ok(Compliance::compute(mesh, sel)?);
+    };
+    let path = cache_file(dir, name, key);
+    let min_bytes = match std::env::var("TOUCHFEM_HOST_L").unwrap_or_default().trim() {
+        "dense" => None,
+        "near" => near_from.map(|_| 0),
+        _ => near_from,
+    };
+    let large =
+        |rows: usize, cols: usize| min_bytes.is_some_and(|m| 72 * rows as u64 * cols as u64 >= m);
+    let n = mesh.nodes.len();
+    if let Ok(part) = crate::cache::Part::open(&path) {
+        if large(part.head.l_rows as usize, part.cols.len()) {
+            if let Ok(c) = crate::cache::load_near_part(part, key, n, &mesh.surface) {
+                return Ok(c);
+            }
+        }
+    }
+    let (c, outcome) = crate::cache::load_or_compute(&path, mesh, sel)?;
+    match outcome {
+        crate::cache::CacheOutcome::NotSaved(..) => {
+            if let Some(m) = outcome.message() {
+                eprintln!("{m}");
+            }
+        }
+        crate::cache::CacheOutcome::Recomputed(_) if large(c.l_rows(), c.cols().len()) => {
+            // Just saved: hold only the blocks from the file.
+            drop(c);
+            return Ok(crate::cache::load_near(&path, key, n, &mesh.surface)?);
+        }
+        _ => {}
+    }
+    Ok(c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lines_are_counted_from_one() {
+        assert_eq!(line_of("a\nb\nc", 0), 1);
+        assert_eq!(line_of("a\nb\nc", 2), 2);
+        assert_eq!(line_of("a\nb\nc", 4), 3);
+    }
+}

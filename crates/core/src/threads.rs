@@ -1,0 +1,171 @@
+//! Thread placement: which cores the haptic loop, the visual loop and a software GPU driver's
+//! threads run on.
+//!
+//! On a software Vulkan driver (Mesa's lavapipe) every submit hands work from the submitting
+//! thread to the driver's queue thread and back. When the two run on different cores each
+//! hand-off is a cross-core wake-up, which on a virtual machine costs tens of microseconds and
+//! varies wildly; on one core it is a plain context switch. Measured on the development VM
+//! (`cargo bench --bench deform`): an empty submit-and-wait took 30–80 µs unpinned and a
+//! steady 17 µs with both threads on one core. Threads inherit the affinity of the thread that
+//! creates them, so [`VisualPlacement`] pins the visual thread *before* the GPU context is
+//! created (the driver's threads start on that core too) and gives the haptic loop another.
+
+/// The cores the calling thread may run on (empty where unknown or unsupported).
+pub fn current_cpus() -> Vec<usize> {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: `set` is a plain bit set, fully initialised by CPU_ZERO; the call writes at
+        // most `size_of::<cpu_set_t>()` bytes into it.
+        unsafe {
+            let mut set: libc::cpu_set_t = std::mem::zeroed();
+            libc::CPU_ZERO(&mut set);
+            if libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set) != 0 {
+                return Vec::new();
+            }
+            (0..libc::CPU_SETSIZE as usize)
+                .filter(|&c| libc::CPU_ISSET(c, &set))
+                .collect()
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        Vec::new()
+    }
+}
+
+/// Restricts the calling thread to `cpus`. Returns false (and changes nothing) where that is
+/// not permitted, not supported, or `cpus` is empty or out of range.
+pub fn pin_current_thread(cpus: &[usize]) -> bool {
+    #[cfg(target_os = "linux")]
+    {
+        if cpus.is_empty() || cpus.iter().any(|&c| c >= libc::CPU_SETSIZE as usize) {
+            return false;
+        }
+        // SAFETY: as in `current_cpus`; every index is below CPU_SETSIZE.
+        unsafe {
+            let mut set: libc::cpu_set_t = std::mem::zeroed();
+            libc::CPU_ZERO(&mut set);
+            for &c in cpus {
+                libc::CPU_SET(c, &mut set);
+            }
+            libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) == 0
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = cpus;
+        false
+    }
+}
+
+/// Where the demo's threads go: the visual loop (and the GPU driver's threads, created while it
+/// is pinned) on one core, the haptic loop on another. On a machine with fewer than two usable
+/// cores nothing is pinned.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct VisualPlacement {
+    /// Every core the process may use (restored around work that wants them all).
+    pub all: Vec<usize>,
+    /// The visual loop's core.
+    pub visual: Option<usize>,
+    /// The haptic loop's core.
+    pub haptic: Option<usize>,
+}
+
+impl VisualPlacement {
+    /// The first usable core for the visual loop, the last for the haptic loop.
+    pub fn split() -> VisualPlacement {
+        let all = current_cpus();
+        match (all.first(), all.last()) {
+            (Some(&v), Some(&h)) if all.len() >= 2 => VisualPlacement {
+                visual: Some(v),
+                haptic: Some(h),
+                all,
+            },
+            _ => VisualPlacement {
+                all,
+                ..Default::default()
+            },
+        }
+    }
+
+    /// Pins the calling thread to the visual core; returns whether it did.
+    pub fn enter_visual(&self) -> bool {
+        self.visual.is_some_and(|c| pin_current_thread(&[c]))
+    }
+
+    /// Pins the calling thread to the haptic core; returns whether it did.
+    pub fn enter_haptic(&self) -> bool {
+        self.haptic.is_some_and(|c| pin_current_thread(&[c]))
+    }
+
+    /// Lets the calling thread run on every core again.
+    pub fn leave(&self) -> bool {
+        pin_current_thread(&self.all)
+    }
+}
+
+#[cfg(all(test, target_os = "linux"))]
+mod tests {
+    use super::*;
+
+    /// Pinning restricts the thread to the named core, and restoring gives every core back;
+    /// bad requests change nothing. (Runs on a spawned thread so the test harness's thread
+    /// keeps its affinity.)
+    #[test]
+    fn pin_and_restore() {
+        std::thread::spawn(|| {
+            let all = current_cpus();
+            assert!(!all.is_empty(), "sched_getaffinity works on Linux");
+            assert!(!pin_current_thread(&[]));
+            assert!(!pin_current_thread(&[usize::MAX]));
+            assert_eq!(current_cpus(), all);
+            let last = *all.last().unwrap();
+            assert!(pin_current_thread(&[last]));
+            assert_eq!(current_cpus(), vec![last]);
+            let p = VisualPlacement::split();
+            assert_eq!(p.all, vec![last], "split sees the current mask");
+            assert_eq!(p.visual, None, "one core: nothing to split");
+            assert!(!p.enter_visual());
+            assert!(pin_current_thread(&all));
+            assert_eq!(current_cpus(), all);
+            let p = VisualPlacement::split();
+            if all.len() >= 2 {
+                assert_ne!(p.visual, p.haptic);
+                assert!(p.enter_haptic());
+                assert_eq!(current_cpus(), vec![p.haptic.unwrap()]);
+                assert!(p.enter_visual());
+                assert_eq!(current_cpus(), vec![p.visual.unwrap()]);
+                assert!(p.leave());
+                assert_eq!(current_cpus(), all);
+            }
+        })
+        .join()
+        .unwrap();
+    }
+}
+
+/// Asks the OS to run the calling thread at real-time priority (Linux `SCHED_FIFO`, priority
+/// 80), so the 1 kHz loop keeps its rate whatever the visual path does. Returns false (and
+/// changes nothing) where that is not permitted or not supported.
+pub fn try_realtime_priority() -> bool {
+    try_realtime_priority_at(80)
+}
+
+/// [`try_realtime_priority`] at `SCHED_FIFO` priority `priority` (1–99).
+pub fn try_realtime_priority_at(priority: i32) -> bool {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: plain FFI calls on the current thread with a fully initialised parameter.
+        unsafe {
+            let param = libc::sched_param {
+                sched_priority: priority,
+            };
+            libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) == 0
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = priority;
+        false
+    }
+}

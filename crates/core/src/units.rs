@@ -1,0 +1,92 @@
+//! Units. Everything inside touchfem is SI: metres, newtons, pascals, seconds.
+//! Mesh files may declare millimetres; the conversion happens once, at load time.
+
+use std::fmt;
+use std::str::FromStr;
+
+/// The length unit a mesh file's coordinates are written in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum LengthUnit {
+    /// Metres (the default for files).
+    #[default]
+    Metre,
+    /// Millimetres (the paper's unit; the bundled meshes use it).
+    Millimetre,
+}
+
+impl LengthUnit {
+    /// Metres per one unit.
+    pub fn to_metres(self) -> f64 {
+        match self {
+            LengthUnit::Metre => 1.0,
+            LengthUnit::Millimetre => 1e-3,
+        }
+    }
+    /// The unit's symbol as used on the command line (`m`, `mm`).
+    pub fn symbol(self) -> &'static str {
+        match self {
+            LengthUnit::Metre => "m",
+            LengthUnit::Millimetre => "mm",
+        }
+    }
+}
+
+impl fmt::Display for LengthUnit {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.symbol())
+    }
+}
+
+impl FromStr for LengthUnit {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "m" => Ok(LengthUnit::Metre),
+            "mm" => Ok(LengthUnit::Millimetre),
+            other => Err(format!("unknown length unit '{other}': use m or mm")),
+        }
+    }
+}
+
+/// Isotropic linear-elastic material, SI units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Material {
+    /// Young's modulus in pascals.
+    pub young_pa: f64,
+    /// Poisson's ratio (dimensionless, in (-1, 0.5)).
+    pub poisson: f64,
+}
+
+impl Material {
+    /// The default for meshes that do not say: 1000 Pa, 0.3 (the paper's mouse).
+    pub const DEFAULT: Material = Material {
+        young_pa: 1000.0,
+        poisson: 0.3,
+    };
+
+    /// Checks that E > 0 and -1 < ν < 0.5, both finite.
+    pub fn validate(&self) -> Result<(), crate::fem::error::FemError> {
+        if !(self.young_pa.is_finite() && self.young_pa > 0.0) {
+            return Err(crate::fem::error::FemError::BadMaterial(format!(
+                "Young's modulus must be finite and > 0 Pa, got {}",
+                self.young_pa
+            )));
+        }
+        if !(self.poisson.is_finite() && self.poisson > -1.0 && self.poisson < 0.5) {
+            return Err(crate::fem::error::FemError::BadMaterial(format!(
+                "Poisson's ratio must be in (-1, 0.5), got {}",
+                self.poisson
+            )));
+        }
+        Ok(())
+    }
+
+    /// Lamé parameters (λ, μ) in pascals.
+    pub fn lame(&self) -> (f64, f64) {
+        let e = self.young_pa;
+        let nu = self.poisson;
+        let lambda = e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
+        let mu = e / (2.0 * (1.0 + nu));
+        (lambda, mu)
+    }
+}

@@ -1,0 +1,149 @@
+//! # touchfem-gpu
+//!
+//! The GPU side of the visual loop: a wgpu compute pass that evaluates `u = L·F` over the active
+//! columns straight into a vertex buffer, and recomputes the deformed surface's vertex normals;
+//! the offscreen [`render`]er; and [`visual::Visual`], the one place a frame's deformation is
+//! built from a haptic [`touchfem_core::runtime::WorldSample`].
+//!
+//! * [`Deformer`] is the embeddable piece (in the style of glyphon or egui-wgpu): it borrows the
+//!   caller's [`wgpu::Device`] and [`wgpu::Queue`], uploads `L` once, takes a force boundary
+//!   condition per frame with [`Deformer::set_forces`] and records its passes into the caller's
+//!   encoder with [`Deformer::encode`].
+//! * [`Gpu`] is a small headless context (instance, adapter, device, queue) for tools, tests and
+//!   the offscreen [`crate::render`]er; it honours `WGPU_BACKEND`, `WGPU_ADAPTER_NAME` and
+//!   `WGPU_POWER_PREF`.
+//!
+//! Use the re-exported [`crate::wgpu`] so that your wgpu version matches ours.
+
+mod bind;
+mod buffer_path;
+mod context;
+mod deform;
+mod input;
+pub mod render;
+mod shaders;
+mod texture_path;
+pub mod visual;
+
+pub use wgpu;
+
+pub use buffer_path::{deform_f16_wgsl, pack_f16};
+pub use context::{read_buffer, AdapterSelection, Gpu, GpuError};
+pub use deform::Deformer;
+pub use input::{
+    DeformerInput, DeformerOptions, LData, LStorage, OutputTarget, Vertex, MAX_ACTIVE, NO_NORMALS,
+    VERTEX_STRIDE,
+};
+pub use shaders::*;
+
+#[cfg(test)]
+mod tests {
+    fn validate(name: &str, src: &str, caps: naga::valid::Capabilities) {
+        let module = naga::front::wgsl::parse_str(src)
+            .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(src)));
+        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), caps)
+            .validate(&module)
+            .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(src)));
+    }
+
+    /// The half-float variant of `deform.wgsl` validates, and packing keeps the low half first.
+    #[test]
+    fn f16_shader_validates_and_packs_low_half_first() {
+        validate(
+            "deform.wgsl (f16)",
+            &super::deform_f16_wgsl(),
+            naga::valid::Capabilities::SHADER_FLOAT16_IN_FLOAT32,
+        );
+        let w = super::pack_f16(&[1.0, -2.0, 0.5]);
+        assert_eq!(w, [0x3c00 | (0xc000 << 16), 0x3800]);
+    }
+
+    /// Every shader in `shaders/` parses and validates with naga (no GPU needed): the
+    /// stand-alone ones as they are, the texture layout's body with each of its preludes.
+    #[test]
+    fn shaders_validate_with_naga() {
+        use naga::valid::Capabilities;
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/shaders");
+        let parts = [
+            "deform_texture.wgsl",
+            "active_uniform.wgsl",
+            "active_immediate.wgsl",
+            "output_words.wgsl",
+            "output_vertex.wgsl",
+        ];
+        let mut n = 0;
+        for entry in std::fs::read_dir(dir).expect("shaders/ exists") {
+            let path = entry.unwrap().path();
+            if path.extension().and_then(|e| e.to_str()) != Some("wgsl") {
+                continue;
+            }
+            n += 1;
+            let name = path.file_name().unwrap().to_str().unwrap().to_string();
+            if parts.contains(&name.as_str()) {
+                continue;
+            }
+            let src = std::fs::read_to_string(&path).unwrap();
+            validate(&name, &src, Capabilities::empty());
+        }
+        assert!(
+            n >= 7,
+            "expected deform.wgsl, render.wgsl and the texture layout's five parts, found {n}"
+        );
+        for immediates in [false, true] {
+            for vertex in [false, true] {
+                for half in [false, true] {
+                    let caps = if immediates {
+                        Capabilities::IMMEDIATES
+                    } else {
+                        Capabilities::empty()
+                    };
+                    let src = super::deform_texture_source(immediates, vertex, half);
+                    assert_eq!(src.contains("rgba16float"), half);
+                    validate(
+                        &format!(
+                            "deform_texture (immediates {immediates}, vertex layout {vertex}, half {half})"
+                        ),
+                        &src,
+                        caps,
+                    );
+                }
+            }
+        }
+    }
+
+    /// The shaders' fixed-size active lists hold exactly `MAX_ACTIVE` entries.
+    #[test]
+    fn shaders_active_lists_match_max_active() {
+        let decl = format!("array<Active, {}>", super::MAX_ACTIVE);
+        for src in [super::DEFORM_WGSL, super::DEFORM_TEXTURE_WGSL] {
+            assert!(src.contains(&decl), "{decl} not found");
+        }
+        let inline = super::INLINE_ACTIVE;
+        assert_eq!(16 + 16 * inline as u32, super::IMMEDIATE_BYTES);
+        for decl in [
+            format!("array<Active, {inline}>"),
+            format!("imm.entries[{}]", inline - 1),
+            format!("ACTIVE_INLINE > {}u", inline - 1),
+        ] {
+            assert!(
+                super::ACTIVE_IMMEDIATE_WGSL.contains(&decl),
+                "{decl} not found"
+            );
+        }
+    }
+
+    #[test]
+    fn embedded_shaders_are_the_files() {
+        for (name, embedded) in [
+            ("deform.wgsl", super::DEFORM_WGSL),
+            ("deform_texture.wgsl", super::DEFORM_TEXTURE_WGSL),
+            ("active_uniform.wgsl", super::ACTIVE_UNIFORM_WGSL),
+            ("active_immediate.wgsl", super::ACTIVE_IMMEDIATE_WGSL),
+            ("output_words.wgsl", super::OUTPUT_WORDS_WGSL),
+            ("output_vertex.wgsl", super::OUTPUT_VERTEX_WGSL),
+        ] {
+            let path = format!("{}/shaders/{name}", env!("CARGO_MANIFEST_DIR"));
+            assert_eq!(std::fs::read_to_string(path).unwrap(), embedded, "{name}");
+        }
+    }
+}

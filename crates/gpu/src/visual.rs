@@ -1,0 +1,156 @@
+//! The visual path's displacement update, `u = L·F` for every object, on the GPU pass when one
+//! is there and healthy, on the CPU (f64) otherwise. A GPU that hangs (a wait longer than the
+//! timeout) or is lost mid-run is dropped for the rest of the run with one warning; the visual
+//! loop goes on with the CPU product, and the haptic loop, on its own core, never notices.
+
+use glam::DVec3;
+use std::time::{Duration, Instant};
+
+use crate::context::Gpu;
+use crate::deform::Deformer;
+use crate::input::DeformerOptions;
+use touchfem_core::runtime::WorldSample;
+use touchfem_core::scene::World;
+
+/// How long the visual loop waits for one GPU update before it gives the GPU up.
+pub const GPU_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// The displacement update of every object of a scene.
+pub struct Visual<'a> {
+    world: &'a World,
+    gpu: Option<&'a Gpu>,
+    deformers: Vec<Deformer>,
+    cpu: Vec<Vec<DVec3>>,
+    failure: Option<String>,
+    timeout: Duration,
+}
+
+impl<'a> Visual<'a> {
+    /// Uploads every object's compliance to `gpu` (when given); a GPU that fails here is
+    /// dropped as it would be mid-run.
+    pub fn new(world: &'a World, gpu: Option<&'a Gpu>) -> Visual<'a> {
+        let mut v = Visual {
+            world,
+            gpu,
+            deformers: Vec::new(),
+            cpu: world
+                .objects
+                .iter()
+                .map(|o| vec![DVec3::ZERO; o.scene.compliance.rows().len()])
+                .collect(),
+            failure: None,
+            timeout: GPU_TIMEOUT,
+        };
+        if let Some(g) = gpu {
+            let options = match crate::LStorage::from_env() {
+                Ok(storage) => DeformerOptions {
+                    storage,
+                    ..Default::default()
+                },
+                Err(e) => {
+                    v.give_up(e.to_string());
+                    return v;
+                }
+            };
+            for o in &world.objects {
+                let s = &o.scene;
+                match Deformer::new(
+                    &g.device,
+                    &g.queue,
+                    &s.compliance,
+                    &s.mesh.nodes,
+                    &s.mesh.surface,
+                    &options,
+                ) {
+                    Ok(d) => v.deformers.push(d),
+                    Err(e) => {
+                        v.give_up(format!("cannot upload '{}': {e}", o.name));
+                        break;
+                    }
+                }
+            }
+        }
+        v
+    }
+
+    /// Sets how long one GPU update may take before the GPU is given up.
+    pub fn set_timeout(&mut self, t: Duration) {
+        self.timeout = t;
+    }
+
+    /// The GPU's deformers (one per object) while the GPU is in use.
+    pub fn deformers(&self) -> Option<&[Deformer]> {
+        self.gpu_ok().then_some(&self.deformers[..])
+    }
+
+    /// Whether the GPU pass is in use.
+    pub fn gpu_ok(&self) -> bool {
+        self.gpu.is_some() && self.failure.is_none()
+    }
+
+    /// Why the GPU was given up, if it was.
+    pub fn failure(&self) -> Option<&str> {
+        self.failure.as_deref()
+    }
+
+    /// Where the update runs: "gpu", "cpu-f64", or "cpu-f64 (gpu failed: …)".
+    pub fn backend(&self) -> String {
+        match (&self.gpu, &self.failure) {
+            (Some(_), None) => "gpu".into(),
+            (_, Some(f)) => format!("cpu-f64 (gpu failed: {f})"),
+            (None, None) => "cpu-f64".into(),
+        }
+    }
+
+    /// The CPU displacement of object `o` (rows of its compliance), valid after an update on the
+    /// CPU.
+    pub fn cpu_displacement(&self, o: usize) -> &[DVec3] {
+        &self.cpu[o]
+    }
+
+    fn give_up(&mut self, why: String) {
+        eprintln!("warning: the GPU pass failed ({why}); the visual path goes on on the CPU");
+        self.failure = Some(why);
+    }
+
+    /// Updates every object's displacement for `sample`; returns the time it took, µs
+    /// (submit to completion on the GPU).
+    pub fn update(&mut self, sample: &WorldSample) -> f64 {
+        let t = Instant::now();
+        if self.gpu_ok() {
+            if let Err(why) = self.update_gpu(sample) {
+                self.give_up(why);
+            } else {
+                return t.elapsed().as_secs_f64() * 1e6;
+            }
+        }
+        let t = Instant::now();
+        for (o, obj) in self.world.objects.iter().enumerate() {
+            // An object whose L stayed in its cache file keeps its last shape.
+            if obj.scene.compliance.holds_l() {
+                obj.scene
+                    .compliance
+                    .displace(sample.bc(o).entries(), &mut self.cpu[o]);
+            }
+        }
+        t.elapsed().as_secs_f64() * 1e6
+    }
+
+    fn update_gpu(&mut self, sample: &WorldSample) -> Result<(), String> {
+        let g = self.gpu.expect("checked");
+        let mut enc = g.device.create_command_encoder(&Default::default());
+        for (o, d) in self.deformers.iter_mut().enumerate() {
+            let (f, n) = sample.bc(o).to_f32();
+            d.set_forces(&g.queue, &f[..n]).map_err(|e| e.to_string())?;
+            d.encode(&mut enc);
+        }
+        let idx = g.queue.submit([enc.finish()]);
+        g.device
+            .poll(wgpu::PollType::Wait {
+                submission_index: Some(idx),
+                timeout: Some(self.timeout),
+            })
+            .map(|_| ())
+            .map_err(|e| format!("waiting for the update: {e}"))
+    }
+}

@@ -1,0 +1,14 @@
+//! # touchfem-lab
+//!
+//! The laboratory: studies that measure touchfem rather than run it. Speed against error
+//! ([`tradeoff`], plotted by [`bench_plot`]), the mesh-refinement ladder ([`ladder`]), the hard
+//! cases ([`hard`]: nearly incompressible material, slivers, stiff contrasts, f16 storage), the
+//! conjugate-gradient baseline ([`cg`]), and what every report says of its machine
+//! ([`report`]). The criterion benchmarks live in the workspace's `benches/`.
+
+pub mod bench_plot;
+pub mod cg;
+pub mod hard;
+pub mod ladder;
+pub mod report;
+pub mod tradeoff;

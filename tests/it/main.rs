@@ -1,0 +1,30 @@
+//! The integration tests, one binary: each module is one area (`cargo test --test it MODULE`).
+
+mod bad_input;
+mod cli;
+#[allow(dead_code)]
+mod common;
+mod contact_force;
+mod coupling;
+mod frontal;
+mod golden;
+mod gpu;
+mod gpu_f16;
+mod gram;
+mod haptics;
+mod hard_cases;
+mod ladder;
+mod mesh_io;
+mod near;
+mod physics;
+mod precompute;
+mod runtime;
+mod scene_file;
+mod session;
+mod udp;
+mod view;
+
+/// The simulated device of `examples/udp_device.rs`, driven by the `udp` and `coupling` tests.
+#[allow(dead_code)]
+#[path = "../../examples/udp_device.rs"]
+mod udp_device;

@@ -1,0 +1,600 @@
+//! End-to-end test of `touchfem view`: the real binary under `Xvfb`, driven by real X pointer
+//! events from `xdotool`, captured with `xwd` + ImageMagick's `convert`.
+//!
+//! Needs the Debian packages `xvfb`, `xdotool`, `x11-apps` (xwd) and `imagemagick`
+//! (`scripts/ensure-x11.sh` installs them) and a Vulkan adapter (`scripts/ensure-vulkan.sh`;
+//! `WGPU_BACKEND=vulkan` is set for the child unless set already). Missing tools FAIL the test.
+//! The captures are saved under `target/view-test/` (`before.png`, `during.png`, the log and
+//! the binary's output).
+
+use crate::common;
+
+use std::io::Read as _;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use glam::DVec3;
+
+const SIZE: [u32; 2] = [640, 480];
+
+/// Ends and reaps a child process when dropped (also on a failed assertion): SIGTERM first, so
+/// that Xvfb removes its lock file and socket, then SIGKILL after 3 s.
+struct KillOnDrop(Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            // SAFETY: kill(2) on our own child's pid, which has not been reaped yet.
+            unsafe {
+                libc::kill(self.0.id() as libc::pid_t, libc::SIGTERM);
+            }
+            let t0 = Instant::now();
+            while t0.elapsed() < Duration::from_secs(3) {
+                if let Ok(Some(_)) = self.0.try_wait() {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            let _ = self.0.kill();
+        }
+        let _ = self.0.wait();
+    }
+}
+
+fn out_dir() -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .parent()
+        .expect("target dir")
+        .join("view-test");
+    std::fs::create_dir_all(&dir).expect("create target/view-test");
+    dir
+}
+
+fn on_path(tool: &str) -> bool {
+    std::env::var_os("PATH")
+        .is_some_and(|p| std::env::split_paths(&p).any(|d| d.join(tool).is_file()))
+}
+
+fn require_tools() {
+    let missing: Vec<String> = [
+        ("Xvfb", "xvfb"),
+        ("xdotool", "xdotool"),
+        ("xwd", "x11-apps"),
+        ("convert", "imagemagick"),
+    ]
+    .iter()
+    .filter(|(tool, _)| !on_path(tool))
+    .map(|(tool, pkg)| format!("{tool} (Debian package {pkg})"))
+    .collect();
+    assert!(
+        missing.is_empty(),
+        "tests/view.rs needs {}: run scripts/ensure-x11.sh or apt-get install -y xvfb xdotool \
+         x11-apps imagemagick",
+        missing.join(", ")
+    );
+}
+
+/// A display number with no server (no socket, no lock file).
+fn free_display() -> u32 {
+    (90..400)
+        .find(|n| {
+            !Path::new(&format!("/tmp/.X11-unix/X{n}")).exists()
+                && !Path::new(&format!("/tmp/.X{n}-lock")).exists()
+        })
+        .expect("a free X display number")
+}
+
+fn xdotool(display: &str, args: &[&str]) -> String {
+    let out = Command::new("xdotool")
+        .args(args)
+        .env("DISPLAY", display)
+        .output()
+        .expect("run xdotool");
+    assert!(
+        out.status.success(),
+        "xdotool {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// Captures window `win` to `path` (PNG) and decodes it.
+fn capture(display: &str, win: &str, path: &Path) -> image::RgbaImage {
+    let xwd = Command::new("xwd")
+        .args(["-silent", "-id", win])
+        .env("DISPLAY", display)
+        .output()
+        .expect("run xwd");
+    assert!(
+        xwd.status.success() && !xwd.stdout.is_empty(),
+        "xwd failed: {}",
+        String::from_utf8_lossy(&xwd.stderr)
+    );
+    let mut convert = Command::new("convert")
+        .args(["xwd:-", &format!("png:{}", path.display())])
+        .stdin(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run convert");
+    {
+        use std::io::Write as _;
+        let mut stdin = convert.stdin.take().unwrap();
+        stdin.write_all(&xwd.stdout).expect("pipe to convert");
+    }
+    let st = convert.wait().expect("convert");
+    assert!(st.success(), "convert xwd:- png failed");
+    image::open(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .to_rgba8()
+}
+
+fn differs(a: &image::Rgba<u8>, b: &image::Rgba<u8>, by: i32) -> bool {
+    (0..3).any(|c| (i32::from(a[c]) - i32::from(b[c])).abs() > by)
+}
+
+/// Fraction of pixels in `[x0, x1) × [y0, y1)` where `a` and `b` differ by more than `by`.
+fn changed(a: &image::RgbaImage, b: &image::RgbaImage, r: [u32; 4], by: i32) -> f64 {
+    let [x0, y0, x1, y1] = r;
+    let mut n = 0;
+    for y in y0..y1 {
+        for x in x0..x1 {
+            n += usize::from(differs(a.get_pixel(x, y), b.get_pixel(x, y), by));
+        }
+    }
+    n as f64 / f64::from((x1 - x0) * (y1 - y0))
+}
+
+fn read_log(path: &Path) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(path)
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect()
+}
+
+/// Starts Xvfb on a free display; returns it (ended when dropped) and the display's name.
+fn start_xvfb() -> (KillOnDrop, String) {
+    let n = free_display();
+    let display = format!(":{n}");
+    let xvfb = Command::new("Xvfb")
+        .args([&display, "-screen", "0", "1024x768x24", "-nolisten", "tcp"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start Xvfb");
+    let mut xvfb = KillOnDrop(xvfb);
+    let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
+    wait_until(
+        "Xvfb's socket",
+        Duration::from_secs(15),
+        &mut xvfb.0,
+        || socket.exists(),
+    );
+    (xvfb, display)
+}
+
+fn wait_until(what: &str, timeout: Duration, child: &mut Child, mut ok: impl FnMut() -> bool) {
+    let t0 = Instant::now();
+    while !ok() {
+        if let Ok(Some(st)) = child.try_wait() {
+            panic!("touchfem view exited ({st}) while waiting for {what}; see target/view-test/");
+        }
+        assert!(t0.elapsed() < timeout, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn view_window_presses_the_cube_with_the_pointer() {
+    require_tools();
+    let dir = out_dir();
+    let (mut xvfb, display) = start_xvfb();
+
+    let log = dir.join("view.log.jsonl");
+    let _ = std::fs::remove_file(&log);
+    let stdout = std::fs::File::create(dir.join("view.stdout.txt")).unwrap();
+    let stderr = std::fs::File::create(dir.join("view.stderr.txt")).unwrap();
+    let backend = std::env::var("WGPU_BACKEND").unwrap_or_else(|_| "vulkan".into());
+    let session = dir.join("view.tfsession");
+    let _ = std::fs::remove_file(&session);
+    let child = Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args([
+            "view",
+            "cube",
+            "--size",
+            &format!("{}x{}", SIZE[0], SIZE[1]),
+            "--record",
+            session.to_str().unwrap(),
+        ])
+        .env("DISPLAY", &display)
+        .env("WGPU_BACKEND", backend)
+        .env("TOUCHFEM_VIEW_SECONDS", "60")
+        .env("TOUCHFEM_VIEW_LOG", &log)
+        .env("TOUCHFEM_CACHE_DIR", "")
+        .stdout(stdout)
+        .stderr(stderr)
+        .spawn()
+        .expect("start touchfem view");
+    let mut view = KillOnDrop(child);
+
+    // The window, and a first log line (the window has presented frames for a second).
+    let mut search = Command::new("xdotool")
+        .args(["search", "--sync", "--name", "touchfem"])
+        .env("DISPLAY", &display)
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("xdotool search");
+    let t0 = Instant::now();
+    let found = loop {
+        if let Some(st) = search.try_wait().unwrap() {
+            break st.success();
+        }
+        if let Ok(Some(st)) = view.0.try_wait() {
+            let _ = search.kill();
+            let err = std::fs::read_to_string(dir.join("view.stderr.txt")).unwrap_or_default();
+            panic!("touchfem view exited ({st}) before its window appeared:\n{err}");
+        }
+        if t0.elapsed() > Duration::from_secs(60) {
+            let _ = search.kill();
+            panic!("no window named touchfem after 60 s");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(found, "xdotool search failed");
+    let mut ids = String::new();
+    search
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut ids)
+        .unwrap();
+    let win = ids.lines().next().expect("a window id").trim().to_string();
+    wait_until(
+        "the first log line",
+        Duration::from_secs(30),
+        &mut view.0,
+        || !read_log(&log).is_empty(),
+    );
+
+    let before = capture(&display, &win, &dir.join("before.png"));
+    assert_eq!(before.dimensions(), (SIZE[0], SIZE[1]), "window size");
+
+    // The object is there: the background is the bottom-right corner's colour.
+    let bg = *before.get_pixel(SIZE[0] - 2, SIZE[1] - 2);
+    let object = before.pixels().filter(|p| differs(p, &bg, 12)).count() as f64
+        / f64::from(SIZE[0] * SIZE[1]);
+    eprintln!(
+        "before: {:.1} % of the pixels are not background",
+        100.0 * object
+    );
+    assert!(
+        object > 0.15,
+        "only {:.1} % of the window shows the cube",
+        100.0 * object
+    );
+
+    // Press the middle of the top face (as the window frames the cube) and drag 120 px down.
+    let (lo, hi) = (DVec3::ZERO, DVec3::splat(0.03));
+    let camera =
+        touchfem::render::Orbit::framing(lo, hi, f64::from(SIZE[0]) / f64::from(SIZE[1])).camera();
+    let [px, py] = camera
+        .project(DVec3::new(0.015, 0.015, 0.03), SIZE)
+        .expect("the top face is in view");
+    let (px, py) = (px.round() as u32, py.round() as u32);
+    let (xs, ys) = (px.to_string(), py.to_string());
+    xdotool(&display, &["mousemove", "--window", &win, &xs, &ys]);
+    std::thread::sleep(Duration::from_millis(200));
+    xdotool(&display, &["mousedown", "1"]);
+    for step in 1..=6 {
+        std::thread::sleep(Duration::from_millis(100));
+        let y = (py + 20 * step).to_string();
+        xdotool(&display, &["mousemove", "--window", &win, &xs, &y]);
+    }
+    std::thread::sleep(Duration::from_millis(1500));
+    let during = capture(&display, &win, &dir.join("during.png"));
+    xdotool(&display, &["mouseup", "1"]);
+
+    // Near the press the picture changed; the far corners did not.
+    let near = [px - 70, py - 50, px + 70, py + 130];
+    let near_changed = changed(&before, &during, near, 24);
+    eprintln!(
+        "pressed at ({px}, {py}): {:.1} % of the pixels around it changed",
+        100.0 * near_changed
+    );
+    assert!(
+        near_changed > 0.10,
+        "only {:.1} % of the pixels around the press changed",
+        100.0 * near_changed
+    );
+    let (w, h) = (SIZE[0], SIZE[1]);
+    for (name, r) in [
+        ("top right", [w - 60, 0, w, 60]),
+        ("bottom left", [0, h - 60, 60, h]),
+        ("bottom right", [w - 60, h - 60, w, h]),
+    ] {
+        let c = changed(&before, &during, r, 2);
+        assert!(c == 0.0, "the {name} corner changed ({:.1} %)", 100.0 * c);
+    }
+
+    // Esc quits (keys go to the focused window; there is no window manager to focus it);
+    // then the log has a summary.
+    xdotool(&display, &["windowfocus", "--sync", &win]);
+    xdotool(&display, &["key", "Escape"]);
+    wait_until(
+        "touchfem view to quit on Esc",
+        Duration::from_secs(20),
+        &mut xvfb.0,
+        || matches!(view.0.try_wait(), Ok(Some(_))),
+    );
+    let status = view.0.wait().unwrap();
+    assert!(status.success(), "touchfem view exited with {status}");
+    let lines = read_log(&log);
+    let max_force = lines
+        .iter()
+        .filter_map(|l| l["force_n"].as_f64().or(l["max_force_n"].as_f64()))
+        .fold(0.0, f64::max);
+    let summary = lines
+        .iter()
+        .find(|l| l["summary"] == true)
+        .expect("a summary line");
+    let haptic = summary["haptic_hz"].as_f64().unwrap();
+    eprintln!(
+        "log: max |F| {max_force:.3} N, haptic {haptic:.0} Hz, median frame {:.2} ms",
+        summary["frame_ms_median"].as_f64().unwrap()
+    );
+    assert!(max_force > 0.05, "the drag pressed with only {max_force} N");
+    assert!(haptic > 500.0, "haptic rate {haptic} Hz");
+    // Every per-second line counts the haptic loop's missed deadlines so far: never fewer
+    // than the line before, and (at 1 kHz, a few seconds) never more than the ticks.
+    let missed: Vec<u64> = lines
+        .iter()
+        .filter(|l| l["summary"] != true)
+        .map(|l| l["haptic_missed"].as_u64().expect("haptic_missed"))
+        .collect();
+    assert!(!missed.is_empty());
+    assert!(missed.windows(2).all(|w| w[0] <= w[1]), "{missed:?}");
+    let ticks = 1000.0 * summary["seconds"].as_f64().expect("the run's seconds");
+    assert!((*missed.last().unwrap() as f64) < ticks, "{missed:?}");
+
+    // The session it recorded (the pointer's positions and the forces sent, every tick)
+    // replays through the haptic path to exactly the same forces.
+    let r = common::replay_json(&session);
+    eprintln!("replay: {r}");
+    assert!(r["ticks"].as_u64().unwrap() > 1000, "{r}");
+    assert_eq!(r["max_force_diff_n"].as_f64(), Some(0.0), "{r}");
+    assert!(r["max_force_n"].as_f64().unwrap() > 0.05, "{r}");
+}
+
+/// `Renderer::render_frame` draws several objects, each at its offset, with 1 and 4 samples;
+/// with one object it is `render_with`'s image, bit for bit. Needs a GPU adapter (no X).
+#[test]
+fn render_frame_draws_objects_at_their_offsets() {
+    use touchfem::compliance::{Compliance, Selection};
+    use touchfem::gpu::{Deformer, DeformerOptions, Gpu};
+    use touchfem::render::{FrameObject, RenderOptions, Renderer, Scene, COLOR_FORMAT};
+    let gpu = Gpu::new_headless().expect("a GPU adapter (WGPU_BACKEND=vulkan with lavapipe)");
+    let mesh = touchfem::mesh::cube();
+    let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
+    let d = Deformer::new(
+        &gpu.device,
+        &gpu.queue,
+        &c,
+        &mesh.nodes,
+        &mesh.surface,
+        &DeformerOptions::default(),
+    )
+    .unwrap();
+    let size = [400, 200];
+    let one = [FrameObject {
+        deformer: &d,
+        offset: DVec3::ZERO,
+        bounds: mesh.bounds(),
+        edges: None,
+    }];
+    let r4 = Renderer::new(&gpu.device, size).unwrap();
+    let a = r4
+        .render_frame(&gpu.device, &gpu.queue, &one, &[], &[], true)
+        .unwrap();
+    let scene = Scene {
+        wireframe: true,
+        ..Scene::at_rest(&mesh, &c)
+    };
+    let b = r4.render_with(&gpu.device, &gpu.queue, &d, &scene).unwrap();
+    assert!(
+        a == b,
+        "render_frame of one object differs from render_with"
+    );
+
+    let two = [
+        one[0],
+        FrameObject {
+            offset: DVec3::new(0.06, 0.0, 0.0),
+            ..one[0]
+        },
+    ];
+    for samples in [1, 4] {
+        let r = Renderer::with_options(
+            &gpu.device,
+            size,
+            RenderOptions {
+                samples,
+                format: COLOR_FORMAT,
+            },
+        )
+        .unwrap();
+        let img = r
+            .render_frame(&gpu.device, &gpu.queue, &two, &[], &[], false)
+            .unwrap();
+        img.save(out_dir().join(format!("two_cubes_{samples}.png")))
+            .unwrap();
+        let bg = *img.get_pixel(0, 0);
+        // Two objects side by side: the columns that show something form two runs, each a
+        // good part of the image.
+        let shows = |x: u32| (0..size[1]).any(|y| differs(img.get_pixel(x, y), &bg, 12));
+        let mut runs = Vec::new();
+        let mut start = None;
+        for x in 0..=size[0] {
+            match (x < size[0] && shows(x), start) {
+                (true, None) => start = Some(x),
+                (false, Some(s)) => {
+                    runs.push((s, x));
+                    start = None;
+                }
+                _ => {}
+            }
+        }
+        eprintln!("{samples} samples: object columns {runs:?}");
+        assert_eq!(runs.len(), 2, "{samples} samples: object columns {runs:?}");
+        assert!(runs.iter().all(|(a, b)| b - a > size[0] / 8), "{runs:?}");
+    }
+}
+
+/// `touchfem serve cube --udp … --view`: the window shows what a UDP client presses. Under
+/// Xvfb: a client presses the top face 5 mm over loopback; the window's picture changes around
+/// the top while the corners do not, the client feels the force, and Ctrl-C (SIGINT) ends the
+/// run with a report (no packet lost).
+#[test]
+fn serve_view_shows_a_udp_press_in_the_window() {
+    use touchfem::devices::udp::{decode_force, encode_position};
+    require_tools();
+    let dir = out_dir();
+    let (mut xvfb, display) = start_xvfb();
+    let report = dir.join("serve-view.json");
+    let _ = std::fs::remove_file(&report);
+    let stderr_path = dir.join("serve-view.stderr.txt");
+    let backend = std::env::var("WGPU_BACKEND").unwrap_or_else(|_| "vulkan".into());
+    let child = Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args([
+            "serve",
+            "cube",
+            "--udp",
+            "127.0.0.1:0",
+            "--view",
+            "--size",
+            &format!("{}x{}", SIZE[0], SIZE[1]),
+            "--report",
+            report.to_str().unwrap(),
+        ])
+        .env("DISPLAY", &display)
+        .env("WGPU_BACKEND", backend)
+        .env("TOUCHFEM_CACHE_DIR", "")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&stderr_path).unwrap())
+        .spawn()
+        .expect("start touchfem serve --view");
+    let mut serve = KillOnDrop(child);
+    let mut addr = None;
+    wait_until(
+        "serve's address",
+        Duration::from_secs(60),
+        &mut serve.0,
+        || {
+            let err = std::fs::read_to_string(&stderr_path).unwrap_or_default();
+            addr = err
+                .lines()
+                .find_map(|l| l.strip_prefix("listening on udp "))
+                .and_then(|a| a.trim().parse::<std::net::SocketAddr>().ok());
+            addr.is_some()
+        },
+    );
+    let addr = addr.unwrap();
+    let win = loop {
+        let out = Command::new("xdotool")
+            .args(["search", "--name", "touchfem serve"])
+            .env("DISPLAY", &display)
+            .output()
+            .expect("xdotool search");
+        if let Some(w) = String::from_utf8_lossy(&out.stdout).lines().next() {
+            break w.trim().to_string();
+        }
+        wait_until("the window", Duration::from_secs(60), &mut serve.0, || {
+            std::thread::sleep(Duration::from_millis(200));
+            true
+        });
+    };
+    std::thread::sleep(Duration::from_millis(1500));
+    let before = capture(&display, &win, &dir.join("serve-before.png"));
+
+    // The client: from 6 mm above the top face's centre to 5 mm into it over 0.3 s, held.
+    let client = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    client.set_nonblocking(true).unwrap();
+    let mm = 1e-3;
+    let mut force: f64 = 0.0;
+    let (mut buf, mut inp) = ([0u8; 64], [0u8; 256]);
+    let t0 = Instant::now();
+    let mut during = None;
+    let mut seq = 0u32;
+    while t0.elapsed() < Duration::from_secs(4) {
+        let s = (t0.elapsed().as_secs_f64() / 0.3).min(1.0);
+        let p = DVec3::new(15.0, 15.0, 36.0 - 11.0 * s) * mm;
+        seq += 1;
+        let len = encode_position(seq, &[p], &mut buf);
+        client.send_to(&buf[..len], addr).unwrap();
+        while let Ok((len, _)) = client.recv_from(&mut inp) {
+            if let Some(f) = decode_force(&inp[..len]) {
+                force = force.max(f.forces[0].length());
+            }
+        }
+        if during.is_none() && t0.elapsed() > Duration::from_secs(2) {
+            during = Some(capture(&display, &win, &dir.join("serve-during.png")));
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let during = during.unwrap();
+    let (lo, hi) = (DVec3::ZERO, DVec3::splat(0.03));
+    let camera =
+        touchfem::render::Orbit::framing(lo, hi, f64::from(SIZE[0]) / f64::from(SIZE[1])).camera();
+    let [px, py] = camera
+        .project(DVec3::new(0.015, 0.015, 0.03), SIZE)
+        .expect("the top face is in view");
+    let (px, py) = (px.round() as u32, py.round() as u32);
+    let near = changed(
+        &before,
+        &during,
+        [
+            px.saturating_sub(70),
+            py.saturating_sub(90),
+            px + 70,
+            py + 90,
+        ],
+        24,
+    );
+    let (w, h) = (SIZE[0], SIZE[1]);
+    let corner = changed(&before, &during, [0, h - 60, 60, h], 2)
+        + changed(&before, &during, [w - 60, h - 60, w, h], 2);
+    eprintln!(
+        "serve --view: {:.1} % changed around the press, max |F| {force:.3} N",
+        100.0 * near
+    );
+    assert!(
+        near > 0.05,
+        "only {:.1} % changed around the press",
+        100.0 * near
+    );
+    assert_eq!(corner, 0.0, "a corner changed");
+    assert!(force > 0.05, "the client felt {force} N");
+
+    // Ctrl-C ends the run: the window closes and the report is written.
+    // SAFETY: kill(2) on our own child's pid, which has not been reaped yet.
+    unsafe {
+        libc::kill(serve.0.id() as libc::pid_t, libc::SIGINT);
+    }
+    wait_until(
+        "serve to end on SIGINT",
+        Duration::from_secs(20),
+        &mut xvfb.0,
+        || matches!(serve.0.try_wait(), Ok(Some(_))),
+    );
+    let status = serve.0.wait().unwrap();
+    assert!(status.success(), "serve --view exited with {status}");
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    eprintln!(
+        "report: ticks {}, packets {}",
+        r["ticks"], r["packets_received"]
+    );
+    assert!(r["packets_received"].as_u64().unwrap() > 1000, "{r}");
+    assert_eq!(r["packets_dropped"].as_u64(), Some(0), "{r}");
+    assert!(r["max_force_n"].as_f64().unwrap() > 0.05, "{r}");
+}
