@@ -28,7 +28,7 @@ use glam::DVec3;
 use touchfem::compliance::{Compliance, Selection};
 use touchfem::gpu::Gpu;
 use touchfem::mesh::{cube, Mesh};
-use touchfem::render::{Coloring, ForceArrow, Renderer, Scene, View};
+use touchfem::render::{Coloring, ForceArrow, Picture, Renderer, View};
 
 /// Largest mean FLIP error accepted against a golden frame. Renders on one driver are
 /// bit-identical (0.0); this leaves room for other rasterisers' edge and MSAA differences.
@@ -87,14 +87,14 @@ fn render(push: Option<([f64; 3], DVec3)>) -> image::RgbaImage {
         }
         None => (vec![], None, None),
     };
-    let scene = Scene {
+    let scene = Picture {
         mesh: &f.mesh,
         compliance: &f.c,
         forces: &forces,
         finger,
         proxy,
         wireframe: true,
-        ..Scene::at_rest(&f.mesh, &f.c)
+        ..Picture::at_rest(&f.mesh, &f.c)
     };
     f.renderer
         .render(&f.gpu.device, &f.gpu.queue, &scene)
@@ -226,14 +226,14 @@ fn render_mouse(pressed: bool, spheres: bool) -> image::RgbaImage {
     } else {
         (vec![], None, None)
     };
-    let scene = Scene {
+    let scene = Picture {
         mesh: &s.mesh,
         compliance: &s.compliance,
         forces: &forces,
         finger: finger.filter(|_| spheres),
         proxy: proxy.filter(|_| spheres),
         wireframe: true,
-        ..Scene::at_rest(&s.mesh, &s.compliance)
+        ..Picture::at_rest(&s.mesh, &s.compliance)
     };
     f.renderer
         .render(&f.gpu.device, &f.gpu.queue, &scene)
@@ -346,7 +346,7 @@ fn render_press(
 ) -> image::RgbaImage {
     let f = fixture();
     let all = show == Show::Everything;
-    let scene = Scene {
+    let scene = Picture {
         forces: p.map_or(&[][..], |p| &p.forces[..]),
         finger: p.map(|p| p.finger).filter(|_| all),
         proxy: p.map(|p| p.proxy).filter(|_| all),
@@ -363,7 +363,7 @@ fn render_press(
             _ => View::Auto,
         },
         legend: all,
-        ..Scene::at_rest(&s.mesh, &s.compliance)
+        ..Picture::at_rest(&s.mesh, &s.compliance)
     };
     renderer
         .render(&f.gpu.device, &f.gpu.queue, &scene)
@@ -567,7 +567,7 @@ fn contact_view_looks_at_the_touched_point_from_outside() {
     let r = big_renderer();
     let s = mouse_scene();
     let p = mouse_press();
-    let scene = Scene {
+    let scene = Picture {
         finger: Some(p.finger),
         proxy: Some(p.proxy),
         arrow: Some(p.arrow),
@@ -576,7 +576,7 @@ fn contact_view_looks_at_the_touched_point_from_outside() {
             normal: p.normal,
             radius_m: p.radius_m,
         },
-        ..Scene::at_rest(&s.mesh, &s.compliance)
+        ..Picture::at_rest(&s.mesh, &s.compliance)
     };
     let cam = r.scene_camera(&scene, None);
     assert!(
@@ -591,7 +591,7 @@ fn contact_view_looks_at_the_touched_point_from_outside() {
         "touched point at ({x}, {y})"
     );
     let auto = r.scene_camera(
-        &Scene {
+        &Picture {
             view: View::Auto,
             ..scene
         },

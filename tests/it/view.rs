@@ -372,7 +372,7 @@ fn view_window_presses_the_cube_with_the_pointer() {
 fn render_frame_draws_objects_at_their_offsets() {
     use touchfem::compliance::{Compliance, Selection};
     use touchfem::gpu::{Deformer, DeformerOptions, Gpu};
-    use touchfem::render::{FrameObject, RenderOptions, Renderer, Scene, COLOR_FORMAT};
+    use touchfem::render::{FrameObject, Picture, RenderOptions, Renderer, COLOR_FORMAT};
     let gpu = Gpu::new_headless().expect("a GPU adapter (WGPU_BACKEND=vulkan with lavapipe)");
     let mesh = touchfem::mesh::cube();
     let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
@@ -396,9 +396,9 @@ fn render_frame_draws_objects_at_their_offsets() {
     let a = r4
         .render_frame(&gpu.device, &gpu.queue, &one, &[], &[], true)
         .unwrap();
-    let scene = Scene {
+    let scene = Picture {
         wireframe: true,
-        ..Scene::at_rest(&mesh, &c)
+        ..Picture::at_rest(&mesh, &c)
     };
     let b = r4.render_with(&gpu.device, &gpu.queue, &d, &scene).unwrap();
     assert!(

@@ -67,7 +67,8 @@ fn lavapipe_inline() {
 fn bench(a: &BenchArgs) -> Result<(), Error> {
     use touchfem_lab::tradeoff::{bench_scenes, cpu_rows};
     if a.hard {
-        return touchfem_lab::hard::bench(a.json.as_deref());
+        print!("{}", touchfem_lab::hard::bench(a.json.as_deref())?);
+        return Ok(());
     }
     if a.ladder {
         let cells: &[usize] = if a.quick {
@@ -75,7 +76,11 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
         } else {
             &[4, 8, 16, 32]
         };
-        return touchfem_lab::ladder::bench(cells, &a.ladder_dir, a.json.as_deref());
+        print!(
+            "{}",
+            touchfem_lab::ladder::bench(cells, &a.ladder_dir, a.json.as_deref())?
+        );
+        return Ok(());
     }
     let (reps, active): (usize, &[usize]) = if a.quick {
         (20, &[9])
@@ -585,7 +590,7 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
                 }
             }
         };
-        let scene_r = touchfem_gpu::render::Scene {
+        let scene_r = touchfem_gpu::render::Picture {
             mesh: &scene.mesh,
             compliance: &scene.compliance,
             forces: &f32s[..n],

@@ -17,6 +17,7 @@ use clap::Parser;
 /// The program: parses the command line, runs it, prints an error as one `error:` line and
 /// returns the exit status (2 for bad input).
 pub fn main() -> std::process::ExitCode {
+    install_logger();
     let cli = args::Cli::parse();
     match cli::run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
@@ -24,5 +25,36 @@ pub fn main() -> std::process::ExitCode {
             eprintln!("error: {e}");
             std::process::ExitCode::from(2)
         }
+    }
+}
+
+/// Writes the libraries' warnings and errors to stderr as they are (their messages carry their
+/// own `warning:`/`note:` prefix); `TOUCHFEM_LOG=info` (or `debug`) shows more.
+struct StderrLogger;
+
+impl log::Log for StderrLogger {
+    fn enabled(&self, m: &log::Metadata<'_>) -> bool {
+        m.level() <= log::max_level()
+    }
+    fn log(&self, r: &log::Record<'_>) {
+        if self.enabled(r.metadata()) {
+            eprintln!("{}", r.args());
+        }
+    }
+    fn flush(&self) {}
+}
+
+static LOGGER: StderrLogger = StderrLogger;
+
+/// Installs the stderr logger (once; later calls change nothing).
+pub fn install_logger() {
+    if log::set_logger(&LOGGER).is_ok() {
+        let level = match std::env::var("TOUCHFEM_LOG").as_deref() {
+            Ok("debug") => log::LevelFilter::Debug,
+            Ok("info") => log::LevelFilter::Info,
+            Ok("off") => log::LevelFilter::Off,
+            _ => log::LevelFilter::Warn,
+        };
+        log::set_max_level(level);
     }
 }

@@ -665,7 +665,10 @@ pub enum Method {
 /// The method named by the environment variable `TOUCHFEM_PRECOMPUTE` (`columns`, `gram`,
 /// `full`; anything else or unset: [`Method::Auto`]).
 pub fn method() -> Method {
-    match std::env::var("TOUCHFEM_PRECOMPUTE").as_deref() {
+    match crate::options::var("TOUCHFEM_PRECOMPUTE")
+        .as_deref()
+        .ok_or(())
+    {
         Ok("columns") => Method::Columns,
         Ok("full") => Method::Full,
         Ok("gram") => Method::Gram,
@@ -686,7 +689,10 @@ const GRAM_CHECK_EVERY: usize = 16;
 /// `TOUCHFEM_ORDERING` our coordinate nested dissection (`nd`) or faer's AMD (`amd`), for
 /// comparisons.
 fn ordering() -> crate::fem::Ordering {
-    match std::env::var("TOUCHFEM_ORDERING").as_deref() {
+    match crate::options::var("TOUCHFEM_ORDERING")
+        .as_deref()
+        .ok_or(())
+    {
         Ok("amd") => crate::fem::Ordering::Amd,
         Ok("nd") => crate::fem::Ordering::NestedDissection,
         _ => crate::fem::Ordering::Metis,
@@ -708,7 +714,7 @@ pub fn factor_store() -> crate::fem::FactorStore {
         .filter(|d| std::fs::create_dir_all(d).is_ok())
         .unwrap_or_else(std::env::temp_dir);
     let threads = solver_threads();
-    match std::env::var("TOUCHFEM_FACTOR").as_deref() {
+    match crate::options::var("TOUCHFEM_FACTOR").as_deref().ok_or(()) {
         Ok("heap") => FactorStore::Heap,
         Ok("file") => FactorStore::File { dir, threads },
         _ => FactorStore::Auto {

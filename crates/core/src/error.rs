@@ -14,6 +14,9 @@ pub enum Error {
     /// Reading or writing the compliance cache.
     #[error(transparent)]
     Cache(#[from] crate::cache::CacheError),
+    /// The UDP bridge cannot start (address, socket, key).
+    #[error(transparent)]
+    Udp(#[from] crate::devices::udp::UdpError),
     /// The haptic loop's thread ended by a panic (the message).
     #[error("the haptic thread panicked: {0}")]
     HapticThread(String),

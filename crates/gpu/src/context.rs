@@ -27,7 +27,7 @@ pub enum GpuError {
     TooManyActive {
         /// Entries passed.
         count: usize,
-        /// [`MAX_ACTIVE`].
+        /// [`MAX_ACTIVE`](crate::MAX_ACTIVE).
         max: usize,
     },
     /// A force names a column the compliance does not have.
@@ -87,9 +87,7 @@ impl AdapterSelection {
     pub fn from_env() -> Self {
         AdapterSelection {
             backends: wgpu::Backends::from_env().unwrap_or_default(),
-            name: std::env::var("WGPU_ADAPTER_NAME")
-                .ok()
-                .filter(|s| !s.is_empty()),
+            name: crate::options::var("WGPU_ADAPTER_NAME").filter(|s| !s.is_empty()),
             power: wgpu::PowerPreference::from_env()
                 .unwrap_or(wgpu::PowerPreference::HighPerformance),
         }

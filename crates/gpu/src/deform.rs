@@ -6,8 +6,8 @@ use wgpu::util::DeviceExt;
 use crate::buffer_path::BufferPath;
 use crate::context::GpuError;
 use crate::input::{
-    DeformerInput, DeformerOptions, FrameGpu, LStorage, OutputTarget, Shared, Vertex,
-    MAX_ACTIVE, NO_NORMALS, VERTEX_STRIDE, WORKGROUP,
+    DeformerInput, DeformerOptions, FrameGpu, LStorage, OutputTarget, Shared, Vertex, MAX_ACTIVE,
+    NO_NORMALS, VERTEX_STRIDE, WORKGROUP,
 };
 use crate::texture_path::TexturePath;
 

@@ -7,7 +7,7 @@ use crate::context::GpuError;
 use touchfem_core::compliance::Compliance;
 
 /// Most entries a force boundary condition may have per frame (the active-list buffer's size).
-/// [`Deformer::set_forces`] rejects more with [`GpuError::TooManyActive`].
+/// [`Deformer::set_forces`](crate::Deformer::set_forces) rejects more with [`GpuError::TooManyActive`].
 pub const MAX_ACTIVE: usize = 1024;
 
 /// Byte stride of the deformer's own vertex buffer: see [`Vertex`].
@@ -29,7 +29,7 @@ pub(crate) const WORKGROUP: u32 = 64;
 /// `w` of the position is the magnitude of the vertex's displacement `u = L·F` in metres (0 at
 /// rest), written by the same pass: the renderer colours the surface by it. Vertex `i` is
 /// displayed row `i` of the compliance ([`Compliance::rows`]`()[i]` is its mesh
-/// node); [`Deformer::index_buffer`] holds the surface triangles in these indices.
+/// node); [`Deformer::index_buffer`](crate::Deformer::index_buffer) holds the surface triangles in these indices.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Vertex {
@@ -44,7 +44,7 @@ impl Vertex {
     pub const ATTRIBUTES: [wgpu::VertexAttribute; 2] =
         wgpu::vertex_attr_array![0 => Float32x4, 1 => Float32x4];
 
-    /// The vertex buffer layout of [`Deformer::vertex_buffer`] when no [`OutputTarget`] was given.
+    /// The vertex buffer layout of [`Deformer::vertex_buffer`](crate::Deformer::vertex_buffer) when no [`OutputTarget`] was given.
     pub fn layout() -> wgpu::VertexBufferLayout<'static> {
         wgpu::VertexBufferLayout {
             array_stride: VERTEX_STRIDE,
@@ -157,7 +157,7 @@ impl<'a> LData<'a> {
 }
 
 /// Where the deformer writes vertices: a caller's buffer (usage must include `STORAGE`; add
-/// `VERTEX` to draw from it and `COPY_SRC` for [`Deformer::read_back`]).
+/// `VERTEX` to draw from it and `COPY_SRC` for [`Deformer::read_back`](crate::Deformer::read_back)).
 ///
 /// Vertex `i`'s position is three `f32` at byte `offset + i·stride`; its normal three `f32` at
 /// `offset + i·stride + normal_offset`. Other bytes are left untouched.
@@ -209,9 +209,9 @@ impl LStorage {
     /// (auto's layout in half floats), `buffers`, `texture`, `buffers-f16`, `texture-f16`.
     /// Anything else is an error naming the accepted values.
     pub fn from_env() -> Result<LStorage, GpuError> {
-        match std::env::var("TOUCHFEM_GPU_L") {
-            Err(_) => Ok(LStorage::Auto),
-            Ok(v) => match v.trim() {
+        match crate::options::var("TOUCHFEM_GPU_L") {
+            None => Ok(LStorage::Auto),
+            Some(v) => match v.trim() {
                 "" | "auto" => Ok(LStorage::Auto),
                 "f16" => Ok(LStorage::AutoF16),
                 "buffers" => Ok(LStorage::Buffers),
@@ -227,7 +227,7 @@ impl LStorage {
     }
 }
 
-/// Options for [`Deformer::new`].
+/// Options for [`Deformer::new`](crate::Deformer::new).
 #[derive(Clone, Debug, Default)]
 pub struct DeformerOptions {
     /// Cap on the bytes of one `L` storage buffer ([`LStorage::Buffers`]) or texture layer
@@ -239,7 +239,7 @@ pub struct DeformerOptions {
     pub storage: LStorage,
     /// Never pass the active list as immediates, even where the device has
     /// [`wgpu::Features::IMMEDIATES`] (the texture layout uses them by default; see
-    /// [`Deformer::uses_immediates`]).
+    /// [`Deformer::uses_immediates`](crate::Deformer::uses_immediates)).
     pub no_immediates: bool,
 }
 

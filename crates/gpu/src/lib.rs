@@ -20,6 +20,7 @@ mod buffer_path;
 mod context;
 mod deform;
 mod input;
+pub mod options;
 pub mod render;
 mod shaders;
 mod texture_path;
@@ -63,7 +64,7 @@ mod tests {
     #[test]
     fn shaders_validate_with_naga() {
         use naga::valid::Capabilities;
-        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/shaders");
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shaders");
         let parts = [
             "deform_texture.wgsl",
             "active_uniform.wgsl",
@@ -142,7 +143,7 @@ mod tests {
             ("output_words.wgsl", super::OUTPUT_WORDS_WGSL),
             ("output_vertex.wgsl", super::OUTPUT_VERTEX_WGSL),
         ] {
-            let path = format!("{}/shaders/{name}", env!("CARGO_MANIFEST_DIR"));
+            let path = format!("{}/../../shaders/{name}", env!("CARGO_MANIFEST_DIR"));
             assert_eq!(std::fs::read_to_string(path).unwrap(), embedded, "{name}");
         }
     }

@@ -21,7 +21,7 @@ pub const ACTIVE_IMMEDIATE_WGSL: &str = include_str!("../../../shaders/active_im
 /// (`shaders/output_words.wgsl`).
 pub const OUTPUT_WORDS_WGSL: &str = include_str!("../../../shaders/output_words.wgsl");
 
-/// Prelude of [`DEFORM_TEXTURE_WGSL`]: vertices written as [`Vertex`]es, one `vec4` store each
+/// Prelude of [`DEFORM_TEXTURE_WGSL`]: vertices written as `Vertex`es, one `vec4` store each
 /// (`shaders/output_vertex.wgsl`).
 pub const OUTPUT_VERTEX_WGSL: &str = include_str!("../../../shaders/output_vertex.wgsl");
 
@@ -35,8 +35,8 @@ pub const INLINE_ACTIVE: usize = 7;
 
 /// The complete texture-layout shader: [`DEFORM_TEXTURE_WGSL`] with the prelude that reads
 /// the active list from immediates (`immediates`) or from the uniform buffer, and the one that
-/// writes [`Vertex`]es (`vertex_layout`) or words at any offset and stride; with `half`, `L`
-/// is read from an `rgba16float` texture ([`LStorage::TextureF16`]).
+/// writes `Vertex`es (`vertex_layout`) or words at any offset and stride; with `half`, `L`
+/// is read from an `rgba16float` texture (`LStorage::TextureF16`).
 pub fn deform_texture_source(immediates: bool, vertex_layout: bool, half: bool) -> String {
     let active = if immediates {
         ACTIVE_IMMEDIATE_WGSL

@@ -109,7 +109,7 @@ impl<'a> Visual<'a> {
     }
 
     fn give_up(&mut self, why: String) {
-        eprintln!("warning: the GPU pass failed ({why}); the visual path goes on on the CPU");
+        log::warn!("the GPU pass failed ({why}); the visual path goes on on the CPU");
         self.failure = Some(why);
     }
 

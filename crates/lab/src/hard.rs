@@ -7,6 +7,7 @@
 //! Also volumetric locking: the press's force against ν at two resolutions.
 
 use glam::DVec3;
+use std::fmt::Write as _;
 use touchfem_core::conditioning::dense_k;
 use touchfem_core::mesh::worst_quality;
 use touchfem_core::precision::{displace_f16, displace_f32};
@@ -322,16 +323,19 @@ pub fn locking() -> Result<Vec<LockingRow>, touchfem_core::Error> {
     Ok(out)
 }
 
-/// `touchfem bench --hard`: prints every hard case and the locking table; with `json`, writes
+/// `touchfem bench --hard`: the table (returned, for the caller to print) of every hard case and the locking table; with `json`, writes
 /// them as `{"hard": [HardCase...], "locking": [LockingRow...], "machine"}`.
-pub fn bench(json: Option<&std::path::Path>) -> Result<(), touchfem_core::Error> {
+pub fn bench(json: Option<&std::path::Path>) -> Result<String, touchfem_core::Error> {
+    let mut out = String::new();
     let cases = cases()?;
-    println!(
+    let _ = writeln!(
+        out,
         "{:<26} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11} {:>8}",
         "case", "nodes", "quality", "residual", "f64_err", "f32_err", "f16_err", "press_N", "pre_s"
     );
     for c in &cases {
-        println!(
+        let _ = writeln!(
+            out,
             "{:<26} {:>5} {:>9.1e} {:>9.1e} {:>9.1e} {:>9.1e} {:>9.1e} {:>11.4e} {:>8.3}",
             c.case,
             c.nodes,
@@ -345,15 +349,17 @@ pub fn bench(json: Option<&std::path::Path>) -> Result<(), touchfem_core::Error>
         );
     }
     let lock = locking()?;
-    println!("\nvolumetric locking on the paper's cube: settlement under 100 Pa on the top face, and the Fig. 1b press");
-    println!(
+    let _ = writeln!(out, "\nvolumetric locking on the paper's cube: settlement under 100 Pa on the top face, and the Fig. 1b press");
+    let _ = writeln!(
+        out,
         "{:>8} {:>11} {:>11} {:>11} {:>10} {:>10} {:>10} {:>10}",
         "poisson", "u 4^3 um", "u 8^3 um", "u 16^3 um", "4^3/16^3", "F 4^3 N", "F 8^3 N", "F 4/8"
     );
     for r in &lock {
         let [a, b, c] = r.settlement_m;
         let [f4, f8] = r.press_force_n;
-        println!(
+        let _ = writeln!(
+            out,
             "{:>8} {:>11.3} {:>11.3} {:>11.3} {:>10.3} {:>10.4} {:>10.4} {:>10.3}",
             r.poisson,
             a * 1e6,
@@ -373,5 +379,5 @@ pub fn bench(json: Option<&std::path::Path>) -> Result<(), touchfem_core::Error>
         });
         crate::tradeoff::write_json(path, &v)?;
     }
-    Ok(())
+    Ok(out)
 }

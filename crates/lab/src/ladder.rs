@@ -12,6 +12,7 @@
 //!   Richardson extrapolation of the finest three rungs.
 
 use glam::{DVec3, Vec3};
+use std::fmt::Write as _;
 
 use touchfem_core::compliance::{Compliance, NodeSet, Selection};
 use touchfem_core::mesh::Mesh;
@@ -376,8 +377,9 @@ pub fn mouse_ladder(
     Ok(Some((rungs, limit, order)))
 }
 
-fn print_rungs(rungs: &[Rung], limit: f64, order: f64) {
-    println!(
+fn print_rungs(out: &mut String, rungs: &[Rung], limit: f64, order: f64) {
+    let _ = writeln!(
+        out,
         "{:>10} {:>6} {:>7} {:>9} {:>9} {:>6} {:>9} {:>9} {:>10} {:>9} {:>9}",
         "rung",
         "nodes",
@@ -393,7 +395,8 @@ fn print_rungs(rungs: &[Rung], limit: f64, order: f64) {
     );
     for r in rungs {
         let opt = |v: Option<f64>, k: f64| v.map_or("-".to_string(), |v| format!("{:.3}", v * k));
-        println!(
+        let _ = writeln!(
+            out,
             "{:>10} {:>6} {:>7.3} {:>9.4} {:>9.4} {:>6} {:>9.2e} {:>9.2e} {:>10} {:>9} {:>9}",
             r.label,
             r.nodes,
@@ -408,29 +411,37 @@ fn print_rungs(rungs: &[Rung], limit: f64, order: f64) {
             opt(r.frame_us, 1.0)
         );
     }
-    println!("punch limit {limit:.4} N (Richardson order {order:.2}; NaN: the finest rung)");
+    let _ = writeln!(
+        out,
+        "punch limit {limit:.4} N (Richardson order {order:.2}; NaN: the finest rung)"
+    );
 }
 
-/// `touchfem bench --ladder`: prints the cube's ladder and, where `dir` holds them, the
+/// `touchfem bench --ladder`: the table of the cube's ladder (returned, for the caller to print) and, where `dir` holds them, the
 /// mouse's; with `json`, writes `{"cube": {...}, "mouse": {...}, "machine"}`, each with
 /// `ladder` ([`Rung`]s), `punch_limit_n` and `order`.
 pub fn bench(
     cells: &[usize],
     dir: &std::path::Path,
     json: Option<&std::path::Path>,
-) -> Result<(), touchfem_core::Error> {
+) -> Result<String, touchfem_core::Error> {
+    let mut out = String::new();
     let (rungs, limit, order) = cube_ladder(cells, 6000)?;
-    println!("the paper's cube (30 mm, 10 kPa, ν 0.49), Fig. 1b: 5 mm down at the top centre");
-    print_rungs(&rungs, limit, order);
+    let _ = writeln!(
+        out,
+        "the paper's cube (30 mm, 10 kPa, ν 0.49), Fig. 1b: 5 mm down at the top centre"
+    );
+    print_rungs(&mut out, &rungs, limit, order);
     let cube = serde_json::json!({"ladder": rungs, "punch_limit_n": limit, "order": order});
     let mouse = match mouse_ladder(dir, 6000)? {
         Some((rungs, limit, order)) => {
-            println!("\nthe mouse (1 kPa, ν 0.3) by scripts/make_mouse.py, Fig. 2: 8 mm down at (-10, 0, 60) mm");
-            print_rungs(&rungs, limit, order);
+            let _ = writeln!(out, "\nthe mouse (1 kPa, ν 0.3) by scripts/make_mouse.py, Fig. 2: 8 mm down at (-10, 0, 60) mm");
+            print_rungs(&mut out, &rungs, limit, order);
             serde_json::json!({"ladder": rungs, "punch_limit_n": limit, "order": order})
         }
         None => {
-            println!(
+            let _ = writeln!(
+        out,
                 "\n(no mouse ladder: make it with MOUSE_H=H MOUSE_OUT={}/mouse_hH.msh python3 scripts/make_mouse.py)",
                 dir.display()
             );
@@ -443,7 +454,7 @@ pub fn bench(
         });
         crate::tradeoff::write_json(path, &v)?;
     }
-    Ok(())
+    Ok(out)
 }
 
 #[cfg(test)]

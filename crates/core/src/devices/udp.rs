@@ -2,7 +2,7 @@
 //! device driver — OpenHaptics, Force Dimension, Haply, CHAI3D, a robot — sends finger positions
 //! in datagrams and receives the forces, one packet per haptic tick.
 //!
-//! * A receiver thread blocks on the socket, checks each datagram ([`Gate`]) and hands the
+//! * A receiver thread blocks on the socket, checks each datagram (the gate) and hands the
 //!   newest accepted position to the haptic loop through a wait-free triple buffer, so the
 //!   haptic thread never reads the socket: a flood of junk costs it nothing.
 //! * Two clocks ([`Clock`]). **Host** (default): the haptic loop keeps its own 1 kHz deadlines.

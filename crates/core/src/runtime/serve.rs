@@ -178,7 +178,7 @@ pub fn serve_with(
         clock: opts.clock,
         key: opts.key.clone(),
     };
-    let mut bridge = UdpBridge::bind(opts.addr, &cfg).map_err(|e| Error::Input(e.to_string()))?;
+    let mut bridge = UdpBridge::bind(opts.addr, &cfg)?;
     let addr = bridge
         .local_addr()
         .map_err(|e| Error::Input(format!("UDP socket: {e}")))?;

@@ -651,7 +651,7 @@ impl World {
         for o in &objects {
             let (e32, e16) = crate::conditioning::storage_error(&o.scene.compliance);
             if let Some(w) = crate::conditioning::storage_warning(&o.name, e32, e16) {
-                eprintln!("{w}");
+                log::warn!("{w}");
             }
         }
         Ok(World {
@@ -729,7 +729,10 @@ fn compute_cached(
         return Ok(Compliance::compute(mesh, sel)?);
     };
     let path = cache_file(dir, name, key);
-    let min_bytes = match std::env::var("TOUCHFEM_HOST_L").unwrap_or_default().trim() {
+    let min_bytes = match crate::options::var("TOUCHFEM_HOST_L")
+        .unwrap_or_default()
+        .trim()
+    {
         "dense" => None,
         "near" => near_from.map(|_| 0),
         _ => near_from,
@@ -748,7 +751,7 @@ fn compute_cached(
     match outcome {
         crate::cache::CacheOutcome::NotSaved(..) => {
             if let Some(m) = outcome.message() {
-                eprintln!("{m}");
+                log::warn!("{m}");
             }
         }
         crate::cache::CacheOutcome::Recomputed(_) if large(c.l_rows(), c.cols().len()) => {

@@ -23,11 +23,12 @@
 //!   camera, spheres, overlay) into any colour view of the renderer's size and format.
 //!
 //! ```no_run
-//! # fn main() -> Result<(), touchfem::render::RenderError> {
-//! use touchfem::{compliance::{Compliance, Selection}, mesh::cube, render};
+//! # fn main() -> Result<(), touchfem_gpu::render::RenderError> {
+//! use touchfem_core::{compliance::{Compliance, Selection}, mesh::cube};
+//! use touchfem_gpu::render;
 //! let mesh = cube();
 //! let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
-//! let scene = render::Scene::at_rest(&mesh, &c);
+//! let scene = render::Picture::at_rest(&mesh, &c);
 //! render::render_png("cube.png".as_ref(), [640, 480], &scene)?;
 //! # Ok(()) }
 //! ```
@@ -198,9 +199,10 @@ pub enum View {
     },
 }
 
-/// What to draw: the object under a force boundary condition, the finger and the god-object.
+/// A picture to draw of one object under a force boundary condition, with the finger and the
+/// god-object ([`render_png`], [`render_image`]); a window or animation draws [`Frame`]s.
 #[derive(Clone, Copy, Debug)]
-pub struct Scene<'a> {
+pub struct Picture<'a> {
     /// The mesh: rest positions (`nodes`) and surface triangles.
     pub mesh: &'a Mesh,
     /// Its compliance (rows must cover the surface nodes).
@@ -224,10 +226,10 @@ pub struct Scene<'a> {
     pub legend: bool,
 }
 
-impl<'a> Scene<'a> {
+impl<'a> Picture<'a> {
     /// The object at rest, no spheres, no wireframe, plain, the 3/4 view, no legend.
-    pub fn at_rest(mesh: &'a Mesh, compliance: &'a Compliance) -> Scene<'a> {
-        Scene {
+    pub fn at_rest(mesh: &'a Mesh, compliance: &'a Compliance) -> Picture<'a> {
+        Picture {
             mesh,
             compliance,
             forces: &[],
@@ -241,7 +243,7 @@ impl<'a> Scene<'a> {
         }
     }
 
-    /// What its legend shows (see [`Scene::legend`]) in an image `height` pixels high.
+    /// What its legend shows (see [`Picture::legend`]) in an image `height` pixels high.
     pub fn legend_spec(&self, height: u32) -> LegendSpec {
         LegendSpec {
             bar_px: LegendSpec::bar_for(height),
@@ -317,13 +319,13 @@ pub fn wireframe_by_default(triangles: usize, size: [u32; 2]) -> bool {
 
 /// Renders `scene` at `size` (width, height) on a headless GPU chosen by the environment
 /// (`WGPU_BACKEND`, `WGPU_ADAPTER_NAME`) and writes a PNG to `path`.
-pub fn render_png(path: &Path, size: [u32; 2], scene: &Scene<'_>) -> Result<(), RenderError> {
+pub fn render_png(path: &Path, size: [u32; 2], scene: &Picture<'_>) -> Result<(), RenderError> {
     render_image(size, scene)?.save_with_format(path, image::ImageFormat::Png)?;
     Ok(())
 }
 
 /// Renders `scene` at `size` on a headless GPU chosen by the environment.
-pub fn render_image(size: [u32; 2], scene: &Scene<'_>) -> Result<image::RgbaImage, RenderError> {
+pub fn render_image(size: [u32; 2], scene: &Picture<'_>) -> Result<image::RgbaImage, RenderError> {
     let gpu = Gpu::new_headless()?;
     Renderer::new(&gpu.device, size)?.render(&gpu.device, &gpu.queue, scene)
 }
@@ -773,7 +775,7 @@ impl Renderer {
         &self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,
-        scene: &Scene<'_>,
+        scene: &Picture<'_>,
     ) -> Result<image::RgbaImage, RenderError> {
         let mut deformer = Deformer::new(
             device,
@@ -789,14 +791,14 @@ impl Renderer {
 
     /// Renders with a caller-kept [`Deformer`] (built for `scene`'s mesh and compliance) whose
     /// forces the caller has already set. `scene.forces` is not used here. With
-    /// [`Scene::legend`] it builds the legend's overlay on every call: for a frame loop with a
+    /// [`Picture::legend`] it builds the legend's overlay on every call: for a frame loop with a
     /// legend, keep an [`Overlay`] and use [`render_to_image`](Self::render_to_image).
     pub fn render_with(
         &self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         deformer: &Deformer,
-        scene: &Scene<'_>,
+        scene: &Picture<'_>,
     ) -> Result<image::RgbaImage, RenderError> {
         let (min, max) = bounds(&scene.mesh.nodes);
         let scale = (max - min).length();
@@ -841,7 +843,7 @@ impl Renderer {
     /// surface, the spheres and the arrow's tip into the image left of the legend;
     /// [`View::Contact`] looks at the touched point from outside, framing the surface within
     /// the radius, the spheres and the arrow.
-    pub fn scene_camera(&self, scene: &Scene<'_>, legend_px: Option<[u32; 2]>) -> Camera {
+    pub fn scene_camera(&self, scene: &Picture<'_>, legend_px: Option<[u32; 2]>) -> Camera {
         let [w, h] = self.size;
         let aspect = f64::from(w) / f64::from(h);
         let region = region_beside_legend(self.size, legend_px);
