@@ -49,13 +49,13 @@ fn main() {
     let mut d = touchfem::gpu::Deformer::new(
         &gpu.device,
         &gpu.queue,
-        &o.scene.compliance,
-        &o.scene.mesh.nodes,
-        &o.scene.mesh.surface,
+        &o.body.compliance,
+        &o.body.mesh.nodes,
+        &o.body.mesh.surface,
         &Default::default(),
     )
     .unwrap_or_else(|e| die(1, e));
-    let c = &o.scene.compliance;
+    let c = &o.body.compliance;
     // Three columns, 0.1 N each.
     let forces: Vec<(u32, [f32; 3])> = (0..3u32.min(c.cols().len() as u32))
         .map(|i| (i, [0.0, 0.0, -0.1]))
@@ -83,7 +83,7 @@ fn main() {
         view_formats: &[],
     });
     let view = tex.create_view(&Default::default());
-    let (min, max) = o.scene.mesh.bounds();
+    let (min, max) = o.body.mesh.bounds();
     let cam = Camera::framing(min, max, size[0] as f64 / size[1] as f64);
     let objects = [FrameObject {
         deformer: &d,
@@ -94,7 +94,7 @@ fn main() {
     println!(
         "rows {} triangles {} edges {}",
         c.rows().len(),
-        o.scene.mesh.surface.len(),
+        o.body.mesh.surface.len(),
         edges.index_count() / 2
     );
     let time = |label: &str, f: &dyn Fn(&mut wgpu::CommandEncoder)| {

@@ -44,3 +44,8 @@ pub use touchfem_gpu::wgpu;
 #[doc = include_str!("../README.md")]
 #[cfg(doctest)]
 pub struct ReadmeDoctests;
+
+/// The embedding guide's code is compiled as a doc test.
+#[doc = include_str!("../docs/guide/embedding.md")]
+#[cfg(all(doctest, feature = "gpu"))]
+pub struct EmbeddingGuideDoctests;

@@ -508,7 +508,7 @@ fn a_tiny_poke_has_readable_picture_labels() {
     use touchfem::compliance::Selection;
     use touchfem::render::{arrow_label, arrow_scale, length_ticks, Coloring};
     let (mesh, _) = touchfem::scene::load_mesh("cube", &Default::default()).unwrap();
-    let scene = touchfem::scene::Scene::new(mesh, &Selection::default()).unwrap();
+    let scene = touchfem::scene::Body::new(mesh, &Selection::default()).unwrap();
     let p = scene
         .poke(
             glam::DVec3::new(15e-3, 15e-3, 30e-3),

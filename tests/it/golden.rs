@@ -201,10 +201,10 @@ fn goldens_distinguish_pushes() {
 }
 
 /// The bundled mouse and its compliance, shared by the mouse goldens.
-fn mouse_scene() -> &'static touchfem::scene::Scene {
-    static S: OnceLock<touchfem::scene::Scene> = OnceLock::new();
+fn mouse_scene() -> &'static touchfem::scene::Body {
+    static S: OnceLock<touchfem::scene::Body> = OnceLock::new();
     S.get_or_init(|| {
-        touchfem::scene::Scene::new(touchfem::mesh::mouse(), &Selection::default())
+        touchfem::scene::Body::new(touchfem::mesh::mouse(), &Selection::default())
             .expect("mouse compliance")
     })
 }
@@ -275,7 +275,7 @@ struct Press {
     radius_m: f64,
 }
 
-fn press(s: &touchfem::scene::Scene, at: DVec3, push: DVec3) -> Press {
+fn press(s: &touchfem::scene::Body, at: DVec3, push: DVec3) -> Press {
     let p = s
         .poke(at, push, touchfem::force::ForceModel::Paper, 50)
         .expect("poke");
@@ -304,10 +304,10 @@ fn press(s: &touchfem::scene::Scene, at: DVec3, push: DVec3) -> Press {
 }
 
 /// The cube as a `Scene` (its compliance kept with it).
-fn cube_scene() -> &'static touchfem::scene::Scene {
-    static S: OnceLock<touchfem::scene::Scene> = OnceLock::new();
+fn cube_scene() -> &'static touchfem::scene::Body {
+    static S: OnceLock<touchfem::scene::Body> = OnceLock::new();
     S.get_or_init(|| {
-        touchfem::scene::Scene::new(cube(), &Selection::default()).expect("cube compliance")
+        touchfem::scene::Body::new(cube(), &Selection::default()).expect("cube compliance")
     })
 }
 
@@ -339,7 +339,7 @@ enum Show {
 
 fn render_press(
     renderer: &Renderer,
-    s: &touchfem::scene::Scene,
+    s: &touchfem::scene::Body,
     p: Option<&Press>,
     view: bool,
     show: Show,

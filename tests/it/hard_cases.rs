@@ -247,7 +247,7 @@ fn sliding_across_near_zero_area_triangles_is_continuous() {
         unit: touchfem::LengthUnit::Millimetre,
         objects: vec![touchfem::scene::Object {
             name: "sliver".into(),
-            scene: touchfem::scene::Scene::new(mesh, &sel).unwrap(),
+            body: touchfem::scene::Body::new(mesh, &sel).unwrap(),
             offset: DVec3::ZERO,
         }],
         fingers: vec![touchfem::scene::FingerSpec {

@@ -24,7 +24,7 @@ fn mouse_worlds(dir: &std::path::Path, fingers: usize) -> (World, World) {
 fn near_blocks_give_the_dense_forces_bit_for_bit() {
     let dir = tempfile::tempdir().unwrap();
     let (dense, near) = mouse_worlds(dir.path(), 1);
-    let (d, n) = (&dense.objects[0].scene, &near.objects[0].scene);
+    let (d, n) = (&dense.objects[0].body, &near.objects[0].body);
     assert!(d.compliance.holds_l());
     assert!(!n.compliance.holds_l());
     assert!(n.compliance.l_f64().is_empty());
@@ -83,7 +83,7 @@ fn the_deformer_reads_the_cache_file_into_the_same_vertices() {
         Ok(g) => g,
         Err(e) => panic!("no adapter ({e}); set WGPU_BACKEND=vulkan with lavapipe installed"),
     };
-    let (d, n) = (&dense.objects[0].scene, &near.objects[0].scene);
+    let (d, n) = (&dense.objects[0].body, &near.objects[0].body);
     let nc = d.compliance.cols().len() as u32;
     let forces: Vec<(u32, [f32; 3])> = [0, nc / 3, nc - 1]
         .iter()
@@ -151,7 +151,7 @@ fn the_deformer_reads_the_cache_file_into_the_same_vertices() {
 fn several_fingers_keep_the_dense_l_and_a_corrupt_file_is_recomputed() {
     let dir = tempfile::tempdir().unwrap();
     let (_, two) = mouse_worlds(dir.path(), 2);
-    assert!(two.objects[0].scene.compliance.holds_l());
+    assert!(two.objects[0].body.compliance.holds_l());
     // Corrupt the cache file's last batch: a near-only load refuses it and recomputes.
     let file = std::fs::read_dir(dir.path())
         .unwrap()
@@ -164,7 +164,7 @@ fn several_fingers_keep_the_dense_l_and_a_corrupt_file_is_recomputed() {
     std::fs::write(&file, &bytes).unwrap();
     let src = SceneSource::for_mesh("mouse", "udp");
     let w = World::from_source_holding(&src, Some(dir.path()), Hold::Near).expect("recomputed");
-    let c = &w.objects[0].scene.compliance;
+    let c = &w.objects[0].body.compliance;
     assert!(!c.holds_l());
     assert!(c.stats.residual < 1e-9);
     let fresh = std::fs::read(&file).unwrap();

@@ -394,10 +394,10 @@ fn precompute_without_out_fills_the_cache_the_scene_loader_reads() {
         // The loader finds it: nothing is recomputed (a loaded compliance reports 0 s) and it
         // equals a fresh computation bit for bit.
         let w = touchfem::scene::World::load_with(spec, "udp", Some(&cache_dir)).unwrap();
-        let c = &w.objects[0].scene.compliance;
+        let c = &w.objects[0].body.compliance;
         assert_eq!(c.stats.seconds, 0.0, "{spec} was recomputed");
         let fresh = touchfem::scene::World::load_with(spec, "udp", None).unwrap();
-        assert_eq!(c.l_f64(), fresh.objects[0].scene.compliance.l_f64());
+        assert_eq!(c.l_f64(), fresh.objects[0].body.compliance.l_f64());
     }
 }
 

@@ -88,7 +88,7 @@ fn point_displacement(c: &Compliance, contact: &ContactPoint, bc: &ForceBc) -> D
 }
 
 fn contact_at(w: &World, x: DVec3, from: DVec3) -> ContactPoint {
-    let s = &w.objects[0].scene.surface;
+    let s = &w.objects[0].body.surface;
     let mut g = GodObject::new(from);
     g.update(s, x).expect("in contact")
 }
@@ -98,7 +98,7 @@ const MM: f64 = 1e-3;
 #[test]
 fn two_fingers_are_solved_together_and_each_contact_moves_by_its_displacement() {
     let w = world(CUBE_TWO);
-    let c = &w.objects[0].scene.compliance;
+    let c = &w.objects[0].body.compliance;
     let mut hw = HapticWorld::new(&w);
     // Pinch the cube from x = 0 and x = 30 mm at mid-height, 3 mm each.
     let from = [
@@ -135,7 +135,7 @@ fn two_fingers_are_solved_together_and_each_contact_moves_by_its_displacement() 
 #[test]
 fn two_fingers_at_the_same_point_share_the_load_of_one() {
     let w = world(CUBE_TWO);
-    let c = &w.objects[0].scene.compliance;
+    let c = &w.objects[0].body.compliance;
     let mut hw = HapticWorld::new(&w);
     let from = DVec3::new(11.0, 13.0, 35.0) * MM;
     let to = DVec3::new(11.0, 13.0, 28.0) * MM;
@@ -162,8 +162,8 @@ fn two_fingers_at_the_same_point_share_the_load_of_one() {
 #[test]
 fn two_fingers_on_one_triangle_are_finite_and_consistent() {
     let w = world(CUBE_TWO);
-    let c = &w.objects[0].scene.compliance;
-    let s0 = &w.objects[0].scene.surface;
+    let c = &w.objects[0].body.compliance;
+    let s0 = &w.objects[0].body.surface;
     // Two points inside one top triangle.
     let top = (0..s0.tris.len())
         .find(|&t| s0.normals[t].z > 0.99)
@@ -226,7 +226,7 @@ model = "exact"
         let obj = &w.objects[*o];
         let ct = contact_at(&w, to[i] - obj.offset, from[i] - obj.offset);
         let mut bc = ForceBc::default();
-        let alone = finger_force(&obj.scene.compliance, &ct, ForceModel::Exact, &mut bc).feedback;
+        let alone = finger_force(&obj.body.compliance, &ct, ForceModel::Exact, &mut bc).feedback;
         assert!(
             (f[i] - alone).length() <= 1e-12 * alone.length(),
             "{} vs {alone}",
@@ -324,7 +324,7 @@ fn a_10_mm_jump_across_a_thin_plate_does_not_pop_through() {
         unit: touchfem::LengthUnit::Metre,
         objects: vec![touchfem::scene::Object {
             name: "plate".into(),
-            scene: touchfem::scene::Scene::with_compliance(mesh, c),
+            body: touchfem::scene::Body::with_compliance(mesh, c),
             offset: DVec3::ZERO,
         }],
         fingers: vec![touchfem::scene::FingerSpec {
@@ -441,7 +441,7 @@ path = [[0.0, 15, 15, 35], [0.3, 15, 15, 26], [1.0, 15, 15, 26]]
             }
             if lost && !visual.gpu_ok() && !s.bc(0).is_empty() {
                 // The fallback is the CPU product, exactly.
-                let c = &w.objects[0].scene.compliance;
+                let c = &w.objects[0].body.compliance;
                 let mut u = vec![DVec3::ZERO; c.rows().len()];
                 c.displace(s.bc(0).entries(), &mut u);
                 assert_eq!(visual.cpu_displacement(0), &u[..]);
@@ -494,7 +494,7 @@ device = "pointer"
         visual.failure()
     );
     visual.update(&s);
-    let c = &w.objects[0].scene.compliance;
+    let c = &w.objects[0].body.compliance;
     let mut u = vec![DVec3::ZERO; c.rows().len()];
     c.displace(s.bc(0).entries(), &mut u);
     assert_eq!(visual.cpu_displacement(0), &u[..]);

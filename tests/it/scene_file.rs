@@ -30,9 +30,9 @@ fn err(text: &str) -> String {
 fn the_bundled_scenes_load_with_only_what_they_need() {
     let fig1 = World::load_with("fig1", "script", None).unwrap();
     let o = &fig1.objects[0];
-    assert_eq!((o.name.as_str(), o.scene.mesh.nodes.len()), ("cube", 125));
-    assert_eq!(o.scene.compliance.rows().len(), 98);
-    assert_eq!(o.scene.compliance.cols().len(), 73);
+    assert_eq!((o.name.as_str(), o.body.mesh.nodes.len()), ("cube", 125));
+    assert_eq!(o.body.compliance.rows().len(), 98);
+    assert_eq!(o.body.compliance.cols().len(), 73);
     assert_eq!(fig1.fingers.len(), 1);
     let DeviceSpec::Script(keys) = &fig1.fingers[0].device else {
         panic!()
@@ -42,8 +42,8 @@ fn the_bundled_scenes_load_with_only_what_they_need() {
     assert_eq!(fig1.haptics.rate_hz, 1000.0);
 
     let pinch = World::load_with("pinch", "script", None).unwrap();
-    let m = &pinch.objects[0].scene.mesh;
-    let c = &pinch.objects[0].scene.compliance;
+    let m = &pinch.objects[0].body.mesh;
+    let c = &pinch.objects[0].body.compliance;
     // The ball's free-surface nodes, counted independently.
     let centre = DVec3::new(0.015, 0.015, 0.018);
     let want: Vec<u32> = m
@@ -65,7 +65,7 @@ fn the_bundled_scenes_load_with_only_what_they_need() {
     }
     assert_eq!(pinch.fingers.len(), 2);
     let fig2 = World::load_with("fig2", "script", None).unwrap();
-    assert_eq!(fig2.objects[0].scene.mesh.nodes.len(), 1699);
+    assert_eq!(fig2.objects[0].body.mesh.nodes.len(), 1699);
     assert_ne!(
         fig1.hash, pinch.hash,
         "the selection is part of the scene hash"
@@ -116,8 +116,8 @@ path = [[0, 0.115, 0.015, 0.040], [1, 0.115, 0.015, 0.025]]
     .unwrap();
     assert_eq!(mm.objects[0].offset, DVec3::new(0.1, 0.0, 0.0));
     assert_eq!(
-        mm.objects[0].scene.compliance.cols(),
-        m.objects[0].scene.compliance.cols()
+        mm.objects[0].body.compliance.cols(),
+        m.objects[0].body.compliance.cols()
     );
     assert_eq!(m.fingers[0].model, ForceModel::Exact);
     let (DeviceSpec::Script(a), DeviceSpec::Script(b)) =
@@ -155,8 +155,8 @@ max_force_n = 3.0
     let w = World::load_with(dir.path().join("s.toml").to_str().unwrap(), "script", None).unwrap();
     let o = &w.objects[0];
     assert_eq!(o.name, "box");
-    assert_eq!(o.scene.mesh.material.young_pa, 3000.0);
-    let (lo, hi) = o.scene.mesh.bounds();
+    assert_eq!(o.body.mesh.material.young_pa, 3000.0);
+    let (lo, hi) = o.body.mesh.bounds();
     assert!((hi - lo).max_element() < 0.1, "mm converted: {lo} {hi}");
     assert_eq!((w.haptics.rate_hz, w.haptics.max_force_n), (500.0, 3.0));
     assert_eq!(w.fingers[0].device, DeviceSpec::Pointer);

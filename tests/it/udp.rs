@@ -132,7 +132,7 @@ fn pressed() -> DVec3 {
 /// The library's force for the same press (paper model).
 fn expected() -> DVec3 {
     let w = cube_world();
-    let o = &w.objects[0].scene;
+    let o = &w.objects[0].body;
     let c = GodObject::new(above())
         .update(&o.surface, pressed())
         .unwrap();

@@ -6,9 +6,9 @@ use glam::DVec3;
 
 use touchfem_core::compliance::Selection;
 use touchfem_core::force::ForceModel;
-use touchfem_core::scene::{load_mesh, Scene};
+use touchfem_core::scene::{load_mesh, Body};
 
-use touchfem_core::Error;
+use crate::error::Error;
 
 /// Runs the command line; returns the process exit code.
 pub fn run(cli: Cli) -> Result<(), Error> {
@@ -360,7 +360,7 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
     let mut worlds = Vec::new();
     for spec in &specs {
         if touchfem_core::scene::SceneSource::find(spec)?.is_none() {
-            return Err(Error::Scene(format!(
+            return Err(Error::Body(format!(
                 "'{spec}' is neither a bundled scene ({}) nor a .toml scene file",
                 touchfem_core::scene::BUNDLED_SCENES
                     .iter()
@@ -388,17 +388,14 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
     // A software adapter rasterises on the visual core: one sample, not 4× MSAA (the mouse:
     // ~5 ms against ~18 ms a frame on lavapipe).
     let renderer = match &gpu {
-        Some(g) => Some(
-            touchfem_gpu::render::Renderer::with_options(
-                &g.device,
-                size,
-                touchfem_gpu::render::RenderOptions {
-                    samples: touchfem_gpu::render::live_samples(&g.adapter.get_info()),
-                    ..Default::default()
-                },
-            )
-            .map_err(|e| Error::Input(e.to_string()))?,
-        ),
+        Some(g) => Some(touchfem_gpu::render::Renderer::with_options(
+            &g.device,
+            size,
+            touchfem_gpu::render::RenderOptions {
+                samples: touchfem_gpu::render::live_samples(&g.adapter.get_info()),
+                ..Default::default()
+            },
+        )?),
         None => None,
     };
     let mut objects: Vec<crate::demo::ObjectReport> = Vec::new();
@@ -536,7 +533,7 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
         }
         None => precompute_with_bar(&mesh, &sel)?,
     };
-    let scene = Scene::with_compliance(mesh, compliance);
+    let scene = Body::with_compliance(mesh, compliance);
     let st = &scene.compliance.stats;
     let model = if a.exact {
         ForceModel::Exact
@@ -602,8 +599,7 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
             view,
             legend: true,
         };
-        touchfem_gpu::render::render_png(path, a.size, &scene_r)
-            .map_err(|e| Error::Input(e.to_string()))?;
+        touchfem_gpu::render::render_png(path, a.size, &scene_r)?;
     }
     let diff = (p.feedback_paper - p.feedback_exact).length();
     if a.json {

@@ -8,6 +8,7 @@
 pub mod args;
 pub mod cli;
 pub mod demo;
+pub mod error;
 pub mod precompute;
 pub mod vtu;
 pub mod window;

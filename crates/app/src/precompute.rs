@@ -5,12 +5,12 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
+use crate::error::Error;
 use touchfem_core::cache;
 use touchfem_core::compliance::Selection;
 use touchfem_core::precompute::precompute_to_file;
 use touchfem_core::scene::file::{cache_dir, cache_file, PlannedObject};
 use touchfem_core::scene::{load_mesh, SceneSource, World};
-use touchfem_core::Error;
 
 use crate::args::PrecomputeArgs;
 
@@ -25,7 +25,7 @@ extern "C" fn on_signal(_: libc::c_int) {
 /// The objects `spec` names: a scene's objects, or one mesh (loaded with `args.load`).
 fn objects(args: &PrecomputeArgs, spec: &str) -> Result<Vec<PlannedObject>, Error> {
     if let Some(src) = SceneSource::find(spec)? {
-        return World::plan(&src);
+        return Ok(World::plan(&src)?);
     }
     let (mesh, _) = load_mesh(spec, &args.load.options())?;
     let selection = Selection::default();

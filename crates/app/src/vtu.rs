@@ -14,10 +14,10 @@ pub fn write_vtu(
     mesh: &Mesh,
     displacement: &[DVec3],
     force: &[DVec3],
-) -> Result<(), touchfem_core::Error> {
+) -> Result<(), crate::error::Error> {
     let n = mesh.nodes.len();
     if displacement.len() != n || force.len() != n {
-        return Err(touchfem_core::Error::Input(format!(
+        return Err(crate::error::Error::Input(format!(
             "vtu: {n} nodes but {} displacements and {} forces",
             displacement.len(),
             force.len()
@@ -64,7 +64,7 @@ pub fn write_vtu(
         s.push_str(if f { "1\n" } else { "0\n" });
     }
     s.push_str("</DataArray>\n</PointData>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
-    std::fs::write(path, s).map_err(|source| touchfem_core::Error::Write {
+    std::fs::write(path, s).map_err(|source| crate::error::Error::Write {
         path: path.to_path_buf(),
         source,
     })

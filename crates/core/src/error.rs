@@ -22,7 +22,7 @@ pub enum Error {
     HapticThread(String),
     /// A scene file is invalid (the message names the file, line and key).
     #[error("{0}")]
-    Scene(String),
+    Body(String),
     /// A session file is invalid, or does not match its scene.
     #[error("{0}")]
     Session(String),

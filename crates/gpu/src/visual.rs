@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 use crate::context::Gpu;
 use crate::deform::Deformer;
 use crate::input::DeformerOptions;
+use touchfem_core::force::MAX_FINGERS;
 use touchfem_core::runtime::WorldSample;
 use touchfem_core::scene::World;
 
@@ -36,7 +37,7 @@ impl<'a> Visual<'a> {
             cpu: world
                 .objects
                 .iter()
-                .map(|o| vec![DVec3::ZERO; o.scene.compliance.rows().len()])
+                .map(|o| vec![DVec3::ZERO; o.body.compliance.rows().len()])
                 .collect(),
             failure: None,
             timeout: GPU_TIMEOUT,
@@ -53,7 +54,7 @@ impl<'a> Visual<'a> {
                 }
             };
             for o in &world.objects {
-                let s = &o.scene;
+                let s = &o.body;
                 match Deformer::new(
                     &g.device,
                     &g.queue,
@@ -127,8 +128,8 @@ impl<'a> Visual<'a> {
         let t = Instant::now();
         for (o, obj) in self.world.objects.iter().enumerate() {
             // An object whose L stayed in its cache file keeps its last shape.
-            if obj.scene.compliance.holds_l() {
-                obj.scene
+            if obj.body.compliance.holds_l() {
+                obj.body
                     .compliance
                     .displace(sample.bc(o).entries(), &mut self.cpu[o]);
             }
@@ -153,4 +154,67 @@ impl<'a> Visual<'a> {
             .map(|_| ())
             .map_err(|e| format!("waiting for the update: {e}"))
     }
+}
+
+/// What a frame shows of a haptic sample besides the objects: each finger, its god-object and
+/// its force arrow (`NaN` where a finger has no valid position or touches nothing, which the
+/// renderer skips). With [`frame_objects`], the one place a frame is built from a sample.
+/// Allocates nothing.
+#[derive(Clone, Copy, Debug)]
+pub struct SampleMarks {
+    /// Finger positions, metres (scene frame).
+    pub fingers: [DVec3; MAX_FINGERS],
+    /// God-objects of the touching fingers.
+    pub proxies: [DVec3; MAX_FINGERS],
+    /// Force arrows from the god-objects of the touching fingers.
+    pub arrows: [crate::render::ForceArrow; MAX_FINGERS],
+    /// Fingers in the sample.
+    pub n: usize,
+}
+
+impl SampleMarks {
+    /// The marks of `sample`, arrows `m_per_n` metres long per newton.
+    pub fn of(sample: &WorldSample, m_per_n: f64) -> SampleMarks {
+        let none = crate::render::ForceArrow {
+            at: DVec3::NAN,
+            force_n: DVec3::ZERO,
+            m_per_n,
+        };
+        let mut m = SampleMarks {
+            fingers: [DVec3::NAN; MAX_FINGERS],
+            proxies: [DVec3::NAN; MAX_FINGERS],
+            arrows: [none; MAX_FINGERS],
+            n: sample.n_fingers.min(MAX_FINGERS),
+        };
+        for (i, f) in sample.fingers().iter().enumerate().take(MAX_FINGERS) {
+            m.fingers[i] = f.position;
+            if let Some(p) = f.proxy.filter(|_| f.object.is_some()) {
+                m.proxies[i] = p;
+                m.arrows[i].at = p;
+                m.arrows[i].force_n = f.force;
+            }
+        }
+        m
+    }
+}
+
+/// Each object of `world` as a frame object: its deformer, where it sits, its rest bounds and,
+/// where given, its edges.
+pub fn frame_objects<'a>(
+    world: &World,
+    deformers: &'a [Deformer],
+    edges: &'a [crate::render::Edges],
+) -> Vec<crate::render::FrameObject<'a>> {
+    world
+        .objects
+        .iter()
+        .zip(deformers)
+        .enumerate()
+        .map(|(i, (o, d))| crate::render::FrameObject {
+            deformer: d,
+            offset: o.offset,
+            bounds: o.body.mesh.bounds(),
+            edges: edges.get(i),
+        })
+        .collect()
 }

@@ -3,8 +3,8 @@
 
 use std::path::Path;
 
+use crate::error::Error;
 use crate::tradeoff::Row;
-use touchfem_core::Error;
 
 /// Errors below this are drawn at it (the f64 reference has error 0).
 pub const ERROR_FLOOR: f64 = 1e-16;
@@ -12,7 +12,7 @@ pub const ERROR_FLOOR: f64 = 1e-16;
 /// Draws the visual-update rows of `meshes` (panels left to right) into a PNG.
 pub fn write_plot(path: &Path, rows: &[Row], meshes: &[&str]) -> Result<(), Error> {
     use plotters::prelude::*;
-    let perr = |e: String| Error::Input(format!("{}: cannot draw the plot: {e}", path.display()));
+    let perr = |e: String| Error::Study(format!("{}: cannot draw the plot: {e}", path.display()));
     static FONT_ONCE: std::sync::Once = std::sync::Once::new();
     FONT_ONCE.call_once(|| {
         let _ = plotters::style::register_font(

@@ -16,7 +16,7 @@ use touchfem_core::compliance::{Compliance, NodeSet, Selection};
 use touchfem_core::fem::Stiffness;
 use touchfem_core::force::ForceModel;
 use touchfem_core::mesh::{grid_raw, Mesh, RawMesh};
-use touchfem_core::scene::Scene;
+use touchfem_core::scene::Body;
 use touchfem_core::units::{LengthUnit, Material};
 
 /// One hard case's numbers.
@@ -57,7 +57,7 @@ fn body(
     unit: LengthUnit,
     material: Material,
     map: impl Fn([f64; 3]) -> [f64; 3],
-) -> Result<Mesh, touchfem_core::Error> {
+) -> Result<Mesh, crate::error::Error> {
     let mut raw: RawMesh = grid_raw(cells, [size_mm; 3], |_, _, _| true);
     let s = match unit {
         LengthUnit::Millimetre => 1.0,
@@ -75,7 +75,7 @@ fn body(
 pub fn dense_lu_solve(
     mesh: &Mesh,
     forces: &[(u32, DVec3)],
-) -> Result<Vec<DVec3>, touchfem_core::Error> {
+) -> Result<Vec<DVec3>, crate::error::Error> {
     let k = Stiffness::assemble(mesh)?;
     let n = k.dofs.n_free;
     let a = dense_k(&k);
@@ -90,7 +90,7 @@ pub fn dense_lu_solve(
     let x = a
         .lu()
         .solve(&b)
-        .ok_or_else(|| touchfem_core::Error::Input("the dense stiffness is singular".into()))?;
+        .ok_or_else(|| crate::error::Error::Study("the dense stiffness is singular".into()))?;
     Ok((0..mesh.nodes.len() as u32)
         .map(|node| {
             DVec3::from_array(std::array::from_fn(|ax| {
@@ -101,7 +101,7 @@ pub fn dense_lu_solve(
 }
 
 /// Measures one body: see [`HardCase`].
-pub fn measure(case: &str, mesh: Mesh) -> Result<HardCase, touchfem_core::Error> {
+pub fn measure(case: &str, mesh: Mesh) -> Result<HardCase, crate::error::Error> {
     let sel = Selection {
         rows: NodeSet::All,
         cols: NodeSet::FreeSurface,
@@ -119,7 +119,7 @@ pub fn measure(case: &str, mesh: Mesh) -> Result<HardCase, touchfem_core::Error>
             let d = |i: usize| mesh.nodes[c.cols()[i] as usize].distance(top);
             d(a).total_cmp(&d(b))
         })
-        .ok_or_else(|| touchfem_core::Error::Input("no touchable node".into()))?;
+        .ok_or_else(|| crate::error::Error::Study("no touchable node".into()))?;
     let node = c.cols()[col];
     let diag = c.block(c.col_row(col), col).z_axis.z;
     let f = DVec3::new(0.0, 0.0, -(size / 6.0) / diag);
@@ -145,7 +145,7 @@ pub fn measure(case: &str, mesh: Mesh) -> Result<HardCase, touchfem_core::Error>
     let residual = c.stats.residual / (kmax * lmax);
     let material = mesh.material;
     let quality = worst_quality(&mesh);
-    let scene = Scene::with_compliance(mesh, c);
+    let scene = Body::with_compliance(mesh, c);
     let press = scene.poke(
         top + DVec3::Z * size,
         DVec3::new(0.0, 0.0, -size / 6.0),
@@ -180,7 +180,7 @@ fn material(young_pa: f64, poisson: f64) -> Material {
 /// The paper's 30 mm cube (ν = 0.49) in 4×4×5 cells whose middle layer, between z = 12 and
 /// 12.001 mm, is 1 µm thick: sliver tets (quality 4.7e-5) and side triangles of near-zero
 /// area.
-pub fn sliver_cube() -> Result<Mesh, touchfem_core::Error> {
+pub fn sliver_cube() -> Result<Mesh, crate::error::Error> {
     body([4, 4, 5], 30.0, LengthUnit::Millimetre, paper(0.49), |p| {
         let z = p[2];
         let z = if z <= 12.0 + 1e-9 {
@@ -193,7 +193,7 @@ pub fn sliver_cube() -> Result<Mesh, touchfem_core::Error> {
 }
 
 /// Every hard case (a few seconds in a release build).
-pub fn cases() -> Result<Vec<HardCase>, touchfem_core::Error> {
+pub fn cases() -> Result<Vec<HardCase>, crate::error::Error> {
     bodies()?
         .into_iter()
         .map(|(name, mesh)| measure(&name, mesh))
@@ -201,7 +201,7 @@ pub fn cases() -> Result<Vec<HardCase>, touchfem_core::Error> {
 }
 
 /// The hard cases' bodies, named.
-pub fn bodies() -> Result<Vec<(String, Mesh)>, touchfem_core::Error> {
+pub fn bodies() -> Result<Vec<(String, Mesh)>, crate::error::Error> {
     let mm = LengthUnit::Millimetre;
     let id = |p: [f64; 3]| p;
     let mut out = Vec::new();
@@ -268,7 +268,7 @@ pub struct LockingRow {
 /// it: the coarse mesh settles less than the fine one (it is too stiff), more so as ν → 0.5.
 /// The paper's point press is shown beside it: its force roughly halves with each refinement
 /// at every ν, since a point load has no limit in 3D, and that hides locking.
-pub fn locking() -> Result<Vec<LockingRow>, touchfem_core::Error> {
+pub fn locking() -> Result<Vec<LockingRow>, crate::error::Error> {
     let mut out = Vec::new();
     for nu in [0.3, 0.45, 0.49, 0.499, 0.4999] {
         let mut settlement = [0.0; 3];
@@ -305,7 +305,7 @@ pub fn locking() -> Result<Vec<LockingRow>, touchfem_core::Error> {
         let mut press = [0.0; 2];
         for (i, n) in [4usize, 8].iter().enumerate() {
             let mesh = touchfem_core::mesh::cube_with([*n; 3], [30.0; 3], paper(nu))?;
-            let scene = Scene::new(mesh, &Selection::default())?;
+            let scene = Body::new(mesh, &Selection::default())?;
             let p = scene.poke(
                 DVec3::new(0.015, 0.015, 0.03),
                 DVec3::new(0.0, 0.0, -0.005),
@@ -325,7 +325,7 @@ pub fn locking() -> Result<Vec<LockingRow>, touchfem_core::Error> {
 
 /// `touchfem bench --hard`: the table (returned, for the caller to print) of every hard case and the locking table; with `json`, writes
 /// them as `{"hard": [HardCase...], "locking": [LockingRow...], "machine"}`.
-pub fn bench(json: Option<&std::path::Path>) -> Result<String, touchfem_core::Error> {
+pub fn bench(json: Option<&std::path::Path>) -> Result<String, crate::error::Error> {
     let mut out = String::new();
     let cases = cases()?;
     let _ = writeln!(

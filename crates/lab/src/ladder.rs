@@ -83,7 +83,7 @@ pub fn press_nodes(
     s: &[u32],
     push: DVec3,
     probe_nodes: &[u32],
-) -> Result<Press, touchfem_core::Error> {
+) -> Result<Press, crate::error::Error> {
     // Rows once each (two probes may share a node), the punched nodes not among them (they
     // are added as columns' rows anyway).
     let mut rows: Vec<u32> = probe_nodes
@@ -118,9 +118,7 @@ pub fn press_nodes(
     }
     let f = a
         .cholesky()
-        .ok_or_else(|| {
-            touchfem_core::Error::Input("the punch's compliance is not positive".into())
-        })?
+        .ok_or_else(|| crate::error::Error::Study("the punch's compliance is not positive".into()))?
         .solve(&rhs);
     let forces: Vec<(u32, DVec3)> = (0..n)
         .map(|i| (i as u32, DVec3::new(f[3 * i], f[3 * i + 1], f[3 * i + 2])))
@@ -159,9 +157,9 @@ pub fn rung(
     radius: f64,
     probe_nodes: &[u32],
     precompute: bool,
-) -> Result<Rung, touchfem_core::Error> {
+) -> Result<Rung, crate::error::Error> {
     let node =
-        nearest(mesh, at).ok_or_else(|| touchfem_core::Error::Input("no free surface".into()))?;
+        nearest(mesh, at).ok_or_else(|| crate::error::Error::Study("no free surface".into()))?;
     let point = press_nodes(mesh, &[node], push, &[node])?.reaction;
     let s = under(mesh, mesh.nodes[node as usize], radius);
     let punch = press_nodes(mesh, &s, push, probe_nodes)?;
@@ -265,7 +263,7 @@ pub fn finish(rungs: &mut [Rung], ratio: f64) -> (f64, f64) {
 pub fn cube_ladder(
     cells: &[usize],
     precompute_max_nodes: usize,
-) -> Result<(Vec<Rung>, f64, f64), touchfem_core::Error> {
+) -> Result<(Vec<Rung>, f64, f64), crate::error::Error> {
     let base = cells.first().copied().unwrap_or(4);
     let mut rungs = Vec::new();
     for &n in cells {
@@ -314,7 +312,7 @@ pub fn cube_ladder(
 pub fn mouse_ladder(
     dir: &std::path::Path,
     precompute_max_nodes: usize,
-) -> Result<Option<(Vec<Rung>, f64, f64)>, touchfem_core::Error> {
+) -> Result<Option<(Vec<Rung>, f64, f64)>, crate::error::Error> {
     let mut files: Vec<(f64, std::path::PathBuf)> = std::fs::read_dir(dir)
         .map(|d| {
             d.filter_map(|e| e.ok())
@@ -424,7 +422,7 @@ pub fn bench(
     cells: &[usize],
     dir: &std::path::Path,
     json: Option<&std::path::Path>,
-) -> Result<String, touchfem_core::Error> {
+) -> Result<String, crate::error::Error> {
     let mut out = String::new();
     let (rungs, limit, order) = cube_ladder(cells, 6000)?;
     let _ = writeln!(

@@ -8,7 +8,10 @@
 
 pub mod bench_plot;
 pub mod cg;
+pub mod error;
 pub mod hard;
 pub mod ladder;
 pub mod report;
 pub mod tradeoff;
+
+pub use error::Error;

@@ -17,7 +17,7 @@ use touchfem_core::finger::Finger;
 use touchfem_core::force::{finger_force, ForceBc, ForceModel};
 use touchfem_core::precision::rel_err;
 use touchfem_core::runtime::pacer::percentile;
-use touchfem_core::scene::Scene;
+use touchfem_core::scene::Body;
 use touchfem_core::Mesh;
 
 /// One row of the report.
@@ -64,10 +64,10 @@ pub fn spread_forces(c: &Compliance, k: usize) -> Vec<(u32, DVec3)> {
 /// The CPU rows for one mesh: displacement methods at each active-column count, force methods.
 pub fn cpu_rows(
     name: &str,
-    scene: &Scene,
+    scene: &Body,
     active: &[usize],
     reps: usize,
-) -> Result<Vec<Row>, touchfem_core::Error> {
+) -> Result<Vec<Row>, crate::error::Error> {
     let c = &scene.compliance;
     let nodes = scene.mesh.nodes.len();
     let mut rows = Vec::new();
@@ -137,7 +137,7 @@ pub fn cpu_rows(
 }
 
 /// Force-step rows: time per haptic step and how far the contact point misses the finger.
-fn force_rows(name: &str, scene: &Scene, reps: usize) -> Result<Vec<Row>, touchfem_core::Error> {
+fn force_rows(name: &str, scene: &Body, reps: usize) -> Result<Vec<Row>, crate::error::Error> {
     // A circle pressed 1 mm into the rest surface below it (the demo's path, frozen at full
     // depth and radius).
     let (lo, hi) = scene.mesh.bounds();
@@ -154,7 +154,7 @@ fn force_rows(name: &str, scene: &Scene, reps: usize) -> Result<Vec<Row>, touchf
         })
         .collect();
     if path.len() < 128 {
-        return Err(touchfem_core::Error::Input(format!(
+        return Err(crate::error::Error::Study(format!(
             "{name}: no surface under the benchmark path"
         )));
     }
@@ -265,19 +265,19 @@ pub fn box_2k() -> Mesh {
 }
 
 /// The meshes `touchfem bench` runs: the paper's cube and mouse, and a ~2k-node box.
-pub fn bench_scenes() -> Result<Vec<(String, Scene)>, touchfem_core::Error> {
+pub fn bench_scenes() -> Result<Vec<(String, Body)>, crate::error::Error> {
     Ok(vec![
         (
             "cube".to_string(),
-            Scene::new(touchfem_core::mesh::cube(), &Selection::default())?,
+            Body::new(touchfem_core::mesh::cube(), &Selection::default())?,
         ),
         (
             "mouse".to_string(),
-            Scene::new(touchfem_core::mesh::mouse(), &Selection::default())?,
+            Body::new(touchfem_core::mesh::mouse(), &Selection::default())?,
         ),
         (
             "box2k".to_string(),
-            Scene::new(box_2k(), &Selection::default())?,
+            Body::new(box_2k(), &Selection::default())?,
         ),
     ])
 }
@@ -293,13 +293,13 @@ pub fn peak_rss_bytes() -> u64 {
 }
 
 /// What [`scene_objects`] gives: rows, table rows (JSON) and the named scenes.
-pub type SceneObjects = (Vec<Row>, Vec<serde_json::Value>, Vec<(String, Scene)>);
+pub type SceneObjects = (Vec<Row>, Vec<serde_json::Value>, Vec<(String, Body)>);
 
 /// `bench --scene`: for each object of the scene `spec`, one `precompute` row (time of the
 /// in-memory precompute, `rel_error` = its residual max |K·x − e|) and the table row
 /// (nodes, surface and free-surface nodes, rows × cols, precompute seconds, bytes of `L` held
 /// (f64), peak RSS so far, phases); returns the objects' scenes for the other rows.
-pub fn scene_objects(spec: &str) -> Result<SceneObjects, touchfem_core::Error> {
+pub fn scene_objects(spec: &str) -> Result<SceneObjects, crate::error::Error> {
     let src = match touchfem_core::scene::SceneSource::find(spec)? {
         Some(s) => s,
         None => touchfem_core::scene::SceneSource::for_mesh(spec, "udp"),
@@ -331,7 +331,7 @@ pub fn scene_objects(spec: &str) -> Result<SceneObjects, touchfem_core::Error> {
             "peak_rss_bytes": peak_rss_bytes(),
             "phases": c.stats.phases,
         }));
-        scenes.push((o.name.clone(), Scene::with_compliance(o.mesh, c)));
+        scenes.push((o.name.clone(), Body::with_compliance(o.mesh, c)));
     }
     Ok((rows, table, scenes))
 }
@@ -341,11 +341,11 @@ pub fn scene_objects(spec: &str) -> Result<SceneObjects, touchfem_core::Error> {
 /// positions against the f64 CPU product, relative to max |u|.
 pub fn gpu_rows(
     name: &str,
-    scene: &Scene,
+    scene: &Body,
     gpu: &touchfem_gpu::Gpu,
     active: &[usize],
     reps: usize,
-) -> Result<Vec<Row>, touchfem_core::Error> {
+) -> Result<Vec<Row>, crate::error::Error> {
     use touchfem_gpu::LStorage;
     let mut rows = Vec::new();
     for (method, storage) in [
@@ -365,13 +365,12 @@ fn gpu_layout_rows(
     method: &str,
     storage: touchfem_gpu::LStorage,
     name: &str,
-    scene: &Scene,
+    scene: &Body,
     gpu: &touchfem_gpu::Gpu,
     active: &[usize],
     reps: usize,
-) -> Result<Vec<Row>, touchfem_core::Error> {
+) -> Result<Vec<Row>, crate::error::Error> {
     let c = &scene.compliance;
-    let gerr = |e: touchfem_gpu::GpuError| touchfem_core::Error::Input(e.to_string());
     let mut d = touchfem_gpu::Deformer::new(
         &gpu.device,
         &gpu.queue,
@@ -382,8 +381,7 @@ fn gpu_layout_rows(
             storage,
             ..Default::default()
         },
-    )
-    .map_err(gerr)?;
+    )?;
     let mut rows = Vec::new();
     let mut seen = Vec::new();
     for &k in active {
@@ -419,7 +417,7 @@ fn gpu_layout_rows(
         if let Some(e) = failed {
             return Err(e);
         }
-        let (pos, _) = d.read_back(&gpu.device, &gpu.queue).map_err(gerr)?;
+        let (pos, _) = d.read_back(&gpu.device, &gpu.queue)?;
         let mut reference = vec![DVec3::ZERO; c.rows().len()];
         c.displace(&forces, &mut reference);
         let got: Vec<DVec3> = pos
@@ -448,10 +446,10 @@ pub const FRAME_SIZE: [u32; 2] = [640, 480];
 /// draw it by default ([`touchfem_gpu::render::wireframe_by_default`]), the adapter's live sample
 /// count; submit and wait, no read-back, no present. `None` when no triangle is touchable.
 pub fn frame_ms(
-    scene: &Scene,
+    scene: &Body,
     gpu: &touchfem_gpu::Gpu,
     reps: usize,
-) -> Result<Option<f64>, touchfem_core::Error> {
+) -> Result<Option<f64>, crate::error::Error> {
     use touchfem_gpu::render::{
         Camera, Coloring, Edges, Frame, FrameObject, RenderOptions, Renderer,
     };
@@ -469,8 +467,6 @@ pub fn frame_ms(
         .filter_map(|&v| c.col_of(v))
         .map(|col| (col as u32, [0.0, 0.0, -0.1]))
         .collect();
-    let gerr = |e: touchfem_gpu::GpuError| touchfem_core::Error::Input(e.to_string());
-    let rerr = |e: touchfem_gpu::render::RenderError| touchfem_core::Error::Input(e.to_string());
     let mut d = touchfem_gpu::Deformer::new(
         &gpu.device,
         &gpu.queue,
@@ -478,14 +474,13 @@ pub fn frame_ms(
         &scene.mesh.nodes,
         &scene.mesh.surface,
         &Default::default(),
-    )
-    .map_err(gerr)?;
-    d.set_forces(&gpu.queue, &forces).map_err(gerr)?;
+    )?;
+    d.set_forces(&gpu.queue, &forces)?;
     let options = RenderOptions {
         samples: touchfem_gpu::render::live_samples(&gpu.adapter.get_info()),
         ..Default::default()
     };
-    let r = Renderer::with_options(&gpu.device, FRAME_SIZE, options).map_err(rerr)?;
+    let r = Renderer::with_options(&gpu.device, FRAME_SIZE, options)?;
     let [w, h] = FRAME_SIZE;
     let target = gpu.device.create_texture(&wgpu::TextureDescriptor {
         label: Some("touchfem bench frame"),
@@ -526,15 +521,14 @@ pub fn frame_ms(
         legend: None,
     };
     let mut failed = None;
-    let draw = || -> Result<(), touchfem_core::Error> {
+    let draw = || -> Result<(), crate::error::Error> {
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        r.draw(&gpu.device, &gpu.queue, &mut enc, &view, &frame)
-            .map_err(rerr)?;
+        r.draw(&gpu.device, &gpu.queue, &mut enc, &view, &frame)?;
         gpu.queue.submit([enc.finish()]);
         gpu.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map(|_| ())
-            .map_err(|e| touchfem_core::Error::Input(format!("GPU poll: {e}")))
+            .map_err(crate::error::Error::from)
     };
     for _ in 0..3 {
         draw()?;
@@ -555,16 +549,15 @@ fn gpu_frame(
     gpu: &touchfem_gpu::Gpu,
     d: &mut touchfem_gpu::Deformer,
     forces: &[(u32, [f32; 3])],
-) -> Result<(), touchfem_core::Error> {
-    d.set_forces(&gpu.queue, forces)
-        .map_err(|e| touchfem_core::Error::Input(e.to_string()))?;
+) -> Result<(), crate::error::Error> {
+    d.set_forces(&gpu.queue, forces)?;
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     d.encode(&mut enc);
     gpu.queue.submit([enc.finish()]);
     gpu.device
         .poll(wgpu::PollType::wait_indefinitely())
         .map(|_| ())
-        .map_err(|e| touchfem_core::Error::Input(format!("GPU poll: {e}")))
+        .map_err(crate::error::Error::from)
 }
 
 /// Conjugate-gradient rows: a finger pressing a little deeper each frame (the forces grow by
@@ -573,7 +566,7 @@ fn gpu_frame(
 /// precomputed f64 product.
 fn cg_rows(
     name: &str,
-    scene: &Scene,
+    scene: &Body,
     stiff: &touchfem_core::fem::Stiffness,
     forces: &[(u32, DVec3)],
     reps: usize,
@@ -632,9 +625,9 @@ fn cg_rows(
 pub fn write_json(
     path: &std::path::Path,
     v: &serde_json::Value,
-) -> Result<(), touchfem_core::Error> {
+) -> Result<(), crate::error::Error> {
     std::fs::write(path, serde_json::to_string_pretty(v).expect("serialisable")).map_err(|source| {
-        touchfem_core::Error::Write {
+        crate::error::Error::Write {
             path: path.to_path_buf(),
             source,
         }

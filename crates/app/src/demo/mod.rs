@@ -15,6 +15,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::time::Instant;
 
+use crate::error::Error;
 use touchfem_core::devices::{HapticDevice, KeyframePath};
 use touchfem_core::force::MAX_FINGERS;
 use touchfem_core::runtime::pacer::run_floor;
@@ -24,7 +25,6 @@ use touchfem_core::runtime::{
     WorldSample,
 };
 use touchfem_core::scene::{DeviceSpec, World};
-use touchfem_core::Error;
 use touchfem_gpu::visual::Visual;
 use touchfem_gpu::Gpu;
 
@@ -121,7 +121,7 @@ pub fn picture_scales(world: &World, samples: usize) -> Result<PictureScales, Er
     let mut u: Vec<Vec<DVec3>> = world
         .objects
         .iter()
-        .map(|o| vec![DVec3::ZERO; o.scene.compliance.rows().len()])
+        .map(|o| vec![DVec3::ZERO; o.body.compliance.rows().len()])
         .collect();
     let (mut max_u, mut max_f) = (0.0f64, 0.0f64);
     for i in 0..=samples {
@@ -131,7 +131,7 @@ pub fn picture_scales(world: &World, samples: usize) -> Result<PictureScales, Er
         }
         hw.step(&pos[..n], &mut f[..n], &mut s);
         for (k, o) in world.objects.iter().enumerate() {
-            o.scene.compliance.displace(s.bc(k).entries(), &mut u[k]);
+            o.body.compliance.displace(s.bc(k).entries(), &mut u[k]);
             max_u = u[k].iter().map(|v| v.length()).fold(max_u, f64::max);
         }
         max_f = f[..n].iter().map(|v| v.length()).fold(max_f, f64::max);
@@ -158,12 +158,12 @@ pub fn scene_camera(
         .objects
         .iter()
         .flat_map(|o| {
-            o.scene
+            o.body
                 .mesh
                 .surface
                 .iter()
                 .flatten()
-                .map(move |&i| o.scene.mesh.nodes[i as usize] + o.offset)
+                .map(move |&i| o.body.mesh.nodes[i as usize] + o.offset)
         })
         .collect();
     let (lo, hi) = world.bounds();
@@ -202,10 +202,10 @@ pub fn scripted_devices(world: &World, seconds: f64) -> Result<Vec<Box<dyn Hapti
         match &f.device {
             DeviceSpec::Script(keys) => paths.push(
                 KeyframePath::new(keys.clone())
-                    .ok_or_else(|| Error::Scene(format!("finger {}: bad path", i + 1)))?,
+                    .ok_or_else(|| Error::Body(format!("finger {}: bad path", i + 1)))?,
             ),
             other => {
-                return Err(Error::Scene(format!(
+                return Err(Error::Body(format!(
                     "scene '{}': finger {} uses device {other:?}; the demo drives scripted fingers only (use `view` or `serve`)",
                     world.name,
                     i + 1
@@ -270,52 +270,26 @@ fn draw(
     let Some(deformers) = visual.deformers() else {
         return Ok(None);
     };
-    let objects: Vec<touchfem_gpu::render::FrameObject<'_>> = world
-        .objects
-        .iter()
-        .zip(deformers)
-        .enumerate()
-        .map(|(i, (o, d))| touchfem_gpu::render::FrameObject {
-            deformer: d,
-            offset: o.offset,
-            bounds: o.scene.mesh.bounds(),
-            edges: edges.get(i),
-        })
-        .collect();
-    let fingers: Vec<DVec3> = sample
-        .fingers()
-        .iter()
-        .map(|f| f.position)
-        .filter(|p| p.is_finite())
-        .collect();
-    let proxies: Vec<DVec3> = sample.fingers().iter().filter_map(|f| f.proxy).collect();
-    let arrows: Vec<touchfem_gpu::render::ForceArrow> = sample
-        .fingers()
-        .iter()
-        .filter_map(|f| f.proxy.map(|p| (f, p)))
-        .map(|(f, p)| touchfem_gpu::render::ForceArrow {
-            at: p,
-            force_n: f.force,
-            m_per_n: style.arrow_m_per_n,
-        })
-        .collect();
+    let objects = touchfem_gpu::visual::frame_objects(world, deformers, edges);
+    let marks = touchfem_gpu::visual::SampleMarks::of(sample, style.arrow_m_per_n);
+    let n_f = marks.n;
     let (lo, hi) = world.bounds();
     let frame = touchfem_gpu::render::Frame {
         objects: &objects,
         camera: style.camera,
-        fingers: &fingers,
-        proxies: &proxies,
+        fingers: &marks.fingers[..n_f],
+        proxies: &marks.proxies[..n_f],
         scale: (hi - lo).length(),
         wireframe: true,
         overlay: None,
         coloring: style.coloring,
-        arrows: &arrows,
+        arrows: &marks.arrows[..n_f],
         legend: style.legend.as_ref(),
     };
     renderer
         .render_to_image(&gpu.device, &gpu.queue, &frame)
         .map(Some)
-        .map_err(|e| Error::Input(e.to_string()))
+        .map_err(Error::from)
 }
 
 /// Runs one scene: floor, then haptic loop, with the visual loop drawing throughout; writes
@@ -490,11 +464,11 @@ pub fn run_scene(
         .map(|(i, o)| ObjectReport {
             scene: world.name.clone(),
             name: o.name.clone(),
-            nodes: o.scene.mesh.nodes.len(),
-            rows: o.scene.compliance.rows().len(),
-            cols: o.scene.compliance.cols().len(),
-            precompute_s: o.scene.compliance.stats.seconds,
-            residual: o.scene.compliance.stats.residual,
+            nodes: o.body.mesh.nodes.len(),
+            rows: o.body.compliance.rows().len(),
+            cols: o.body.compliance.cols().len(),
+            precompute_s: o.body.compliance.stats.seconds,
+            residual: o.body.compliance.stats.residual,
             force_us_median: force_us,
             displacement_us_median: percentile(&disp_us, 0.5),
             displacement_backend: visual.backend(),

@@ -6,11 +6,11 @@ use glam::DVec3;
 use std::io::Write;
 use std::path::Path;
 
+use crate::error::Error;
 use touchfem_core::force::MAX_FINGERS;
 use touchfem_core::runtime::session::Session;
 use touchfem_core::runtime::{HapticWorld, WorldSample, MAX_OBJECTS};
 use touchfem_core::scene::World;
-use touchfem_core::Error;
 
 /// The font the plots use (DejaVu Sans Mono, bundled).
 pub use touchfem_gpu::render::FONT;

@@ -18,7 +18,7 @@ use touchfem_core::devices::pointer::PointerShared;
 use touchfem_core::runtime::{LiveStatus, SampleReader};
 use touchfem_core::scene::World;
 use touchfem_gpu::render::{
-    live_samples, pick, Edges, Frame, FrameObject, Orbit, Overlay, RenderOptions, Renderer,
+    live_samples, pick, Edges, Frame, Orbit, Overlay, RenderOptions, Renderer,
 };
 use touchfem_gpu::{AdapterSelection, Deformer, DeformerOptions};
 
@@ -112,7 +112,7 @@ fn arrow_m_per_n(world: &World, diag: f64) -> f64 {
     let Some(o) = world.objects.first() else {
         return touchfem_gpu::render::arrow_scale(1.0, 0.25 * diag);
     };
-    let c = &o.scene.compliance;
+    let c = &o.body.compliance;
     let mut k: Vec<f64> = (0..c.cols().len())
         .map(|i| {
             let m = c.diag_inv(i);
@@ -240,7 +240,7 @@ impl<'a> App<'a> {
                 world
                     .objects
                     .iter()
-                    .map(|o| o.scene.mesh.surface.len())
+                    .map(|o| o.body.mesh.surface.len())
                     .sum(),
                 size,
             ),
@@ -393,9 +393,9 @@ impl<'a> App<'a> {
             deformers.push(Deformer::new(
                 &device,
                 &queue,
-                &o.scene.compliance,
-                &o.scene.mesh.nodes,
-                &o.scene.mesh.surface,
+                &o.body.compliance,
+                &o.body.mesh.nodes,
+                &o.body.mesh.surface,
                 &deformer_options,
             )?);
         }
@@ -470,24 +470,8 @@ impl<'a> App<'a> {
         let t0 = Instant::now();
         let sample = *self.reader.read();
         let force = self.pointer_force(&sample);
-        let mut fingers = [DVec3::NAN; touchfem_core::force::MAX_FINGERS];
-        let mut proxies = [DVec3::NAN; touchfem_core::force::MAX_FINGERS];
-        for (i, f) in sample.fingers().iter().enumerate() {
-            fingers[i] = f.position;
-            proxies[i] = f.proxy.unwrap_or(DVec3::NAN);
-        }
+        let marks = touchfem_gpu::visual::SampleMarks::of(&sample, self.arrow_m_per_n);
         let touching = sample.fingers().iter().any(|f| f.object.is_some());
-        let mut arrows = [touchfem_gpu::render::ForceArrow {
-            at: DVec3::NAN,
-            force_n: DVec3::ZERO,
-            m_per_n: self.arrow_m_per_n,
-        }; touchfem_core::force::MAX_FINGERS];
-        for (a, f) in arrows.iter_mut().zip(sample.fingers()) {
-            if let Some(p) = f.proxy.filter(|_| f.object.is_some()) {
-                a.at = p;
-                a.force_n = f.force;
-            }
-        }
         let coloring = self.coloring();
         let status_due = self
             .stats
@@ -552,30 +536,18 @@ impl<'a> App<'a> {
             }
         };
         let view = frame_tex.texture.create_view(&Default::default());
-        let objects: Vec<FrameObject<'_>> = self
-            .world
-            .objects
-            .iter()
-            .zip(&g.deformers)
-            .zip(&g.edges)
-            .map(|((o, d), e)| FrameObject {
-                deformer: d,
-                offset: o.offset,
-                bounds: o.scene.mesh.bounds(),
-                edges: Some(e),
-            })
-            .collect();
-        let n_f = sample.n_fingers;
+        let objects = touchfem_gpu::visual::frame_objects(self.world, &g.deformers, &g.edges);
+        let n_f = marks.n;
         let frame = Frame {
             objects: &objects,
             camera,
-            fingers: &fingers[..n_f],
-            proxies: &proxies[..n_f],
+            fingers: &marks.fingers[..n_f],
+            proxies: &marks.proxies[..n_f],
             scale: self.scale,
             wireframe: self.wireframe,
             overlay: Some(&g.overlay),
             coloring,
-            arrows: &arrows[..n_f],
+            arrows: &marks.arrows[..n_f],
             legend: Some(&g.legend),
         };
         let mut enc = g
@@ -661,7 +633,7 @@ impl<'a> App<'a> {
             .world
             .objects
             .iter()
-            .map(|o| (&o.scene.surface, o.offset))
+            .map(|o| (&o.body.surface, o.offset))
             .collect();
         let hit = pick(&self.orbit.camera(), self.size, self.cursor, &surfaces);
         if let Some(h) = hit {

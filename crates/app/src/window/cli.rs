@@ -4,13 +4,13 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
 use super::WindowOptions;
+use crate::error::Error;
 use touchfem_core::devices::pointer::{PointerDevice, PointerShared};
 use touchfem_core::devices::{HapticDevice, KeyframePath};
 use touchfem_core::runtime::{
     join_haptic, run_haptic, sample_channel, session, DoneGuard, LiveStatus,
 };
 use touchfem_core::scene::{DeviceSpec, World};
-use touchfem_core::Error;
 
 /// The devices of a scene's fingers in `view`: the first `pointer` finger is the window's
 /// pointer, scripted fingers follow their paths; other devices are refused.
@@ -28,10 +28,10 @@ fn devices(
             }
             DeviceSpec::Script(keys) => out.push(Box::new(
                 KeyframePath::new(keys.clone())
-                    .ok_or_else(|| Error::Scene(format!("finger {}: bad path", i + 1)))?,
+                    .ok_or_else(|| Error::Body(format!("finger {}: bad path", i + 1)))?,
             )),
             other => {
-                return Err(Error::Scene(format!(
+                return Err(Error::Body(format!(
                     "scene '{}': finger {} uses device {other:?}, which `view` cannot drive (one pointer finger, and scripted ones)",
                     world.name,
                     i + 1

@@ -120,12 +120,6 @@ pub fn check_env() -> Result<(), ViewError> {
         .map_err(ViewError::Env)
 }
 
-impl From<ViewError> for touchfem_core::Error {
-    fn from(e: ViewError) -> Self {
-        touchfem_core::Error::Input(e.to_string())
-    }
-}
-
 /// Opens the window on `world` and runs it until Esc, closing, `TOUCHFEM_VIEW_SECONDS` or the
 /// end of the haptic loop ([`LiveStatus::done`]; a panic there is
 /// [`ViewError::HapticPanicked`]). Sets [`LiveStatus::stop`] on the way out and lifts the

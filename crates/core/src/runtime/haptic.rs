@@ -183,7 +183,7 @@ impl<'w> HapticWorld<'w> {
                 f.ramp = 1.0;
                 for (o, obj) in objects.iter().take(n_obj).enumerate() {
                     let local = x - obj.offset;
-                    let surf = &obj.scene.surface;
+                    let surf = &obj.body.surface;
                     f.gods[o] = if surf.contains(local) {
                         f.ramp = 0.0;
                         GodObject::touching(surf.closest_global(local).0)
@@ -193,7 +193,7 @@ impl<'w> HapticWorld<'w> {
                 }
             }
             for (o, obj) in objects.iter().take(n_obj).enumerate() {
-                let c = f.gods[o].update(&obj.scene.surface, x - obj.offset);
+                let c = f.gods[o].update(&obj.body.surface, x - obj.offset);
                 if touch[i].is_none() {
                     touch[i] = c.map(|c| (o, c));
                 }
@@ -206,7 +206,7 @@ impl<'w> HapticWorld<'w> {
         forces[..n].fill(DVec3::ZERO);
         self.limited[..n].fill(false);
         for (o, obj) in objects.iter().take(n_obj).enumerate() {
-            let comp = &obj.scene.compliance;
+            let comp = &obj.body.compliance;
             let mut who = [0usize; MAX_FINGERS];
             let mut contacts = [None::<ContactPoint>; MAX_FINGERS];
             let mut m = 0;
@@ -312,7 +312,7 @@ impl<'w> HapticWorld<'w> {
     /// against. Allocates nothing.
     pub fn contact_stiffness(&self, i: usize) -> Option<DMat3> {
         let (o, c) = self.contacts.get(i).copied().flatten()?;
-        let comp = &self.world.objects[o].scene.compliance;
+        let comp = &self.world.objects[o].body.compliance;
         match self.fingers[i].model {
             ForceModel::Paper => {
                 let mut k = DMat3::ZERO;

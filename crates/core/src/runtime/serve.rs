@@ -101,7 +101,7 @@ pub fn udp_world(spec: &str, limits: Option<&DeviceLimits>) -> Result<World, Err
         }
     };
     if world.fingers.iter().any(|f| f.device != DeviceSpec::Udp) {
-        return Err(Error::Scene(format!(
+        return Err(Error::Body(format!(
             "scene '{}': `serve` drives udp fingers only",
             world.name
         )));
@@ -135,12 +135,12 @@ pub fn headless(world: &World, mut reader: SampleReader, status: &LiveStatus) {
     let mut u: Vec<Vec<glam::DVec3>> = world
         .objects
         .iter()
-        .map(|o| vec![glam::DVec3::ZERO; o.scene.compliance.rows().len()])
+        .map(|o| vec![glam::DVec3::ZERO; o.body.compliance.rows().len()])
         .collect();
     while !status.done.load(Ordering::Acquire) {
         let sample = reader.read();
         for (o, (obj, u)) in world.objects.iter().zip(&mut u).enumerate() {
-            obj.scene.compliance.displace(sample.bc(o).entries(), u);
+            obj.body.compliance.displace(sample.bc(o).entries(), u);
         }
         std::thread::sleep(Duration::from_millis(10));
     }
@@ -150,26 +150,29 @@ pub fn headless(world: &World, mut reader: SampleReader, status: &LiveStatus) {
 /// (the visual core) beside the haptic loop — headless ([`headless`]) or a window — and should
 /// return once `status.done` is set; when it returns first, the haptic loop is stopped.
 /// Setting `stop` stops the haptic loop.
-pub fn serve_with(
+pub fn serve_with<E: From<Error>>(
     world: &World,
     opts: &ServeOptions,
     stop: &AtomicBool,
     bound: impl FnOnce(SocketAddr),
-    visual: impl FnOnce(SampleReader, &LiveStatus) -> Result<(), Error>,
-) -> Result<ServeReport, Error> {
+    visual: impl FnOnce(SampleReader, &LiveStatus) -> Result<(), E>,
+) -> Result<ServeReport, E> {
     let floor = match opts.floor_seconds {
-        Some(secs) => Some(std::thread::scope(|sc| {
-            sc.spawn(|| {
-                opts.placement.enter_haptic();
-                let realtime = crate::threads::try_realtime_priority();
-                let mut f = super::pacer::run_floor(world.haptics.rate_hz, secs, stop);
-                f.realtime = realtime;
-                opts.placement.leave();
-                f
+        Some(secs) => Some(
+            std::thread::scope(|sc| {
+                sc.spawn(|| {
+                    opts.placement.enter_haptic();
+                    let realtime = crate::threads::try_realtime_priority();
+                    let mut f = super::pacer::run_floor(world.haptics.rate_hz, secs, stop);
+                    f.realtime = realtime;
+                    opts.placement.leave();
+                    f
+                })
+                .join()
+                .map_err(|_| Error::HapticThread("the floor loop panicked".into()))
             })
-            .join()
-            .map_err(|_| Error::HapticThread("the floor loop panicked".into()))
-        })?),
+            .map_err(E::from)?,
+        ),
         None => None,
     };
     let cfg = BridgeConfig {
@@ -178,13 +181,13 @@ pub fn serve_with(
         clock: opts.clock,
         key: opts.key.clone(),
     };
-    let mut bridge = UdpBridge::bind(opts.addr, &cfg)?;
+    let mut bridge = UdpBridge::bind(opts.addr, &cfg).map_err(Error::from)?;
     let addr = bridge
         .local_addr()
         .map_err(|e| Error::Input(format!("UDP socket: {e}")))?;
     opts.placement.enter_visual();
     let mut recording = match &opts.record {
-        Some(p) => Some(session::record(p, world)?),
+        Some(p) => Some(session::record(p, world).map_err(E::from)?),
         None => None,
     };
     bound(addr);
@@ -213,7 +216,8 @@ pub fn serve_with(
         status.stop.store(true, Ordering::Relaxed);
         opts.placement.leave();
         join_haptic(h).map(|(run, counters)| (run, counters, shown))
-    })?;
+    })
+    .map_err(E::from)?;
     shown?;
     // A failed recording keeps the report: the error goes into it (and `serve` fails after
     // writing it).

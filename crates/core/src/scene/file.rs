@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use toml::Spanned;
 
 use super::world::{DeviceSpec, FingerSpec, HapticSettings, Object, World};
-use super::{load_mesh, LoadOptions, Scene};
+use super::{load_mesh, Body, LoadOptions};
 use crate::compliance::{Compliance, NodeSet, Selection};
 use crate::devices::limits::DeviceLimits;
 use crate::force::{ForceModel, MAX_FINGERS};
@@ -133,7 +133,7 @@ impl SceneSource {
         let path = Path::new(spec);
         if path.extension().is_some_and(|e| e == "toml") {
             let text = std::fs::read_to_string(path)
-                .map_err(|e| Error::Scene(format!("{spec}: cannot read the scene file: {e}")))?;
+                .map_err(|e| Error::Body(format!("{spec}: cannot read the scene file: {e}")))?;
             // Absolute, so a recorded session replays from any directory.
             let dir = path
                 .parent()
@@ -299,14 +299,14 @@ impl World {
     fn build(src: &SceneSource, compute: &mut Compute<'_>) -> Result<World, Error> {
         let text = &src.text;
         let at = |span: std::ops::Range<usize>, key: &str, msg: String| {
-            Error::Scene(format!(
+            Error::Body(format!(
                 "{}: line {}, key `{key}`: {msg}",
                 src.label,
                 line_of(text, span.start)
             ))
         };
         let file: FileToml = toml::from_str(text)
-            .map_err(|e| Error::Scene(format!("{}: {}", src.label, e.to_string().trim_end())))?;
+            .map_err(|e| Error::Body(format!("{}: {}", src.label, e.to_string().trim_end())))?;
         let unit = match &file.unit {
             None => LengthUnit::Metre,
             Some(u) => unit_of(u.get_ref()).ok_or_else(|| {
@@ -319,7 +319,7 @@ impl World {
         };
         let s = unit.to_metres();
         if file.object.is_empty() {
-            return Err(Error::Scene(format!(
+            return Err(Error::Body(format!(
                 "{}: no [[object]]: a scene needs at least one",
                 src.label
             )));
@@ -510,7 +510,7 @@ impl World {
             };
             objects.push(Object {
                 name,
-                scene: Scene::with_compliance(mesh, compliance),
+                body: Body::with_compliance(mesh, compliance),
                 offset,
             });
         }
@@ -649,7 +649,7 @@ impl World {
         }
         // Early warning: a body whose compliance loses more than 1e-3 in f32 or f16 storage.
         for o in &objects {
-            let (e32, e16) = crate::conditioning::storage_error(&o.scene.compliance);
+            let (e32, e16) = crate::conditioning::storage_error(&o.body.compliance);
             if let Some(w) = crate::conditioning::storage_warning(&o.name, e32, e16) {
                 log::warn!("{w}");
             }

@@ -81,7 +81,7 @@ pub fn load_mesh(spec: &str, opts: &LoadOptions) -> Result<(Mesh, LengthUnit), E
 }
 
 /// One object ready to touch: mesh, walking surface, compliance.
-pub struct Scene {
+pub struct Body {
     /// The mesh (metres).
     pub mesh: Mesh,
     /// The rest surface the god-object walks on.
@@ -107,17 +107,17 @@ pub struct Poke {
     pub bc: ForceBc,
 }
 
-impl Scene {
+impl Body {
     /// Precomputes the compliance for `sel` and builds the surface.
-    pub fn new(mesh: Mesh, sel: &Selection) -> Result<Scene, Error> {
+    pub fn new(mesh: Mesh, sel: &Selection) -> Result<Body, Error> {
         let compliance = Compliance::compute(&mesh, sel)?;
-        Ok(Scene::with_compliance(mesh, compliance))
+        Ok(Body::with_compliance(mesh, compliance))
     }
 
     /// Builds a scene around an already computed (or cached) compliance.
-    pub fn with_compliance(mesh: Mesh, compliance: Compliance) -> Scene {
+    pub fn with_compliance(mesh: Mesh, compliance: Compliance) -> Body {
         let surface = Surface::new(&mesh);
-        Scene {
+        Body {
             mesh,
             surface,
             compliance,

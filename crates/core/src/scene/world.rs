@@ -3,7 +3,7 @@
 
 use glam::DVec3;
 
-use super::Scene;
+use super::Body;
 use crate::devices::limits::DeviceLimits;
 use crate::force::ForceModel;
 use crate::units::LengthUnit;
@@ -13,7 +13,7 @@ pub struct Object {
     /// Its name (scene file `name`, else the mesh's name or file stem).
     pub name: String,
     /// Mesh, rest surface and compliance, in the object's own frame (metres).
-    pub scene: Scene,
+    pub body: Body,
     /// Where the mesh's origin sits in the scene, metres.
     pub offset: DVec3,
 }
@@ -89,7 +89,7 @@ impl World {
         let mut lo = DVec3::splat(f64::INFINITY);
         let mut hi = DVec3::splat(f64::NEG_INFINITY);
         for o in &self.objects {
-            let (a, b) = o.scene.mesh.bounds();
+            let (a, b) = o.body.mesh.bounds();
             lo = lo.min(a + o.offset);
             hi = hi.max(b + o.offset);
         }
