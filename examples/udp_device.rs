@@ -153,9 +153,17 @@ pub fn run_client_keyed(
     let mut out = [0u8; MAX_PACKET];
     let mut inp = [0u8; 512];
     let mut work = 0.0;
-    let t0 = Instant::now();
+    let period = Duration::from_secs_f64(dt);
+    let mut next = Instant::now();
     for i in 0..n {
-        let due = t0 + Duration::from_secs_f64(i as f64 * dt);
+        // A tick more than a period late is not caught up with a burst of packets (a device's
+        // servo loop drops it): touchfem measures the time between packets.
+        let now = Instant::now();
+        if now > next + period {
+            next = now;
+        }
+        let due = next;
+        next += period;
         {
             // Sleep, then spin the last 200 µs (sleeping all the way wakes late).
             let now = Instant::now();
