@@ -9,5 +9,5 @@ scripts/ensure-vulkan.sh
 scripts/ensure-x11.sh
 export WGPU_BACKEND="${WGPU_BACKEND:-vulkan}"
 export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
+# Without target flags, `cargo test` runs the doc tests too.
 cargo test --workspace --all-features "$@"
-cargo test --workspace --doc --all-features
