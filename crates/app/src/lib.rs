@@ -48,7 +48,7 @@ impl log::Log for StderrLogger {
 static LOGGER: StderrLogger = StderrLogger;
 
 /// Installs the stderr logger (once; later calls change nothing).
-pub fn install_logger() {
+pub(crate) fn install_logger() {
     if log::set_logger(&LOGGER).is_ok() {
         let level = match std::env::var("TOUCHFEM_LOG").as_deref() {
             Ok("debug") => log::LevelFilter::Debug,

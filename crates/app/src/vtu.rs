@@ -9,7 +9,7 @@ use std::path::Path;
 use touchfem_core::mesh::Mesh;
 
 /// Writes the mesh with its displacement and applied nodal forces (one entry per node).
-pub fn write_vtu(
+pub(crate) fn write_vtu(
     path: &Path,
     mesh: &Mesh,
     displacement: &[DVec3],

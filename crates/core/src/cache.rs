@@ -38,7 +38,7 @@ use crate::near::NearBlocks;
 
 const MAGIC: &[u8; 8] = b"TFEMCMP\0";
 /// The cache format version this build reads and writes.
-pub const FORMAT_VERSION: u32 = 3;
+pub(crate) const FORMAT_VERSION: u32 = 3;
 const HEADER: usize = 72;
 /// Version of what [`key`] hashes (not of the file layout, which the header's version names):
 /// scene hashes and recorded sessions include the key, so it changes only when the hashed
@@ -152,7 +152,7 @@ fn unique_tmp(path: &Path) -> std::path::PathBuf {
 /// replaces; dropped without a commit, the temporary is removed and the old file is untouched.
 /// A target that exists and is not a regular file (a device such as `/dev/null`, a pipe) is
 /// written in place; a symbolic link's target is replaced, the link kept.
-pub struct AtomicFile {
+pub(crate) struct AtomicFile {
     path: PathBuf,
     tmp: Option<PathBuf>,
     file: std::fs::File,
@@ -222,7 +222,7 @@ impl Drop for AtomicFile {
     }
 }
 
-/// Writes `bytes` to `path` through an [`AtomicFile`]: `path` holds either its old content or
+/// Writes `bytes` to `path` through an `AtomicFile`: `path` holds either its old content or
 /// all of `bytes`, never a part.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     use std::io::Write;
@@ -382,17 +382,12 @@ impl Header {
     fn lists_len(&self) -> usize {
         4 * (self.rows as usize + self.cols as usize)
     }
-
-    /// The column range held.
-    pub fn col_range(&self) -> std::ops::Range<usize> {
-        self.col_begin as usize..self.col_end as usize
-    }
 }
 
 /// A cache file or shard being written: a unique temporary file of the final size, filled
 /// batch by batch (from any thread, in any order), then checksummed, synced and renamed.
 /// Dropped without [`Writer::finish`], the temporary is removed.
-pub struct Writer {
+pub(crate) struct Writer {
     path: PathBuf,
     tmp: PathBuf,
     file: std::fs::File,
@@ -500,7 +495,7 @@ impl Writer {
 
     /// Writes the held batch `i` (0-based within the file's range): `values` are its
     /// `9·R'·columns` f64 ([`Header::l_rows`]). Callable from several threads.
-    pub fn write_batch(&self, i: usize, values: &[f64]) -> Result<(), CacheError> {
+    pub(crate) fn write_batch(&self, i: usize, values: &[f64]) -> Result<(), CacheError> {
         use std::os::unix::fs::FileExt;
         let h = &self.head;
         let held = h.held_batches();
@@ -535,7 +530,12 @@ impl Writer {
 
     /// Reads rows `r0 .. r0 + out.len()` of DOF column `q` (counted from the file's first
     /// column) as written so far.
-    pub fn read_column(&self, q: usize, r0: usize, out: &mut [f64]) -> Result<(), CacheError> {
+    pub(crate) fn read_column(
+        &self,
+        q: usize,
+        r0: usize,
+        out: &mut [f64],
+    ) -> Result<(), CacheError> {
         use std::os::unix::fs::FileExt;
         let off =
             self.head.batch_offset(0) + 8 * (q as u64 * 3 * self.head.l_rows as u64 + r0 as u64);
@@ -614,7 +614,7 @@ impl Writer {
 
     /// Stops an interrupted write: the batches written so far stay in `partial` (a valid file
     /// whose missing batches have checksum 0), from which [`Writer::resume`] continues.
-    pub fn keep_partial(mut self, partial: &Path) -> Result<(), CacheError> {
+    pub(crate) fn keep_partial(mut self, partial: &Path) -> Result<(), CacheError> {
         let sums: Vec<u64> = self
             .sums
             .lock()
@@ -661,7 +661,7 @@ impl Writer {
     }
 
     /// Sets the residual stored in the header.
-    pub fn set_residual(&mut self, residual: f64) {
+    pub(crate) fn set_residual(&mut self, residual: f64) {
         self.head.residual_bits = residual.to_bits();
     }
 
@@ -863,7 +863,7 @@ impl Part {
     }
 
     /// Reads held batch `i` into `out` (resized to its length) and checks its checksum.
-    pub fn read_batch(&self, i: usize, out: &mut Vec<f64>) -> Result<(), CacheError> {
+    pub(crate) fn read_batch(&self, i: usize, out: &mut Vec<f64>) -> Result<(), CacheError> {
         use std::os::unix::fs::FileExt;
         let h = &self.head;
         let first = h.col_begin as usize + i * h.batch as usize;
@@ -897,7 +897,7 @@ impl Part {
 /// `L` left in a checked cache file instead of memory: read back in ranges of entries (this
 /// module's column-major layout, the file's own row and column order) when the GPU copy is
 /// built. Its checksums were verified when it was loaded ([`load_near`]).
-pub struct FileL {
+pub(crate) struct FileL {
     part: Part,
     max_abs_f32: f32,
 }
@@ -918,19 +918,9 @@ impl FileL {
         9 * self.part.head.l_rows as usize * self.part.head.cols as usize
     }
 
-    /// Whether `L` has no entries.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
     /// max |L| rounded to f32.
     pub fn max_abs_f32(&self) -> f32 {
         self.max_abs_f32
-    }
-
-    /// The file.
-    pub fn path(&self) -> &Path {
-        &self.part.path
     }
 
     /// Entries `range`, rounded to f32.
@@ -992,7 +982,7 @@ pub fn load_near(
 }
 
 /// As [`load_near`], from a part already opened (and its header checked).
-pub fn load_near_part(
+pub(crate) fn load_near_part(
     part: Part,
     expected_key: u64,
     n_nodes: usize,
@@ -1228,7 +1218,7 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeInfo, CacheError> {
 }
 
 /// The batch range of shard `index` (1-based) of `count` over `batches` batches.
-pub fn shard_batches(batches: usize, index: usize, count: usize) -> std::ops::Range<usize> {
+pub(crate) fn shard_batches(batches: usize, index: usize, count: usize) -> std::ops::Range<usize> {
     (batches * (index - 1) / count)..(batches * index / count)
 }
 

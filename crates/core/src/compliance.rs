@@ -37,7 +37,7 @@ pub enum NodeSet {
 
 impl NodeSet {
     /// The node indices this set names on `mesh`.
-    pub fn resolve(&self, mesh: &Mesh) -> Vec<u32> {
+    pub(crate) fn resolve(&self, mesh: &Mesh) -> Vec<u32> {
         match self {
             NodeSet::All => (0..mesh.nodes.len() as u32).collect(),
             NodeSet::Surface => mesh.surface_nodes.clone(),
@@ -124,7 +124,7 @@ pub struct PhaseTimes {
     pub sync_s: f64,
     /// Estimated floating-point operations of the column method's solves.
     pub column_flops: f64,
-    /// Whether the Cholesky factor was kept in a file (see [`factor_store`]).
+    /// Whether the Cholesky factor was kept in a file (see `factor_store`).
     pub factor_in_file: bool,
     /// Peak bytes of the out-of-core factorisation's fronts and update stacks; 0 when the
     /// factor was kept in memory.
@@ -307,7 +307,7 @@ impl Compliance {
     /// As [`Compliance::from_dense`] with only the first `l_rows` rows stored (`9·l_rows·C`
     /// entries): `rows[l_rows..]` are clamped, their rows of `L` zero. Every column's node
     /// must be among the stored rows. Used by the precompute and the cache.
-    pub fn from_stored(
+    pub(crate) fn from_stored(
         rows: Vec<u32>,
         l_rows: usize,
         cols: Vec<u32>,
@@ -331,7 +331,7 @@ impl Compliance {
     /// A compliance that holds only the haptic path's blocks (`near`, filled) while `L` stays
     /// in `file` (read back when the GPU copy is built, see [`Compliance::stored_l`]).
     /// `max_abs` is max |L| over the whole file (for the symmetry figure).
-    pub fn from_near(
+    pub(crate) fn from_near(
         rows: Vec<u32>,
         l_rows: usize,
         cols: Vec<u32>,
@@ -677,7 +677,7 @@ pub fn method() -> Method {
 }
 
 /// `read(DOF column, first row, out)`: rows of an earlier batch, for [`ColumnPlan::mirror`].
-pub type ReadRows<'a, E> = dyn FnMut(usize, usize, &mut [f64]) -> Result<(), E> + 'a;
+pub(crate) type ReadRows<'a, E> = dyn FnMut(usize, usize, &mut [f64]) -> Result<(), E> + 'a;
 
 /// Column nodes per pruned column solve (a batch is solved in groups of this many).
 const SOLVE_COLS: usize = 32;
@@ -701,14 +701,14 @@ fn ordering() -> crate::fem::Ordering {
 
 /// Bytes of Cholesky factor above which the precompute keeps it in a file (see
 /// [`factor_store`]).
-pub const FACTOR_FILE_ABOVE: usize = 256 << 20;
+pub(crate) const FACTOR_FILE_ABOVE: usize = 256 << 20;
 
 /// Where the precompute keeps its Cholesky factor, by the environment variable
 /// `TOUCHFEM_FACTOR`: `heap` (faer's factorisation, in memory), `file` (the out-of-core
 /// multifrontal factorisation of [`crate::frontal`]), or, unset or anything else, `file`
 /// for factors above [`FACTOR_FILE_ABOVE`]. The file is unlinked at once and lives in the
 /// cache directory ([`crate::options::cache_dir`]), or the system's temporary one.
-pub fn factor_store() -> crate::fem::FactorStore {
+pub(crate) fn factor_store() -> crate::fem::FactorStore {
     use crate::fem::FactorStore;
     let dir = crate::options::cache_dir()
         .filter(|d| std::fs::create_dir_all(d).is_ok())
@@ -726,7 +726,7 @@ pub fn factor_store() -> crate::fem::FactorStore {
 }
 
 /// The factorised stiffness and the resolved selection, ready to solve column batches.
-pub struct ColumnPlan {
+pub(crate) struct ColumnPlan {
     /// Displayed nodes (rows); the touchable nodes are included. The free ones come first,
     /// then the clamped ones.
     pub rows: Vec<u32>,
@@ -805,12 +805,16 @@ impl ColumnPlan {
     }
 
     /// As [`ColumnPlan::new`] with the method `how`.
-    pub fn with_method(mesh: &Mesh, sel: &Selection, how: Method) -> Result<ColumnPlan, FemError> {
+    pub(crate) fn with_method(
+        mesh: &Mesh,
+        sel: &Selection,
+        how: Method,
+    ) -> Result<ColumnPlan, FemError> {
         Self::with_method_in(mesh, sel, how, &factor_store())
     }
 
     /// As [`ColumnPlan::with_method`] with the factor kept where `store` says.
-    pub fn with_method_in(
+    pub(crate) fn with_method_in(
         mesh: &Mesh,
         sel: &Selection,
         how: Method,
@@ -941,7 +945,7 @@ impl ColumnPlan {
     /// the solve then leaves a batch's rows `first .. its first column` zero, and
     /// [`ColumnPlan::mirror`] fills them from those batches' lower rows, halving the products.
     /// Returns whether the plan is symmetric (otherwise the batches come out complete).
-    pub fn mirror_from(&mut self, first: usize) -> bool {
+    pub(crate) fn mirror_from(&mut self, first: usize) -> bool {
         let sym = self.gram.as_ref().is_some_and(|g| g.0.symmetric());
         self.mirror_from = sym.then_some(first);
         sym
@@ -973,7 +977,7 @@ impl ColumnPlan {
 
     /// The DOF rows of batch `b` that [`ColumnPlan::mirror`] fills (empty unless the plan
     /// mirrors): the solve leaves them zero, so a first write may skip them.
-    pub fn mirror_rows(&self, b: usize) -> std::ops::Range<usize> {
+    pub(crate) fn mirror_rows(&self, b: usize) -> std::ops::Range<usize> {
         let Some(first) = self.mirror_from else {
             return 0..0;
         };
@@ -992,7 +996,7 @@ impl ColumnPlan {
     }
 
     /// The column indices of batch `b`.
-    pub fn batch_cols(&self, b: usize) -> std::ops::Range<usize> {
+    pub(crate) fn batch_cols(&self, b: usize) -> std::ops::Range<usize> {
         let lo = (b * BATCH_COLS).min(self.cols.len());
         lo..(lo + BATCH_COLS).min(self.cols.len())
     }
@@ -1040,7 +1044,7 @@ impl ColumnPlan {
     /// As [`ColumnPlan::solve`], with the stop flag the caller's: it is set when a sink
     /// returns `false` or a worker fails, and a sink that waits for another batch must give
     /// up when it is set. Workers take `batches` in the order given.
-    pub fn solve_until(
+    pub(crate) fn solve_until(
         &self,
         batches: &[usize],
         sink: &(dyn Fn(usize, &mut [f64]) -> bool + Sync),

@@ -9,7 +9,7 @@ use crate::fem::Stiffness;
 use crate::mesh::Mesh;
 
 /// Storage errors above this get a warning.
-pub const WARN_ERROR: f64 = 1e-3;
+pub(crate) const WARN_ERROR: f64 = 1e-3;
 
 /// A body's conditioning.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
@@ -70,7 +70,7 @@ pub fn estimate(mesh: &Mesh, iters: usize) -> Result<Conditioning, crate::Error>
 /// measured for a unit force at the most compliant touchable node and for opposite forces at
 /// it and another one (where the sum cancels), in the GPU's arithmetic (f32 sums; f16 entries
 /// scaled by a power of two near max |L|). Returns (f32 error, f16 error).
-pub fn storage_error(c: &Compliance) -> (f64, f64) {
+pub(crate) fn storage_error(c: &Compliance) -> (f64, f64) {
     let nc = c.cols().len();
     let nr = c.rows().len();
     if nc == 0 || nr == 0 || !c.holds_l() {
@@ -108,7 +108,7 @@ pub fn storage_error(c: &Compliance) -> (f64, f64) {
     (e32, e16)
 }
 
-/// [`storage_error`] without the whole compliance: the two columns it needs (the free-surface
+/// `storage_error` without the whole compliance: the two columns it needs (the free-surface
 /// node farthest from the clamp, and another) solved with rows on the surface. For `info`.
 pub fn predict_storage_error(mesh: &Mesh) -> Result<(f64, f64), crate::Error> {
     use crate::compliance::{NodeSet, Selection};
@@ -138,7 +138,7 @@ pub fn predict_storage_error(mesh: &Mesh) -> Result<(f64, f64), crate::Error> {
     Ok(storage_error(&c))
 }
 
-/// A warning when a storage's measured error exceeds [`WARN_ERROR`], saying what to use.
+/// A warning when a storage's measured error exceeds `WARN_ERROR`, saying what to use.
 pub fn storage_warning(name: &str, f32_error: f64, f16_error: f64) -> Option<String> {
     if f32_error > WARN_ERROR {
         Some(format!(

@@ -191,7 +191,7 @@ impl Surface {
 
     /// Triangles around a node.
     #[inline]
-    pub fn vertex_tris(&self, v: u32) -> &[u32] {
+    pub(crate) fn vertex_tris(&self, v: u32) -> &[u32] {
         &self.vt[self.vt_start[v as usize] as usize..self.vt_start[v as usize + 1] as usize]
     }
 
@@ -202,14 +202,14 @@ impl Surface {
 
     /// Closest point of triangle `t` to `x`, with its barycentric coordinates.
     #[inline]
-    pub fn closest_on_tri(&self, t: u32, x: DVec3) -> (DVec3, [f64; 3]) {
+    pub(crate) fn closest_on_tri(&self, t: u32, x: DVec3) -> (DVec3, [f64; 3]) {
         let [a, b, c] = self.corners(t);
         closest_point_triangle(x, a, b, c)
     }
 
     /// The point of the whole surface nearest `x` (brute force; for placing a finger, not for
     /// the haptic loop). Returns (triangle, point).
-    pub fn closest_global(&self, x: DVec3) -> (u32, DVec3) {
+    pub(crate) fn closest_global(&self, x: DVec3) -> (u32, DVec3) {
         let mut best = (0u32, self.nodes[self.tris[0][0] as usize], f64::INFINITY);
         for t in 0..self.tris.len() as u32 {
             let (q, _) = self.closest_on_tri(t, x);
@@ -241,7 +241,7 @@ impl Surface {
     }
 
     /// The outward pseudo-normal of a feature of triangle `t`.
-    pub fn pseudo_normal(&self, t: u32, f: Feature) -> DVec3 {
+    pub(crate) fn pseudo_normal(&self, t: u32, f: Feature) -> DVec3 {
         match f {
             Feature::Face => self.normals[t as usize],
             Feature::Edge(k) => {
@@ -290,7 +290,7 @@ impl Surface {
 
     /// Slides from a point on triangle `t` to the nearest point to `x` reachable by descent over
     /// adjacent triangles. Returns (triangle, barycentrics, point, feature). Allocates nothing.
-    pub fn walk(&self, mut t: u32, x: DVec3) -> (u32, [f64; 3], DVec3, Feature) {
+    pub(crate) fn walk(&self, mut t: u32, x: DVec3) -> (u32, [f64; 3], DVec3, Feature) {
         let (mut q, mut bc) = self.closest_on_tri(t, x);
         let mut d = q.distance_squared(x);
         // Each step strictly decreases the distance, so this terminates; the cap is a guard.
@@ -403,7 +403,7 @@ fn feature_of(bc: &[f64; 3]) -> Feature {
 
 /// Closest point of triangle abc to p, and its barycentric coordinates (Ericson, *Real-Time
 /// Collision Detection*, 5.1.5). Coordinates on the boundary regions are exactly zero.
-pub fn closest_point_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> (DVec3, [f64; 3]) {
+pub(crate) fn closest_point_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> (DVec3, [f64; 3]) {
     let ab = b - a;
     let ac = c - a;
     let ap = p - a;
@@ -491,7 +491,7 @@ impl GodObject {
     }
 
     /// A god-object already in contact on triangle `tri` (e.g. placed by
-    /// [`Surface::closest_global`]).
+    /// `Surface::closest_global`).
     pub fn touching(tri: u32) -> GodObject {
         GodObject {
             state: State::Touching { tri },

@@ -22,7 +22,7 @@ use crate::contact::ContactPoint;
 /// Most fingers the coupled solve takes.
 pub const MAX_FINGERS: usize = 4;
 /// Most entries in a force boundary condition (three vertices per finger).
-pub const MAX_BC: usize = 3 * MAX_FINGERS;
+pub(crate) const MAX_BC: usize = 3 * MAX_FINGERS;
 
 /// Which force formula to use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]

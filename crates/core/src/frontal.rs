@@ -26,7 +26,7 @@ use std::fs::File;
 pub enum Values {
     /// On the heap (faer's factorisation).
     Heap(Vec<f64>),
-    /// In a read-only map of an unlinked temporary file ([`factorize_to_file`]).
+    /// In a read-only map of an unlinked temporary file (`factorize_to_file`).
     Mapped(memmap2::Mmap),
 }
 
@@ -76,11 +76,11 @@ unsafe fn drop_pages(base: *const u8, range: std::ops::Range<usize>) {
 /// solves, the Gram forward and the factorisation's workers each drop theirs every
 /// [`Passed::EVERY`] values (32 MB), so a factor in a file never sits whole in the process.
 #[derive(Default)]
-pub struct Passed(Option<std::ops::Range<usize>>);
+pub(crate) struct Passed(Option<std::ops::Range<usize>>);
 
 impl Passed {
     /// Values passed between two drops.
-    pub const EVERY: usize = 4 << 20;
+    pub(crate) const EVERY: usize = 4 << 20;
 
     /// Adds `range` to the span; returns the span to drop once it reaches [`Passed::EVERY`].
     pub fn add(&mut self, range: std::ops::Range<usize>) -> Option<std::ops::Range<usize>> {
@@ -101,7 +101,7 @@ impl Passed {
 
 /// A new empty file in `dir`, already unlinked: it lives as long as the handle, and a
 /// crash leaves nothing behind.
-pub fn temp_file(dir: &std::path::Path) -> std::io::Result<File> {
+pub(crate) fn temp_file(dir: &std::path::Path) -> std::io::Result<File> {
     use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
     static NEXT: AtomicU64 = AtomicU64::new(0);
     let nanos = std::time::SystemTime::now()
@@ -123,7 +123,7 @@ pub fn temp_file(dir: &std::path::Path) -> std::io::Result<File> {
 
 /// A new unlinked file in `dir` with `bytes` of disk reserved (`posix_fallocate`): a full
 /// disk is this error now, not a fault (SIGBUS) while the map is written.
-pub fn factor_file(dir: &std::path::Path, bytes: usize) -> Result<File, FemError> {
+pub(crate) fn factor_file(dir: &std::path::Path, bytes: usize) -> Result<File, FemError> {
     use std::os::fd::AsRawFd;
     let err = |e: std::io::Error| {
         FemError::Factorisation(format!(
@@ -148,7 +148,7 @@ fn packed(n: usize) -> usize {
 }
 
 /// The visiting order of the multifrontal sweep and the memory it needs.
-pub struct FrontPlan {
+pub(crate) struct FrontPlan {
     /// Supernodes in visiting order (a post-order: children right before their parent).
     pub order: Vec<usize>,
     /// The parent of each supernode (`usize::MAX` for a root).
@@ -590,7 +590,7 @@ fn split(sh: &Shared<'_>, workers: usize) -> Vec<Vec<usize>> {
 /// the fronts and update stacks. `dof_owner` names the node of a DOF for the error of a
 /// non-positive pivot. `workers` threads factorise disjoint subtrees first; the values do
 /// not depend on how many.
-pub fn factorize_to_file(
+pub(crate) fn factorize_to_file(
     sym: &SymbolicSupernodalCholesky<usize>,
     k: faer::sparse::SparseColMatRef<'_, usize, f64>,
     fwd: &[usize],

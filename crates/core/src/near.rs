@@ -103,7 +103,7 @@ impl NearBlocks {
     }
 
     /// `max |B_ij − B_jiᵀ|` over the stored pairs (the symmetry of `K⁻¹`, absolute).
-    pub fn asymmetry(&self) -> f64 {
+    pub(crate) fn asymmetry(&self) -> f64 {
         let mut err = 0.0f64;
         for i in 0..self.cols() {
             for &j in self.neighbours(i) {

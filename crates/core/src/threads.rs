@@ -11,7 +11,7 @@
 //! created (the driver's threads start on that core too) and gives the haptic loop another.
 
 /// The cores the calling thread may run on (empty where unknown or unsupported).
-pub fn current_cpus() -> Vec<usize> {
+pub(crate) fn current_cpus() -> Vec<usize> {
     #[cfg(target_os = "linux")]
     {
         // SAFETY: `set` is a plain bit set, fully initialised by CPU_ZERO; the call writes at
@@ -35,7 +35,7 @@ pub fn current_cpus() -> Vec<usize> {
 
 /// Restricts the calling thread to `cpus`. Returns false (and changes nothing) where that is
 /// not permitted, not supported, or `cpus` is empty or out of range.
-pub fn pin_current_thread(cpus: &[usize]) -> bool {
+pub(crate) fn pin_current_thread(cpus: &[usize]) -> bool {
     #[cfg(target_os = "linux")]
     {
         if cpus.is_empty() || cpus.iter().any(|&c| c >= libc::CPU_SETSIZE as usize) {
@@ -152,7 +152,7 @@ pub fn try_realtime_priority() -> bool {
 }
 
 /// [`try_realtime_priority`] at `SCHED_FIFO` priority `priority` (1–99).
-pub fn try_realtime_priority_at(priority: i32) -> bool {
+pub(crate) fn try_realtime_priority_at(priority: i32) -> bool {
     #[cfg(target_os = "linux")]
     {
         // SAFETY: plain FFI calls on the current thread with a fully initialised parameter.

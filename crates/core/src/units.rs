@@ -82,7 +82,7 @@ impl Material {
     }
 
     /// Lamé parameters (λ, μ) in pascals.
-    pub fn lame(&self) -> (f64, f64) {
+    pub(crate) fn lame(&self) -> (f64, f64) {
         let e = self.young_pa;
         let nu = self.poisson;
         let lambda = e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));

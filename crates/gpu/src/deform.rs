@@ -356,11 +356,6 @@ impl Deformer {
         self.n_rows
     }
 
-    /// Number of touchable columns C.
-    pub fn column_count(&self) -> usize {
-        self.n_cols
-    }
-
     /// The layout `L` is stored in ([`LStorage::Auto`] and [`LStorage::AutoF16`] resolved).
     pub fn storage(&self) -> LStorage {
         match self.path {

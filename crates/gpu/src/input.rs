@@ -14,7 +14,7 @@ pub const MAX_ACTIVE: usize = 1024;
 pub const VERTEX_STRIDE: u64 = std::mem::size_of::<Vertex>() as u64;
 
 /// `normal_offset` value in the shader meaning "write no normals".
-pub const NO_NORMALS: u32 = u32::MAX;
+pub(crate) const NO_NORMALS: u32 = u32::MAX;
 
 /// Invocations per workgroup of every deformer pass (the shaders' `@workgroup_size`).
 pub(crate) const WORKGROUP: u32 = 64;
@@ -41,7 +41,7 @@ pub struct Vertex {
 
 impl Vertex {
     /// Attributes: position at location 0, normal at location 1, both `Float32x4`.
-    pub const ATTRIBUTES: [wgpu::VertexAttribute; 2] =
+    pub(crate) const ATTRIBUTES: [wgpu::VertexAttribute; 2] =
         wgpu::vertex_attr_array![0 => Float32x4, 1 => Float32x4];
 
     /// The vertex buffer layout of [`Deformer::vertex_buffer`](crate::Deformer::vertex_buffer) when no [`OutputTarget`] was given.
@@ -127,7 +127,7 @@ impl<'a> LData<'a> {
 
     /// Entries `range` in f32 (borrowed when already f32); an error if the file cannot be
     /// read or the range is out of bounds.
-    pub fn f32_range(
+    pub(crate) fn f32_range(
         &self,
         range: std::ops::Range<usize>,
     ) -> Result<std::borrow::Cow<'a, [f32]>, GpuError> {

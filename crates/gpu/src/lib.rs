@@ -32,7 +32,7 @@ pub use buffer_path::{deform_f16_wgsl, pack_f16};
 pub use context::{read_buffer, AdapterSelection, Gpu, GpuError};
 pub use deform::Deformer;
 pub use input::{
-    DeformerInput, DeformerOptions, LData, LStorage, OutputTarget, Vertex, MAX_ACTIVE, NO_NORMALS,
+    DeformerInput, DeformerOptions, LData, LStorage, OutputTarget, Vertex, MAX_ACTIVE,
     VERTEX_STRIDE,
 };
 pub use shaders::*;

@@ -3,41 +3,42 @@
 
 /// The WGSL source of the deformation and normal passes, storage-buffer layout
 /// (`shaders/deform.wgsl`).
-pub const DEFORM_WGSL: &str = include_str!("../../../shaders/deform.wgsl");
+pub(crate) const DEFORM_WGSL: &str = include_str!("../../../shaders/deform.wgsl");
 
 /// The WGSL body of the deformation and normal passes, texture layout
 /// (`shaders/deform_texture.wgsl`); complete it with [`deform_texture_source`].
-pub const DEFORM_TEXTURE_WGSL: &str = include_str!("../../../shaders/deform_texture.wgsl");
+pub(crate) const DEFORM_TEXTURE_WGSL: &str = include_str!("../../../shaders/deform_texture.wgsl");
 
 /// Prelude of [`DEFORM_TEXTURE_WGSL`]: the active list in a uniform buffer
 /// (`shaders/active_uniform.wgsl`).
-pub const ACTIVE_UNIFORM_WGSL: &str = include_str!("../../../shaders/active_uniform.wgsl");
+pub(crate) const ACTIVE_UNIFORM_WGSL: &str = include_str!("../../../shaders/active_uniform.wgsl");
 
 /// Prelude of [`DEFORM_TEXTURE_WGSL`]: the active list's length, and short lists, as immediates
 /// (`shaders/active_immediate.wgsl`; needs [`wgpu::Features::IMMEDIATES`]).
-pub const ACTIVE_IMMEDIATE_WGSL: &str = include_str!("../../../shaders/active_immediate.wgsl");
+pub(crate) const ACTIVE_IMMEDIATE_WGSL: &str =
+    include_str!("../../../shaders/active_immediate.wgsl");
 
 /// Prelude of [`DEFORM_TEXTURE_WGSL`]: vertices written word by word at any offset and stride
 /// (`shaders/output_words.wgsl`).
-pub const OUTPUT_WORDS_WGSL: &str = include_str!("../../../shaders/output_words.wgsl");
+pub(crate) const OUTPUT_WORDS_WGSL: &str = include_str!("../../../shaders/output_words.wgsl");
 
 /// Prelude of [`DEFORM_TEXTURE_WGSL`]: vertices written as `Vertex`es, one `vec4` store each
 /// (`shaders/output_vertex.wgsl`).
-pub const OUTPUT_VERTEX_WGSL: &str = include_str!("../../../shaders/output_vertex.wgsl");
+pub(crate) const OUTPUT_VERTEX_WGSL: &str = include_str!("../../../shaders/output_vertex.wgsl");
 
 /// Bytes of immediates the texture layout's deformation pass uses when the device has
 /// [`wgpu::Features::IMMEDIATES`] and at least this `max_immediate_size`.
-pub const IMMEDIATE_BYTES: u32 = 128;
+pub(crate) const IMMEDIATE_BYTES: u32 = 128;
 
 /// Most active entries that travel inline in the immediates (a 16-byte header and 16 bytes an
-/// entry fill [`IMMEDIATE_BYTES`]); longer lists are uploaded to the uniform buffer.
+/// entry fill `IMMEDIATE_BYTES`); longer lists are uploaded to the uniform buffer.
 pub const INLINE_ACTIVE: usize = 7;
 
 /// The complete texture-layout shader: [`DEFORM_TEXTURE_WGSL`] with the prelude that reads
 /// the active list from immediates (`immediates`) or from the uniform buffer, and the one that
 /// writes `Vertex`es (`vertex_layout`) or words at any offset and stride; with `half`, `L`
 /// is read from an `rgba16float` texture (`LStorage::TextureF16`).
-pub fn deform_texture_source(immediates: bool, vertex_layout: bool, half: bool) -> String {
+pub(crate) fn deform_texture_source(immediates: bool, vertex_layout: bool, half: bool) -> String {
     let active = if immediates {
         ACTIVE_IMMEDIATE_WGSL
     } else {

@@ -7,7 +7,7 @@ use crate::error::Error;
 use crate::tradeoff::Row;
 
 /// Errors below this are drawn at it (the f64 reference has error 0).
-pub const ERROR_FLOOR: f64 = 1e-16;
+pub(crate) const ERROR_FLOOR: f64 = 1e-16;
 
 /// Draws the visual-update rows of `meshes` (panels left to right) into a PNG.
 pub fn write_plot(path: &Path, rows: &[Row], meshes: &[&str]) -> Result<(), Error> {

@@ -10,7 +10,7 @@ use touchfem_core::fem::Stiffness;
 
 /// What one solve did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct CgStats {
+pub(crate) struct CgStats {
     /// Iterations run.
     pub iterations: usize,
     /// Final `‖b − K x‖ / ‖b‖` (0 for b = 0).
@@ -21,7 +21,7 @@ pub struct CgStats {
 
 /// A warm-started, block-Jacobi preconditioned CG solver for `K x = b` over the free DOFs.
 /// Allocates only in [`CgSolver::new`].
-pub struct CgSolver<'k> {
+pub(crate) struct CgSolver<'k> {
     k: &'k Stiffness,
     /// Per free node: its first free DOF and the inverse of its 3×3 diagonal block.
     blocks: Vec<(usize, DMat3)>,
@@ -73,7 +73,8 @@ impl<'k> CgSolver<'k> {
     }
 
     /// Forgets the warm start.
-    pub fn reset(&mut self) {
+    #[cfg(test)]
+    fn reset(&mut self) {
         self.x.fill(0.0);
     }
 

@@ -207,7 +207,7 @@ pub fn rung(
 
 /// Richardson extrapolation of the last three values, taken at sizes shrinking by the same
 /// ratio `r`: the limit and the observed order. `None` if they do not converge monotonically.
-pub fn richardson(f: [f64; 3], r: f64) -> Option<(f64, f64)> {
+pub(crate) fn richardson(f: [f64; 3], r: f64) -> Option<(f64, f64)> {
     let (a, b, c) = (f[0], f[1], f[2]);
     let d1 = a - b;
     let d2 = b - c;
@@ -309,7 +309,7 @@ pub fn cube_ladder(
 /// at the coarsest rung's surface nodes away from the press. Sizes shrink by √2 per rung, so
 /// the punch is extrapolated with that ratio. Precompute timed up to
 /// `precompute_max_nodes`.
-pub fn mouse_ladder(
+pub(crate) fn mouse_ladder(
     dir: &std::path::Path,
     precompute_max_nodes: usize,
 ) -> Result<Option<(Vec<Rung>, f64, f64)>, crate::error::Error> {

@@ -38,7 +38,7 @@ pub struct Row {
 }
 
 /// Times `f` `reps` times and returns the median in µs.
-pub fn median_us(reps: usize, mut f: impl FnMut()) -> f64 {
+pub(crate) fn median_us(reps: usize, mut f: impl FnMut()) -> f64 {
     let mut t = Vec::with_capacity(reps);
     for _ in 0..reps {
         let s = Instant::now();
@@ -50,7 +50,7 @@ pub fn median_us(reps: usize, mut f: impl FnMut()) -> f64 {
 }
 
 /// A force boundary condition on `k` spread-out columns.
-pub fn spread_forces(c: &Compliance, k: usize) -> Vec<(u32, DVec3)> {
+pub(crate) fn spread_forces(c: &Compliance, k: usize) -> Vec<(u32, DVec3)> {
     let n = c.cols().len();
     (0..k.min(n))
         .map(|i| {
@@ -293,7 +293,7 @@ pub fn peak_rss_bytes() -> u64 {
 }
 
 /// What [`scene_objects`] gives: rows, table rows (JSON) and the named scenes.
-pub type SceneObjects = (Vec<Row>, Vec<serde_json::Value>, Vec<(String, Body)>);
+pub(crate) type SceneObjects = (Vec<Row>, Vec<serde_json::Value>, Vec<(String, Body)>);
 
 /// `bench --scene`: for each object of the scene `spec`, one `precompute` row (time of the
 /// in-memory precompute, `rel_error` = its residual max |K·x − e|) and the table row
@@ -636,7 +636,7 @@ pub fn write_json(
 
 /// Whether a row times a visual update (`u = L·F` or its alternatives), not a force step or
 /// a precompute.
-pub fn is_visual(r: &Row) -> bool {
+pub(crate) fn is_visual(r: &Row) -> bool {
     !r.method.starts_with("force-") && r.method != "precompute"
 }
 

@@ -30,7 +30,7 @@ use touchfem_gpu::Gpu;
 
 /// One object's row of the paper's Table 2.
 #[derive(Clone, Debug, serde::Serialize)]
-pub struct ObjectReport {
+pub(crate) struct ObjectReport {
     /// The scene it belongs to.
     pub scene: String,
     /// The object's name.
@@ -66,7 +66,7 @@ pub struct ObjectReport {
 
 /// The demo report (`--report FILE.json`).
 #[derive(Clone, Debug, serde::Serialize)]
-pub struct DemoReport {
+pub(crate) struct DemoReport {
     /// One entry per object of every scene.
     pub objects: Vec<ObjectReport>,
     /// The haptic loop's timing over all scenes (the worst numbers).
@@ -79,7 +79,7 @@ pub struct DemoReport {
 
 /// Options of the demo.
 #[derive(Clone, Debug)]
-pub struct DemoOptions {
+pub(crate) struct DemoOptions {
     /// Seconds of haptic + visual loop per scene (scripted paths are stretched to fit).
     pub seconds: f64,
     /// Where frames, traces, plots and GIFs go.
@@ -97,7 +97,7 @@ pub struct DemoOptions {
 /// What a scene's frames share, so that they compare: the colour map's full scale, the force
 /// arrow's scale and the camera.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PictureScales {
+pub(crate) struct PictureScales {
     /// The largest |u| over the scene's objects during its scripted run (a preview), m.
     pub max_displacement_m: f64,
     /// The largest force on a finger during it, N.
@@ -111,7 +111,7 @@ pub struct PictureScales {
 
 /// Previews a scene's scripted run — `samples` instants of its paths through the haptic path,
 /// `u = L·F` on the CPU (f64) for every object — for the scales its frames share.
-pub fn picture_scales(world: &World, samples: usize) -> Result<PictureScales, Error> {
+pub(crate) fn picture_scales(world: &World, samples: usize) -> Result<PictureScales, Error> {
     let mut devs = scripted_devices(world, 1.0)?;
     let n = devs.len().min(MAX_FINGERS);
     let mut hw = HapticWorld::new(world);
@@ -196,7 +196,10 @@ impl HapticDevice for Stretched {
 
 /// The scene's scripted fingers as devices, stretched so the longest path lasts `seconds`.
 /// Returns an error for a finger the demo cannot drive (pointer, udp, replay).
-pub fn scripted_devices(world: &World, seconds: f64) -> Result<Vec<Box<dyn HapticDevice>>, Error> {
+pub(crate) fn scripted_devices(
+    world: &World,
+    seconds: f64,
+) -> Result<Vec<Box<dyn HapticDevice>>, Error> {
     let mut paths = Vec::new();
     for (i, f) in world.fingers.iter().enumerate() {
         match &f.device {
@@ -226,7 +229,7 @@ pub fn scripted_devices(world: &World, seconds: f64) -> Result<Vec<Box<dyn Hapti
 }
 
 /// Median haptic step (µs) of a scene over its scripted paths, outside the loop.
-pub fn step_median(world: &World, samples: usize) -> Result<f64, Error> {
+pub(crate) fn step_median(world: &World, samples: usize) -> Result<f64, Error> {
     let mut devs = scripted_devices(world, 1.0)?;
     let n = devs.len().min(MAX_FINGERS);
     let mut hw = HapticWorld::new(world);
@@ -294,7 +297,7 @@ fn draw(
 
 /// Runs one scene: floor, then haptic loop, with the visual loop drawing throughout; writes
 /// frames, GIF, traces, plots and the session under `opts.out`.
-pub fn run_scene(
+pub(crate) fn run_scene(
     world: &World,
     opts: &DemoOptions,
     gpu: Option<&Gpu>,
@@ -483,7 +486,7 @@ pub fn run_scene(
 
 /// The session path for scene `name` when several scenes share one `--record FILE`:
 /// `FILE` with `.name` before its extension.
-pub fn record_path_for(base: &Path, name: &str, several: bool) -> PathBuf {
+pub(crate) fn record_path_for(base: &Path, name: &str, several: bool) -> PathBuf {
     if !several {
         return base.to_path_buf();
     }

@@ -55,7 +55,7 @@ pub fn traces(world: &World, session: &Session) -> Vec<ForceTrace> {
 }
 
 /// Writes a trace as CSV: `t_s,fx_n,fy_n,fz_n,force_n,contacts`.
-pub fn write_csv(path: &Path, tr: &ForceTrace) -> Result<(), Error> {
+pub(crate) fn write_csv(path: &Path, tr: &ForceTrace) -> Result<(), Error> {
     let werr = |source| Error::Write {
         path: path.to_path_buf(),
         source,
@@ -134,7 +134,11 @@ pub fn write_plot(path: &Path, title: &str, tr: &ForceTrace) -> Result<(), Error
 }
 
 /// Writes frames as an animated GIF (looping, `delay_ms` per frame).
-pub fn write_gif(path: &Path, frames: &[image::RgbaImage], delay_ms: u32) -> Result<(), Error> {
+pub(crate) fn write_gif(
+    path: &Path,
+    frames: &[image::RgbaImage],
+    delay_ms: u32,
+) -> Result<(), Error> {
     use image::codecs::gif::{GifEncoder, Repeat};
     let werr = |e: String| Error::Input(format!("{}: cannot write the GIF: {e}", path.display()));
     let file = std::fs::File::create(path).map_err(|e| werr(e.to_string()))?;

@@ -47,7 +47,7 @@ fn devices(
 /// lavapipe inline on its queue thread (`LP_NUM_THREADS=0` unless set). A mesh is shown as a
 /// one-object scene touched by the pointer. `--record FILE` records the session. Prints the
 /// window's summary.
-pub fn view_command(args: &crate::args::ViewArgs) -> Result<(), Error> {
+pub(crate) fn view_command(args: &crate::args::ViewArgs) -> Result<(), Error> {
     super::check_env()?;
     if std::env::var_os("LP_NUM_THREADS").is_none() {
         std::env::set_var("LP_NUM_THREADS", "0");
@@ -126,7 +126,7 @@ pub fn view_command(args: &crate::args::ViewArgs) -> Result<(), Error> {
 /// `touchfem serve … --view`: the UDP fingers' haptic loop ([`touchfem_core::runtime::serve`]) with
 /// the window as its visual loop (on this thread; it closes when the loop ends, and closing it
 /// ends the loop).
-pub fn serve_view(
+pub(crate) fn serve_view(
     world: &World,
     opts: &touchfem_core::runtime::serve::ServeOptions,
     stop: &std::sync::atomic::AtomicBool,

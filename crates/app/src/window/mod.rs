@@ -41,7 +41,7 @@
 mod app;
 pub mod cli;
 
-pub use cli::view_command;
+pub(crate) use cli::view_command;
 
 use std::sync::Arc;
 use thiserror::Error;
@@ -114,7 +114,7 @@ pub enum ViewError {
 /// Checks the window's environment hooks (`TOUCHFEM_VIEW_SECONDS`: seconds in [0, 1e6];
 /// `TOUCHFEM_VIEW_SAMPLES`: 1 or 4): an error names the variable. [`run`] checks them too; call
 /// this first to fail before anything is loaded.
-pub fn check_env() -> Result<(), ViewError> {
+pub(crate) fn check_env() -> Result<(), ViewError> {
     app::EnvHooks::from_env()
         .map(|_| ())
         .map_err(ViewError::Env)

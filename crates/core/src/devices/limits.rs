@@ -44,7 +44,7 @@ const TABLE: &[(&str, f64, f64, f64, f64)] = &[
 ];
 
 /// The named presets.
-pub const PRESETS: &[&str] = &[
+pub(crate) const PRESETS: &[&str] = &[
     "falcon",
     "phantom-omni",
     "phantom-premium-1.5",
@@ -65,7 +65,7 @@ pub enum LimitsError {
 }
 
 impl DeviceLimits {
-    /// A named preset (see [`PRESETS`]); e.g. `falcon`: 8 N, 3000 N/m, 20 N·s/m, 0.04 m.
+    /// A named preset (see `PRESETS`); e.g. `falcon`: 8 N, 3000 N/m, 20 N·s/m, 0.04 m.
     pub fn preset(name: &str) -> Option<DeviceLimits> {
         TABLE
             .iter()

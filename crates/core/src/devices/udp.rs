@@ -9,7 +9,7 @@
 //!   **Device**: the device's own callback is the clock, as in OpenHaptics' servo loop; the
 //!   haptic thread parks until the receiver wakes it with the next accepted position (at most
 //!   the watchdog), computes and answers at once.
-//! * Sequence numbers compare in 32-bit serial-number arithmetic (RFC 1982, [`seq_newer`]): a
+//! * Sequence numbers compare in 32-bit serial-number arithmetic (RFC 1982, `seq_newer`): a
 //!   client's counter may wrap. A packet that is not newer than the last accepted one is
 //!   dropped; so is every malformed packet (size, magic, finger count, non-finite numbers),
 //!   and, with a [`Key`], every packet whose HMAC-SHA256 tag does not verify. All are counted.
@@ -18,7 +18,7 @@
 //!   A new owner's first tick places its fingers afresh (ramped in if inside).
 //! * Watchdog: no accepted packet for longer than the watchdog → every finger's position is
 //!   NaN (zero force; the contact is released) and the force packets carry the stale flag,
-//!   for at most [`STALE_SEND`]; then nothing is sent until a new position arrives. After a
+//!   for at most `STALE_SEND`; then nothing is sent until a new position arrives. After a
 //!   stale period a client may restart with any sequence number.
 //! * Release: when service ends ([`FingerDevices::release`], or the bridge is dropped) and
 //!   when another client takes over, the client gets a last zero-force packet flagged
@@ -40,9 +40,9 @@ use super::{FingerDevices, ForceState};
 use crate::force::MAX_FINGERS;
 
 /// Magic of a position packet.
-pub const POSITION_MAGIC: &[u8; 4] = b"TFP1";
+pub(crate) const POSITION_MAGIC: &[u8; 4] = b"TFP1";
 /// Magic of a force packet.
-pub const FORCE_MAGIC: &[u8; 4] = b"TFF1";
+pub(crate) const FORCE_MAGIC: &[u8; 4] = b"TFF1";
 /// Flag: the finger touches the object.
 pub const FLAG_TOUCHING: u32 = 1;
 /// Flag: the force was limited by a device limit.
@@ -53,20 +53,20 @@ pub const FLAG_STALE: u32 = 4;
 /// over); the force is zero and no other packet follows.
 pub const FLAG_RELEASED: u32 = 8;
 /// The default watchdog.
-pub const WATCHDOG: Duration = Duration::from_millis(20);
+pub(crate) const WATCHDOG: Duration = Duration::from_millis(20);
 /// How long stale packets are sent after the watchdog expires; then nothing until a new
 /// position arrives.
-pub const STALE_SEND: Duration = Duration::from_millis(100);
+pub(crate) const STALE_SEND: Duration = Duration::from_millis(100);
 /// Bytes of the HMAC-SHA256 tag a keyed packet ends with.
 pub const TAG_LEN: usize = 32;
 /// The shortest key, bytes.
-pub const MIN_KEY_LEN: usize = 16;
+pub(crate) const MIN_KEY_LEN: usize = 16;
 /// The largest datagram the bridge reads or writes, bytes.
 pub const MAX_PACKET: usize = 12 + 28 * MAX_FINGERS + TAG_LEN;
 
 /// Whether sequence number `seq` is newer than `last` in 32-bit serial-number arithmetic
 /// (RFC 1982): `(seq − last) mod 2³²` lies in `[1, 2³¹)`.
-pub fn seq_newer(seq: u32, last: u32) -> bool {
+pub(crate) fn seq_newer(seq: u32, last: u32) -> bool {
     let d = seq.wrapping_sub(last);
     d != 0 && d < 1 << 31
 }
@@ -84,7 +84,7 @@ impl std::fmt::Debug for Key {
 }
 
 impl Key {
-    /// A key from the secret's bytes (at least [`MIN_KEY_LEN`]).
+    /// A key from the secret's bytes (at least `MIN_KEY_LEN`).
     pub fn new(secret: &[u8]) -> Result<Key, UdpError> {
         if secret.len() < MIN_KEY_LEN {
             return Err(UdpError::ShortKey(secret.len()));
@@ -208,7 +208,7 @@ pub struct ForcePacket {
 }
 
 /// Encodes a force packet into `out`; returns its length.
-pub fn encode_force(seq: u32, forces: &[DVec3], flags: &[u32], out: &mut [u8]) -> usize {
+pub(crate) fn encode_force(seq: u32, forces: &[DVec3], flags: &[u32], out: &mut [u8]) -> usize {
     let n = forces.len();
     out[..4].copy_from_slice(FORCE_MAGIC);
     out[4..8].copy_from_slice(&seq.to_le_bytes());

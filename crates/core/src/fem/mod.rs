@@ -98,7 +98,7 @@ fn csc_from_blocks(
 }
 
 /// Gradients of the four linear shape functions of a tet and its volume.
-pub fn shape_gradients(p: [DVec3; 4]) -> ([DVec3; 4], f64) {
+pub(crate) fn shape_gradients(p: [DVec3; 4]) -> ([DVec3; 4], f64) {
     let j = glam::DMat3::from_cols(p[1] - p[0], p[2] - p[0], p[3] - p[0]);
     let vol = j.determinant() / 6.0;
     // Rows of J⁻¹ are ∇N₁, ∇N₂, ∇N₃.
@@ -110,7 +110,7 @@ pub fn shape_gradients(p: [DVec3; 4]) -> ([DVec3; 4], f64) {
 }
 
 /// The 12×12 stiffness of a constant-strain tet, `V·Bᵀ D B`, DOFs ordered (node, axis).
-pub fn element_stiffness(p: [DVec3; 4], mat: &Material) -> [[f64; 12]; 12] {
+pub(crate) fn element_stiffness(p: [DVec3; 4], mat: &Material) -> [[f64; 12]; 12] {
     let (g, vol) = shape_gradients(p);
     let (lambda, mu) = mat.lame();
     let mut k = [[0.0; 12]; 12];
@@ -678,7 +678,7 @@ impl Factor {
     }
 
     /// The position of each free DOF in the factor's elimination order.
-    pub fn position_of_dof(&self) -> Vec<usize> {
+    pub(crate) fn position_of_dof(&self) -> Vec<usize> {
         match self.symbolic.perm() {
             Some(p) => p.arrays().1.to_vec(),
             None => (0..self.symbolic.nrows()).collect(),

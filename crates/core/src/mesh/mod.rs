@@ -140,7 +140,7 @@ pub struct Mesh {
 }
 
 /// Outward faces of a positively oriented tet, as local indices.
-pub const TET_FACES: [[usize; 3]; 4] = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]];
+pub(crate) const TET_FACES: [[usize; 3]; 4] = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]];
 
 /// Signed volume of the tet (a, b, c, d): det[b−a, c−a, d−a] / 6.
 pub fn tet_volume(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
@@ -230,7 +230,7 @@ pub fn vertex_fans(n: usize, tris: &[[u32; 3]], pad4: bool) -> (Vec<[u32; 2]>, V
 }
 
 /// Below this |6V| / (longest edge)³ a tet is degenerate (a regular tet has ≈ 0.118).
-pub const DEGENERATE_QUALITY: f64 = 1e-8;
+pub(crate) const DEGENERATE_QUALITY: f64 = 1e-8;
 
 impl Mesh {
     /// Validates a raw mesh: converts to metres, checks coordinates and indices, reorients

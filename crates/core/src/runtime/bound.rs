@@ -8,7 +8,7 @@
 //!    position glitch into the object cannot give a step; a release to exactly zero (no
 //!    contact, no valid position) is never delayed;
 //! 3. **held to the continuous force** where the device states one: while the force's root
-//!    mean square over [`CONTINUOUS_TAU_S`] exceeds `max_continuous_force_n`, the bound is that
+//!    mean square over `CONTINUOUS_TAU_S` exceeds `max_continuous_force_n`, the bound is that
 //!    force (a motor's I²t rule);
 //! 4. **at most the bound** `min(scene max_force_n, device max_force_n)` — this holds whatever
 //!    came before, and is checked last.
@@ -20,11 +20,11 @@ use crate::devices::limits::DeviceLimits;
 /// Seconds in which the force may rise from zero to the whole bound.
 pub const RISE_S: f64 = 0.02;
 /// Time constant (s) of the root-mean-square force held to a device's continuous force.
-pub const CONTINUOUS_TAU_S: f64 = 1.0;
+pub(crate) const CONTINUOUS_TAU_S: f64 = 1.0;
 
 /// One finger's force bound and its state (see the module docs). Allocates nothing.
 #[derive(Clone, Copy, Debug)]
-pub struct ForceBound {
+pub(crate) struct ForceBound {
     bound: f64,
     continuous: Option<f64>,
     last: DVec3,
@@ -57,11 +57,6 @@ impl ForceBound {
     /// The bound, N: the smaller of the scene's and the device's peak force.
     pub fn bound(&self) -> f64 {
         self.bound
-    }
-
-    /// The force last returned by [`ForceBound::apply`].
-    pub fn last(&self) -> DVec3 {
-        self.last
     }
 
     /// Forgets the last force: the next one rises from zero.

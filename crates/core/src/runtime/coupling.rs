@@ -17,7 +17,7 @@ use crate::devices::limits::DeviceLimits;
 
 /// One finger's coupling.
 #[derive(Clone, Debug)]
-pub struct VirtualCoupling {
+pub(crate) struct VirtualCoupling {
     k_c: f64,
     max_damping: f64,
     last_x: Option<DVec3>,
@@ -39,11 +39,6 @@ impl VirtualCoupling {
     /// inferred across the gap.
     pub fn reset(&mut self) {
         self.last_x = None;
-    }
-
-    /// The coupling's stiffness `k_c`, N/m.
-    pub fn stiffness(&self) -> f64 {
-        self.k_c
     }
 
     /// The force for the device, given the paper's force `f` on a hand at `x`, the contact's

@@ -15,7 +15,7 @@
 //! * **Bounded**: each finger's force is saturated at the scene's `max_force_n`, and the nodal
 //!   forces it causes are scaled by the same factor, so the visual path shows what the finger
 //!   feels. After the model, the ramp and the coupling, every finger's force passes its
-//!   [`ForceBound`] last: finite, rate-limited in measured time, held to the device's
+//!   `ForceBound` last: finite, rate-limited in measured time, held to the device's
 //!   continuous force, and at most the smaller of the scene's and the device's peak force.
 //! * **Time is measured**: [`HapticWorld::step_dt`] takes the seconds since the last tick (the
 //!   device's clock may tick at 4–8 kHz); the ramp, the coupling's damping and the force
@@ -26,7 +26,7 @@
 //!   its force is ramped in linearly over [`RAMP_S`] so the device does not jolt.
 //! * **No valid position** (NaN or infinite): zero force for that finger, no contact.
 //! * **A finger with device limits** ([`crate::scene::FingerSpec::limits`]) feels the force
-//!   through a [`VirtualCoupling`] sized from them: stiffness at most the device's, damped,
+//!   through a `VirtualCoupling` sized from them: stiffness at most the device's, damped,
 //!   reset after a tick without a valid position. The displayed deformation and the
 //!   god-object stay the paper's.
 //! * **A device cannot leave its workspace in a tick**: a position more than the workspace's
@@ -141,7 +141,7 @@ impl<'w> HapticWorld<'w> {
 
     /// One tick, `dt` seconds (measured) after the last: `positions[i]` is finger i's device
     /// position (metres, scene frame). Writes the force for each finger's device into
-    /// `forces[i]` — finite, within its [`ForceBound`] — and the tick's boundary conditions
+    /// `forces[i]` — finite, within its `ForceBound` — and the tick's boundary conditions
     /// and finger views into `sample`, every field a reader looks at (so `sample` may be a
     /// stale buffer, written in place). Allocates nothing.
     pub fn step_dt(
@@ -310,7 +310,7 @@ impl<'w> HapticWorld<'w> {
     /// it does not touch: `Σ α_j L_jj⁻¹` for the paper's model, `W⁻¹` for the exact one (a
     /// clamped vertex counts with the clamp compliance). What a virtual coupling is sized
     /// against. Allocates nothing.
-    pub fn contact_stiffness(&self, i: usize) -> Option<DMat3> {
+    pub(crate) fn contact_stiffness(&self, i: usize) -> Option<DMat3> {
         let (o, c) = self.contacts.get(i).copied().flatten()?;
         let comp = &self.world.objects[o].body.compliance;
         match self.fingers[i].model {

@@ -16,7 +16,7 @@ const SPIN: Duration = Duration::from_micros(250);
 
 /// Paces a loop to fixed deadlines (sleep, then spin) and records its timing.
 #[derive(Debug)]
-pub struct Pacer {
+pub(crate) struct Pacer {
     period: Duration,
     t0: Instant,
     due: Instant,

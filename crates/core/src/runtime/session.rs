@@ -26,7 +26,7 @@ use crate::scene::World;
 use crate::Error;
 
 /// The first line of a session file.
-pub const MAGIC: &str = "TFSESSION 1";
+pub(crate) const MAGIC: &str = "TFSESSION 1";
 /// Ticks the ring between the haptic loop and the writer holds (16 s at 1 kHz).
 const RING: usize = 1 << 14;
 
@@ -79,7 +79,7 @@ mod os_path {
         Bytes { os_bytes: Vec<u8> },
     }
 
-    pub fn serialize<S: Serializer>(p: &Path, s: S) -> Result<S::Ok, S::Error> {
+    pub(crate) fn serialize<S: Serializer>(p: &Path, s: S) -> Result<S::Ok, S::Error> {
         if let Some(t) = p.to_str() {
             return t.serialize(s);
         }
@@ -98,7 +98,7 @@ mod os_path {
         )))
     }
 
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<PathBuf, D::Error> {
+    pub(crate) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<PathBuf, D::Error> {
         match Repr::deserialize(d)? {
             Repr::Text(t) => Ok(PathBuf::from(t)),
             #[cfg(unix)]
@@ -167,7 +167,7 @@ impl Recorder {
 /// recorder is dropped). Returns the number of ticks written.
 ///
 /// The session is written under a temporary name next to `path` and renamed to `path` when
-/// the writer ends without error ([`crate::cache::AtomicFile`]): a recording that fails (a full
+/// the writer ends without error (`crate::cache::AtomicFile`): a recording that fails (a full
 /// disk) leaves an existing `path` as it was, and the writer's error says so. Nothing is
 /// created before the header is ready.
 pub fn record(

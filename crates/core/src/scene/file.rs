@@ -161,7 +161,7 @@ impl SceneSource {
 
     /// A bundled scene or scene file ([`SceneSource::find`]), else a mesh as one object
     /// touched by `device` ([`SceneSource::for_mesh`]).
-    pub fn find_or_mesh(spec: &str, device: &str) -> Result<SceneSource, Error> {
+    pub(crate) fn find_or_mesh(spec: &str, device: &str) -> Result<SceneSource, Error> {
         Ok(SceneSource::find(spec)?.unwrap_or_else(|| SceneSource::for_mesh(spec, device)))
     }
 
@@ -200,11 +200,11 @@ impl SceneSource {
 }
 
 /// The largest Young's modulus a scene accepts, Pa (diamond is about 1.2e12).
-pub const MAX_YOUNG_PA: f64 = 1e13;
+pub(crate) const MAX_YOUNG_PA: f64 = 1e13;
 /// The largest magnitude of a coordinate, offset or radius in a scene file, in its unit.
 pub const MAX_COORDINATE: f64 = 1e9;
 /// The largest magnitude of a keyframe time in a scene file, s (about 11.6 days).
-pub const MAX_KEYFRAME_SECONDS: f64 = 1e6;
+pub(crate) const MAX_KEYFRAME_SECONDS: f64 = 1e6;
 
 /// Whether every component of `v` is finite and at most [`MAX_COORDINATE`] in magnitude.
 fn coordinates_ok(v: &[f64]) -> bool {
@@ -246,11 +246,11 @@ impl World {
 
     /// Parses, validates and precomputes a scene, caching compliances in [`cache_dir`].
     /// Warnings (a cache that cannot be written) go to stderr.
-    pub fn from_source(src: &SceneSource) -> Result<World, Error> {
+    pub(crate) fn from_source(src: &SceneSource) -> Result<World, Error> {
         World::from_source_with(src, cache_dir().as_deref())
     }
 
-    /// As [`World::from_source`], with the compliance cache in `cache` (`None`: no cache).
+    /// As `World::from_source`, with the compliance cache in `cache` (`None`: no cache).
     pub fn from_source_with(src: &SceneSource, cache: Option<&Path>) -> Result<World, Error> {
         World::from_source_holding(src, cache, Hold::Dense)
     }
@@ -290,7 +290,7 @@ impl World {
 
     /// The hash a load of `src` gives ([`World::hash`]: its text and each object's cache key),
     /// without precomputing anything (the meshes are read).
-    pub fn hash_of(src: &SceneSource) -> Result<u64, Error> {
+    pub(crate) fn hash_of(src: &SceneSource) -> Result<u64, Error> {
         Ok(World::build(src, &mut |_, _, _, _, _| Ok(None))?.hash)
     }
 
@@ -680,7 +680,7 @@ pub enum Hold {
     #[default]
     Dense,
     /// For a live session (`view`, `serve`): when the scene has at most one finger and the
-    /// object's `L` is in the cache and at least [`NEAR_ONLY_BYTES`], only the blocks that
+    /// object's `L` is in the cache and at least `NEAR_ONLY_BYTES`, only the blocks that
     /// finger's force solve reads ([`crate::near::NearBlocks`]); the GPU copy is then read
     /// from the cache file. `TOUCHFEM_HOST_L=dense` keeps all of it; `near` holds only the
     /// blocks whatever the size (still one finger and a cache file at most).
@@ -690,7 +690,7 @@ pub enum Hold {
 }
 
 /// The smallest f64 `L` (bytes) that a live session with one finger leaves in its cache file.
-pub const NEAR_ONLY_BYTES: u64 = 256 << 20;
+pub(crate) const NEAR_ONLY_BYTES: u64 = 256 << 20;
 
 /// One object of a scene as `touchfem precompute` sees it.
 #[derive(Clone, Debug)]

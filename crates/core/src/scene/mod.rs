@@ -41,7 +41,7 @@ impl Default for LoadOptions {
 }
 
 /// The names of the bundled meshes.
-pub const BUNDLED: &[&str] = &["cube", "mouse"];
+pub(crate) const BUNDLED: &[&str] = &["cube", "mouse"];
 
 /// Loads a bundled mesh by name (`cube`) or a mesh file by path, applies material overrides and
 /// clamps the fixed group. Returns the mesh and the length unit its coordinates are given in on

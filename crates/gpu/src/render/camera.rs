@@ -28,12 +28,12 @@ pub const VIEW_DIR: DVec3 = DVec3::new(-0.75, -1.25, 0.95);
 
 /// The whole image less a 5 % margin, in normalised device coordinates `[x0, x1, y0, y1]`:
 /// the region [`Camera::framing`] fills.
-pub const FULL_FRAME: [f64; 4] = [-0.95, 0.95, -0.95, 0.95];
+pub(crate) const FULL_FRAME: [f64; 4] = [-0.95, 0.95, -0.95, 0.95];
 
 impl Camera {
     /// Frames the axis-aligned box `[min, max]` (e.g. the rest bounding box) from [`VIEW_DIR`]:
     /// its eight corners fill the image at `aspect` (width/height) up to a 5 % margin
-    /// ([`fit`](Self::fit) over [`FULL_FRAME`]).
+    /// ([`fit`](Self::fit) over `FULL_FRAME`).
     pub fn framing(min: DVec3, max: DVec3, aspect: f64) -> Camera {
         let corners: Vec<DVec3> = (0..8)
             .map(|i| {
@@ -183,7 +183,7 @@ impl Camera {
     }
 
     /// Unit direction towards the key light: above, slightly towards the viewer's left.
-    pub fn light_dir(&self) -> Vec3 {
+    pub(crate) fn light_dir(&self) -> Vec3 {
         Vec3::new(-0.3, -0.6, 1.0).normalize()
     }
 }
@@ -197,7 +197,7 @@ impl Camera {
     /// The ray through window position `pixel` (x right, y down, in pixels, `(0, 0)` the
     /// top-left corner of the top-left pixel) of a `size` (width, height) image: the eye and the
     /// unit direction. The inverse of [`project`](Self::project).
-    pub fn ray(&self, pixel: [f64; 2], size: [u32; 2]) -> (DVec3, DVec3) {
+    pub(crate) fn ray(&self, pixel: [f64; 2], size: [u32; 2]) -> (DVec3, DVec3) {
         let (w, h) = (f64::from(size[0].max(1)), f64::from(size[1].max(1)));
         let aspect = w / h;
         let f = self.forward();
@@ -211,7 +211,7 @@ impl Camera {
     }
 
     /// Where the point `p` (m) appears in a `size` image, in the pixel coordinates of
-    /// [`ray`](Self::ray); `None` behind the eye.
+    /// `ray`; `None` behind the eye.
     pub fn project(&self, p: DVec3, size: [u32; 2]) -> Option<[f64; 2]> {
         let (w, h) = (f64::from(size[0].max(1)), f64::from(size[1].max(1)));
         let f = self.forward();
@@ -253,7 +253,7 @@ pub struct Orbit {
     pub target: DVec3,
     /// Azimuth of the eye around +z from +x, radians.
     pub yaw: f64,
-    /// Elevation of the eye above the xy plane, radians (kept within ±[`Orbit::MAX_PITCH`]).
+    /// Elevation of the eye above the xy plane, radians (kept within ±`Orbit::MAX_PITCH`).
     pub pitch: f64,
     /// Eye-to-target distance (m).
     pub distance: f64,
@@ -265,9 +265,9 @@ pub struct Orbit {
 
 impl Orbit {
     /// Largest |pitch|, radians (just short of the poles, where z-up is undefined).
-    pub const MAX_PITCH: f64 = 1.55;
+    pub(crate) const MAX_PITCH: f64 = 1.55;
     /// Radians turned per pixel dragged.
-    pub const RADIANS_PER_PIXEL: f64 = 0.008;
+    pub(crate) const RADIANS_PER_PIXEL: f64 = 0.008;
 
     /// The view of [`Camera::framing`]: from [`VIEW_DIR`], the box's corners filling the image
     /// at `aspect` up to a 5 % margin.

@@ -43,7 +43,7 @@ pub fn viridis(t: f64) -> [u8; 3] {
 
 /// The smallest "nice" number (1, 2, 2.5 or 5 times a power of ten) at least `x` (up to a
 /// relative 10⁻⁶, so that rounding keeps a nice `x` as it is); `x > 0` finite, else 1.
-pub fn nice_ceil(x: f64) -> f64 {
+pub(crate) fn nice_ceil(x: f64) -> f64 {
     if !(x.is_finite() && x > 0.0) {
         return 1.0;
     }
@@ -57,7 +57,7 @@ pub fn nice_ceil(x: f64) -> f64 {
 }
 
 /// The largest "nice" number (1, 2 or 5 times a power of ten) at most `x`; `x > 0` finite, else 1.
-pub fn nice_floor(x: f64) -> f64 {
+pub(crate) fn nice_floor(x: f64) -> f64 {
     if !(x.is_finite() && x > 0.0) {
         return 1.0;
     }

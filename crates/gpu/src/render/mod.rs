@@ -39,12 +39,13 @@ mod overlay;
 pub use overlay::FONT;
 mod pick;
 
-pub use camera::{Camera, Orbit, FULL_FRAME, VIEW_DIR};
+pub(crate) use camera::FULL_FRAME;
+pub use camera::{Camera, Orbit, VIEW_DIR};
 pub use legend::{
     arrow_label, arrow_scale, displacement_scale, format_significant, legend_image, length_ticks,
-    nice_ceil, nice_floor, viridis, LegendSpec, LengthTicks, VIRIDIS,
+    viridis, LegendSpec, LengthTicks, VIRIDIS,
 };
-pub use overlay::{rasterize_text, Anchor, Overlay, OVERLAY_WGSL};
+pub use overlay::{Anchor, Overlay};
 pub use pick::{pick, Hit};
 
 use bytemuck::{Pod, Zeroable};
@@ -60,26 +61,26 @@ use touchfem_core::compliance::Compliance;
 use touchfem_core::mesh::Mesh;
 
 /// The WGSL source of the renderer (`shaders/render.wgsl`).
-pub const RENDER_WGSL: &str = include_str!("../../../../shaders/render.wgsl");
+pub(crate) const RENDER_WGSL: &str = include_str!("../../../../shaders/render.wgsl");
 
 /// Colour format of the rendered image (8-bit sRGB, straight to PNG).
 pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
 /// Depth format.
-pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+pub(crate) const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// MSAA sample count of the offscreen images (and of [`RenderOptions::default`]).
 pub const SAMPLES: u32 = 4;
 /// Sphere radius as a fraction of the scene's size ([`Frame::scale`], the rest bounding box's
 /// diagonal).
-pub const SPHERE_RADIUS: f64 = 0.018;
+pub(crate) const SPHERE_RADIUS: f64 = 0.018;
 /// Most objects one [`Frame`] may hold.
 pub const MAX_FRAME_OBJECTS: usize = 8;
 /// Most spheres (fingers plus god-objects) one [`Frame`] may hold.
-pub const MAX_SPHERES: usize = 16;
+pub(crate) const MAX_SPHERES: usize = 16;
 /// Most force arrows one [`Frame`] may hold.
-pub const MAX_ARROWS: usize = 8;
+pub(crate) const MAX_ARROWS: usize = 8;
 /// Force arrow shaft radius as a fraction of the scene's size (its head is 4 radii long and
 /// 2.5 radii wide).
-pub const ARROW_RADIUS: f64 = 0.008;
+pub(crate) const ARROW_RADIUS: f64 = 0.008;
 
 /// Background colour (linear RGB).
 const BACKGROUND: wgpu::Color = wgpu::Color {
@@ -119,7 +120,7 @@ pub enum RenderError {
         what: &'static str,
         /// How many the frame holds.
         count: usize,
-        /// The limit ([`MAX_FRAME_OBJECTS`], [`MAX_SPHERES`]).
+        /// The limit ([`MAX_FRAME_OBJECTS`], `MAX_SPHERES`).
         max: usize,
     },
     /// The sample count or colour format is not usable.
@@ -200,7 +201,7 @@ pub enum View {
 }
 
 /// A picture to draw of one object under a force boundary condition, with the finger and the
-/// god-object ([`render_png`], [`render_image`]); a window or animation draws [`Frame`]s.
+/// god-object ([`render_png`], `render_image`); a window or animation draws [`Frame`]s.
 #[derive(Clone, Copy, Debug)]
 pub struct Picture<'a> {
     /// The mesh: rest positions (`nodes`) and surface triangles.
@@ -244,7 +245,7 @@ impl<'a> Picture<'a> {
     }
 
     /// What its legend shows (see [`Picture::legend`]) in an image `height` pixels high.
-    pub fn legend_spec(&self, height: u32) -> LegendSpec {
+    pub(crate) fn legend_spec(&self, height: u32) -> LegendSpec {
         LegendSpec {
             bar_px: LegendSpec::bar_for(height),
             displacement: match self.coloring {
@@ -305,11 +306,11 @@ pub fn live_samples(adapter: &wgpu::AdapterInfo) -> u32 {
 }
 
 /// Fewest pixels per surface edge at which a live view draws the wireframe by default.
-pub const WIREFRAME_PX_PER_EDGE: u64 = 24;
+pub(crate) const WIREFRAME_PX_PER_EDGE: u64 = 24;
 
 /// Whether a live view should draw the wireframe of `triangles` surface triangles at `size`
 /// by default: only while the edges (about 1.5 a triangle) are sparser than one per
-/// [`WIREFRAME_PX_PER_EDGE`] pixels. Denser, the lines grey the whole surface over and, on a
+/// `WIREFRAME_PX_PER_EDGE` pixels. Denser, the lines grey the whole surface over and, on a
 /// software rasteriser, cost as much as the surface itself (45k-node organ, 30k edges at
 /// 640×480 on llvmpipe: 7–10 ms of a frame).
 pub fn wireframe_by_default(triangles: usize, size: [u32; 2]) -> bool {
@@ -325,7 +326,10 @@ pub fn render_png(path: &Path, size: [u32; 2], scene: &Picture<'_>) -> Result<()
 }
 
 /// Renders `scene` at `size` on a headless GPU chosen by the environment.
-pub fn render_image(size: [u32; 2], scene: &Picture<'_>) -> Result<image::RgbaImage, RenderError> {
+pub(crate) fn render_image(
+    size: [u32; 2],
+    scene: &Picture<'_>,
+) -> Result<image::RgbaImage, RenderError> {
     let gpu = Gpu::new_headless()?;
     Renderer::new(&gpu.device, size)?.render(&gpu.device, &gpu.queue, scene)
 }
@@ -398,7 +402,7 @@ pub struct FrameObject<'a> {
     /// Where the object's origin sits in the scene, metres.
     pub offset: DVec3,
     /// Its rest bounding box in its own frame (min, max), metres: used to frame the camera by
-    /// [`Renderer::render_frame`] and [`union_bounds`].
+    /// [`Renderer::render_frame`] and `union_bounds`.
     pub bounds: (DVec3, DVec3),
     /// Its edges, for the wireframe (skipped when `None`; [`Renderer::render_frame`] builds
     /// them when missing).
@@ -417,7 +421,7 @@ pub struct Frame<'a> {
     /// God-objects, drawn blue (non-finite positions are skipped).
     pub proxies: &'a [DVec3],
     /// The scene's size, metres (e.g. its rest bounding box's diagonal): the spheres' radius is
-    /// [`SPHERE_RADIUS`] times this, the wireframe is lifted towards the eye by 0.2 % of it.
+    /// `SPHERE_RADIUS` times this, the wireframe is lifted towards the eye by 0.2 % of it.
     pub scale: f64,
     /// Overlay the surface edges of objects that have [`FrameObject::edges`].
     pub wireframe: bool,
@@ -425,7 +429,7 @@ pub struct Frame<'a> {
     pub overlay: Option<&'a Overlay>,
     /// How the surfaces are coloured.
     pub coloring: Coloring,
-    /// Force arrows (at most [`MAX_ARROWS`]; non-finite or zero ones are skipped).
+    /// Force arrows (at most `MAX_ARROWS`; non-finite or zero ones are skipped).
     pub arrows: &'a [ForceArrow],
     /// A second overlay drawn on top, e.g. the legend ([`legend_image`], [`Anchor::TopRight`]).
     pub legend: Option<&'a Overlay>,
@@ -433,7 +437,7 @@ pub struct Frame<'a> {
 
 /// The union of the objects' rest bounds in the scene frame (each [`FrameObject::bounds`]
 /// moved by its offset).
-pub fn union_bounds(objects: &[FrameObject<'_>]) -> (DVec3, DVec3) {
+pub(crate) fn union_bounds(objects: &[FrameObject<'_>]) -> (DVec3, DVec3) {
     objects.iter().fold(
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
         |(lo, hi), o| (lo.min(o.bounds.0 + o.offset), hi.max(o.bounds.1 + o.offset)),

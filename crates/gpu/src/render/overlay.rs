@@ -8,7 +8,7 @@ use bytemuck::{Pod, Zeroable};
 use super::{RenderOptions, DEPTH_FORMAT};
 
 /// The WGSL source of the overlay (`shaders/overlay.wgsl`).
-pub const OVERLAY_WGSL: &str = include_str!("../../../../shaders/overlay.wgsl");
+pub(crate) const OVERLAY_WGSL: &str = include_str!("../../../../shaders/overlay.wgsl");
 
 /// The bundled font (`assets/DejaVuSansMono.ttf`).
 pub const FONT: &[u8] = include_bytes!("../../../../assets/DejaVuSansMono.ttf");
@@ -34,7 +34,7 @@ pub(super) const TEXT_PX: f32 = 15.0;
 /// Rasterises one line of `text` at `px` pixels high: white glyphs on a translucent dark box
 /// (straight alpha), with a 4-pixel margin. Characters the font lacks draw its `.notdef`
 /// glyph.
-pub fn rasterize_text(text: &str, px: f32) -> image::RgbaImage {
+pub(crate) fn rasterize_text(text: &str, px: f32) -> image::RgbaImage {
     let font = FontRef::try_from_slice(FONT).expect("the bundled font parses");
     let scale = PxScale::from(px.max(1.0));
     let scaled = font.as_scaled(scale);

@@ -21,7 +21,7 @@ pub struct Hit {
 }
 
 /// The first point of the objects' **rest** surfaces on the ray through window position
-/// `pixel` (see [`Camera::ray`]) of a `size` image. `objects`: each object's rest surface (in
+/// `pixel` (see `Camera::ray`) of a `size` image. `objects`: each object's rest surface (in
 /// its own frame) and its offset in the scene. Uses [`Surface::first_entry`] (front faces
 /// only) on the segment from the eye to twice the far plane.
 pub fn pick(

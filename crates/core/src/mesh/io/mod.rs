@@ -46,7 +46,7 @@ pub fn read(path: &Path) -> Result<RawMesh, MeshError> {
 }
 
 /// Reads a Gmsh `.msh` file of format 4.1 or 2.x (ASCII or binary).
-pub fn read_msh(path: &Path) -> Result<RawMesh, MeshError> {
+pub(crate) fn read_msh(path: &Path) -> Result<RawMesh, MeshError> {
     let data = read_bytes(path)?;
     parse_msh(&data, path)
 }
