@@ -67,7 +67,27 @@ pub enum GpuError {
     BadOutput(String),
     /// Reading a buffer back failed.
     #[error("GPU readback failed: {0}")]
-    Readback(String),
+    Readback(#[from] ReadbackError),
+}
+
+/// Why reading a buffer back from the GPU failed.
+#[derive(Debug, Error)]
+pub enum ReadbackError {
+    /// Waiting for the GPU failed (device lost, timeout).
+    #[error("waiting for the GPU: {0}")]
+    Poll(#[from] wgpu::PollError),
+    /// The map callback never ran (its sender was dropped).
+    #[error("the map callback was dropped: {0}")]
+    Callback(#[from] std::sync::mpsc::RecvError),
+    /// The GPU refused to map the buffer.
+    #[error("mapping the buffer: {0}")]
+    Map(#[from] wgpu::BufferAsyncError),
+    /// The mapped range could not be viewed.
+    #[error("viewing the mapped range: {0}")]
+    Range(#[from] wgpu::MapRangeError),
+    /// The output buffer cannot be copied from.
+    #[error("the output buffer's usage lacks COPY_SRC")]
+    NotCopySource,
 }
 
 /// Which adapter [`Gpu::new`] picks.
@@ -255,13 +275,13 @@ pub(crate) fn map_read(device: &wgpu::Device, staging: &wgpu::Buffer) -> Result<
     });
     device
         .poll(wgpu::PollType::wait_indefinitely())
-        .map_err(|e| GpuError::Readback(e.to_string()))?;
+        .map_err(ReadbackError::from)?;
     rx.recv()
-        .map_err(|e| GpuError::Readback(e.to_string()))?
-        .map_err(|e| GpuError::Readback(e.to_string()))?;
+        .map_err(ReadbackError::from)?
+        .map_err(ReadbackError::from)?;
     let bytes = staging
         .get_mapped_range(..)
-        .map_err(|e| GpuError::Readback(e.to_string()))?
+        .map_err(ReadbackError::from)?
         .to_vec();
     staging.unmap();
     Ok(bytes)

@@ -407,9 +407,7 @@ impl Deformer {
     ) -> Result<(Vec<[f32; 3]>, Option<Vec<[f32; 3]>>), GpuError> {
         let t = &self.target;
         if !t.buffer.usage().contains(wgpu::BufferUsages::COPY_SRC) {
-            return Err(GpuError::Readback(
-                "the output buffer's usage lacks COPY_SRC".into(),
-            ));
+            return Err(crate::context::ReadbackError::NotCopySource.into());
         }
         let n = u64::from(self.n_rows);
         let end = t.offset + (n - 1) * t.stride + t.normal_offset.unwrap_or(0) + 12;
