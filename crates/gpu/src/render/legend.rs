@@ -2,10 +2,6 @@
 //! for small displacements, and the force arrow's scale in mm per N or a readable variant) and
 //! the "nice" scales both use.
 
-use ab_glyph::{Font, FontRef, PxScale, ScaleFont};
-
-use super::overlay::FONT;
-
 /// Opacity of the legend's dark box (more than the status line's: it may lie over the object).
 const BOX_ALPHA: f32 = 0.75;
 
@@ -274,52 +270,25 @@ pub fn arrow_label(m_per_n: f64) -> String {
 
 /// Alpha-blends white text into `img` with its top-left corner at (`x`, `y`).
 fn draw_text(img: &mut image::RgbaImage, x: f32, y: f32, text: &str, px: f32) -> f32 {
-    let font = FontRef::try_from_slice(FONT).expect("the bundled font parses");
-    let scale = PxScale::from(px);
-    let scaled = font.as_scaled(scale);
-    let mut pen = x;
-    for c in text.chars() {
-        let id = font.glyph_id(c);
-        let glyph = id.with_scale_and_position(scale, ab_glyph::point(pen, y + scaled.ascent()));
-        pen += scaled.h_advance(id);
-        let Some(outline) = font.outline_glyph(glyph) else {
-            continue;
-        };
-        let b = outline.px_bounds();
-        outline.draw(|gx, gy, v| {
-            let px = b.min.x as i64 + i64::from(gx);
-            let py = b.min.y as i64 + i64::from(gy);
-            if (0..i64::from(img.width())).contains(&px)
-                && (0..i64::from(img.height())).contains(&py)
-            {
-                let p = img.get_pixel_mut(px as u32, py as u32);
-                let v = v.clamp(0.0, 1.0);
-                // Over a straight-alpha pixel: white with coverage v.
-                let a0 = f32::from(p[3]) / 255.0;
-                let a = v + a0 * (1.0 - v);
-                for k in 0..3 {
-                    let c0 = f32::from(p[k]) / 255.0;
-                    let c = if a > 0.0 {
-                        (v + c0 * a0 * (1.0 - v)) / a
-                    } else {
-                        0.0
-                    };
-                    p[k] = (255.0 * c).round() as u8;
-                }
-                p[3] = (255.0 * a).round() as u8;
+    let (w, h) = (i64::from(img.width()), i64::from(img.height()));
+    super::text::rasterize(text, px, x, y, |px, py, v| {
+        if (0..w).contains(&px) && (0..h).contains(&py) {
+            let p = img.get_pixel_mut(px as u32, py as u32);
+            // Over a straight-alpha pixel: white with coverage v.
+            let a0 = f32::from(p[3]) / 255.0;
+            let a = v + a0 * (1.0 - v);
+            for k in 0..3 {
+                let c0 = f32::from(p[k]) / 255.0;
+                let c = if a > 0.0 {
+                    (v + c0 * a0 * (1.0 - v)) / a
+                } else {
+                    0.0
+                };
+                p[k] = (255.0 * c).round() as u8;
             }
-        });
-    }
-    pen - x
-}
-
-/// Width of `text` at the legend's size, pixels.
-fn text_width(text: &str, px: f32) -> f32 {
-    let font = FontRef::try_from_slice(FONT).expect("the bundled font parses");
-    let scaled = font.as_scaled(PxScale::from(px));
-    text.chars()
-        .map(|c| scaled.h_advance(font.glyph_id(c)))
-        .sum()
+            p[3] = (255.0 * a).round() as u8;
+        }
+    })
 }
 
 /// The legend as a straight-alpha RGBA image (white text and the colour bar on a translucent
@@ -350,15 +319,15 @@ pub fn legend_image(spec: &LegendSpec) -> Option<image::RgbaImage> {
     let title = title.as_str();
     let tick_w = ticks
         .iter()
-        .map(|(_, s)| text_width(s, px))
+        .map(|(_, s)| super::text::text_width(s, px))
         .fold(0.0f32, f32::max);
     let mut w = lines
         .iter()
-        .map(|s| text_width(s, px))
+        .map(|s| super::text::text_width(s, px))
         .fold(0.0f32, f32::max);
     if bar_h > 0 {
         w = w
-            .max(text_width(title, px))
+            .max(super::text::text_width(title, px))
             .max(BAR_W as f32 + 6.0 + tick_w);
     }
     let w = w.ceil() as u32 + 2 * MARGIN;
@@ -420,6 +389,8 @@ fn format_force(f: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::render::overlay::FONT;
+    use ab_glyph::{Font, FontRef};
 
     #[test]
     fn nice_scales() {

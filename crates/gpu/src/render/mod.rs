@@ -38,6 +38,7 @@ mod legend;
 mod overlay;
 pub use overlay::FONT;
 mod pick;
+mod text;
 
 pub(crate) use camera::FULL_FRAME;
 pub use camera::{Camera, Orbit, VIEW_DIR};

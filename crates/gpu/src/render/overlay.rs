@@ -2,7 +2,6 @@
 //! DejaVu Sans Mono into a small RGBA texture (only when the text changes, a few times a
 //! second), drawn as a screen-space quad, blended.
 
-use ab_glyph::{Font, FontRef, PxScale, ScaleFont};
 use bytemuck::{Pod, Zeroable};
 
 use super::{RenderOptions, DEPTH_FORMAT};
@@ -35,36 +34,19 @@ pub(super) const TEXT_PX: f32 = 15.0;
 /// (straight alpha), with a 4-pixel margin. Characters the font lacks draw its `.notdef`
 /// glyph.
 pub(crate) fn rasterize_text(text: &str, px: f32) -> image::RgbaImage {
-    let font = FontRef::try_from_slice(FONT).expect("the bundled font parses");
-    let scale = PxScale::from(px.max(1.0));
-    let scaled = font.as_scaled(scale);
-    let advance: f32 = text
-        .chars()
-        .map(|c| scaled.h_advance(font.glyph_id(c)))
-        .sum();
-    let w = (advance + 2.0 * PAD).ceil().max(1.0) as u32;
-    let h = (scaled.ascent() - scaled.descent() + 2.0 * PAD)
+    let px = px.max(1.0);
+    let (ascent, descent) = super::text::line_metrics(px);
+    let w = (super::text::text_width(text, px) + 2.0 * PAD)
         .ceil()
         .max(1.0) as u32;
+    let h = (ascent - descent + 2.0 * PAD).ceil().max(1.0) as u32;
     let mut coverage = vec![0f32; (w * h) as usize];
-    let mut x = PAD;
-    for c in text.chars() {
-        let id = font.glyph_id(c);
-        let glyph = id.with_scale_and_position(scale, ab_glyph::point(x, PAD + scaled.ascent()));
-        x += scaled.h_advance(id);
-        let Some(outline) = font.outline_glyph(glyph) else {
-            continue;
-        };
-        let b = outline.px_bounds();
-        outline.draw(|gx, gy, v| {
-            let px = b.min.x as i64 + i64::from(gx);
-            let py = b.min.y as i64 + i64::from(gy);
-            if (0..i64::from(w)).contains(&px) && (0..i64::from(h)).contains(&py) {
-                let c = &mut coverage[(py as u32 * w + px as u32) as usize];
-                *c = c.max(v.clamp(0.0, 1.0));
-            }
-        });
-    }
+    super::text::rasterize(text, px, PAD, PAD, |px, py, v| {
+        if (0..i64::from(w)).contains(&px) && (0..i64::from(h)).contains(&py) {
+            let c = &mut coverage[(py as u32 * w + px as u32) as usize];
+            *c = c.max(v);
+        }
+    });
     image::RgbaImage::from_fn(w, h, |x, y| {
         let c = coverage[(y * w + x) as usize];
         // White text over a black box of opacity BOX_ALPHA, as one straight-alpha layer.
