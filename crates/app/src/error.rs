@@ -40,20 +40,5 @@ pub enum Error {
     },
 }
 
-/// The engine's domain errors convert through [`touchfem_core::Error`].
-macro_rules! through_core {
-    ($($t:ty),*) => {$(
-        impl From<$t> for Error {
-            fn from(e: $t) -> Self {
-                Error::Core(e.into())
-            }
-        }
-    )*};
-}
-
-through_core!(
-    touchfem_core::mesh::MeshError,
-    touchfem_core::fem::FemError,
-    touchfem_core::cache::CacheError,
-    touchfem_core::devices::udp::UdpError
-);
+// The engine's domain errors convert through `touchfem_core::Error`.
+touchfem_core::from_domain_errors!(Error::Core);

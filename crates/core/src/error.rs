@@ -50,3 +50,25 @@ pub enum Error {
         source: std::io::Error,
     },
 }
+
+/// Implements `From<E>` for a caller's error type for each of the engine's domain errors
+/// (mesh, FEM, cache, UDP), converting through [`Error`] into the variant that wraps it, so that
+/// `?` works on them directly: `touchfem_core::from_domain_errors!(MyError::Core);`. The list
+/// of domain errors lives here, in one place.
+#[macro_export]
+macro_rules! from_domain_errors {
+    ($err:ident :: $variant:ident) => {
+        $crate::from_domain_errors!(@each $err $variant
+            $crate::mesh::MeshError,
+            $crate::fem::FemError,
+            $crate::cache::CacheError,
+            $crate::devices::udp::UdpError);
+    };
+    (@each $err:ident $variant:ident $($t:ty),*) => {$(
+        impl From<$t> for $err {
+            fn from(e: $t) -> Self {
+                $err::$variant(e.into())
+            }
+        }
+    )*};
+}
