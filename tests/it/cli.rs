@@ -1,4 +1,4 @@
-//! The command line as scripts use it (../shared/CONTRACTS.md): keys, units, files, errors.
+//! The command line as scripts use it (docs/reference/cli.md): keys, units, files, errors.
 
 use std::process::Command;
 

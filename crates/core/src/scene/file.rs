@@ -1,4 +1,4 @@
-//! Scene files (TOML; the schema is in `../shared/CONTRACTS.md`): parsing with serde and the
+//! Scene files (TOML; the schema is in `docs/reference/scene-schema.md`): parsing with serde and the
 //! `toml` crate, then validation and loading into a [`World`]. Every error names the file, the
 //! line and the key.
 //!
