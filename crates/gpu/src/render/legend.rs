@@ -389,7 +389,7 @@ fn format_force(f: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::overlay::FONT;
+    use crate::render::text::FONT;
     use ab_glyph::{Font, FontRef};
 
     #[test]

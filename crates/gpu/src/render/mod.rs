@@ -36,7 +36,7 @@
 mod camera;
 mod legend;
 mod overlay;
-pub use overlay::FONT;
+pub use text::FONT;
 mod pick;
 mod text;
 

@@ -9,8 +9,6 @@ use super::{RenderOptions, DEPTH_FORMAT};
 /// The WGSL source of the overlay (`shaders/overlay.wgsl`).
 pub(crate) const OVERLAY_WGSL: &str = include_str!("../../../../shaders/overlay.wgsl");
 
-/// The bundled font (`assets/DejaVuSansMono.ttf`).
-pub const FONT: &[u8] = include_bytes!("../../../../assets/DejaVuSansMono.ttf");
 /// Padding around the text, pixels.
 const PAD: f32 = 4.0;
 /// Opacity of the dark box behind the text.

@@ -3,7 +3,8 @@
 
 use ab_glyph::{Font, FontRef, PxScale, ScaleFont};
 
-use super::overlay::FONT;
+/// The bundled font (`assets/DejaVuSansMono.ttf`).
+pub const FONT: &[u8] = include_bytes!("../../../../assets/DejaVuSansMono.ttf");
 
 /// The bundled font, parsed.
 fn font() -> FontRef<'static> {
