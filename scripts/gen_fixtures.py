@@ -16,6 +16,11 @@ Output (all coordinates in millimetres, a 30 x 30 x 30 mm box at the origin):
   box.node, box.ele
       TetGen files written from the same mesh: 1-based, '#' comments, one node attribute, boundary
       markers (1 = on z = 0, 2 = other boundary node, 0 = interior) and one tet attribute.
+  two_regions_v41.msh, two_regions_v41_bin.msh, two_regions_v22.msh, two_regions_v22_bin.msh
+      a 30 x 20 x 10 mm block [0, 30] x [0, 20] x [0, 10] cut at x = 12 into two conforming
+      physical volumes "soft" (x < 12) and "hard" (x > 12), "fixed" the bottom face z = 0 and a
+      physical surface "top" (z = 10): for material regions. `python3 scripts/gen_fixtures.py
+      regions` writes only these.
 """
 
 import os
@@ -107,10 +112,45 @@ def write_tetgen(stem):
         print(f"{stem}{ext}: {os.path.getsize(os.path.join(OUT, stem + ext))} bytes")
 
 
+def build_regions():
+    """Two boxes side by side, fragmented so that the mesh conforms to their shared face."""
+    gmsh.clear()
+    gmsh.model.add("two_regions")
+    occ = gmsh.model.occ
+    a = occ.addBox(0, 0, 0, 12, 20, 10)
+    b = occ.addBox(12, 0, 0, 18, 20, 10)
+    occ.fragment([(3, a)], [(3, b)])
+    occ.synchronize()
+    eps = 1e-6
+    soft = gmsh.model.getEntitiesInBoundingBox(-eps, -eps, -eps, 12 + eps, 20 + eps, 10 + eps, 3)
+    hard = gmsh.model.getEntitiesInBoundingBox(12 - eps, -eps, -eps, 30 + eps, 20 + eps, 10 + eps, 3)
+    bottom = gmsh.model.getEntitiesInBoundingBox(-eps, -eps, -eps, 30 + eps, 20 + eps, eps, 2)
+    top = gmsh.model.getEntitiesInBoundingBox(-eps, -eps, 10 - eps, 30 + eps, 20 + eps, 10 + eps, 2)
+    assert len(soft) == 1 and len(hard) == 1 and len(bottom) == 2 and len(top) == 2
+    gmsh.model.addPhysicalGroup(3, [soft[0][1]], name="soft")
+    gmsh.model.addPhysicalGroup(3, [hard[0][1]], name="hard")
+    gmsh.model.addPhysicalGroup(2, [t for _, t in bottom], name="fixed")
+    gmsh.model.addPhysicalGroup(2, [t for _, t in top], name="top")
+    gmsh.option.setNumber("Mesh.MeshSizeMin", 5.0)
+    gmsh.option.setNumber("Mesh.MeshSizeMax", 5.0)
+    gmsh.option.setNumber("Mesh.Algorithm3D", 1)
+    gmsh.option.setNumber("Mesh.RandomSeed", 1)
+    gmsh.model.mesh.generate(3)
+
+
 def main():
     os.makedirs(OUT, exist_ok=True)
     gmsh.initialize(sys.argv[:1])
     gmsh.option.setNumber("General.Terminal", 0)
+    gmsh.option.setNumber("General.NumThreads", 1)
+    build_regions()
+    save("two_regions_v41.msh", 4.1, False)
+    save("two_regions_v41_bin.msh", 4.1, True)
+    save("two_regions_v22.msh", 2.2, False)
+    save("two_regions_v22_bin.msh", 2.2, True)
+    if sys.argv[1:] == ["regions"]:
+        gmsh.finalize()
+        return
     build("surface")
     save("box_v41.msh", 4.1, False)
     save("box_v41_bin.msh", 4.1, True)

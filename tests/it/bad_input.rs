@@ -21,6 +21,7 @@ fn two_tets() -> RawMesh {
         ],
         tets: vec![[0, 1, 2, 3], [1, 2, 3, 4]],
         node_groups: BTreeMap::new(),
+        tet_groups: BTreeMap::new(),
     }
 }
 
@@ -102,6 +103,7 @@ fn inverted_tets_are_reoriented_and_reported_with_identical_physics() {
         nodes: good.nodes.iter().map(|p| p.to_array()).collect(),
         tets: good.tets.iter().map(|t| t.map(|i| i as usize)).collect(),
         node_groups: BTreeMap::new(),
+        tet_groups: BTreeMap::new(),
     };
     for t in [3usize, 100, 257] {
         raw.tets[t].swap(0, 1);
@@ -153,6 +155,7 @@ fn non_manifold_boundaries() {
         ],
         tets: vec![[0, 1, 2, 3], [0, 1, 4, 5]],
         node_groups: BTreeMap::new(),
+        tet_groups: BTreeMap::new(),
     };
     assert!(matches!(load(raw), Err(MeshError::NonManifold { .. })));
     // Three tets on one face.

@@ -10,7 +10,7 @@
 //! rows         u32      R
 //! cols         u32      C
 //! batch        u32      columns per batch (compliance::BATCH_COLS)
-//! key          u64      xxh3 of mesh nodes + tets + material + fixed set + row/column selection
+//! key          u64      xxh3 of mesh nodes + tets + material + regions + fixed set + row/column selection
 //! shard        u32 ×2   index I (1-based) and count N; a complete file is 1 of 1
 //! col range    u32 ×2   col_begin, col_end (on the batch grid)
 //! free_dofs    u32
@@ -231,8 +231,8 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     f.commit()
 }
 
-/// The hash that a cache file must match: mesh geometry and topology, material, clamp set and
-/// the row/column selection.
+/// The hash that a cache file must match: mesh geometry and topology, material, regions (each
+/// one's group, material and tets), clamp set and the row/column selection.
 pub fn key(mesh: &Mesh, sel: &Selection) -> u64 {
     let mut h = Xxh3::new();
     h.update(&KEY_VERSION.to_le_bytes());
@@ -248,6 +248,16 @@ pub fn key(mesh: &Mesh, sel: &Selection) -> u64 {
     }
     h.update(&mesh.material.young_pa.to_bits().to_le_bytes());
     h.update(&mesh.material.poisson.to_bits().to_le_bytes());
+    // Regions (none: nothing hashed, so keys without regions are those of before).
+    for r in &mesh.regions {
+        h.update(b"|region|");
+        h.update(r.group.as_bytes());
+        h.update(&r.material.young_pa.to_bits().to_le_bytes());
+        h.update(&r.material.poisson.to_bits().to_le_bytes());
+        for t in &r.tets {
+            h.update(&t.to_le_bytes());
+        }
+    }
     for &f in &mesh.fixed {
         h.update(&[f as u8]);
     }

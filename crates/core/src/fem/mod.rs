@@ -138,8 +138,8 @@ pub(crate) fn element_stiffness(p: [DVec3; 4], mat: &Material) -> [[f64; 12]; 12
 pub fn dense_stiffness(mesh: &Mesh) -> Vec<Vec<f64>> {
     let n = mesh.nodes.len() * 3;
     let mut k = vec![vec![0.0; n]; n];
-    for t in &mesh.tets {
-        let ke = element_stiffness(t.map(|i| mesh.nodes[i as usize]), &mesh.material);
+    for (ti, t) in mesh.tets.iter().enumerate() {
+        let ke = element_stiffness(t.map(|i| mesh.nodes[i as usize]), &mesh.tet_material(ti));
         for a in 0..4 {
             for b in 0..4 {
                 for i in 0..3 {
@@ -343,17 +343,18 @@ fn nested_dissection(coords: &[DVec3], ptr: &[usize], idx: &[usize]) -> Vec<usiz
 }
 
 impl Stiffness {
-    /// Assembles K with the clamped DOFs eliminated. Checks the material and that every
+    /// Assembles K with the clamped DOFs eliminated, each tet of its own material
+    /// ([`Mesh::tet_material`]). Checks the materials and that every
     /// connected part of the mesh is held by at least three non-collinear clamped nodes.
     pub fn assemble(mesh: &Mesh) -> Result<Stiffness, FemError> {
-        mesh.material.validate()?;
+        mesh.validate_materials()?;
         check_constrained(mesh)?;
         let dofs = Dofs::new(&mesh.fixed);
         // Sum element matrices into 3×3 node-pair blocks first (each node has a few dozen
         // neighbours), so the sparse constructor sorts ~9× fewer triplets.
         let mut blocks: Vec<Vec<(u32, [f64; 9])>> = vec![Vec::new(); mesh.nodes.len()];
-        for t in &mesh.tets {
-            let ke = element_stiffness(t.map(|i| mesh.nodes[i as usize]), &mesh.material);
+        for (ti, t) in mesh.tets.iter().enumerate() {
+            let ke = element_stiffness(t.map(|i| mesh.nodes[i as usize]), &mesh.tet_material(ti));
             for a in 0..4 {
                 if mesh.fixed[t[a] as usize] {
                     continue;

@@ -95,6 +95,7 @@ pub fn grid_raw(
         nodes,
         tets,
         node_groups,
+        tet_groups: BTreeMap::new(),
     }
 }
 
@@ -111,6 +112,28 @@ pub fn mouse() -> Mesh {
     let mut m = Mesh::from_raw(raw, LengthUnit::Millimetre, Material::DEFAULT)
         .expect("the bundled mouse is valid");
     m.set_fixed_group("fixed").expect("the mouse has pads");
+    m
+}
+
+/// The Gmsh file of the bundled palpation phantom (MSH 4.1 binary, millimetres), made by
+/// `scripts/make_palpate.py`.
+const PHANTOM_MSH: &[u8] = include_bytes!("../../../../meshes/phantom.msh");
+
+/// The palpation phantom: a soft block [−30, 30] × [−20, 20] × [0, 20] mm standing on z = 0
+/// (group `fixed`, clamped) with a ball of radius 5 mm centred on (0, 0, 12) mm, meshed
+/// conformingly: physical volume groups `nodule` (the ball) and `tissue` (the rest). Every
+/// tet has E = 3000 Pa, ν = 0.45 until regions say otherwise (the scene `palpate` makes the
+/// nodule ten times stiffer).
+pub fn phantom() -> Mesh {
+    let raw = super::io::parse_msh(PHANTOM_MSH, std::path::Path::new("meshes/phantom.msh"))
+        .expect("the bundled phantom parses");
+    let material = Material {
+        young_pa: 3000.0,
+        poisson: 0.45,
+    };
+    let mut m = Mesh::from_raw(raw, LengthUnit::Millimetre, material)
+        .expect("the bundled phantom is valid");
+    m.set_fixed_group("fixed").expect("the phantom has a bottom");
     m
 }
 
@@ -157,6 +180,38 @@ mod tests {
         let (lo, hi) = m.bounds();
         assert!(lo.z.abs() < 1e-12 && (0.11..0.13).contains(&(hi.x - lo.x)));
         assert!(m.report.is_clean());
+    }
+
+    /// The phantom's groups: the nodule's tets fill the ball (volume within the mesh's chord
+    /// error), tissue and nodule share no tet and cover the block.
+    #[test]
+    fn phantom_has_a_conforming_nodule() {
+        let m = phantom();
+        let vol = |ids: &[u32]| -> f64 {
+            ids.iter()
+                .map(|&t| {
+                    let p = m.tets[t as usize].map(|i| m.nodes[i as usize]);
+                    super::super::tet_volume(p[0], p[1], p[2], p[3])
+                })
+                .sum()
+        };
+        let nodule = &m.tet_groups["nodule"];
+        let tissue = &m.tet_groups["tissue"];
+        assert_eq!(nodule.len() + tissue.len(), m.tets.len());
+        assert!(nodule.iter().all(|t| tissue.binary_search(t).is_err()));
+        let ball = 4.0 / 3.0 * std::f64::consts::PI * 0.005f64.powi(3);
+        let vn = vol(nodule);
+        assert!((vn / ball - 1.0).abs() < 0.05, "{vn} vs {ball}");
+        assert!((vn + vol(tissue) - 0.06 * 0.04 * 0.02).abs() < 1e-12);
+        // Every nodule node is within the ball (to round-off).
+        let c = glam::DVec3::new(0.0, 0.0, 0.012);
+        for &t in nodule {
+            for i in m.tets[t as usize] {
+                assert!(m.nodes[i as usize].distance(c) <= 0.005 + 1e-9);
+            }
+        }
+        assert!(m.fixed_count() > 0 && m.report.is_clean());
+        assert_eq!((m.material.young_pa, m.material.poisson), (3000.0, 0.45));
     }
 
     #[test]

@@ -2,14 +2,14 @@
 //! the bundled meshes and the file loaders.
 //!
 //! Loaders produce a [`RawMesh`] (coordinates in the file's unit, 0-based indices, named node
-//! groups); [`Mesh::from_raw`] validates it, converts it to metres, reorients inverted tets, drops
+//! groups and, from Gmsh physical volumes, named tet groups); [`Mesh::from_raw`] validates it, converts it to metres, reorients inverted tets, drops
 //! unused nodes and extracts the boundary. Every problem is a typed [`MeshError`] naming the tet or
 //! node; nothing here panics on bad input.
 
 mod cube;
 pub mod io;
 
-pub use cube::{cube, cube_with, grid_raw, mouse, CUBE_EDGE_MM};
+pub use cube::{cube, cube_with, grid_raw, mouse, phantom, CUBE_EDGE_MM};
 
 use glam::DVec3;
 use std::collections::{BTreeMap, HashMap};
@@ -86,8 +86,51 @@ pub enum MeshError {
         available: String,
     },
     /// A bundled mesh name that does not exist.
-    #[error("unknown bundled mesh '{0}' (bundled: cube, mouse) and no such file")]
+    #[error("unknown bundled mesh '{0}' (bundled: cube, mouse, phantom) and no such file")]
     UnknownBundled(String),
+    /// A region names a group the mesh does not have at all.
+    #[error("no physical volume group named '{name}' (volume groups: {available})")]
+    NoVolumeGroup {
+        /// The requested name.
+        name: String,
+        /// The volume groups the mesh does have, comma-separated.
+        available: String,
+    },
+    /// A region names a group of points, curves or surfaces: it holds no tets.
+    #[error(
+        "'{name}' is a physical point, curve or surface group, not a physical volume group: a \
+         region needs tets (volume groups: {available})"
+    )]
+    NotVolumeGroup {
+        /// The requested name.
+        name: String,
+        /// The volume groups the mesh does have, comma-separated.
+        available: String,
+    },
+    /// A region names a physical volume group that holds no tet.
+    #[error("physical volume group '{name}' holds no tetrahedra")]
+    EmptyVolumeGroup {
+        /// The group.
+        name: String,
+    },
+    /// Two regions share a tet (or name the same group twice).
+    #[error("regions '{first}' and '{second}' overlap: tet {tet} is in both")]
+    OverlappingRegions {
+        /// The earlier region's group.
+        first: String,
+        /// The later region's group.
+        second: String,
+        /// A tet in both.
+        tet: u32,
+    },
+    /// A region's material is out of range.
+    #[error("region '{group}': {msg}")]
+    BadRegionMaterial {
+        /// The region's group.
+        group: String,
+        /// What is wrong.
+        msg: String,
+    },
 }
 
 /// A mesh as a loader read it: coordinates in the file's unit, 0-based node indices.
@@ -99,6 +142,9 @@ pub struct RawMesh {
     pub tets: Vec<[usize; 4]>,
     /// Named node sets (Gmsh physical groups of any dimension, expanded to their nodes).
     pub node_groups: BTreeMap<String, Vec<usize>>,
+    /// Named tet sets: each Gmsh physical volume group's tets, as 0-based indices into `tets`
+    /// (a group declared in `$PhysicalNames` without elements is present and empty).
+    pub tet_groups: BTreeMap<String, Vec<usize>>,
 }
 
 /// What validation changed, so that nothing is lost silently.
@@ -133,10 +179,28 @@ pub struct Mesh {
     pub fixed: Vec<bool>,
     /// Named node groups, renumbered to this mesh's nodes.
     pub groups: BTreeMap<String, Vec<u32>>,
-    /// The material (SI).
+    /// Named tet groups (Gmsh physical volumes): ascending indices into `tets`, which keep the
+    /// file's tet order (validation reorients tets in place and drops none).
+    pub tet_groups: BTreeMap<String, Vec<u32>>,
+    /// The material (SI) of every tet outside [`Mesh::regions`].
     pub material: Material,
+    /// Tets of another material, set by [`Mesh::set_regions`]; disjoint.
+    pub regions: Vec<Region>,
+    /// Per tet: 0 for [`Mesh::material`], k + 1 for `regions[k]` (empty: no regions).
+    tet_region: Vec<u32>,
     /// What validation changed.
     pub report: MeshReport,
+}
+
+/// The tets of one physical volume group, of their own material.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Region {
+    /// The physical volume group.
+    pub group: String,
+    /// Its material (SI).
+    pub material: Material,
+    /// Its tets, ascending indices into [`Mesh::tets`].
+    pub tets: Vec<u32>,
 }
 
 /// Outward faces of a positively oriented tet, as local indices.
@@ -331,6 +395,22 @@ impl Mesh {
                 (name, v)
             })
             .collect();
+        // Tets keep their index (reoriented in place, none dropped): only range and order.
+        let n_tets = tets.len();
+        let tet_groups = raw
+            .tet_groups
+            .into_iter()
+            .map(|(name, ids)| {
+                let mut v: Vec<u32> = ids
+                    .into_iter()
+                    .filter(|&i| i < n_tets)
+                    .map(|i| i as u32)
+                    .collect();
+                v.sort_unstable();
+                v.dedup();
+                (name, v)
+            })
+            .collect();
         Ok(Mesh {
             fixed: vec![false; nodes.len()],
             nodes,
@@ -338,9 +418,114 @@ impl Mesh {
             surface,
             surface_nodes,
             groups,
+            tet_groups,
             material,
+            regions: Vec::new(),
+            tet_region: Vec::new(),
             report,
         })
+    }
+
+    /// The material of tet `t`: its region's, else [`Mesh::material`]. `t` must be below
+    /// `tets.len()`.
+    #[inline]
+    pub fn tet_material(&self, t: usize) -> Material {
+        match self.tet_region.get(t) {
+            Some(&k) if k > 0 => self.regions[k as usize - 1].material,
+            _ => self.material,
+        }
+    }
+
+    /// The region index of each tet: 0 for the base material, k + 1 for `regions[k]`.
+    pub fn tet_region_index(&self) -> Vec<u32> {
+        if self.tet_region.is_empty() {
+            vec![0; self.tets.len()]
+        } else {
+            self.tet_region.clone()
+        }
+    }
+
+    /// Gives the tets of each named physical volume group its material (replacing any previous
+    /// regions; the other tets keep [`Mesh::material`]). Errors: a group the mesh lacks, a group
+    /// of points, curves or surfaces, an empty volume group, two regions sharing a tet, a
+    /// material with E ≤ 0, ν outside (−1, 0.5) or a non-finite value. On error the mesh is
+    /// unchanged.
+    pub fn set_regions(&mut self, specs: &[(String, Material)]) -> Result<(), MeshError> {
+        let available = || {
+            if self.tet_groups.is_empty() {
+                "none".to_string()
+            } else {
+                self.tet_groups.keys().cloned().collect::<Vec<_>>().join(", ")
+            }
+        };
+        let mut tet_region = vec![0u32; self.tets.len()];
+        let mut regions = Vec::with_capacity(specs.len());
+        for (k, (group, material)) in specs.iter().enumerate() {
+            let Some(tets) = self.tet_groups.get(group) else {
+                let name = group.clone();
+                return Err(if self.groups.contains_key(group) {
+                    MeshError::NotVolumeGroup {
+                        name,
+                        available: available(),
+                    }
+                } else {
+                    MeshError::NoVolumeGroup {
+                        name,
+                        available: available(),
+                    }
+                });
+            };
+            if tets.is_empty() {
+                return Err(MeshError::EmptyVolumeGroup {
+                    name: group.clone(),
+                });
+            }
+            material
+                .validate()
+                .map_err(|e| MeshError::BadRegionMaterial {
+                    group: group.clone(),
+                    msg: match e {
+                        crate::fem::FemError::BadMaterial(m) => m,
+                        other => other.to_string(),
+                    },
+                })?;
+            for &t in tets {
+                let slot = &mut tet_region[t as usize];
+                if *slot != 0 {
+                    return Err(MeshError::OverlappingRegions {
+                        first: specs[*slot as usize - 1].0.clone(),
+                        second: group.clone(),
+                        tet: t,
+                    });
+                }
+                *slot = k as u32 + 1;
+            }
+            regions.push(Region {
+                group: group.clone(),
+                material: *material,
+                tets: tets.clone(),
+            });
+        }
+        if regions.is_empty() {
+            tet_region.clear();
+        }
+        self.regions = regions;
+        self.tet_region = tet_region;
+        Ok(())
+    }
+
+    /// Checks the base material and every region's (see [`Material::validate`]).
+    pub fn validate_materials(&self) -> Result<(), crate::fem::FemError> {
+        self.material.validate()?;
+        for r in &self.regions {
+            r.material.validate().map_err(|e| match e {
+                crate::fem::FemError::BadMaterial(m) => {
+                    crate::fem::FemError::BadMaterial(format!("region '{}': {m}", r.group))
+                }
+                other => other,
+            })?;
+        }
+        Ok(())
     }
 
     /// Clamps the nodes of the named group (replacing any previous fixed set).
@@ -502,7 +687,7 @@ mod tests {
                 [0.0, 0.0, 1.0],
             ],
             tets: vec![[0, 1, 2, 3]],
-            node_groups: BTreeMap::new(),
+            ..RawMesh::default()
         }
     }
 

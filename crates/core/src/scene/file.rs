@@ -54,6 +54,17 @@ struct ObjectToml {
     fixed: Option<Spanned<String>>,
     touchable: Option<Spanned<TouchableToml>>,
     offset: Option<Spanned<[f64; 3]>>,
+    #[serde(default)]
+    region: Vec<Spanned<RegionToml>>,
+}
+
+/// `[[object.region]]`: the tets of a physical volume group, of another material.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RegionToml {
+    group: Spanned<String>,
+    young: Spanned<f64>,
+    poisson: Option<Spanned<f64>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -384,7 +395,29 @@ impl World {
                 young_pa: o.young.as_ref().map(|v| *v.get_ref()),
                 poisson: o.poisson.as_ref().map(|v| *v.get_ref()),
                 fixed_group: fixed,
+                regions: Vec::new(),
             };
+            for r in &o.region {
+                let r = r.get_ref();
+                let v = *r.young.get_ref();
+                if !(v.is_finite() && v > 0.0 && v <= MAX_YOUNG_PA) {
+                    return Err(at(
+                        r.young.span(),
+                        "region.young",
+                        format!("{v} is outside (0, {MAX_YOUNG_PA:e}] Pa"),
+                    ));
+                }
+                if let Some(nu) = &r.poisson {
+                    let v = *nu.get_ref();
+                    if !(v.is_finite() && v > -1.0 && v < 0.5) {
+                        return Err(at(
+                            nu.span(),
+                            "region.poisson",
+                            format!("{v} is outside (-1, 0.5)"),
+                        ));
+                    }
+                }
+            }
             let path = if crate::scene::BUNDLED.contains(&mesh_spec.as_str()) {
                 mesh_spec.clone()
             } else {
@@ -408,7 +441,7 @@ impl World {
                 "fixed" => o.fixed.as_ref().map(|v| v.span()),
                 _ => None,
             };
-            let (mesh, _) = load_mesh(&path, &opts).map_err(|e| {
+            let (mut mesh, _) = load_mesh(&path, &opts).map_err(|e| {
                 let key = match &e {
                     Error::Mesh(crate::MeshError::MissingGroup { .. }) => "fixed",
                     Error::Fem(crate::fem::FemError::BadMaterial(..)) => {
@@ -422,6 +455,39 @@ impl World {
                 };
                 at(key_span(key).unwrap_or(o.mesh.span()), key, e.to_string())
             })?;
+            if !o.region.is_empty() {
+                // A region without `poisson` keeps the object's.
+                let specs: Vec<(String, crate::units::Material)> = o
+                    .region
+                    .iter()
+                    .map(|r| {
+                        let r = r.get_ref();
+                        let material = crate::units::Material {
+                            young_pa: *r.young.get_ref(),
+                            poisson: r.poisson.as_ref().map_or(mesh.material.poisson, |v| *v.get_ref()),
+                        };
+                        (r.group.get_ref().clone(), material)
+                    })
+                    .collect();
+                mesh.set_regions(&specs).map_err(|e| {
+                    use crate::MeshError as M;
+                    let group = match &e {
+                        M::NoVolumeGroup { name, .. }
+                        | M::NotVolumeGroup { name, .. }
+                        | M::EmptyVolumeGroup { name } => name,
+                        M::OverlappingRegions { second, .. } => second,
+                        M::BadRegionMaterial { group, .. } => group,
+                        _ => "",
+                    };
+                    let span = o
+                        .region
+                        .iter()
+                        .rev()
+                        .find(|r| r.get_ref().group.get_ref() == group)
+                        .map_or(o.mesh.span(), |r| r.get_ref().group.span());
+                    at(span, "region.group", e.to_string())
+                })?;
+            }
             let offset = o
                 .offset
                 .as_ref()

@@ -27,6 +27,9 @@ pub struct LoadOptions {
     pub poisson: Option<f64>,
     /// The node group to clamp.
     pub fixed_group: String,
+    /// Tets of another material: (physical volume group, material), disjoint (see
+    /// [`Mesh::set_regions`]).
+    pub regions: Vec<(String, Material)>,
 }
 
 impl Default for LoadOptions {
@@ -36,15 +39,16 @@ impl Default for LoadOptions {
             young_pa: None,
             poisson: None,
             fixed_group: "fixed".into(),
+            regions: Vec::new(),
         }
     }
 }
 
 /// The names of the bundled meshes.
-pub(crate) const BUNDLED: &[&str] = &["cube", "mouse"];
+pub(crate) const BUNDLED: &[&str] = &["cube", "mouse", "phantom"];
 
-/// Loads a bundled mesh by name (`cube`) or a mesh file by path, applies material overrides and
-/// clamps the fixed group. Returns the mesh and the length unit its coordinates are given in on
+/// Loads a bundled mesh by name (`cube`) or a mesh file by path, applies material overrides,
+/// gives the regions their materials and clamps the fixed group. Returns the mesh and the length unit its coordinates are given in on
 /// the command line.
 pub fn load_mesh(spec: &str, opts: &LoadOptions) -> Result<(Mesh, LengthUnit), Error> {
     let (mut mesh, unit) = match spec {
@@ -55,6 +59,11 @@ pub fn load_mesh(spec: &str, opts: &LoadOptions) -> Result<(Mesh, LengthUnit), E
         }
         "mouse" => {
             let mut m = mesh::mouse();
+            m.set_fixed_group(&opts.fixed_group)?;
+            (m, LengthUnit::Millimetre)
+        }
+        "phantom" => {
+            let mut m = mesh::phantom();
             m.set_fixed_group(&opts.fixed_group)?;
             (m, LengthUnit::Millimetre)
         }
@@ -77,6 +86,9 @@ pub fn load_mesh(spec: &str, opts: &LoadOptions) -> Result<(Mesh, LengthUnit), E
         mesh.material.poisson = nu;
     }
     mesh.material.validate()?;
+    if !opts.regions.is_empty() {
+        mesh.set_regions(&opts.regions)?;
+    }
     Ok((mesh, unit))
 }
 

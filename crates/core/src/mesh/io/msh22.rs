@@ -64,11 +64,13 @@ pub(super) fn unsupported_3d(ty: i32) -> String {
     )
 }
 
-/// A tet as read: its element tag, where it was (for errors) and its node tags.
+/// A tet as read: its element tag, where it was (for errors), its node tags and its physical
+/// group (0: none).
 struct RawTet {
     tag: u64,
     pos: usize,
     nodes: [u64; 4],
+    phys: i32,
 }
 
 /// Node coordinates in file order and the index of each node tag.
@@ -146,7 +148,20 @@ pub(super) fn parse(data: &[u8], path: &Path) -> Result<RawMesh, MeshError> {
     let raw_tets = s.tets.ok_or_else(|| c.err(0, "no $Elements section"))?;
     let resolve = |t: u64| tag_index.get(&t).copied();
     let mut tets = Vec::with_capacity(raw_tets.len());
+    // Tet sets of the physical volume groups: every named or used volume group, even if empty.
+    let mut tet_groups = Groups::new();
+    for &(dim, phys) in s.names.keys() {
+        if dim == 3 {
+            tet_groups.entry(group_name(&s.names, 3, phys)).or_default();
+        }
+    }
     for t in &raw_tets {
+        if t.phys != 0 {
+            tet_groups
+                .entry(group_name(&s.names, 3, t.phys))
+                .or_default()
+                .push(tets.len());
+        }
         let mut idx = [0usize; 4];
         for (k, &n) in t.nodes.iter().enumerate() {
             idx[k] = resolve(n).ok_or_else(|| {
@@ -185,6 +200,7 @@ pub(super) fn parse(data: &[u8], path: &Path) -> Result<RawMesh, MeshError> {
         nodes,
         tets,
         node_groups: finish_groups(groups),
+        tet_groups: finish_groups(tet_groups),
     })
 }
 
@@ -289,7 +305,12 @@ fn read_elements(
             let Ok(t) = <[u64; 4]>::try_from(nodes) else {
                 return Err(format!("element {tag}: a tetrahedron needs 4 nodes"));
             };
-            tets.push(RawTet { tag, pos, nodes: t });
+            tets.push(RawTet {
+                tag,
+                pos,
+                nodes: t,
+                phys,
+            });
         } else if dim == 3 {
             return Err(format!("element {tag}: {}", unsupported_3d(ty)));
         }

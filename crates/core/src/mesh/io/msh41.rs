@@ -219,6 +219,20 @@ fn convert(
         }
     }
     let mut groups = Groups::new();
+    // Tet sets of the physical volume groups: every named or used volume group, even if empty.
+    let mut tet_groups = Groups::new();
+    for &(dim, tag) in names.keys() {
+        if dim == 3 {
+            tet_groups.entry(group_name(names, 3, tag)).or_default();
+        }
+    }
+    for (&(dim, _), tags) in &phys {
+        if dim == 3 {
+            for &p in tags {
+                tet_groups.entry(group_name(names, 3, p)).or_default();
+            }
+        }
+    }
 
     let mut nodes = Vec::new();
     let mut tag_index: HashMap<u64, usize> = HashMap::new();
@@ -299,6 +313,7 @@ fn convert(
             continue;
         }
         let mut group_nodes = Vec::new();
+        let first_tet = tets.len();
         for el in &block.elements {
             let mut idx = Vec::with_capacity(el.nodes.len());
             for &t in &el.nodes {
@@ -325,12 +340,19 @@ fn convert(
                 .entry(group_name(names, block.entity_dim, p))
                 .or_default()
                 .extend_from_slice(&group_nodes);
+            if is_tet && block.entity_dim == 3 {
+                tet_groups
+                    .entry(group_name(names, 3, p))
+                    .or_default()
+                    .extend(first_tet..tets.len());
+            }
         }
     }
     Ok(RawMesh {
         nodes,
         tets,
         node_groups: finish_groups(groups),
+        tet_groups: finish_groups(tet_groups),
     })
 }
 

@@ -35,6 +35,7 @@ pub(super) fn parse(
         nodes,
         tets,
         node_groups: finish_groups(groups),
+        tet_groups: Default::default(),
     })
 }
 
