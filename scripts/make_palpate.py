@@ -14,6 +14,7 @@ Output: MSH 4.1 binary with only the physical groups' elements:
   physical volume  "tissue" (the block minus the ball; linear tets)
   physical volume  "nodule" (the ball; linear tets)
   physical surface "fixed"  (the bottom face z = 0, triangles)
+  physical surface "top"    (the top face z = 20, where the finger palpates)
 The materials are not in the file: the scene gives them (scenes/palpate.toml).
 
 Deterministic: single-threaded Gmsh with a fixed random seed.
@@ -58,10 +59,16 @@ def main():
         for d, t in gmsh.model.getEntities(2)
         if abs(occ.getCenterOfMass(2, t)[2]) < 1e-9
     ]
-    assert len(bottom) == 1, bottom
+    top = [
+        t
+        for d, t in gmsh.model.getEntities(2)
+        if abs(occ.getCenterOfMass(2, t)[2] - LZ) < 1e-9
+    ]
+    assert len(bottom) == 1 and len(top) == 1, (bottom, top)
     gmsh.model.addPhysicalGroup(3, [tissue], name="tissue")
     gmsh.model.addPhysicalGroup(3, [nodule], name="nodule")
     gmsh.model.addPhysicalGroup(2, bottom, name="fixed")
+    gmsh.model.addPhysicalGroup(2, top, name="top")
 
     # Fine near the top face's middle strip (where a finger presses), finer in the nodule, coarse
     # deep and far.

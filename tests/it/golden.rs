@@ -10,7 +10,10 @@
 //! * the colour map (`Coloring::Displacement`, with the force arrow and the legend):
 //!   `golden/cube_push_top_displacement.png` (Fig. 1b), `golden/mouse_pressed_displacement.png`
 //!   (the mouse pressed 8 mm, as `poke mouse --at -10,0,60 --push 0,0,-8 --png` draws it) and
-//!   `golden/mouse_pressed_contact.png` (the same from the touched side, `--view contact`).
+//!   `golden/mouse_pressed_contact.png` (the same from the touched side, `--view contact`);
+//! * `golden/palpate_pressed_displacement.png`: the bundled phantom with its nodule ten times
+//!   stiffer (the scene `palpate`), pressed 3 mm straight down above the nodule, coloured by
+//!   |u| with the arrow and the legend.
 //!
 //! Besides the goldens, numbers: under the colour map the pressed cube and mouse show at least
 //! three hues (30° sectors), each on at least 2 % of the object's coloured pixels, the resting
@@ -403,6 +406,51 @@ fn golden_mouse_pressed_contact() {
     check_golden(
         "mouse_pressed_contact",
         &render_press(&f.renderer, mouse_scene(), Some(&p), true, Show::Everything),
+    );
+}
+
+/// The phantom of the scene `palpate` (nodule E = 30 kPa in tissue of 3 kPa), its columns
+/// the free-surface nodes within 8 mm of the top face's centre.
+fn palpate_scene() -> &'static touchfem::scene::Body {
+    static S: OnceLock<touchfem::scene::Body> = OnceLock::new();
+    S.get_or_init(|| {
+        let mut mesh = touchfem::mesh::phantom();
+        let nodule = touchfem::Material {
+            young_pa: 30_000.0,
+            poisson: 0.45,
+        };
+        mesh.set_regions(&[("nodule".into(), nodule)]).expect("nodule");
+        let centre = DVec3::new(0.0, 0.0, 0.02);
+        let cols = mesh
+            .free_surface_nodes()
+            .into_iter()
+            .filter(|&n| mesh.nodes[n as usize].distance(centre) < 0.008)
+            .collect();
+        let sel = Selection {
+            rows: touchfem::compliance::NodeSet::Surface,
+            cols: touchfem::compliance::NodeSet::Nodes(cols),
+        };
+        touchfem::scene::Body::new(mesh, &sel).expect("phantom compliance")
+    })
+}
+
+#[test]
+fn golden_palpate_pressed_displacement() {
+    let f = fixture();
+    let p = press(
+        palpate_scene(),
+        DVec3::new(0.0, 0.0, 0.02),
+        DVec3::new(0.0, 0.0, -0.003),
+    );
+    check_golden(
+        "palpate_pressed_displacement",
+        &render_press(
+            &f.renderer,
+            palpate_scene(),
+            Some(&p),
+            false,
+            Show::Everything,
+        ),
     );
 }
 

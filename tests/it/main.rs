@@ -18,6 +18,7 @@ mod mesh_io;
 mod near;
 mod physics;
 mod precompute;
+mod regions;
 mod runtime;
 mod scene_file;
 mod session;

@@ -5,8 +5,9 @@ use clap::{Args, Parser, Subcommand};
 use glam::DVec3;
 use std::path::PathBuf;
 
-use touchfem_core::scene::LoadOptions;
-use touchfem_core::units::LengthUnit;
+use touchfem_core::mesh::Mesh;
+use touchfem_core::scene::{load_mesh, LoadOptions};
+use touchfem_core::units::{LengthUnit, Material};
 
 /// Touch and see soft objects in real time (Hirota & Kaneko's precomputed-compliance FEM).
 #[derive(Parser, Debug)]
@@ -236,6 +237,19 @@ pub struct LoadArgs {
     /// Poisson's ratio, in (-1, 0.5) (default: the bundled mesh's, else 0.3).
     #[arg(long, value_name = "NU", value_parser = parse_poisson, allow_hyphen_values = true)]
     pub poisson: Option<f64>,
+    /// The tets of the Gmsh physical volume group GROUP have Young's modulus E (Pa, in
+    /// (0, 1e13]) and Poisson's ratio NU (in (-1, 0.5)); repeatable, the groups disjoint.
+    #[arg(long = "region", value_name = "GROUP=E,NU", value_parser = parse_region, allow_hyphen_values = true)]
+    pub regions: Vec<RegionArg>,
+}
+
+/// One `--region GROUP=E,NU`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RegionArg {
+    /// The physical volume group.
+    pub group: String,
+    /// Its material.
+    pub material: Material,
 }
 
 impl LoadArgs {
@@ -246,8 +260,60 @@ impl LoadArgs {
             young_pa: self.young,
             poisson: self.poisson,
             fixed_group: self.fixed.clone(),
+            regions: self
+                .regions
+                .iter()
+                .map(|r| (r.group.clone(), r.material))
+                .collect(),
         }
     }
+
+    /// Loads the mesh `spec` with these flags ([`load_mesh`]); a region's error names the
+    /// `--region` flag and its value.
+    pub fn load(&self, spec: &str) -> Result<(Mesh, LengthUnit), crate::error::Error> {
+        use touchfem_core::MeshError as M;
+        load_mesh(spec, &self.options()).map_err(|e| {
+            let group = match &e {
+                touchfem_core::Error::Mesh(
+                    M::NoVolumeGroup { name, .. }
+                    | M::NotVolumeGroup { name, .. }
+                    | M::EmptyVolumeGroup { name },
+                ) => Some(name),
+                touchfem_core::Error::Mesh(M::OverlappingRegions { second, .. }) => Some(second),
+                touchfem_core::Error::Mesh(M::BadRegionMaterial { group, .. }) => Some(group),
+                _ => None,
+            };
+            match group.and_then(|g| self.regions.iter().rev().find(|r| &r.group == g)) {
+                Some(r) => crate::error::Error::Input(format!(
+                    "--region {}={},{}: {e}",
+                    r.group, r.material.young_pa, r.material.poisson
+                )),
+                None => e.into(),
+            }
+        })
+    }
+}
+
+/// Parses `--region GROUP=E,NU`: a non-empty group name, E in (0, 1e13] Pa and NU in
+/// (−1, 0.5).
+pub fn parse_region(s: &str) -> Result<RegionArg, String> {
+    let bad = |why: String| format!("expected GROUP=E,NU (e.g. nodule=30000,0.45): {why}");
+    let (group, numbers) = s
+        .rsplit_once('=')
+        .ok_or_else(|| bad(format!("no '=' in '{s}'")))?;
+    let group = group.trim();
+    if group.is_empty() {
+        return Err(bad("the group name is empty".into()));
+    }
+    let (e, nu) = numbers
+        .split_once(',')
+        .ok_or_else(|| bad(format!("'{numbers}' is not E,NU")))?;
+    let young_pa = parse_young(e).map_err(|m| bad(format!("Young's modulus: {m}")))?;
+    let poisson = parse_poisson(nu).map_err(|m| bad(format!("Poisson's ratio: {m}")))?;
+    Ok(RegionArg {
+        group: group.to_string(),
+        material: Material { young_pa, poisson },
+    })
 }
 
 /// `touchfem poke` flags.
@@ -270,7 +336,8 @@ pub struct PokeArgs {
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
-    /// Write a VTK XML unstructured grid with displacement, force and fixed arrays.
+    /// Write a VTK XML unstructured grid with displacement, force and fixed point arrays and
+    /// young, poisson and region cell arrays.
     #[arg(long)]
     pub vtu: Option<PathBuf>,
     /// Render the poke (deformed surface, finger and god-object) to this PNG (GPU; lavapipe

@@ -6,7 +6,7 @@ use glam::DVec3;
 
 use touchfem_core::compliance::Selection;
 use touchfem_core::force::ForceModel;
-use touchfem_core::scene::{load_mesh, Body};
+use touchfem_core::scene::Body;
 
 use crate::error::Error;
 
@@ -456,7 +456,7 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
 }
 
 fn info(spec: &str, load: &LoadArgs, json: bool) -> Result<(), Error> {
-    let (mesh, unit) = load_mesh(spec, &load.options())?;
+    let (mesh, unit) = load.load(spec)?;
     let t = mesh.table1();
     let cond = touchfem_core::conditioning::estimate(&mesh, 60)?;
     let (e32, e16) = touchfem_core::conditioning::predict_storage_error(&mesh)?;
@@ -475,6 +475,18 @@ fn info(spec: &str, load: &LoadArgs, json: bool) -> Result<(), Error> {
         v["fixed_nodes"] = serde_json::json!(mesh.fixed_count());
         v["reoriented_tets"] = serde_json::json!(mesh.report.reoriented_tets.len());
         v["dropped_nodes"] = serde_json::json!(mesh.report.dropped_nodes.len());
+        v["regions"] = mesh
+            .regions
+            .iter()
+            .map(|r| {
+                serde_json::json!({
+                    "group": r.group,
+                    "tets": r.tets.len(),
+                    "young": r.material.young_pa,
+                    "poisson": r.material.poisson,
+                })
+            })
+            .collect();
         println!("{v}");
     } else {
         println!("mesh                 {spec} (coordinates in {unit})");
@@ -485,6 +497,15 @@ fn info(spec: &str, load: &LoadArgs, json: bool) -> Result<(), Error> {
         println!("tetrahedral elements {}", t.tets);
         println!("Young's modulus      {} Pa", t.young_pa);
         println!("Poisson's ratio      {}", t.poisson);
+        for r in &mesh.regions {
+            println!(
+                "region {:<13} {} tets, E = {} Pa, nu = {}",
+                r.group,
+                r.tets.len(),
+                r.material.young_pa,
+                r.material.poisson
+            );
+        }
         println!(
             "condition of K       {:.2e} (eigenvalues {:.3e} … {:.3e} N/m, estimated)",
             cond.condition_estimate, cond.lambda_min, cond.lambda_max
@@ -517,7 +538,7 @@ fn report_changes(mesh: &touchfem_core::Mesh) {
 }
 
 fn poke(a: &PokeArgs) -> Result<(), Error> {
-    let (mesh, unit) = load_mesh(&a.mesh, &a.load.options())?;
+    let (mesh, unit) = a.load.load(&a.mesh)?;
     if !a.json {
         report_changes(&mesh);
     }

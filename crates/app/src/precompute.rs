@@ -10,7 +10,7 @@ use touchfem_core::cache;
 use touchfem_core::compliance::Selection;
 use touchfem_core::precompute::precompute_to_file;
 use touchfem_core::scene::file::{cache_dir, cache_file, PlannedObject};
-use touchfem_core::scene::{load_mesh, SceneSource, World};
+use touchfem_core::scene::{SceneSource, World};
 
 use crate::args::PrecomputeArgs;
 
@@ -27,7 +27,7 @@ fn objects(args: &PrecomputeArgs, spec: &str) -> Result<Vec<PlannedObject>, Erro
     if let Some(src) = SceneSource::find(spec)? {
         return Ok(World::plan(&src)?);
     }
-    let (mesh, _) = load_mesh(spec, &args.load.options())?;
+    let (mesh, _) = args.load.load(spec)?;
     let selection = Selection::default();
     let key = cache::key(&mesh, &selection);
     let name = Path::new(spec)

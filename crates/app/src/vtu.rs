@@ -1,6 +1,7 @@
 //! VTK XML UnstructuredGrid output (readable by ParaView and meshio): the tets with point arrays
 //! `displacement` (m), `force` (N, the external nodal force applied) and `fixed` (1 on clamped
-//! nodes). Points in metres.
+//! nodes), and cell arrays `young` (Pa), `poisson` and `region` (0 for the object's material,
+//! k for its k-th region, in the order given). Points in metres.
 
 use glam::DVec3;
 use std::fmt::Write as _;
@@ -63,7 +64,20 @@ pub(crate) fn write_vtu(
     for &f in &mesh.fixed {
         s.push_str(if f { "1\n" } else { "0\n" });
     }
-    s.push_str("</DataArray>\n</PointData>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
+    s.push_str("</DataArray>\n</PointData>\n<CellData Scalars=\"young\">\n");
+    s.push_str("<DataArray type=\"Float64\" Name=\"young\" format=\"ascii\">\n");
+    for t in 0..mesh.tets.len() {
+        let _ = writeln!(s, "{:e}", mesh.tet_material(t).young_pa);
+    }
+    s.push_str("</DataArray>\n<DataArray type=\"Float64\" Name=\"poisson\" format=\"ascii\">\n");
+    for t in 0..mesh.tets.len() {
+        let _ = writeln!(s, "{:e}", mesh.tet_material(t).poisson);
+    }
+    s.push_str("</DataArray>\n<DataArray type=\"Int32\" Name=\"region\" format=\"ascii\">\n");
+    for k in mesh.tet_region_index() {
+        let _ = writeln!(s, "{k}");
+    }
+    s.push_str("</DataArray>\n</CellData>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
     std::fs::write(path, s).map_err(|source| crate::error::Error::Write {
         path: path.to_path_buf(),
         source,

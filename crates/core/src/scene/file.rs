@@ -28,6 +28,7 @@ pub const BUNDLED_SCENES: &[(&str, &str)] = &[
     ("fig1", include_str!("../../../../scenes/fig1.toml")),
     ("fig2", include_str!("../../../../scenes/fig2.toml")),
     ("pinch", include_str!("../../../../scenes/pinch.toml")),
+    ("palpate", include_str!("../../../../scenes/palpate.toml")),
 ];
 
 #[derive(Debug, Deserialize)]
@@ -130,7 +131,7 @@ pub struct SceneSource {
 }
 
 impl SceneSource {
-    /// A bundled scene (`fig1`, `fig2`, `pinch`) or a scene file; `None` if `spec` is neither a
+    /// A bundled scene (`fig1`, `fig2`, `pinch`, `palpate`) or a scene file; `None` if `spec` is neither a
     /// bundled name nor a `.toml` path.
     pub fn find(spec: &str) -> Result<Option<SceneSource>, Error> {
         if let Some((name, text)) = BUNDLED_SCENES.iter().find(|(n, _)| *n == spec) {
