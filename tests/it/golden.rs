@@ -419,7 +419,8 @@ fn palpate_scene() -> &'static touchfem::scene::Body {
             young_pa: 30_000.0,
             poisson: 0.45,
         };
-        mesh.set_regions(&[("nodule".into(), nodule)]).expect("nodule");
+        mesh.set_regions(&[("nodule".into(), nodule)])
+            .expect("nodule");
         let centre = DVec3::new(0.0, 0.0, 0.02);
         let cols = mesh
             .free_surface_nodes()

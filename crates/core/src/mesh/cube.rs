@@ -133,7 +133,8 @@ pub fn phantom() -> Mesh {
     };
     let mut m = Mesh::from_raw(raw, LengthUnit::Millimetre, material)
         .expect("the bundled phantom is valid");
-    m.set_fixed_group("fixed").expect("the phantom has a bottom");
+    m.set_fixed_group("fixed")
+        .expect("the phantom has a bottom");
     m
 }
 

@@ -455,7 +455,11 @@ impl Mesh {
             if self.tet_groups.is_empty() {
                 "none".to_string()
             } else {
-                self.tet_groups.keys().cloned().collect::<Vec<_>>().join(", ")
+                self.tet_groups
+                    .keys()
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join(", ")
             }
         };
         let mut tet_region = vec![0u32; self.tets.len()];

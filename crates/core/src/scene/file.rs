@@ -465,7 +465,10 @@ impl World {
                         let r = r.get_ref();
                         let material = crate::units::Material {
                             young_pa: *r.young.get_ref(),
-                            poisson: r.poisson.as_ref().map_or(mesh.material.poisson, |v| *v.get_ref()),
+                            poisson: r
+                                .poisson
+                                .as_ref()
+                                .map_or(mesh.material.poisson, |v| *v.get_ref()),
                         };
                         (r.group.get_ref().clone(), material)
                     })
