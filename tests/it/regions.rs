@@ -251,6 +251,7 @@ fn two_regions_match_an_independent_dense_fem() {
         let want = reference_solve(&m, &material_of, &forces);
         let got = solve_static(&m, &forces).unwrap();
         let e = rel_err(&got, &want);
+        eprintln!("{specs:?}: solve_static vs dense {e:.1e}");
         assert!(e < 1e-10, "{specs:?}: solve_static vs dense {e:e}");
         // The precomputed compliance, L·F over the surface.
         let cols: Vec<u32> = forces.iter().map(|f| f.0).collect();
@@ -267,6 +268,7 @@ fn two_regions_match_an_independent_dense_fem() {
         c.displace(&entries, &mut u);
         let want_rows: Vec<DVec3> = c.rows().iter().map(|&n| want[n as usize]).collect();
         let e = rel_err(&u, &want_rows);
+        eprintln!("{specs:?}: L·F vs dense {e:.1e}");
         assert!(e < 1e-10, "{specs:?}: L·F vs dense {e:e}");
         // The regions matter: far from the one-material answer.
         let d = rel_err(&want, &uniform);
@@ -897,4 +899,33 @@ fn the_palpate_trace_rises_over_the_nodule() {
     );
     assert!(beside > 0.005, "the finger presses: {beside}");
     assert!(over / beside > 1.2, "{over} vs {beside}");
+}
+
+/// `view palpate` can be pressed: a scene of scripted fingers gets the window's pointer as
+/// one more finger, written into the scene's text (so a recorded session replays it, the
+/// hash of the text being the session's); a mesh keeps its one pointer finger.
+#[test]
+fn view_adds_the_pointer_to_a_scripted_scene() {
+    use touchfem::scene::DeviceSpec;
+    use touchfem_app::window::cli::load_with_pointer;
+    let w = load_with_pointer("palpate", None).unwrap();
+    assert_eq!(w.fingers.len(), 2);
+    assert!(matches!(w.fingers[0].device, DeviceSpec::Script(_)));
+    assert!(matches!(w.fingers[1].device, DeviceSpec::Pointer));
+    assert_eq!(w.objects[0].body.mesh.regions.len(), 1);
+    let again = World::from_source_with(
+        &SceneSource {
+            name: w.name.clone(),
+            text: w.source.clone(),
+            dir: w.dir.clone(),
+            label: "palpate".into(),
+        },
+        None,
+    )
+    .unwrap();
+    assert_eq!(again.hash, w.hash);
+    assert_eq!(again.fingers, w.fingers);
+    let cube = load_with_pointer("cube", None).unwrap();
+    assert_eq!(cube.fingers.len(), 1);
+    assert!(matches!(cube.fingers[0].device, DeviceSpec::Pointer));
 }

@@ -1,5 +1,6 @@
 //! `touchfem view`: loads the scene, starts the haptic loop and runs the window.
 
+use std::path::Path;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
@@ -7,10 +8,12 @@ use super::WindowOptions;
 use crate::error::Error;
 use touchfem_core::devices::pointer::{PointerDevice, PointerShared};
 use touchfem_core::devices::{HapticDevice, KeyframePath};
+use touchfem_core::force::MAX_FINGERS;
 use touchfem_core::runtime::{
     join_haptic, run_haptic, sample_channel, session, DoneGuard, LiveStatus,
 };
-use touchfem_core::scene::{DeviceSpec, World};
+use touchfem_core::scene::file::{cache_dir, Hold};
+use touchfem_core::scene::{DeviceSpec, SceneSource, World};
 
 /// The devices of a scene's fingers in `view`: the first `pointer` finger is the window's
 /// pointer, scripted fingers follow their paths; other devices are refused.
@@ -42,6 +45,30 @@ fn devices(
     Ok(out)
 }
 
+/// Loads `spec` for `view`, keeping on the host only the near blocks of `L` (`Hold::Live`).
+/// The window's pointer is always a finger: a scene without a `pointer` finger (one of
+/// scripted fingers only, such as `palpate`) gets one more, `[[finger]] device = "pointer"`
+/// appended to its text, so that a recorded session replays it; when the scene already has
+/// [`MAX_FINGERS`] fingers it is shown as it is. Compliances are cached in `cache` (`None`: no
+/// cache).
+pub fn load_with_pointer(spec: &str, cache: Option<&Path>) -> Result<World, Error> {
+    let mut src =
+        SceneSource::find(spec)?.unwrap_or_else(|| SceneSource::for_mesh(spec, "pointer"));
+    let world = World::from_source_holding(&src, cache, Hold::Live)?;
+    let has_pointer = world
+        .fingers
+        .iter()
+        .any(|f| matches!(f.device, DeviceSpec::Pointer));
+    if has_pointer || world.fingers.len() >= MAX_FINGERS {
+        return Ok(world);
+    }
+    // The compliance does not depend on the fingers: the second load reads the cache the first
+    // wrote (or, with the cache off, computes it again). A text that cannot take one more
+    // `[[finger]]` table (an inline `finger = [...]` array) is shown as it is.
+    src.text.push_str("\n[[finger]]\ndevice = \"pointer\"\n");
+    Ok(World::from_source_holding(&src, cache, Hold::Live).unwrap_or(world))
+}
+
 /// Runs `touchfem view SCENE|MESH`: the window on the main thread (the visual core), the
 /// haptic loop ([`run_haptic`], the same as the demo's) on its own thread (the haptic core),
 /// lavapipe inline on its queue thread (`LP_NUM_THREADS=0` unless set). A mesh is shown as a
@@ -52,8 +79,7 @@ pub(crate) fn view_command(args: &crate::args::ViewArgs) -> Result<(), Error> {
     if std::env::var_os("LP_NUM_THREADS").is_none() {
         std::env::set_var("LP_NUM_THREADS", "0");
     }
-    // One finger and a large L: only its near blocks on the host (`Hold::Live`).
-    let world = World::load_live(&args.scene, "pointer")?;
+    let world = load_with_pointer(&args.scene, cache_dir().as_deref())?;
     let pointer = Arc::new(PointerShared::default());
     let mut devs = devices(&world, &pointer)?;
     let has_pointer = world
