@@ -1,6 +1,6 @@
-//! Scene files (TOML; the schema is in `docs/reference/scene-schema.md`): parsing with serde and the
-//! `toml` crate, then validation and loading into a [`World`]. Every error names the file, the
-//! line and the key.
+//! Scene files (TOML; the schema is in `docs/reference/scene-schema.md`): parsing with serde
+//! and the `toml` crate, then validation and loading into a [`World`]. Every error names the
+//! file, the line and the key.
 //!
 //! Only what the scene names is precomputed: rows for each object's displayed surface, columns
 //! for its touchable nodes (`touchable`: the free surface, a group, or a ball). Compliances are
