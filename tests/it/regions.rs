@@ -573,14 +573,15 @@ fn bad_region_flags_name_the_flag() {
         .to_vec()
     };
     let (m, e) = (mesh, empty);
-    let mut cases: Vec<(Vec<String>, &str)> = Vec::new();
-    cases.push((
-        poke(m, "nodule=30000,0.45"),
-        "no physical volume group named 'nodule'",
-    ));
-    cases.push((poke(m, "top=30000,0.45"), "not a physical volume group"));
-    cases.push((poke(m, "fixed=30000,0.45"), "not a physical volume group"));
-    cases.push((poke(e, "ghost=30000,0.45"), "holds no tetrahedra"));
+    let mut cases: Vec<(Vec<String>, &str)> = vec![
+        (
+            poke(m, "nodule=30000,0.45"),
+            "no physical volume group named 'nodule'",
+        ),
+        (poke(m, "top=30000,0.45"), "not a physical volume group"),
+        (poke(m, "fixed=30000,0.45"), "not a physical volume group"),
+        (poke(e, "ghost=30000,0.45"), "holds no tetrahedra"),
+    ];
     for bad in [
         "hard=0,0.3",
         "hard=-5,0.3",
