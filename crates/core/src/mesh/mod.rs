@@ -489,7 +489,7 @@ impl Mesh {
                 .map_err(|e| MeshError::BadRegionMaterial {
                     group: group.clone(),
                     msg: match e {
-                        crate::fem::FemError::BadMaterial(m) => m,
+                        crate::fem::error::FemError::BadMaterial(m) => m,
                         other => other.to_string(),
                     },
                 })?;
@@ -519,12 +519,12 @@ impl Mesh {
     }
 
     /// Checks the base material and every region's (see [`Material::validate`]).
-    pub fn validate_materials(&self) -> Result<(), crate::fem::FemError> {
+    pub fn validate_materials(&self) -> Result<(), crate::fem::error::FemError> {
         self.material.validate()?;
         for r in &self.regions {
             r.material.validate().map_err(|e| match e {
-                crate::fem::FemError::BadMaterial(m) => {
-                    crate::fem::FemError::BadMaterial(format!("region '{}': {m}", r.group))
+                crate::fem::error::FemError::BadMaterial(m) => {
+                    crate::fem::error::FemError::BadMaterial(format!("region '{}': {m}", r.group))
                 }
                 other => other,
             })?;
