@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use touchfem_core::mesh::Mesh;
 use touchfem_core::scene::{load_mesh, LoadOptions};
-use touchfem_core::units::{LengthUnit, Material};
+use touchfem_core::units::{Formulation, LengthUnit, Material};
 
 /// Touch and see soft objects in real time (Hirota & Kaneko's precomputed-compliance FEM).
 #[derive(Parser, Debug)]
@@ -237,6 +237,10 @@ pub struct LoadArgs {
     /// Poisson's ratio, in (-1, 0.5) (default: the bundled mesh's, else 0.3).
     #[arg(long, value_name = "NU", value_parser = parse_poisson, allow_hyphen_values = true)]
     pub poisson: Option<f64>,
+    /// How the stiffness treats the volumetric strain: standard (linear tets as in the paper;
+    /// locks as ν → 0.5) or locking-free (nodally averaged dilatation; for ν near 0.5).
+    #[arg(long, value_name = "standard|locking-free", value_parser = parse_formulation)]
+    pub formulation: Option<Formulation>,
     /// The tets of the Gmsh physical volume group GROUP have Young's modulus E (Pa, in
     /// (0, 1e13]) and Poisson's ratio NU (in (-1, 0.5)); repeatable, the groups disjoint.
     #[arg(long = "region", value_name = "GROUP=E,NU", value_parser = parse_region, allow_hyphen_values = true)]
@@ -259,6 +263,7 @@ impl LoadArgs {
             unit: self.unit,
             young_pa: self.young,
             poisson: self.poisson,
+            formulation: self.formulation,
             fixed_group: self.fixed.clone(),
             regions: self
                 .regions
@@ -445,6 +450,11 @@ pub fn parse_poisson(s: &str) -> Result<f64, String> {
         Err(e) if e.ends_with(']') => Err(e.replace(", 0.5]", ", 0.5)")),
         Err(e) => Err(e),
     }
+}
+
+/// `--formulation`: `standard` or `locking-free`.
+pub fn parse_formulation(s: &str) -> Result<Formulation, String> {
+    s.trim().parse()
 }
 
 /// `poke --steps`: 1 to 1000000 haptic ticks.

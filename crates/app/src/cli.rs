@@ -472,6 +472,7 @@ fn info(spec: &str, load: &LoadArgs, json: bool) -> Result<(), Error> {
         v["f32_storage_error"] = serde_json::json!(e32);
         v["f16_storage_error"] = serde_json::json!(e16);
         v["unit"] = serde_json::json!(unit.symbol());
+        v["formulation"] = serde_json::json!(mesh.formulation.name());
         v["fixed_nodes"] = serde_json::json!(mesh.fixed_count());
         v["reoriented_tets"] = serde_json::json!(mesh.report.reoriented_tets.len());
         v["dropped_nodes"] = serde_json::json!(mesh.report.dropped_nodes.len());
@@ -506,6 +507,7 @@ fn info(spec: &str, load: &LoadArgs, json: bool) -> Result<(), Error> {
                 r.material.poisson
             );
         }
+        println!("formulation          {}", mesh.formulation);
         println!(
             "condition of K       {:.2e} (eigenvalues {:.3e} … {:.3e} N/m, estimated)",
             cond.condition_estimate, cond.lambda_min, cond.lambda_max

@@ -10,7 +10,7 @@
 //! rows         u32      R
 //! cols         u32      C
 //! batch        u32      columns per batch (compliance::BATCH_COLS)
-//! key          u64      xxh3 of mesh nodes + tets + material + regions + fixed set + row/column selection
+//! key          u64      xxh3 of mesh nodes + tets + material + regions (+ formulation unless standard) + fixed set + row/column selection
 //! shard        u32 ×2   index I (1-based) and count N; a complete file is 1 of 1
 //! col range    u32 ×2   col_begin, col_end (on the batch grid)
 //! free_dofs    u32
@@ -257,6 +257,11 @@ pub fn key(mesh: &Mesh, sel: &Selection) -> u64 {
         for t in &r.tets {
             h.update(&t.to_le_bytes());
         }
+    }
+    // Only a non-standard formulation is hashed, so standard files keep their keys.
+    if mesh.formulation != crate::units::Formulation::Standard {
+        h.update(b"formulation:");
+        h.update(mesh.formulation.name().as_bytes());
     }
     for &f in &mesh.fixed {
         h.update(&[f as u8]);

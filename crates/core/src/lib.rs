@@ -40,4 +40,4 @@ pub mod units;
 
 pub use error::Error;
 pub use mesh::{Mesh, MeshError, RawMesh};
-pub use units::{LengthUnit, Material};
+pub use units::{Formulation, LengthUnit, Material};

@@ -48,6 +48,48 @@ impl FromStr for LengthUnit {
     }
 }
 
+/// How the volumetric (bulk) part of the linear-elastic energy is discretised. Both give a
+/// linear, symmetric, positive definite `K` on the same DOFs, so `L = K⁻¹`, the force solve
+/// and the GPU pass do not change.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Formulation {
+    /// Constant-strain tets as in the paper: locks as ν → 0.5.
+    #[default]
+    Standard,
+    /// The volumetric strain averaged over the tets around each node (Bonet & Burton 1998), the
+    /// deviatoric part per tet: does not lock as ν → 0.5 (see `fem::locking_free`).
+    LockingFree,
+}
+
+impl Formulation {
+    /// The name used in scene files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Formulation::Standard => "standard",
+            Formulation::LockingFree => "locking-free",
+        }
+    }
+}
+
+impl fmt::Display for Formulation {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Formulation {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "standard" => Ok(Formulation::Standard),
+            "locking-free" => Ok(Formulation::LockingFree),
+            other => Err(format!(
+                "unknown formulation '{other}': use \"standard\" or \"locking-free\""
+            )),
+        }
+    }
+}
+
 /// Isotropic linear-elastic material, SI units.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Material {
@@ -64,13 +106,17 @@ impl Material {
         poisson: 0.3,
     };
 
-    /// Checks that E > 0 and -1 < ν < 0.5, both finite.
+    /// Checks that E > 0 and -1 < ν < 0.5, both finite; ν = 0.5 exactly is
+    /// [`FemError::Incompressible`](crate::fem::error::FemError::Incompressible).
     pub fn validate(&self) -> Result<(), crate::fem::error::FemError> {
         if !(self.young_pa.is_finite() && self.young_pa > 0.0) {
             return Err(crate::fem::error::FemError::BadMaterial(format!(
                 "Young's modulus must be finite and > 0 Pa, got {}",
                 self.young_pa
             )));
+        }
+        if self.poisson == 0.5 {
+            return Err(crate::fem::error::FemError::Incompressible);
         }
         if !(self.poisson.is_finite() && self.poisson > -1.0 && self.poisson < 0.5) {
             return Err(crate::fem::error::FemError::BadMaterial(format!(

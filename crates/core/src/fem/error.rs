@@ -8,6 +8,15 @@ pub enum FemError {
     /// E or ν out of range.
     #[error("bad material: {0}")]
     BadMaterial(String),
+    /// ν = 0.5 exactly: the bulk modulus is infinite, and a displacement-only `K` (either
+    /// formulation) cannot hold it; that needs a mixed displacement–pressure solve, which
+    /// touchfem does not have.
+    #[error(
+        "Poisson's ratio 0.5 (exactly incompressible) has an infinite bulk modulus: no \
+         displacement-only stiffness holds it; use 0.4999 with formulation \"locking-free\" \
+         (the standard formulation locks there)"
+    )]
+    Incompressible,
     /// No node is clamped: the stiffness is singular (six rigid-body modes).
     #[error(
         "no node is fixed: the object can move freely and its stiffness is singular \

@@ -10,6 +10,7 @@ use crate::mesh::Mesh;
 use crate::units::Material;
 
 pub mod error;
+pub mod locking_free;
 pub use error::FemError;
 
 /// The numbering of free (unclamped) DOFs: DOF `3·node + axis` → free index.
@@ -134,8 +135,12 @@ pub(crate) fn element_stiffness(p: [DVec3; 4], mat: &Material) -> [[f64; 12]; 12
     k
 }
 
-/// The full (unconstrained) global stiffness as a dense matrix, for tests on small meshes.
+/// The full (unconstrained) global stiffness as a dense matrix, for tests on small meshes
+/// (of the mesh's formulation).
 pub fn dense_stiffness(mesh: &Mesh) -> Vec<Vec<f64>> {
+    if locking_free::wanted(mesh) {
+        return locking_free::dense(mesh, locking_free::Smoothing::CHOSEN);
+    }
     let n = mesh.nodes.len() * 3;
     let mut k = vec![vec![0.0; n]; n];
     for (ti, t) in mesh.tets.iter().enumerate() {
@@ -146,6 +151,21 @@ pub fn dense_stiffness(mesh: &Mesh) -> Vec<Vec<f64>> {
                     for j in 0..3 {
                         k[3 * t[a] as usize + i][3 * t[b] as usize + j] += ke[3 * a + i][3 * b + j];
                     }
+                }
+            }
+        }
+    }
+    k
+}
+
+/// A dense matrix of `nodes` nodes' DOFs from 3×3 node-pair blocks.
+fn dense_from_blocks(nodes: usize, blocks: &[Vec<(u32, [f64; 9])>]) -> Vec<Vec<f64>> {
+    let mut k = vec![vec![0.0; 3 * nodes]; 3 * nodes];
+    for (a, row) in blocks.iter().enumerate() {
+        for (b, m) in row {
+            for i in 0..3 {
+                for j in 0..3 {
+                    k[3 * a + i][3 * *b as usize + j] += m[3 * i + j];
                 }
             }
         }
@@ -343,13 +363,15 @@ fn nested_dissection(coords: &[DVec3], ptr: &[usize], idx: &[usize]) -> Vec<usiz
 }
 
 impl Stiffness {
-    /// Assembles K with the clamped DOFs eliminated, each tet of its own material
-    /// ([`Mesh::tet_material`]). Checks the materials and that every
+    /// Assembles K with the clamped DOFs eliminated, in the mesh's formulation, each tet of its
+    /// own material ([`Mesh::tet_material`]). Checks the materials and that every
     /// connected part of the mesh is held by at least three non-collinear clamped nodes.
     pub fn assemble(mesh: &Mesh) -> Result<Stiffness, FemError> {
+        if locking_free::wanted(mesh) {
+            return locking_free::stiffness(mesh, locking_free::Smoothing::CHOSEN);
+        }
         mesh.validate_materials()?;
         check_constrained(mesh)?;
-        let dofs = Dofs::new(&mesh.fixed);
         // Sum element matrices into 3×3 node-pair blocks first (each node has a few dozen
         // neighbours), so the sparse constructor sorts ~9× fewer triplets.
         let mut blocks: Vec<Vec<(u32, [f64; 9])>> = vec![Vec::new(); mesh.nodes.len()];
@@ -379,7 +401,14 @@ impl Stiffness {
                 }
             }
         }
-        let k = csc_from_blocks(&dofs, &blocks)?;
+        Stiffness::from_blocks(mesh, &blocks)
+    }
+
+    /// The stiffness from 3×3 node-pair blocks (rows of clamped nodes empty, their columns
+    /// absent).
+    fn from_blocks(mesh: &Mesh, blocks: &[Vec<(u32, [f64; 9])>]) -> Result<Stiffness, FemError> {
+        let dofs = Dofs::new(&mesh.fixed);
+        let k = csc_from_blocks(&dofs, blocks)?;
         let free_coords = (0..dofs.n_free / 3)
             .map(|i| mesh.nodes[dofs.owner[3 * i].0 as usize])
             .collect();

@@ -16,7 +16,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 use thiserror::Error;
 
-use crate::units::{LengthUnit, Material};
+use crate::units::{Formulation, LengthUnit, Material};
 
 /// Errors found while reading or validating a mesh. Indices are 0-based, in the file's numbering.
 #[derive(Debug, Error)]
@@ -188,6 +188,8 @@ pub struct Mesh {
     pub regions: Vec<Region>,
     /// Per tet: 0 for [`Mesh::material`], k + 1 for `regions[k]` (empty: no regions).
     tet_region: Vec<u32>,
+    /// How the stiffness discretises the volumetric strain (standard by default).
+    pub formulation: Formulation,
     /// What validation changed.
     pub report: MeshReport,
 }
@@ -422,6 +424,7 @@ impl Mesh {
             material,
             regions: Vec::new(),
             tet_region: Vec::new(),
+            formulation: Formulation::Standard,
             report,
         })
     }

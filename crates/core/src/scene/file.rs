@@ -52,6 +52,7 @@ struct ObjectToml {
     mesh_unit: Option<Spanned<String>>,
     young: Option<Spanned<f64>>,
     poisson: Option<Spanned<f64>>,
+    formulation: Option<Spanned<String>>,
     fixed: Option<Spanned<String>>,
     touchable: Option<Spanned<TouchableToml>>,
     offset: Option<Spanned<[f64; 3]>>,
@@ -387,6 +388,14 @@ impl World {
                     ));
                 }
             }
+            let formulation = match &o.formulation {
+                None => None,
+                Some(f) => Some(
+                    f.get_ref()
+                        .parse::<crate::units::Formulation>()
+                        .map_err(|e| at(f.span(), "formulation", e))?,
+                ),
+            };
             let fixed = o
                 .fixed
                 .as_ref()
@@ -395,6 +404,7 @@ impl World {
                 unit: mesh_unit,
                 young_pa: o.young.as_ref().map(|v| *v.get_ref()),
                 poisson: o.poisson.as_ref().map(|v| *v.get_ref()),
+                formulation,
                 fixed_group: fixed,
                 regions: Vec::new(),
             };
@@ -445,7 +455,9 @@ impl World {
             let (mut mesh, _) = load_mesh(&path, &opts).map_err(|e| {
                 let key = match &e {
                     Error::Mesh(crate::MeshError::MissingGroup { .. }) => "fixed",
-                    Error::Fem(crate::fem::FemError::BadMaterial(..)) => {
+                    Error::Fem(
+                        crate::fem::FemError::BadMaterial(..) | crate::fem::FemError::Incompressible,
+                    ) => {
                         if key_span("poisson").is_some() {
                             "poisson"
                         } else {

@@ -25,6 +25,8 @@ pub struct LoadOptions {
     pub young_pa: Option<f64>,
     /// Poisson's ratio override.
     pub poisson: Option<f64>,
+    /// Formulation override (default: standard).
+    pub formulation: Option<crate::units::Formulation>,
     /// The node group to clamp.
     pub fixed_group: String,
     /// Tets of another material: (physical volume group, material), disjoint (see
@@ -38,6 +40,7 @@ impl Default for LoadOptions {
             unit: None,
             young_pa: None,
             poisson: None,
+            formulation: None,
             fixed_group: "fixed".into(),
             regions: Vec::new(),
         }
@@ -84,6 +87,9 @@ pub fn load_mesh(spec: &str, opts: &LoadOptions) -> Result<(Mesh, LengthUnit), E
     }
     if let Some(nu) = opts.poisson {
         mesh.material.poisson = nu;
+    }
+    if let Some(f) = opts.formulation {
+        mesh.formulation = f;
     }
     mesh.material.validate()?;
     if !opts.regions.is_empty() {
