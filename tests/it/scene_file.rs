@@ -580,3 +580,60 @@ fn huge_numbers_in_scene_files_name_the_key() {
         }
     }
 }
+
+/// `formulation = "locking-free"` reaches the object's stiffness (the press on the paper's
+/// cube, ν = 0.49, is softer than the standard one: locking relieved) and its cache key; an
+/// unknown value names the key and the line; ν = 0.5 is the typed incompressibility error,
+/// naming `poisson`, for both formulations.
+#[test]
+fn the_formulation_key_selects_the_stiffness() {
+    let dir = std::path::Path::new(".");
+    let press = |extra: &str| {
+        let w = load(
+            &format!("unit = \"mm\"\n[[object]]\nmesh = \"cube\"\n{extra}"),
+            dir,
+        )
+        .unwrap();
+        let o = &w.objects[0];
+        let p = o
+            .body
+            .poke(
+                DVec3::new(0.015, 0.015, 0.03),
+                DVec3::new(0.0, 0.0, -0.005),
+                ForceModel::Paper,
+                20,
+            )
+            .unwrap();
+        (
+            o.body.mesh.formulation,
+            p.feedback.length(),
+            touchfem::cache::key(&o.body.mesh, &Selection::default()),
+        )
+    };
+    let (fs, std_f, std_key) = press("");
+    let (fs2, _, std_key2) = press("formulation = \"standard\"\n");
+    let (fl, lf_f, lf_key) = press("formulation = \"locking-free\"\n");
+    assert_eq!(fs, touchfem::Formulation::Standard);
+    assert_eq!(fs2, touchfem::Formulation::Standard);
+    assert_eq!(fl, touchfem::Formulation::LockingFree);
+    assert_eq!(std_key, std_key2, "an explicit standard keeps the key");
+    assert_ne!(std_key, lf_key);
+    assert!(
+        lf_f < 0.9 * std_f,
+        "locking-free {lf_f} N vs standard {std_f} N"
+    );
+    let e = err("[[object]]\nmesh = \"cube\"\nformulation = \"mixed\"\n");
+    assert!(
+        e.contains("line 3") && e.contains("formulation") && e.contains("locking-free"),
+        "{e}"
+    );
+    for f in ["standard", "locking-free"] {
+        let e = err(&format!(
+            "[[object]]\nmesh = \"cube\"\npoisson = 0.5\nformulation = \"{f}\"\n"
+        ));
+        assert!(
+            e.contains("line 3") && e.contains("poisson") && e.contains("incompressible"),
+            "{f}: {e}"
+        );
+    }
+}

@@ -446,7 +446,10 @@ pub fn parse_young(s: &str) -> Result<f64, String> {
 pub fn parse_poisson(s: &str) -> Result<f64, String> {
     match parse_bounded(s, -1.0, 0.5, true) {
         Ok(v) if v < 0.5 => Ok(v),
-        Ok(v) => Err(format!("{v} is outside (-1, 0.5)")),
+        Ok(v) => Err(format!(
+            "{v} is outside (-1, 0.5): 0.5 exactly is incompressible, which no \
+             displacement-only stiffness holds (use 0.4999 with --formulation locking-free)"
+        )),
         Err(e) if e.ends_with(']') => Err(e.replace(", 0.5]", ", 0.5)")),
         Err(e) => Err(e),
     }

@@ -17,7 +17,7 @@ use touchfem_core::fem::Stiffness;
 use touchfem_core::force::ForceModel;
 use touchfem_core::mesh::{grid_raw, Mesh, RawMesh};
 use touchfem_core::scene::Body;
-use touchfem_core::units::{LengthUnit, Material};
+use touchfem_core::units::{Formulation, LengthUnit, Material};
 
 /// One hard case's numbers.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -262,69 +262,96 @@ pub struct LockingRow {
     pub settlement_m: [f64; 3],
     /// Force of the Fig. 1b press (5 mm down at the top centre), N, on 4³ and 8³ cells.
     pub press_force_n: [f64; 2],
+    /// The settlement with the locking-free stiffness ([`Formulation::LockingFree`]), m, on
+    /// 4³, 8³ and 16³ cells.
+    pub locking_free_settlement_m: [f64; 3],
+    /// The press's force with the locking-free stiffness, N, on 4³ and 8³ cells.
+    pub locking_free_press_force_n: [f64; 2],
 }
 
 /// Volumetric locking on the paper's cube (E = 10 kPa) against ν. A distributed load shows
 /// it: the coarse mesh settles less than the fine one (it is too stiff), more so as ν → 0.5.
 /// The paper's point press is shown beside it: its force roughly halves with each refinement
-/// at every ν, since a point load has no limit in 3D, and that hides locking.
+/// at every ν, since a point load has no limit in 3D, and that hides locking. Each row has
+/// the same numbers with the locking-free stiffness beside the standard ones.
 pub fn locking() -> Result<Vec<LockingRow>, crate::error::Error> {
     let mut out = Vec::new();
     for nu in [0.3, 0.45, 0.49, 0.499, 0.4999] {
-        let mut settlement = [0.0; 3];
-        for (i, n) in [4usize, 8, 16].iter().enumerate() {
-            let mesh = touchfem_core::mesh::cube_with([*n; 3], [30.0; 3], paper(nu))?;
-            let top = 0.03 - 1e-9;
-            let mut f = vec![DVec3::ZERO; mesh.nodes.len()];
-            for t in &mesh.surface {
-                let p = t.map(|i| mesh.nodes[i as usize]);
-                if p.iter().all(|q| q.z >= top) {
-                    let area = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
-                    for &v in t {
-                        f[v as usize].z -= 100.0 * area / 3.0;
-                    }
+        let [settlement, lf_settlement] = [Formulation::Standard, Formulation::LockingFree].map(
+            |f| -> Result<[f64; 3], crate::error::Error> {
+                let mut s = [0.0; 3];
+                for (i, n) in [4usize, 8, 16].iter().enumerate() {
+                    let mut mesh = touchfem_core::mesh::cube_with([*n; 3], [30.0; 3], paper(nu))?;
+                    mesh.formulation = f;
+                    s[i] = settlement(&mesh)?;
                 }
-            }
-            let forces: Vec<(u32, DVec3)> = f
-                .iter()
-                .enumerate()
-                .filter(|(_, v)| **v != DVec3::ZERO)
-                .map(|(i, v)| (i as u32, *v))
-                .collect();
-            let u = touchfem_core::fem::solve_static(&mesh, &forces)?;
-            let centre = DVec3::new(0.015, 0.015, 0.03);
-            let c = (0..mesh.nodes.len())
-                .min_by(|&a, &b| {
-                    mesh.nodes[a]
-                        .distance(centre)
-                        .total_cmp(&mesh.nodes[b].distance(centre))
-                })
-                .unwrap_or(0);
-            settlement[i] = -u[c].z;
-        }
-        let mut press = [0.0; 2];
-        for (i, n) in [4usize, 8].iter().enumerate() {
-            let mesh = touchfem_core::mesh::cube_with([*n; 3], [30.0; 3], paper(nu))?;
-            let scene = Body::new(mesh, &Selection::default())?;
-            let p = scene.poke(
-                DVec3::new(0.015, 0.015, 0.03),
-                DVec3::new(0.0, 0.0, -0.005),
-                ForceModel::Paper,
-                20,
-            )?;
-            press[i] = p.feedback.length();
-        }
+                Ok(s)
+            },
+        );
+        let [press, lf_press] = [Formulation::Standard, Formulation::LockingFree].map(
+            |f| -> Result<[f64; 2], crate::error::Error> {
+                let mut press = [0.0; 2];
+                for (i, n) in [4usize, 8].iter().enumerate() {
+                    let mut mesh = touchfem_core::mesh::cube_with([*n; 3], [30.0; 3], paper(nu))?;
+                    mesh.formulation = f;
+                    let scene = Body::new(mesh, &Selection::default())?;
+                    let p = scene.poke(
+                        DVec3::new(0.015, 0.015, 0.03),
+                        DVec3::new(0.0, 0.0, -0.005),
+                        ForceModel::Paper,
+                        20,
+                    )?;
+                    press[i] = p.feedback.length();
+                }
+                Ok(press)
+            },
+        );
         out.push(LockingRow {
             poisson: nu,
-            settlement_m: settlement,
-            press_force_n: press,
+            settlement_m: settlement?,
+            press_force_n: press?,
+            locking_free_settlement_m: lf_settlement?,
+            locking_free_press_force_n: lf_press?,
         });
     }
     Ok(out)
 }
 
+/// The top-centre settlement (m) of the 30 mm cube `mesh` under a uniform 100 Pa pressure on
+/// its top face.
+fn settlement(mesh: &Mesh) -> Result<f64, crate::error::Error> {
+    let top = 0.03 - 1e-9;
+    let mut f = vec![DVec3::ZERO; mesh.nodes.len()];
+    for t in &mesh.surface {
+        let p = t.map(|i| mesh.nodes[i as usize]);
+        if p.iter().all(|q| q.z >= top) {
+            let area = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
+            for &v in t {
+                f[v as usize].z -= 100.0 * area / 3.0;
+            }
+        }
+    }
+    let forces: Vec<(u32, DVec3)> = f
+        .iter()
+        .enumerate()
+        .filter(|(_, v)| **v != DVec3::ZERO)
+        .map(|(i, v)| (i as u32, *v))
+        .collect();
+    let u = touchfem_core::fem::solve_static(mesh, &forces)?;
+    let centre = DVec3::new(0.015, 0.015, 0.03);
+    let c = (0..mesh.nodes.len())
+        .min_by(|&a, &b| {
+            mesh.nodes[a]
+                .distance(centre)
+                .total_cmp(&mesh.nodes[b].distance(centre))
+        })
+        .unwrap_or(0);
+    Ok(-u[c].z)
+}
+
 /// `touchfem bench --hard`: the table (returned, for the caller to print) of every hard case and the locking table; with `json`, writes
-/// them as `{"hard": [HardCase...], "locking": [LockingRow...], "machine"}`.
+/// them as `{"hard": [HardCase...], "locking": [LockingRow...], "locking_free": {"rows",
+/// "references"}, "machine"}` (the last from [`crate::locking_free::study`]).
 pub fn bench(json: Option<&std::path::Path>) -> Result<String, crate::error::Error> {
     let mut out = String::new();
     let cases = cases()?;
@@ -352,29 +379,49 @@ pub fn bench(json: Option<&std::path::Path>) -> Result<String, crate::error::Err
     let _ = writeln!(out, "\nvolumetric locking on the paper's cube: settlement under 100 Pa on the top face, and the Fig. 1b press");
     let _ = writeln!(
         out,
-        "{:>8} {:>11} {:>11} {:>11} {:>10} {:>10} {:>10} {:>10}",
-        "poisson", "u 4^3 um", "u 8^3 um", "u 16^3 um", "4^3/16^3", "F 4^3 N", "F 8^3 N", "F 4/8"
+        "{:>8} {:>13} {:>11} {:>11} {:>11} {:>10} {:>10} {:>10} {:>10}",
+        "poisson",
+        "formulation",
+        "u 4^3 um",
+        "u 8^3 um",
+        "u 16^3 um",
+        "4^3/16^3",
+        "F 4^3 N",
+        "F 8^3 N",
+        "F 4/8"
     );
     for r in &lock {
-        let [a, b, c] = r.settlement_m;
-        let [f4, f8] = r.press_force_n;
-        let _ = writeln!(
-            out,
-            "{:>8} {:>11.3} {:>11.3} {:>11.3} {:>10.3} {:>10.4} {:>10.4} {:>10.3}",
-            r.poisson,
-            a * 1e6,
-            b * 1e6,
-            c * 1e6,
-            a / c,
-            f4,
-            f8,
-            f4 / f8
-        );
+        for (name, [a, b, c], [f4, f8]) in [
+            ("standard", r.settlement_m, r.press_force_n),
+            (
+                "locking-free",
+                r.locking_free_settlement_m,
+                r.locking_free_press_force_n,
+            ),
+        ] {
+            let _ = writeln!(
+                out,
+                "{:>8} {:>13} {:>11.3} {:>11.3} {:>11.3} {:>10.3} {:>10.4} {:>10.4} {:>10.3}",
+                r.poisson,
+                name,
+                a * 1e6,
+                b * 1e6,
+                c * 1e6,
+                a / c,
+                f4,
+                f8,
+                f4 / f8
+            );
+        }
     }
+    let (rows, refs) = crate::locking_free::study(&[0.3, 0.49, 0.4999], &[4, 8], [8, 16, 32])?;
+    let _ = writeln!(out);
+    out.push_str(&crate::locking_free::table(&rows, &refs));
     if let Some(path) = json {
         let v = serde_json::json!({
             "hard": cases,
             "locking": lock,
+            "locking_free": {"rows": rows, "references": refs},
             "machine": crate::report::machine(),
         });
         crate::tradeoff::write_json(path, &v)?;

@@ -16,6 +16,7 @@ use std::fmt::Write as _;
 
 use touchfem_core::compliance::{Compliance, NodeSet, Selection};
 use touchfem_core::mesh::Mesh;
+use touchfem_core::units::Formulation;
 
 /// One rung of the ladder.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -264,10 +265,19 @@ pub fn cube_ladder(
     cells: &[usize],
     precompute_max_nodes: usize,
 ) -> Result<(Vec<Rung>, f64, f64), crate::error::Error> {
+    cube_ladder_with(cells, precompute_max_nodes, Formulation::Standard)
+}
+
+/// [`cube_ladder`] with the stiffness of `formulation`.
+pub fn cube_ladder_with(
+    cells: &[usize],
+    precompute_max_nodes: usize,
+    formulation: Formulation,
+) -> Result<(Vec<Rung>, f64, f64), crate::error::Error> {
     let base = cells.first().copied().unwrap_or(4);
     let mut rungs = Vec::new();
     for &n in cells {
-        let mesh = touchfem_core::mesh::cube_with(
+        let mut mesh = touchfem_core::mesh::cube_with(
             [n; 3],
             [30.0; 3],
             touchfem_core::units::Material {
@@ -275,6 +285,7 @@ pub fn cube_ladder(
                 poisson: 0.49,
             },
         )?;
+        mesh.formulation = formulation;
         // The base grid's nodes, found on this rung by position.
         let probes: Vec<u32> = (0..=base)
             .flat_map(|k| (0..=base).flat_map(move |j| (0..=base).map(move |i| (i, j, k))))
@@ -416,7 +427,8 @@ fn print_rungs(out: &mut String, rungs: &[Rung], limit: f64, order: f64) {
 }
 
 /// `touchfem bench --ladder`: the table of the cube's ladder (returned, for the caller to print) and, where `dir` holds them, the
-/// mouse's; with `json`, writes `{"cube": {...}, "mouse": {...}, "machine"}`, each with
+/// mouse's; with `json`, writes `{"cube": {...}, "cube_locking_free": {...}, "mouse": {...},
+/// "machine"}` (the cube also with the locking-free stiffness), each with
 /// `ladder` ([`Rung`]s), `punch_limit_n` and `order`.
 pub fn bench(
     cells: &[usize],
@@ -431,6 +443,13 @@ pub fn bench(
     );
     print_rungs(&mut out, &rungs, limit, order);
     let cube = serde_json::json!({"ladder": rungs, "punch_limit_n": limit, "order": order});
+    let (rungs, limit, order) = cube_ladder_with(cells, 6000, Formulation::LockingFree)?;
+    let _ = writeln!(
+        out,
+        "\nthe same with formulation = \"locking-free\" (each rung against its own finest)"
+    );
+    print_rungs(&mut out, &rungs, limit, order);
+    let cube_lf = serde_json::json!({"ladder": rungs, "punch_limit_n": limit, "order": order});
     let mouse = match mouse_ladder(dir, 6000)? {
         Some((rungs, limit, order)) => {
             let _ = writeln!(out, "\nthe mouse (1 kPa, ν 0.3) by scripts/make_mouse.py, Fig. 2: 8 mm down at (-10, 0, 60) mm");
@@ -448,7 +467,7 @@ pub fn bench(
     };
     if let Some(path) = json {
         let v = serde_json::json!({
-            "cube": cube, "mouse": mouse, "machine": crate::report::machine(),
+            "cube": cube, "cube_locking_free": cube_lf, "mouse": mouse, "machine": crate::report::machine(),
         });
         crate::tradeoff::write_json(path, &v)?;
     }

@@ -720,27 +720,36 @@ impl Factor {
 /// (node, force in N); returns the displacement of every node in metres (zero on clamped nodes).
 /// This is the direct reference that the precomputed `L·F` must reproduce.
 pub fn solve_static(mesh: &Mesh, forces: &[(u32, DVec3)]) -> Result<Vec<DVec3>, FemError> {
-    let stiff = Stiffness::assemble(mesh)?;
-    let factor = stiff.factorize()?;
-    let mut b = Mat::<f64>::zeros(stiff.dofs.n_free, 1);
-    for &(node, f) in forces {
-        if node as usize >= mesh.nodes.len() {
-            return Err(FemError::BadSelection(format!(
-                "force on node {node} out of range"
-            )));
-        }
-        for a in 0..3 {
-            if let Some(d) = stiff.dofs.free(node, a) {
-                b[(d, 0)] += f[a];
+    Stiffness::assemble(mesh)?.solve(mesh.nodes.len(), forces)
+}
+
+impl Stiffness {
+    /// Solves `K u = f` (a fresh factorisation) for `forces` (node, force in N) on a mesh of
+    /// `nodes` nodes; returns every node's displacement in metres (zero on clamped nodes).
+    pub fn solve(&self, nodes: usize, forces: &[(u32, DVec3)]) -> Result<Vec<DVec3>, FemError> {
+        let factor = self.factorize()?;
+        let mut b = Mat::<f64>::zeros(self.dofs.n_free, 1);
+        for &(node, f) in forces {
+            if node as usize >= nodes {
+                return Err(FemError::BadSelection(format!(
+                    "force on node {node} out of range"
+                )));
+            }
+            for a in 0..3 {
+                if let Some(d) = self.dofs.free(node, a) {
+                    b[(d, 0)] += f[a];
+                }
             }
         }
+        factor.solve_in_place(&mut b);
+        let mut u = vec![DVec3::ZERO; nodes];
+        for (d, &(node, a)) in self.dofs.owner.iter().enumerate() {
+            if let Some(v) = u.get_mut(node as usize) {
+                v[a as usize] = b[(d, 0)];
+            }
+        }
+        Ok(u)
     }
-    factor.solve_in_place(&mut b);
-    let mut u = vec![DVec3::ZERO; mesh.nodes.len()];
-    for (d, &(node, a)) in stiff.dofs.owner.iter().enumerate() {
-        u[node as usize][a as usize] = b[(d, 0)];
-    }
-    Ok(u)
 }
 
 /// Checks that every connected part of the mesh has at least three non-collinear clamped nodes.

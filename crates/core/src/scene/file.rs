@@ -456,7 +456,8 @@ impl World {
                 let key = match &e {
                     Error::Mesh(crate::MeshError::MissingGroup { .. }) => "fixed",
                     Error::Fem(
-                        crate::fem::FemError::BadMaterial(..) | crate::fem::FemError::Incompressible,
+                        crate::fem::FemError::BadMaterial(..)
+                        | crate::fem::FemError::Incompressible,
                     ) => {
                         if key_span("poisson").is_some() {
                             "poisson"
