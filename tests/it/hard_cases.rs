@@ -153,6 +153,22 @@ fn linear_tets_lock_as_poisson_nears_one_half() {
         (0..rows.len()).map(short).collect::<Vec<_>>()
     );
     assert!(short(4) < 0.8 * short(0), "{} vs {}", short(4), short(0));
+    // The locking-free rows: the same at ν = 0.3 (to 2 %), converging from the stiff side at
+    // every ν, and far less short at ν = 0.4999 than the standard element.
+    for r in &rows {
+        let [a, b, c] = r.locking_free_settlement_m;
+        assert!(a < b && b < c, "{r:?}");
+    }
+    let lf_short =
+        |i: usize| rows[i].locking_free_settlement_m[0] / rows[i].locking_free_settlement_m[2];
+    assert!((lf_short(0) / short(0) - 1.0).abs() < 0.02);
+    assert!(
+        lf_short(4) > short(4) + 0.15,
+        "{} vs {}",
+        lf_short(4),
+        short(4)
+    );
+    assert!(rows[4].locking_free_press_force_n[0] < 0.8 * rows[4].press_force_n[0]);
 }
 
 fn cube(extra: &str) -> World {

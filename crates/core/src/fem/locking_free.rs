@@ -263,9 +263,9 @@ pub(crate) fn blocks(mesh: &Mesh, smoothing: Smoothing, skip_fixed: bool) -> Blo
                 }
                 let s = at(j, row);
                 let cj = cj.to_array();
-                for r in 0..3 {
-                    for c in 0..3 {
-                        row[s].1[3 * r + c] += ci[r] * cj[c];
+                for (r, a) in ci.iter().enumerate() {
+                    for (c, b) in cj.iter().enumerate() {
+                        row[s].1[3 * r + c] += a * b;
                     }
                 }
             }
