@@ -561,3 +561,69 @@ fn a_tiny_poke_has_readable_picture_labels() {
     assert_eq!(code, 0, "{err}");
     assert!(png.exists());
 }
+
+/// `--formulation`: `locking-free` softens the press on the paper's cube at ν = 0.4999 (the
+/// locking table's 1.32 N standard, 0.56 N locking-free), `info --json` names it, an unknown
+/// value and `--poisson 0.5` are errors with status 2 that say why.
+#[test]
+fn the_formulation_flag_selects_the_stiffness() {
+    let force = |f: &str| {
+        let (code, out, err) = touchfem(&[
+            "poke",
+            "cube",
+            "--at",
+            "15,15,30",
+            "--push",
+            "0,0,-5",
+            "--poisson",
+            "0.4999",
+            "--formulation",
+            f,
+            "--json",
+        ]);
+        assert_eq!(code, 0, "{err}");
+        numbers(&json(&out)["force"])
+            .iter()
+            .map(|x| x * x)
+            .sum::<f64>()
+            .sqrt()
+    };
+    let (s, l) = (force("standard"), force("locking-free"));
+    assert!(
+        l < 0.6 * s && l > 0.2 * s,
+        "standard {s} N, locking-free {l} N"
+    );
+    let (code, out, err) = touchfem(&["info", "cube", "--formulation", "locking-free", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(json(&out)["formulation"], "locking-free");
+    let (code, _, err) = touchfem(&[
+        "poke",
+        "cube",
+        "--at",
+        "15,15,30",
+        "--push",
+        "0,0,-5",
+        "--formulation",
+        "mixed",
+    ]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("--formulation") && err.contains("locking-free"),
+        "{err}"
+    );
+    let (code, _, err) = touchfem(&[
+        "poke",
+        "cube",
+        "--at",
+        "15,15,30",
+        "--push",
+        "0,0,-5",
+        "--poisson",
+        "0.5",
+    ]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("--poisson") && err.contains("incompressible"),
+        "{err}"
+    );
+}
