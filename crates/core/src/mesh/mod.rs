@@ -525,9 +525,13 @@ impl Mesh {
     pub fn validate_materials(&self) -> Result<(), crate::fem::error::FemError> {
         self.material.validate()?;
         for r in &self.regions {
+            // A region's bad material (ν = 0.5 included) names the region.
             r.material.validate().map_err(|e| match e {
                 crate::fem::error::FemError::BadMaterial(m) => {
                     crate::fem::error::FemError::BadMaterial(format!("region '{}': {m}", r.group))
+                }
+                crate::fem::error::FemError::Incompressible => {
+                    crate::fem::error::FemError::BadMaterial(format!("region '{}': {e}", r.group))
                 }
                 other => other,
             })?;
