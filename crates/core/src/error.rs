@@ -52,7 +52,7 @@ pub enum Error {
 }
 
 /// Implements `From<E>` for a caller's error type for each of the engine's domain errors
-/// (mesh, FEM, cache, UDP), converting through [`Error`] into the variant that wraps it, so that
+/// (mesh, FEM, cache, UDP), converting through [`Error`](enum@Error) into the variant that wraps it, so that
 /// `?` works on them directly: `touchfem_core::from_domain_errors!(MyError::Core);`. The list
 /// of domain errors lives here, in one place.
 #[macro_export]
