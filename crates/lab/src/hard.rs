@@ -320,23 +320,7 @@ pub fn locking() -> Result<Vec<LockingRow>, crate::error::Error> {
 /// The top-centre settlement (m) of the 30 mm cube `mesh` under a uniform 100 Pa pressure on
 /// its top face.
 fn settlement(mesh: &Mesh) -> Result<f64, crate::error::Error> {
-    let top = 0.03 - 1e-9;
-    let mut f = vec![DVec3::ZERO; mesh.nodes.len()];
-    for t in &mesh.surface {
-        let p = t.map(|i| mesh.nodes[i as usize]);
-        if p.iter().all(|q| q.z >= top) {
-            let area = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
-            for &v in t {
-                f[v as usize].z -= 100.0 * area / 3.0;
-            }
-        }
-    }
-    let forces: Vec<(u32, DVec3)> = f
-        .iter()
-        .enumerate()
-        .filter(|(_, v)| **v != DVec3::ZERO)
-        .map(|(i, v)| (i as u32, *v))
-        .collect();
+    let forces = crate::locking_free::top_pressure_forces(mesh);
     let u = touchfem_core::fem::solve_static(mesh, &forces)?;
     let centre = DVec3::new(0.015, 0.015, 0.03);
     let c = (0..mesh.nodes.len())

@@ -90,22 +90,7 @@ pub fn solve(
             poisson,
         },
     )?;
-    let mut f = vec![DVec3::ZERO; mesh.nodes.len()];
-    for tri in &mesh.surface {
-        let p = tri.map(|i| mesh.nodes[i as usize]);
-        if p.iter().all(|q| q.z >= 0.03 - 1e-9) {
-            let area = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
-            for &v in tri {
-                f[v as usize].z -= 100.0 * area / 3.0;
-            }
-        }
-    }
-    let forces: Vec<(u32, DVec3)> = f
-        .iter()
-        .enumerate()
-        .filter(|(_, v)| **v != DVec3::ZERO)
-        .map(|(i, v)| (i as u32, *v))
-        .collect();
+    let forces = top_pressure_forces(&mesh);
     let k = method.stiffness(&mesh)?;
     let u = k.solve(mesh.nodes.len(), &forces)?;
     let s = cells / base.max(1);
@@ -342,4 +327,24 @@ pub fn table(rows: &[Row], refs: &[Reference]) -> String {
         );
     }
     out
+}
+
+/// Nodal forces (N) of a uniform 100 Pa pressure on the top face (z = 30 mm) of the paper's
+/// 30 mm cube, lumped a third of each top triangle's share per corner.
+pub(crate) fn top_pressure_forces(mesh: &Mesh) -> Vec<(u32, DVec3)> {
+    let mut f = vec![DVec3::ZERO; mesh.nodes.len()];
+    for tri in &mesh.surface {
+        let p = tri.map(|i| mesh.nodes[i as usize]);
+        if p.iter().all(|q| q.z >= 0.03 - 1e-9) {
+            let area = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
+            for &v in tri {
+                f[v as usize].z -= 100.0 * area / 3.0;
+            }
+        }
+    }
+    f.iter()
+        .enumerate()
+        .filter(|(_, v)| **v != DVec3::ZERO)
+        .map(|(i, v)| (i as u32, *v))
+        .collect()
 }
