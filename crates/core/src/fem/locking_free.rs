@@ -89,6 +89,29 @@ fn axpy(acc: &mut Sparse, slot: &mut [usize], w: f64, x: &[(u32, DVec3)]) {
     }
 }
 
+/// A compressed sparse row layout of `(row, value)` pairs over `rows` rows, values in the
+/// order `items` yields them: `(start, values)`, row `r` holding `values[start[r]..start[r + 1]]`.
+/// `items` is called twice (count, then fill).
+fn csr<T: Copy + Default, I: Iterator<Item = (usize, T)>>(
+    rows: usize,
+    items: impl Fn() -> I,
+) -> (Vec<usize>, Vec<T>) {
+    let mut start = vec![0usize; rows + 1];
+    for (r, _) in items() {
+        start[r + 1] += 1;
+    }
+    for r in 0..rows {
+        start[r + 1] += start[r];
+    }
+    let mut fill = start.clone();
+    let mut values = vec![T::default(); start[rows]];
+    for (r, v) in items() {
+        values[fill[r]] = v;
+        fill[r] += 1;
+    }
+    (start, values)
+}
+
 /// Clears the scratch entries `acc` set.
 fn reset(acc: &Sparse, slot: &mut [usize]) {
     for &(n, _) in acc {
@@ -134,27 +157,16 @@ pub(crate) fn blocks(mesh: &Mesh, smoothing: Smoothing, skip_fixed: bool) -> Blo
     // Volume (V_g = Σ V_e/4) and bulk modulus of each group, and its tets (CSR).
     let mut vol_g = vec![0.0f64; ng];
     let mut kappa_g = vec![0.0f64; ng];
-    let mut start = vec![0usize; ng + 1];
     for (t, (_, vol, _, kappa)) in geo.iter().enumerate() {
         for k in 0..4 {
             let g = group[4 * t + k] as usize;
             vol_g[g] += 0.25 * vol;
             kappa_g[g] = *kappa;
-            start[g + 1] += 1;
         }
     }
-    for g in 0..ng {
-        start[g + 1] += start[g];
-    }
-    let mut fill = start.clone();
-    let mut around = vec![0u32; start[ng]];
-    for t in 0..nt {
-        for k in 0..4 {
-            let g = group[4 * t + k] as usize;
-            around[fill[g]] = t as u32;
-            fill[g] += 1;
-        }
-    }
+    let (start, around) = csr(ng, || {
+        (0..4 * nt).map(|i| (group[i] as usize, (i / 4) as u32))
+    });
     // b_g: the group's averaged dilatation θ_g = b_gᵀ u = Σ_{e∋g} (V_e/4) θ_e / V_g.
     let mut slot = vec![usize::MAX; n];
     let mut b: Vec<Sparse> = Vec::with_capacity(ng);
@@ -190,41 +202,21 @@ pub(crate) fn blocks(mesh: &Mesh, smoothing: Smoothing, skip_fixed: bool) -> Blo
             .collect(),
     };
     // The terms each node appears in (CSR): (term, index in the term).
-    let mut tstart = vec![0usize; n + 1];
-    for (_, v) in &terms {
-        for &(j, _) in v {
-            tstart[j as usize + 1] += 1;
-        }
-    }
-    for a in 0..n {
-        tstart[a + 1] += tstart[a];
-    }
-    let mut tfill = tstart.clone();
-    let mut in_terms = vec![(0u32, 0u32); tstart[n]];
-    for (k, (_, v)) in terms.iter().enumerate() {
-        for (p, &(j, _)) in v.iter().enumerate() {
-            in_terms[tfill[j as usize]] = (k as u32, p as u32);
-            tfill[j as usize] += 1;
-        }
-    }
+    let (tstart, in_terms) = csr(n, || {
+        terms.iter().enumerate().flat_map(|(k, (_, v))| {
+            v.iter()
+                .enumerate()
+                .map(move |(p, &(j, _))| (j as usize, (k as u32, p as u32)))
+        })
+    });
     // Tets around each node (CSR), for the deviatoric part.
-    let mut nstart = vec![0usize; n + 1];
-    for tet in &mesh.tets {
-        for &a in tet {
-            nstart[a as usize + 1] += 1;
-        }
-    }
-    for a in 0..n {
-        nstart[a + 1] += nstart[a];
-    }
-    let mut nfill = nstart.clone();
-    let mut ntets = vec![(0u32, 0u8); nstart[n]];
-    for (t, tet) in mesh.tets.iter().enumerate() {
-        for (k, &a) in tet.iter().enumerate() {
-            ntets[nfill[a as usize]] = (t as u32, k as u8);
-            nfill[a as usize] += 1;
-        }
-    }
+    let (nstart, ntets) = csr(n, || {
+        mesh.tets.iter().enumerate().flat_map(|(t, tet)| {
+            tet.iter()
+                .enumerate()
+                .map(move |(k, &a)| (a as usize, (t as u32, k as u8)))
+        })
+    });
     // Rows: the deviatoric element matrices and the rank-one terms through each node.
     let mut out: Blocks = vec![Vec::new(); n];
     for (i, row) in out.iter_mut().enumerate() {
