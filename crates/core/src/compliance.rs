@@ -866,7 +866,7 @@ impl ColumnPlan {
             row_of_node[r as usize] = i as u32;
         }
         let mut phases = PhaseTimes::default();
-        let stiff = Stiffness::assemble(mesh)?;
+        let stiff = Stiffness::system(mesh)?;
         phases.assemble_s = t0.elapsed().as_secs_f64();
         let (factor, sym_s, num_s) = stiff.factorize_in(ordering(), store)?;
         phases.factor_in_file = factor.is_mapped();
@@ -1118,7 +1118,8 @@ impl ColumnPlan {
         let workers = solver_threads().min(units.len().max(1));
         let next = AtomicUsize::new(0);
         let done = AtomicUsize::new(0);
-        let (nr, nf) = (self.l_rows, self.stiff.dofs.n_free);
+        // Rows of a solve: every unknown of the system (a mixed one's pressures too).
+        let (nr, nf) = (self.l_rows, self.stiff.n());
         let per = 3 * SOLVE_COLS;
         let work = |progress: &mut dyn FnMut(usize)| -> Result<(f64, [f64; 3]), FemError> {
             let mut acc = (0.0f64, [0.0f64; 3]);
@@ -1194,7 +1195,7 @@ impl ColumnPlan {
             return self.gram_batch(batch, g, w, row_of);
         }
         let nr = self.l_rows;
-        let nf = self.stiff.dofs.n_free;
+        let nf = self.stiff.n();
         let chunk = self.batch_cols(batch);
         let mut times = [0.0f64; 3];
         let mut b = Mat::<f64>::zeros(nf, 3 * chunk.len());
@@ -1294,7 +1295,7 @@ impl ColumnPlan {
     /// the independent check of the pruned and Gram batches.
     fn check_solve(&self, node: u32) -> Result<(Vec<f64>, f64), FemError> {
         let e = self.first_dof(node)?;
-        let nf = self.stiff.dofs.n_free;
+        let nf = self.stiff.n();
         let mut b = Mat::<f64>::zeros(nf, 1);
         let sweeps = self.units.as_ref().or(self.sweeper.as_ref());
         let xs: Vec<f64> = match sweeps.filter(|_| self.factor.is_mapped()) {

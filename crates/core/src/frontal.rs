@@ -228,6 +228,8 @@ struct Shared<'a> {
     inv: &'a [usize],
     plan: &'a FrontPlan,
     dof_owner: &'a (dyn Fn(usize) -> u32 + Sync),
+    /// Per factor column, whether its pivot is negative (a mixed system; empty: none).
+    negative: &'a [bool],
 }
 
 impl Shared<'_> {
@@ -467,47 +469,109 @@ impl Worker {
         let f = MatMut::from_column_major_slice_mut(front, m, m);
         let (f1, f2) = f.split_at_col_mut(ns);
         let (mut l11, mut l21) = f1.split_at_row_mut(ns);
-        let need = faer::linalg::cholesky::llt::factor::cholesky_in_place_scratch::<f64>(
-            ns,
-            par,
-            Default::default(),
-        );
-        if self.scratch.len() < need.unaligned_bytes_required() + 64 {
-            self.scratch = faer::dyn_stack::MemBuffer::new(need);
-        }
-        faer::linalg::cholesky::llt::factor::cholesky_in_place(
-            l11.rb_mut(),
-            Default::default(),
-            par,
-            faer::dyn_stack::MemStack::new(&mut self.scratch),
-            Default::default(),
-        )
-        .map_err(|e| {
-            let faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } = e;
+        let singular = |index: usize| {
             let dof = sh.fwd[b0 + index];
             FemError::Singular {
                 node: (sh.dof_owner)(dof),
                 dof,
             }
-        })?;
-        faer::linalg::triangular_solve::solve_lower_triangular_in_place(
-            l11.rb(),
-            l21.rb_mut().transpose_mut(),
-            par,
-        );
-        if nb > 0 {
-            let l21 = l21.rb();
-            faer::linalg::matmul::triangular::matmul(
-                f2.subrows_mut(ns, nb),
-                faer::linalg::matmul::triangular::BlockStructure::TriangularLower,
-                Accum::Add,
-                l21,
-                faer::linalg::matmul::triangular::BlockStructure::Rectangular,
-                l21.transpose(),
-                faer::linalg::matmul::triangular::BlockStructure::Rectangular,
-                -1.0,
-                par,
-            );
+        };
+        let negative = sh.negative.get(b0..b0 + ns).filter(|n| n.contains(&true));
+        match negative {
+            None => {
+                let need = faer::linalg::cholesky::llt::factor::cholesky_in_place_scratch::<f64>(
+                    ns,
+                    par,
+                    Default::default(),
+                );
+                if self.scratch.len() < need.unaligned_bytes_required() + 64 {
+                    self.scratch = faer::dyn_stack::MemBuffer::new(need);
+                }
+                faer::linalg::cholesky::llt::factor::cholesky_in_place(
+                    l11.rb_mut(),
+                    Default::default(),
+                    par,
+                    faer::dyn_stack::MemStack::new(&mut self.scratch),
+                    Default::default(),
+                )
+                .map_err(|e| {
+                    let faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } =
+                        e;
+                    singular(index)
+                })?;
+                faer::linalg::triangular_solve::solve_lower_triangular_in_place(
+                    l11.rb(),
+                    l21.rb_mut().transpose_mut(),
+                    par,
+                );
+                if nb > 0 {
+                    let l21 = l21.rb();
+                    faer::linalg::matmul::triangular::matmul(
+                        f2.subrows_mut(ns, nb),
+                        faer::linalg::matmul::triangular::BlockStructure::TriangularLower,
+                        Accum::Add,
+                        l21,
+                        faer::linalg::matmul::triangular::BlockStructure::Rectangular,
+                        l21.transpose(),
+                        faer::linalg::matmul::triangular::BlockStructure::Rectangular,
+                        -1.0,
+                        par,
+                    );
+                }
+            }
+            Some(negative) => {
+                // A mixed system's front: L₁₁ D L₁₁ᵀ, in the signed form G₁₁ Σ G₁₁ᵀ; then
+                // X = F₂₁ G₁₁⁻ᵀ, G₂₁ = X Σ, and the update F₂₂ −= X Σ Xᵀ = G₂₁ Xᵀ.
+                let need = faer::linalg::cholesky::ldlt::factor::cholesky_in_place_scratch::<f64>(
+                    ns,
+                    par,
+                    Default::default(),
+                );
+                if self.scratch.len() < need.unaligned_bytes_required() + 64 {
+                    self.scratch = faer::dyn_stack::MemBuffer::new(need);
+                }
+                faer::linalg::cholesky::ldlt::factor::cholesky_in_place(
+                    l11.rb_mut(),
+                    Default::default(),
+                    par,
+                    faer::dyn_stack::MemStack::new(&mut self.scratch),
+                    Default::default(),
+                )
+                .map_err(|e| {
+                    let faer::linalg::cholesky::ldlt::factor::LdltError::ZeroPivot { index } = e;
+                    singular(index)
+                })?;
+                for (j, &neg) in negative.iter().enumerate() {
+                    let col = l11.rb_mut().col_mut(j).try_as_col_major_mut();
+                    let col = col.ok_or_else(|| bad("a front column is not contiguous".into()))?;
+                    crate::fem::signed_column(col.as_slice_mut(), j, neg)
+                        .map_err(|()| singular(j))?;
+                }
+                faer::linalg::triangular_solve::solve_lower_triangular_in_place(
+                    l11.rb(),
+                    l21.rb_mut().transpose_mut(),
+                    par,
+                );
+                if nb > 0 {
+                    let x = l21.to_owned();
+                    for (j, &neg) in negative.iter().enumerate() {
+                        if neg {
+                            l21.rb_mut().col_mut(j).iter_mut().for_each(|v| *v = -*v);
+                        }
+                    }
+                    faer::linalg::matmul::triangular::matmul(
+                        f2.subrows_mut(ns, nb),
+                        faer::linalg::matmul::triangular::BlockStructure::TriangularLower,
+                        Accum::Add,
+                        l21.rb(),
+                        faer::linalg::matmul::triangular::BlockStructure::Rectangular,
+                        x.transpose(),
+                        faer::linalg::matmul::triangular::BlockStructure::Rectangular,
+                        -1.0,
+                        par,
+                    );
+                }
+            }
         }
         let front: &[f64] = bytemuck::cast_slice(&self.front[..]);
         out.write(
@@ -584,8 +648,21 @@ fn split(sh: &Shared<'_>, workers: usize) -> Vec<Vec<usize>> {
     out
 }
 
+/// The elimination order of a factorisation: the permutation (`fwd`: new → old, `inv`:
+/// old → new) and, per factor column, whether its pivot is negative (a mixed system's
+/// pressures; empty for `K` itself).
+#[derive(Clone, Copy)]
+pub(crate) struct Elimination<'a> {
+    /// New → old.
+    pub fwd: &'a [usize],
+    /// Old → new.
+    pub inv: &'a [usize],
+    /// Per factor column, a negative pivot.
+    pub negative: &'a [bool],
+}
+
 /// Factorises `k` (free DOFs, both triangles, in the original order) with `sym`'s
-/// structure and permutation (`fwd`: new → old, `inv`: old → new) into `file`, which must
+/// structure and elimination `order` (signed pivots where it says) into `file`, which must
 /// be empty and private to the caller, and returns its read-only map and the peak bytes of
 /// the fronts and update stacks. `dof_owner` names the node of a DOF for the error of a
 /// non-positive pivot. `workers` threads factorise disjoint subtrees first; the values do
@@ -593,12 +670,12 @@ fn split(sh: &Shared<'_>, workers: usize) -> Vec<Vec<usize>> {
 pub(crate) fn factorize_to_file(
     sym: &SymbolicSupernodalCholesky<usize>,
     k: faer::sparse::SparseColMatRef<'_, usize, f64>,
-    fwd: &[usize],
-    inv: &[usize],
+    order: Elimination<'_>,
     file: &File,
     workers: usize,
     dof_owner: &(dyn Fn(usize) -> u32 + Sync),
 ) -> Result<(Values, usize), FemError> {
+    let Elimination { fwd, inv, negative } = order;
     let io = |e: std::io::Error| FemError::Factorisation(format!("factor file: {e}"));
     let n = sym.nrows();
     let nsn = sym.n_supernodes();
@@ -612,6 +689,7 @@ pub(crate) fn factorize_to_file(
         inv,
         plan: &plan,
         dof_owner,
+        negative,
     };
     let workers = workers.max(1);
     let groups = if workers > 1 {

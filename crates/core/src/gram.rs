@@ -2,7 +2,9 @@
 //! precompute's method when many nodes are touchable (a whole surface).
 //!
 //! With the supernodal Cholesky factor `P K Pᵀ = G Gᵀ`, `(K⁻¹)[S,T] = W_Sᵀ W_T` where
-//! `W = G⁻¹ P E` holds one forward solve per displayed DOF (`T ⊆ S`). A DOF's column of `W`
+//! `W = G⁻¹ P E` holds one forward solve per displayed DOF (`T ⊆ S`); for a mixed system's
+//! signed factor `G Σ Gᵀ` ([`Factor`]), `(K⁻¹)[S,T] = W_Sᵀ Σ W_T`, the sign applied as a tile
+//! gathers its columns. A DOF's column of `W`
 //! is non-zero only on its own supernode and that supernode's ancestors. Ordering the
 //! displayed nodes by the post-order of their supernodes makes the columns that reach a
 //! supernode `s` one contiguous range `D(s)`, so `W` is held as one dense block `W_s`
@@ -37,6 +39,8 @@ pub struct GramPlan {
     t_range: Vec<(usize, usize)>,
     /// Offset of each supernode's block in `W` (`n_sn + 1` entries), f64 entries.
     off: Vec<usize>,
+    /// Per factor column, whether the factor's `Σ` is −1 there (empty: `Σ = I`).
+    negative: Vec<bool>,
     /// Floating-point operations of [`GramPlan::forward`] (estimate).
     pub forward_flops: f64,
     /// Floating-point operations of all the [`GramPlan::tile`]s (estimate).
@@ -181,6 +185,7 @@ impl GramPlan {
             t_pos,
             t_range,
             off,
+            negative: f.negative().to_vec(),
             forward_flops: fwd,
             gram_flops: gram,
         })
@@ -393,11 +398,17 @@ impl GramPlan {
             let k = 3 * (b - a);
             gather.clear();
             gather.resize(k * ns, 0.0f64);
+            let negative = self.negative.get(self.begin[s]..self.begin[s + 1]);
             for i in 0..ns {
                 let col = &w[self.off[s] + i * md..][..md];
+                // Σ between: an auxiliary unknown's column counts negatively.
+                let sign = match negative {
+                    Some(n) if n[i] => -1.0,
+                    _ => 1.0,
+                };
                 for (t, &g) in self.t_pos[a..b].iter().enumerate() {
                     for ax in 0..3 {
-                        gather[i * k + 3 * t + ax] = col[3 * (g - lo) + ax];
+                        gather[i * k + 3 * t + ax] = sign * col[3 * (g - lo) + ax];
                     }
                 }
             }
@@ -486,89 +497,101 @@ impl UnitSolver {
     /// On a factor in a file, the pages passed are dropped now and then
     /// ([`crate::frontal::Passed`]).
     fn sweep(&self, f: &Factor, dofs: &[usize], mut x: MatMut<'_, f64>, keep: &[bool]) {
-        let Some((sym, val)) = f.supernodal() else {
+        let Some((sym, _)) = f.supernodal() else {
             return;
         };
-        let nsn = sym.n_supernodes();
-        let k = dofs.len();
-        let mut reach = vec![false; nsn];
+        let mut reach = vec![false; sym.n_supernodes()];
         for (j, &d) in dofs.iter().enumerate() {
             x[(self.pos[d], j)] = 1.0;
             mark_path(&mut reach, &self.parent, self.sn_of[self.pos[d]] as usize);
         }
-        let vp = sym.col_ptr_for_val();
-        let mut tmp: Vec<f64> = Vec::new();
-        let (begin, end) = (sym.supernode_begin(), sym.supernode_end());
-        let block = |s: usize| {
-            let pattern = sym.supernode(s).pattern();
-            let ns = end[s] - begin[s];
-            let ls =
-                MatRef::from_column_major_slice(&val[vp[s]..vp[s + 1]], ns + pattern.len(), ns);
-            (begin[s], ns, pattern, ls)
-        };
-        // Values passed since the last release: the forward sweep climbs the values, the back
-        // sweep descends them.
-        let mut passed = crate::frontal::Passed::default();
-        let mut pass = |s: usize| {
-            if let Some(r) = passed.add(vp[s]..vp[s + 1]) {
-                f.release(r);
-            }
-        };
-        for s in (0..nsn).filter(|&s| reach[s]) {
-            let (start, ns, pattern, ls) = block(s);
-            let (l11, l21) = ls.split_at_row(ns);
-            let npat = pattern.len();
-            let mut xs = x.rb_mut().subrows_mut(start, ns);
-            faer::linalg::triangular_solve::solve_lower_triangular_in_place(
-                l11,
-                xs.rb_mut(),
-                Par::Seq,
-            );
-            tmp.clear();
-            tmp.resize(npat * k, 0.0);
-            let mut t = MatMut::from_column_major_slice_mut(&mut tmp, npat, k);
-            faer::linalg::matmul::matmul(t.rb_mut(), Accum::Replace, l21, xs.rb(), 1.0, Par::Seq);
-            for j in 0..k {
-                let tc = &tmp[j * npat..][..npat];
-                let mut xc = x.rb_mut().col_mut(j);
-                for (&r, v) in pattern.iter().zip(tc) {
-                    xc[r] -= *v;
-                }
-            }
-            pass(s);
-        }
-        for s in (0..nsn).rev().filter(|&s| keep[s]) {
-            let (start, ns, pattern, ls) = block(s);
-            let (l11, l21) = ls.split_at_row(ns);
-            let npat = pattern.len();
-            tmp.clear();
-            tmp.resize(npat * k, 0.0);
-            for j in 0..k {
-                let xc = x.rb().col(j);
-                for (t, &r) in tmp[j * npat..][..npat].iter_mut().zip(pattern) {
-                    *t = xc[r];
-                }
-            }
-            let t = MatRef::from_column_major_slice(&tmp, npat, k);
-            let mut xs = x.rb_mut().subrows_mut(start, ns);
-            faer::linalg::matmul::matmul(
-                xs.rb_mut(),
-                Accum::Add,
-                l21.transpose(),
-                t,
-                -1.0,
-                Par::Seq,
-            );
-            faer::linalg::triangular_solve::solve_upper_triangular_in_place(
-                l11.transpose(),
-                xs.rb_mut(),
-                Par::Seq,
-            );
-            pass(s);
-        }
-        if let Some(r) = passed.rest() {
+        sweeps(f, x, &reach, keep);
+    }
+}
+
+/// Solves `K X = B` in place with `B`'s rows in the factor's order (the elimination order):
+/// forward, `Σ`, back, over every supernode (a supernodal factor only; else nothing).
+pub(crate) fn solve_in_factor_order(f: &Factor, x: MatMut<'_, f64>) {
+    let Some((sym, _)) = f.supernodal() else {
+        return;
+    };
+    let all = vec![true; sym.n_supernodes()];
+    sweeps(f, x, &all, &all);
+}
+
+/// The forward sweep `G⁻¹` over the supernodes `reach`, `Σ`, and the back sweep `G⁻ᵀ` over
+/// `keep`, on `x` in the factor's order.
+fn sweeps(f: &Factor, mut x: MatMut<'_, f64>, reach: &[bool], keep: &[bool]) {
+    let Some((sym, val)) = f.supernodal() else {
+        return;
+    };
+    let nsn = sym.n_supernodes();
+    let k = x.ncols();
+    let vp = sym.col_ptr_for_val();
+    let mut tmp: Vec<f64> = Vec::new();
+    let (begin, end) = (sym.supernode_begin(), sym.supernode_end());
+    let block = |s: usize| {
+        let pattern = sym.supernode(s).pattern();
+        let ns = end[s] - begin[s];
+        let ls = MatRef::from_column_major_slice(&val[vp[s]..vp[s + 1]], ns + pattern.len(), ns);
+        (begin[s], ns, pattern, ls)
+    };
+    // Values passed since the last release: the forward sweep climbs the values, the back
+    // sweep descends them.
+    let mut passed = crate::frontal::Passed::default();
+    let mut pass = |s: usize| {
+        if let Some(r) = passed.add(vp[s]..vp[s + 1]) {
             f.release(r);
         }
+    };
+    for s in (0..nsn).filter(|&s| reach[s]) {
+        let (start, ns, pattern, ls) = block(s);
+        let (l11, l21) = ls.split_at_row(ns);
+        let npat = pattern.len();
+        let mut xs = x.rb_mut().subrows_mut(start, ns);
+        faer::linalg::triangular_solve::solve_lower_triangular_in_place(l11, xs.rb_mut(), Par::Seq);
+        tmp.clear();
+        tmp.resize(npat * k, 0.0);
+        let mut t = MatMut::from_column_major_slice_mut(&mut tmp, npat, k);
+        faer::linalg::matmul::matmul(t.rb_mut(), Accum::Replace, l21, xs.rb(), 1.0, Par::Seq);
+        for j in 0..k {
+            let tc = &tmp[j * npat..][..npat];
+            let mut xc = x.rb_mut().col_mut(j);
+            for (&r, v) in pattern.iter().zip(tc) {
+                xc[r] -= *v;
+            }
+        }
+        pass(s);
+    }
+    for (r, _) in f.negative().iter().enumerate().filter(|(_, &n)| n) {
+        for j in 0..k {
+            x[(r, j)] = -x[(r, j)];
+        }
+    }
+    for s in (0..nsn).rev().filter(|&s| keep[s]) {
+        let (start, ns, pattern, ls) = block(s);
+        let (l11, l21) = ls.split_at_row(ns);
+        let npat = pattern.len();
+        tmp.clear();
+        tmp.resize(npat * k, 0.0);
+        for j in 0..k {
+            let xc = x.rb().col(j);
+            for (t, &r) in tmp[j * npat..][..npat].iter_mut().zip(pattern) {
+                *t = xc[r];
+            }
+        }
+        let t = MatRef::from_column_major_slice(&tmp, npat, k);
+        let mut xs = x.rb_mut().subrows_mut(start, ns);
+        faer::linalg::matmul::matmul(xs.rb_mut(), Accum::Add, l21.transpose(), t, -1.0, Par::Seq);
+        faer::linalg::triangular_solve::solve_upper_triangular_in_place(
+            l11.transpose(),
+            xs.rb_mut(),
+            Par::Seq,
+        );
+        pass(s);
+    }
+    if let Some(r) = passed.rest() {
+        f.release(r);
     }
 }
 

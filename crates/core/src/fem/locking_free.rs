@@ -119,6 +119,88 @@ fn reset(acc: &Sparse, slot: &mut [usize]) {
     }
 }
 
+/// Per tet: shape gradients, volume, μ, κ.
+type Geometry = Vec<([DVec3; 4], f64, f64, f64)>;
+
+/// The nodal groups of the averaged dilatation: one per (node, region) pair that some tet
+/// has.
+struct Groups {
+    /// Per tet: shape gradients, volume, μ, κ.
+    geo: Geometry,
+    /// `group[4t + k]`: the group of tet t's k-th node.
+    group: Vec<u32>,
+    /// Volume of each group, `V_g = Σ_{e∋g} V_e/4`, m³.
+    vol: Vec<f64>,
+    /// Bulk modulus of each group, Pa.
+    kappa: Vec<f64>,
+    /// The node of each group.
+    owner: Vec<u32>,
+    /// `b_g`: the group's averaged dilatation `θ_g = b_gᵀ u = Σ_{e∋g} (V_e/4) θ_e / V_g`.
+    b: Vec<Sparse>,
+}
+
+/// The nodal groups of `mesh` (materials assumed valid), `slot` scratch (all `usize::MAX`).
+fn groups(mesh: &Mesh, slot: &mut [usize]) -> Groups {
+    let n = mesh.nodes.len();
+    let nt = mesh.tets.len();
+    let region = mesh.tet_region_index();
+    let n_regions = mesh.regions.len() + 1;
+    let mut geo = Vec::with_capacity(nt);
+    for (t, tet) in mesh.tets.iter().enumerate() {
+        let (g, vol) = shape_gradients(tet.map(|i| mesh.nodes[i as usize]));
+        let (lambda, mu) = mesh.tet_material(t).lame();
+        geo.push((g, vol, mu, lambda + 2.0 * mu / 3.0));
+    }
+    let mut id = vec![u32::MAX; n * n_regions];
+    let mut group = vec![0u32; 4 * nt];
+    let mut owner = Vec::new();
+    for (t, tet) in mesh.tets.iter().enumerate() {
+        for (k, &a) in tet.iter().enumerate() {
+            let s = &mut id[a as usize * n_regions + region[t] as usize];
+            if *s == u32::MAX {
+                *s = owner.len() as u32;
+                owner.push(a);
+            }
+            group[4 * t + k] = *s;
+        }
+    }
+    let ng = owner.len();
+    let mut vol_g = vec![0.0f64; ng];
+    let mut kappa_g = vec![0.0f64; ng];
+    for (t, (_, vol, _, kappa)) in geo.iter().enumerate() {
+        for k in 0..4 {
+            let g = group[4 * t + k] as usize;
+            vol_g[g] += 0.25 * vol;
+            kappa_g[g] = *kappa;
+        }
+    }
+    // The tets of each group (CSR).
+    let (start, around) = csr(ng, || {
+        (0..4 * nt).map(|i| (group[i] as usize, (i / 4) as u32))
+    });
+    let mut b: Vec<Sparse> = Vec::with_capacity(ng);
+    for g in 0..ng {
+        let mut acc = Sparse::new();
+        for &t in &around[start[g]..start[g + 1]] {
+            let (gr, vol, _, _) = &geo[t as usize];
+            let w = 0.25 * vol / vol_g[g];
+            let tet = mesh.tets[t as usize];
+            let terms: [(u32, DVec3); 4] = std::array::from_fn(|k| (tet[k], gr[k]));
+            axpy(&mut acc, slot, w, &terms);
+        }
+        reset(&acc, slot);
+        b.push(acc);
+    }
+    Groups {
+        geo,
+        group,
+        vol: vol_g,
+        kappa: kappa_g,
+        owner,
+        b,
+    }
+}
+
 /// The node-pair blocks of the locking-free stiffness of `mesh` with `smoothing`, each tet of
 /// its own material ([`Mesh::tet_material`]; assumed valid). The dilatation is averaged per
 /// node *and region*: a node on the boundary between two materials has one averaged
@@ -129,59 +211,15 @@ pub(crate) fn blocks(mesh: &Mesh, smoothing: Smoothing, skip_fixed: bool) -> Blo
     let n = mesh.nodes.len();
     let nt = mesh.tets.len();
     let skip = |v: u32| skip_fixed && mesh.fixed[v as usize];
-    let region = mesh.tet_region_index();
-    let n_regions = mesh.regions.len() + 1;
-    // Per tet: shape gradients, volume, μ, κ.
-    let mut geo = Vec::with_capacity(nt);
-    for (t, tet) in mesh.tets.iter().enumerate() {
-        let (g, vol) = shape_gradients(tet.map(|i| mesh.nodes[i as usize]));
-        let (lambda, mu) = mesh.tet_material(t).lame();
-        geo.push((g, vol, mu, lambda + 2.0 * mu / 3.0));
-    }
-    // Nodal groups: one per (node, region) pair that some tet has; `group[4t + k]` is the
-    // group of tet t's k-th node.
-    let mut id = vec![u32::MAX; n * n_regions];
-    let mut group = vec![0u32; 4 * nt];
-    let mut n_groups = 0u32;
-    for (t, tet) in mesh.tets.iter().enumerate() {
-        for (k, &a) in tet.iter().enumerate() {
-            let s = &mut id[a as usize * n_regions + region[t] as usize];
-            if *s == u32::MAX {
-                *s = n_groups;
-                n_groups += 1;
-            }
-            group[4 * t + k] = *s;
-        }
-    }
-    let ng = n_groups as usize;
-    // Volume (V_g = Σ V_e/4) and bulk modulus of each group, and its tets (CSR).
-    let mut vol_g = vec![0.0f64; ng];
-    let mut kappa_g = vec![0.0f64; ng];
-    for (t, (_, vol, _, kappa)) in geo.iter().enumerate() {
-        for k in 0..4 {
-            let g = group[4 * t + k] as usize;
-            vol_g[g] += 0.25 * vol;
-            kappa_g[g] = *kappa;
-        }
-    }
-    let (start, around) = csr(ng, || {
-        (0..4 * nt).map(|i| (group[i] as usize, (i / 4) as u32))
-    });
-    // b_g: the group's averaged dilatation θ_g = b_gᵀ u = Σ_{e∋g} (V_e/4) θ_e / V_g.
     let mut slot = vec![usize::MAX; n];
-    let mut b: Vec<Sparse> = Vec::with_capacity(ng);
-    for g in 0..ng {
-        let mut acc = Sparse::new();
-        for &t in &around[start[g]..start[g + 1]] {
-            let (gr, vol, _, _) = &geo[t as usize];
-            let w = 0.25 * vol / vol_g[g];
-            let tet = mesh.tets[t as usize];
-            let terms: [(u32, DVec3); 4] = std::array::from_fn(|k| (tet[k], gr[k]));
-            axpy(&mut acc, &mut slot, w, &terms);
-        }
-        reset(&acc, &mut slot);
-        b.push(acc);
-    }
+    let Groups {
+        geo,
+        group,
+        vol: vol_g,
+        kappa: kappa_g,
+        b,
+        ..
+    } = groups(mesh, &mut slot);
     // The volumetric rank-one terms (weight, vector): Σ weight·(vᵀu)².
     let terms: Vec<(f64, Sparse)> = match smoothing {
         Smoothing::Nodal => b
@@ -279,6 +317,67 @@ pub fn stiffness(mesh: &Mesh, smoothing: Smoothing) -> Result<Stiffness, FemErro
     Stiffness::from_blocks(mesh, &blocks(mesh, smoothing, true))
 }
 
+/// The mixed system of the locking-free formulation ([`Smoothing::Nodal`]): the same
+/// displacements as [`stiffness`] gives, from a sparser system. With `p_g = κ_g V_g θ_g` one
+/// unknown per nodal group (node and region), the energy's stationarity reads
+///
+/// ```text
+/// [ K_dev   Bᵀ ] [u]   [f]        B: row g is b_gᵀ (θ_g = b_gᵀ u),
+/// [ B      −C  ] [p] = [0],       C = diag(1 / (κ_g V_g)),
+/// ```
+///
+/// and eliminating `p` gives back `K_dev + Bᵀ C⁻¹ B`, the assembled stiffness. The system is
+/// quasi-definite (`K_dev` positive definite once clamped, `−C` negative definite), so it has
+/// an `LDLᵀ` factorisation in any symmetric order, with positive pivots at the
+/// displacements and negative ones at the pressures ([`super::Factor`]). Its pattern is the
+/// standard element's (each `b_g` lives on the node's one-ring) with a fourth unknown per
+/// node, where the assembled stiffness couples two rings: ordered node by node, its factor
+/// has about half the non-zeros (docs/measurements/2026-12-03-locking-free.md). Checks as
+/// [`stiffness`] does.
+pub fn mixed(mesh: &Mesh) -> Result<Stiffness, FemError> {
+    mesh.validate_materials()?;
+    super::check_constrained(mesh)?;
+    let n = mesh.nodes.len();
+    let mut slot = vec![usize::MAX; n];
+    let g = groups(mesh, &mut slot);
+    // The deviatoric blocks between free nodes.
+    let mut dev: Blocks = vec![Vec::new(); n];
+    for (t, tet) in mesh.tets.iter().enumerate() {
+        let (gr, vol, mu, _) = &g.geo[t];
+        for (la, &a) in tet.iter().enumerate() {
+            if mesh.fixed[a as usize] {
+                continue;
+            }
+            let row = &mut dev[a as usize];
+            for (lb, &b) in tet.iter().enumerate() {
+                if mesh.fixed[b as usize] {
+                    continue;
+                }
+                let s = match row.iter().position(|e| e.0 == b) {
+                    Some(p) => p,
+                    None => {
+                        row.push((b, [0.0; 9]));
+                        row.len() - 1
+                    }
+                };
+                for (x, y) in row[s]
+                    .1
+                    .iter_mut()
+                    .zip(deviatoric_block(gr, la, lb, *vol, *mu))
+                {
+                    *x += y;
+                }
+            }
+        }
+    }
+    let aux: Vec<(u32, f64, Sparse)> =
+        g.b.into_iter()
+            .enumerate()
+            .map(|(k, b)| (g.owner[k], -1.0 / (g.kappa[k] * g.vol[k]), b))
+            .collect();
+    Stiffness::from_mixed(mesh, &dev, &aux)
+}
+
 /// The full (unclamped, singular) locking-free stiffness as a dense matrix, for tests on small
 /// meshes (the materials unchecked, as in [`super::dense_stiffness`]).
 pub fn dense(mesh: &Mesh, smoothing: Smoothing) -> Vec<Vec<f64>> {
@@ -318,6 +417,7 @@ mod tests {
     use super::*;
     use crate::mesh::{cube_with, grid_raw};
     use crate::units::{LengthUnit, Material};
+    use faer::Mat;
     use nalgebra::{DMatrix, DVector};
 
     const BOTH: [Smoothing; 2] = [Smoothing::Nodal, Smoothing::ElementAveraged];
@@ -490,6 +590,134 @@ mod tests {
     /// The sparse, clamped stiffness equals the dense one on the free DOFs, is symmetric, and
     /// honours per-tet materials: a two-region mesh (a stiff, nearly incompressible half on
     /// a soft, compressible one) keeps the sandwich deviatoric ≤ locking-free ≤ standard.
+    /// A distorted 4×3×5 block with a stiffer, nearly incompressible top region.
+    fn two_region_block() -> Mesh {
+        let mut raw = grid_raw([4, 3, 5], [30.0, 24.0, 36.0], |_, _, _| true);
+        for p in raw.nodes.iter_mut() {
+            let [x, y, z] = *p;
+            *p = [x + 0.9 * (0.3 * y).sin(), y + 0.7 * (0.2 * z).cos(), z];
+        }
+        let top: Vec<usize> = (0..raw.tets.len())
+            .filter(|&t| raw.tets[t].iter().all(|&n| raw.nodes[n][2] >= 21.6 - 1e-9))
+            .collect();
+        raw.tet_groups.insert("top".into(), top);
+        let mut m = Mesh::from_raw(raw, LengthUnit::Millimetre, material(0.4999)).expect("mesh");
+        m.set_fixed_group("fixed").expect("fixed");
+        m.set_regions(&[(
+            "top".into(),
+            Material {
+                young_pa: 40_000.0,
+                poisson: 0.45,
+            },
+        )])
+        .expect("regions");
+        m.formulation = Formulation::LockingFree;
+        m
+    }
+
+    #[test]
+    fn the_mixed_system_gives_the_assembled_displacements_on_every_path() {
+        use super::super::{FactorStore, Ordering};
+        use crate::compliance::{Compliance, Method, Selection};
+        let m = two_region_block();
+        let assembled = stiffness(&m, Smoothing::Nodal).expect("K");
+        let mixed = Stiffness::system(&m).expect("mixed");
+        let nf = assembled.n();
+        // One pressure per node and region: the top region's boundary nodes have two.
+        let boundary = m
+            .nodes
+            .iter()
+            .filter(|p| (p.z - 0.0216).abs() < 1e-9)
+            .count();
+        assert_eq!(mixed.n_aux(), m.nodes.len() + boundary);
+        assert_eq!(mixed.n(), nf + mixed.n_aux());
+        // The reference: K⁻¹ by the assembled stiffness's Cholesky factor.
+        let reference = {
+            let f = assembled.factorize().expect("LLᵀ");
+            let mut b = Mat::<f64>::identity(nf, nf);
+            f.solve_in_place(&mut b);
+            b
+        };
+        let scale = (0..nf).map(|i| reference[(i, i)]).fold(0.0f64, f64::max);
+        let dir = std::env::temp_dir();
+        let stores = [
+            FactorStore::Heap,
+            FactorStore::File {
+                dir: dir.clone(),
+                threads: 2,
+            },
+        ];
+        for ord in [Ordering::Metis, Ordering::NestedDissection, Ordering::Amd] {
+            for store in &stores {
+                let (f, _, _) = mixed.factorize_in(ord, store).expect("LDLᵀ");
+                assert_eq!(f.negative().iter().filter(|&&n| n).count(), mixed.n_aux());
+                let mut b = Mat::<f64>::zeros(mixed.n(), nf);
+                for j in 0..nf {
+                    b[(j, j)] = 1.0;
+                }
+                f.solve_in_place(&mut b);
+                let mut worst = 0.0f64;
+                for j in 0..nf {
+                    for i in 0..nf {
+                        worst = worst.max((b[(i, j)] - reference[(i, j)]).abs());
+                    }
+                }
+                assert!(
+                    worst <= 1e-10 * scale,
+                    "{ord:?} {store:?}: {worst:e} of {scale:e}"
+                );
+            }
+        }
+        // Every precompute method, both stores: L against the reference's blocks.
+        let sel = Selection::default();
+        for how in [Method::Columns, Method::Full, Method::Gram] {
+            for store in &stores {
+                let c = Compliance::compute_in(&m, &sel, how, store, &mut |_, _| {}).expect("L");
+                let mut worst = 0.0f64;
+                for (ci, &cn) in c.cols().iter().enumerate() {
+                    for (ri, &rn) in c.rows().iter().enumerate() {
+                        let got = c.block(ri, ci);
+                        for a in 0..3 {
+                            for b in 0..3 {
+                                let (Some(r), Some(k)) =
+                                    (assembled.dofs.free(rn, a), assembled.dofs.free(cn, b))
+                                else {
+                                    continue;
+                                };
+                                let g = got.col(b)[a];
+                                worst = worst.max((g - reference[(r, k)]).abs());
+                            }
+                        }
+                    }
+                }
+                assert!(worst <= 1e-10 * scale, "{how:?} {store:?}: {worst:e}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_mixed_factor_is_about_half_the_assembled_one() {
+        let mut m = cube_with([8; 3], [30.0; 3], material(0.4999)).expect("cube");
+        m.formulation = Formulation::LockingFree;
+        let std_k = {
+            let mut s = m.clone();
+            s.formulation = Formulation::Standard;
+            Stiffness::assemble(&s).expect("K")
+        };
+        let nnz = |k: &Stiffness| k.factorize().expect("factor").nonzeros() as f64;
+        let (s, a, x) = (
+            nnz(&std_k),
+            nnz(&stiffness(&m, Smoothing::Nodal).expect("K")),
+            nnz(&Stiffness::system(&m).expect("mixed")),
+        );
+        // Four unknowns per node on the standard pattern: about (4/3)² of the standard
+        // factor; the two-ring assembled stiffness is denser still.
+        assert!(
+            x < 0.6 * a && x < 2.2 * s,
+            "standard {s}, assembled {a}, mixed {x}"
+        );
+    }
+
     #[test]
     fn sparse_equals_dense_and_regions_are_honoured() {
         let mut raw = grid_raw([3, 3, 3], [30.0; 3], |_, _, _| true);

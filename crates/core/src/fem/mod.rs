@@ -182,6 +182,12 @@ pub struct Stiffness {
     /// Position of each free node (free DOFs `3i..3i + 3` belong to free node `i`), metres:
     /// the geometry the nested-dissection ordering cuts.
     free_coords: Vec<DVec3>,
+    /// The node of each auxiliary unknown (DOF `n_free + j`): empty for `K` itself; for the
+    /// mixed system of [`Stiffness::system`], one pressure per node and region, which the
+    /// factorisation eliminates with negative pivots.
+    aux_owner: Vec<u32>,
+    /// The position of each auxiliary unknown's node, metres (for the ordering).
+    aux_coords: Vec<DVec3>,
 }
 
 /// Where a factorisation keeps its factor.
@@ -209,6 +215,10 @@ pub enum FactorStore {
         above: usize,
     },
 }
+
+/// One auxiliary unknown of a mixed system: its node, its diagonal entry, and its couplings
+/// to the displacements (per node, a 3-vector).
+pub(crate) type AuxRow = (u32, f64, Vec<(u32, DVec3)>);
 
 /// The fill-reducing ordering of the sparse Cholesky factorisation.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -416,7 +426,95 @@ impl Stiffness {
             dofs,
             k,
             free_coords,
+            aux_owner: Vec::new(),
+            aux_coords: Vec::new(),
         })
+    }
+
+    /// A mixed system ([`locking_free::mixed`]): the 3×3 blocks `dev` between free nodes, and
+    /// per auxiliary unknown `(node, diagonal, coupling)`: its diagonal entry and its row of
+    /// couplings to the displacements (per node, a 3-vector; clamped nodes' dropped).
+    pub(crate) fn from_mixed(
+        mesh: &Mesh,
+        dev: &[Vec<(u32, [f64; 9])>],
+        aux: &[AuxRow],
+    ) -> Result<Stiffness, FemError> {
+        let dofs = Dofs::new(&mesh.fixed);
+        let nf = dofs.n_free;
+        let n = nf + aux.len();
+        let mut cols: Vec<Vec<(usize, f64)>> = vec![Vec::new(); n];
+        for (na, row) in dev.iter().enumerate() {
+            for (nb, m) in row {
+                for j in 0..3 {
+                    let Some(c) = dofs.free(*nb, j) else { continue };
+                    for i in 0..3 {
+                        if let Some(r) = dofs.free(na as u32, i) {
+                            cols[c].push((r, m[3 * i + j]));
+                        }
+                    }
+                }
+            }
+        }
+        for (k, (_, diag, coupling)) in aux.iter().enumerate() {
+            let p = nf + k;
+            for &(node, v) in coupling {
+                for a in 0..3 {
+                    if let Some(d) = dofs.free(node, a) {
+                        cols[d].push((p, v[a]));
+                        cols[p].push((d, v[a]));
+                    }
+                }
+            }
+            cols[p].push((p, *diag));
+        }
+        let mut col_ptr = Vec::with_capacity(n + 1);
+        let mut row_idx = Vec::new();
+        let mut val = Vec::new();
+        col_ptr.push(0);
+        for mut c in cols {
+            c.sort_unstable_by_key(|e| e.0);
+            for (r, v) in c {
+                if !v.is_finite() {
+                    return Err(FemError::Factorisation(format!(
+                        "a non-finite entry in row {r} of the mixed system"
+                    )));
+                }
+                row_idx.push(r);
+                val.push(v);
+            }
+            col_ptr.push(row_idx.len());
+        }
+        let sym = faer::sparse::SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
+        let free_coords = (0..nf / 3)
+            .map(|i| mesh.nodes[dofs.owner[3 * i].0 as usize])
+            .collect();
+        Ok(Stiffness {
+            dofs,
+            k: SparseColMat::new(sym, val),
+            free_coords,
+            aux_owner: aux.iter().map(|a| a.0).collect(),
+            aux_coords: aux.iter().map(|a| mesh.nodes[a.0 as usize]).collect(),
+        })
+    }
+
+    /// The linear system the precompute and [`solve_static`] factorise: `K` itself, or for
+    /// the locking-free formulation the equivalent mixed system of
+    /// [`locking_free::mixed`] (the same displacements, a sparser factor).
+    pub fn system(mesh: &Mesh) -> Result<Stiffness, FemError> {
+        if locking_free::wanted(mesh) {
+            return locking_free::mixed(mesh);
+        }
+        Stiffness::assemble(mesh)
+    }
+
+    /// Unknowns of the system: the free DOFs, then the auxiliary ones.
+    pub fn n(&self) -> usize {
+        self.k.nrows()
+    }
+
+    /// Auxiliary unknowns (pressures) after the free DOFs: 0 for `K` itself.
+    pub fn n_aux(&self) -> usize {
+        self.aux_owner.len()
     }
 
     /// Factorises K = LLᵀ (METIS ordering; faer's supernodal or simplicial factorisation as it
@@ -431,27 +529,57 @@ impl Stiffness {
         if ord == Ordering::Amd {
             return None;
         }
-        let nn = self.free_coords.len();
+        // Blocks: each free node's three DOFs with the auxiliary unknowns of that node; the
+        // auxiliary unknowns of a clamped node form a block of their own.
+        let nf = self.free_coords.len();
+        let n = self.n();
+        let mut block_of = vec![0usize; n];
+        for (d, b) in block_of.iter_mut().enumerate().take(3 * nf) {
+            *b = d / 3;
+        }
+        let mut coords = self.free_coords.clone();
+        let mut extra: std::collections::HashMap<u32, usize> = Default::default();
+        for (j, &node) in self.aux_owner.iter().enumerate() {
+            block_of[3 * nf + j] = match self.dofs.free(node, 0) {
+                Some(d) => d / 3,
+                None => *extra.entry(node).or_insert_with(|| {
+                    coords.push(self.aux_coords[j]);
+                    coords.len() - 1
+                }),
+            };
+        }
+        let nb = coords.len();
+        let mut members: Vec<Vec<usize>> = vec![Vec::new(); nb];
+        for (d, &b) in block_of.iter().enumerate() {
+            members[b].push(d);
+        }
         let k = self.k.symbolic();
-        let mut ptr = Vec::with_capacity(nn + 1);
+        let mut ptr = Vec::with_capacity(nb + 1);
         let mut idx = Vec::new();
+        let mut seen = vec![usize::MAX; nb];
         ptr.push(0);
-        for i in 0..nn {
-            idx.extend(
-                k.row_idx_of_col(3 * i)
-                    .filter(|r| r % 3 == 0 && r / 3 != i)
-                    .map(|r| r / 3),
-            );
+        for (b, m) in members.iter().enumerate() {
+            seen[b] = b;
+            for &d in m {
+                for r in k.row_idx_of_col(d) {
+                    let rb = block_of[r];
+                    if seen[rb] != b {
+                        seen[rb] = b;
+                        idx.push(rb);
+                    }
+                }
+            }
             ptr.push(idx.len());
         }
         let order = match ord {
-            Ordering::Metis => metis_order(&ptr, &idx)
-                .unwrap_or_else(|| nested_dissection(&self.free_coords, &ptr, &idx)),
-            _ => nested_dissection(&self.free_coords, &ptr, &idx),
+            Ordering::Metis => {
+                metis_order(&ptr, &idx).unwrap_or_else(|| nested_dissection(&coords, &ptr, &idx))
+            }
+            _ => nested_dissection(&coords, &ptr, &idx),
         };
         let fwd: Vec<usize> = order
             .iter()
-            .flat_map(|&n| [3 * n, 3 * n + 1, 3 * n + 2])
+            .flat_map(|&b| members[b].iter().copied())
             .collect();
         let mut inv = vec![0usize; fwd.len()];
         for (new, &old) in fwd.iter().enumerate() {
@@ -525,28 +653,48 @@ impl Stiffness {
         let perm = self.ordering(ord);
         let ordering = match &perm {
             None => SymmetricOrdering::Amd,
-            Some((fwd, inv)) => SymmetricOrdering::Custom(faer::perm::PermRef::new_checked(
-                fwd,
-                inv,
-                self.dofs.n_free,
-            )),
+            Some((fwd, inv)) => {
+                SymmetricOrdering::Custom(faer::perm::PermRef::new_checked(fwd, inv, self.n()))
+            }
         };
-        let symbolic = factorize_symbolic_cholesky(
-            self.k.symbolic(),
-            Side::Lower,
-            ordering,
-            Default::default(),
-        )
-        .map_err(|e| FemError::Factorisation(format!("{e:?}")))?;
+        // A mixed system is factorised with signed pivots by the supernodal code only.
+        let mut params = faer::sparse::linalg::cholesky::CholeskySymbolicParams::default();
+        if self.n_aux() > 0 {
+            params.supernodal_flop_ratio_threshold =
+                faer::sparse::linalg::SupernodalThreshold::FORCE_SUPERNODAL;
+        }
+        let symbolic =
+            factorize_symbolic_cholesky(self.k.symbolic(), Side::Lower, ordering, params)
+                .map_err(|e| FemError::Factorisation(format!("{e:?}")))?;
         Ok((symbolic, t0.elapsed().as_secs_f64()))
     }
 
     /// The DOF's node, for errors.
     fn owner_of(&self, dof: usize) -> u32 {
-        self.dofs.owner.get(dof).map(|o| o.0).unwrap_or(0)
+        match dof.checked_sub(self.dofs.n_free) {
+            None => self.dofs.owner.get(dof).map_or(0, |o| o.0),
+            Some(j) => self.aux_owner.get(j).copied().unwrap_or(0),
+        }
     }
 
-    /// faer's numeric factorisation, on the heap.
+    /// Whether each factor column (in elimination order) is an auxiliary unknown, whose
+    /// pivot is negative; empty for `K` itself.
+    fn negative_columns(
+        &self,
+        symbolic: &faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
+    ) -> Vec<bool> {
+        if self.n_aux() == 0 {
+            return Vec::new();
+        }
+        let nf = self.dofs.n_free;
+        match symbolic.perm() {
+            Some(p) => p.arrays().0.iter().map(|&d| d >= nf).collect(),
+            None => (0..self.n()).map(|d| d >= nf).collect(),
+        }
+    }
+
+    /// faer's numeric factorisation, on the heap: `LLᵀ`, or for a mixed system `LDLᵀ`
+    /// turned into the signed form `G Σ Gᵀ` ([`Factor`]).
     fn numeric_heap(
         &self,
         symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
@@ -559,36 +707,81 @@ impl Stiffness {
             .try_reserve_exact(symbolic.len_val())
             .map_err(|e| fact_err(&e))?;
         values.resize(symbolic.len_val(), 0.0f64);
-        let mut buf = MemBuffer::try_new(
-            symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
-        )
-        .map_err(|e| fact_err(&e))?;
-        symbolic
-            .factorize_numeric_llt::<f64>(
-                &mut values,
-                self.k.as_ref(),
-                Side::Lower,
-                Default::default(),
-                par,
-                MemStack::new(&mut buf),
-                Default::default(),
+        // `index` is in the permuted order; name the DOF's node as best we can.
+        let singular = |index: usize| {
+            let dof = symbolic
+                .perm()
+                .map_or(index, |p| p.arrays().0.get(index).copied().unwrap_or(0))
+                .min(self.n().saturating_sub(1));
+            FemError::Singular {
+                node: self.owner_of(dof),
+                dof,
+            }
+        };
+        let negative = self.negative_columns(&symbolic);
+        if negative.is_empty() {
+            let mut buf = MemBuffer::try_new(
+                symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
             )
-            .map_err(|e| {
-                let faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } = e;
-                // `index` is in the permuted order; name the DOF's node as best we can.
-                let dof = symbolic
-                    .perm()
-                    .map_or(index, |p| p.arrays().0.get(index).copied().unwrap_or(0))
-                    .min(self.dofs.n_free.saturating_sub(1));
-                FemError::Singular {
-                    node: self.owner_of(dof),
-                    dof,
+            .map_err(|e| fact_err(&e))?;
+            symbolic
+                .factorize_numeric_llt::<f64>(
+                    &mut values,
+                    self.k.as_ref(),
+                    Side::Lower,
+                    Default::default(),
+                    par,
+                    MemStack::new(&mut buf),
+                    Default::default(),
+                )
+                .map_err(|e| {
+                    let faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } =
+                        e;
+                    singular(index)
+                })?;
+        } else {
+            let mut buf = MemBuffer::try_new(
+                symbolic.factorize_numeric_ldlt_scratch::<f64>(par, Default::default()),
+            )
+            .map_err(|e| fact_err(&e))?;
+            symbolic
+                .factorize_numeric_ldlt::<f64>(
+                    &mut values,
+                    self.k.as_ref(),
+                    Side::Lower,
+                    Default::default(),
+                    par,
+                    MemStack::new(&mut buf),
+                    Default::default(),
+                )
+                .map_err(|e| {
+                    let faer::linalg::cholesky::ldlt::factor::LdltError::ZeroPivot { index } = e;
+                    singular(index)
+                })?;
+            let faer::sparse::linalg::cholesky::SymbolicCholeskyRaw::Supernodal(sn) =
+                symbolic.raw()
+            else {
+                return Err(FemError::Factorisation(
+                    "a mixed system needs a supernodal analysis".into(),
+                ));
+            };
+            let vp = sn.col_ptr_for_val();
+            for sup in 0..sn.n_supernodes() {
+                let b0 = sn.supernode_begin()[sup];
+                let ns = sn.supernode_end()[sup] - b0;
+                let m = ns + sn.supernode(sup).pattern().len();
+                let block = &mut values[vp[sup]..vp[sup + 1]];
+                for j in 0..ns {
+                    signed_column(&mut block[j * m..(j + 1) * m], j, negative[b0 + j])
+                        .map_err(|()| singular(b0 + j))?;
                 }
-            })?;
+            }
+        }
         Ok(Factor {
             symbolic,
             values: crate::frontal::Values::Heap(values),
             front_bytes: 0,
+            negative,
         })
     }
 
@@ -607,25 +800,25 @@ impl Stiffness {
                 "the out-of-core factorisation needs a supernodal analysis".into(),
             ));
         };
-        let n = self.dofs.n_free;
+        let n = self.n();
+        let negative = self.negative_columns(&symbolic);
         let (fwd, inv): (Vec<usize>, Vec<usize>) = match symbolic.perm() {
             Some(p) => (p.arrays().0.to_vec(), p.arrays().1.to_vec()),
             None => ((0..n).collect(), (0..n).collect()),
         };
         let owner = |dof: usize| self.owner_of(dof);
-        let (values, front_bytes) = crate::frontal::factorize_to_file(
-            sn,
-            self.k.as_ref(),
-            &fwd,
-            &inv,
-            file,
-            threads,
-            &owner,
-        )?;
+        let order = crate::frontal::Elimination {
+            fwd: &fwd,
+            inv: &inv,
+            negative: &negative,
+        };
+        let (values, front_bytes) =
+            crate::frontal::factorize_to_file(sn, self.k.as_ref(), order, file, threads, &owner)?;
         Ok(Factor {
             symbolic,
             values,
             front_bytes,
+            negative,
         })
     }
 
@@ -644,18 +837,58 @@ impl Stiffness {
     }
 }
 
-/// The Cholesky factor of K.
+/// One column `j` of an `LDLᵀ` supernode (`col`: its rows from the diagonal block's top,
+/// `d` on the diagonal, `L` below) in the signed form `G Σ Gᵀ`: `G = L·√|d|`, `σ = sign d`,
+/// which must be negative exactly when `negative`. `Err` for a zero, non-finite or wrongly
+/// signed pivot (the system is not quasi-definite: singular).
+pub(crate) fn signed_column(col: &mut [f64], j: usize, negative: bool) -> Result<(), ()> {
+    let d = col[j];
+    if !d.is_finite() || d == 0.0 || (d < 0.0) != negative {
+        return Err(());
+    }
+    let r = d.abs().sqrt();
+    col[j] = r;
+    for v in &mut col[j + 1..] {
+        *v *= r;
+    }
+    Ok(())
+}
+
+/// The factor of the system: `P K Pᵀ = G Gᵀ` (Cholesky) for `K`; for a mixed system
+/// ([`Stiffness::system`], quasi-definite), `P K Pᵀ = G Σ Gᵀ` with `Σ = diag(±1)`: −1 at the
+/// auxiliary unknowns' columns. `G` has a positive diagonal either way, so forward solves
+/// are the same; the solves and the Gram product put `Σ` between.
 pub struct Factor {
     symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
     values: crate::frontal::Values,
     /// Peak bytes of the out-of-core factorisation's fronts and update stacks (0 on the heap).
     front_bytes: usize,
+    /// Per factor column, whether `Σ` is −1 there; empty when `Σ = I`.
+    negative: Vec<bool>,
 }
 
 impl Factor {
-    /// Solves K X = B in place (B is n_free × m, column-major), on the calling thread.
+    /// Solves K X = B in place (B has a row per unknown of the system — the free DOFs, then
+    /// any auxiliary ones — and m columns), on the calling thread.
     pub fn solve_in_place(&self, b: &mut Mat<f64>) {
         use faer::dyn_stack::{MemBuffer, MemStack};
+        if !self.negative.is_empty() {
+            // The signed form: forward, Σ, back, in the factor's order.
+            let pos = self.position_of_dof();
+            let mut x = Mat::<f64>::zeros(b.nrows(), b.ncols());
+            for j in 0..b.ncols() {
+                for (d, &p) in pos.iter().enumerate() {
+                    x[(p, j)] = b[(d, j)];
+                }
+            }
+            crate::gram::solve_in_factor_order(self, x.as_mut());
+            for j in 0..b.ncols() {
+                for (d, &p) in pos.iter().enumerate() {
+                    b[(d, j)] = x[(p, j)];
+                }
+            }
+            return;
+        }
         let llt =
             faer::sparse::linalg::cholesky::LltRef::new(&self.symbolic, self.values.as_slice());
         let mut buf = MemBuffer::new(
@@ -684,6 +917,11 @@ impl Factor {
     /// Peak bytes of the out-of-core factorisation's fronts and update stacks (0 for faer's).
     pub fn front_bytes(&self) -> usize {
         self.front_bytes
+    }
+
+    /// Per factor column, whether `Σ` is −1 there (see [`Factor`]); empty when `Σ = I`.
+    pub(crate) fn negative(&self) -> &[bool] {
+        &self.negative
     }
 
     /// Non-zeros of the Cholesky factor.
@@ -720,7 +958,7 @@ impl Factor {
 /// (node, force in N); returns the displacement of every node in metres (zero on clamped nodes).
 /// This is the direct reference that the precomputed `L·F` must reproduce.
 pub fn solve_static(mesh: &Mesh, forces: &[(u32, DVec3)]) -> Result<Vec<DVec3>, FemError> {
-    Stiffness::assemble(mesh)?.solve(mesh.nodes.len(), forces)
+    Stiffness::system(mesh)?.solve(mesh.nodes.len(), forces)
 }
 
 impl Stiffness {
@@ -728,7 +966,7 @@ impl Stiffness {
     /// `nodes` nodes; returns every node's displacement in metres (zero on clamped nodes).
     pub fn solve(&self, nodes: usize, forces: &[(u32, DVec3)]) -> Result<Vec<DVec3>, FemError> {
         let factor = self.factorize()?;
-        let mut b = Mat::<f64>::zeros(self.dofs.n_free, 1);
+        let mut b = Mat::<f64>::zeros(self.n(), 1);
         for &(node, f) in forces {
             if node as usize >= nodes {
                 return Err(FemError::BadSelection(format!(
