@@ -67,7 +67,7 @@ fn main() {
         let t = std::time::Instant::now();
         let k = match s {
             None => Stiffness::assemble(&mesh),
-            Some((_, true)) => locking_free::mixed(&mesh),
+            Some((s, true)) => locking_free::mixed(&mesh, s),
             Some((s, false)) => locking_free::stiffness(&mesh, s),
         }
         .unwrap_or_else(|e| fail(&e.to_string()));

@@ -866,7 +866,7 @@ impl ColumnPlan {
             row_of_node[r as usize] = i as u32;
         }
         let mut phases = PhaseTimes::default();
-        let stiff = Stiffness::system(mesh)?;
+        let stiff = Stiffness::assemble(mesh)?;
         phases.assemble_s = t0.elapsed().as_secs_f64();
         let (factor, sym_s, num_s) = stiff.factorize_in(ordering(), store)?;
         phases.factor_in_file = factor.is_mapped();

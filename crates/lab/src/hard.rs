@@ -78,6 +78,7 @@ pub fn dense_lu_solve(
 ) -> Result<Vec<DVec3>, crate::error::Error> {
     let k = Stiffness::assemble(mesh)?;
     let n = k.dofs.n_free;
+    // (Of a mixed system, its condensed stiffness: the free DOFs only.)
     let a = dense_k(&k);
     let mut b = nalgebra::DVector::<f64>::zeros(n);
     for &(node, f) in forces {
@@ -334,8 +335,9 @@ fn settlement(mesh: &Mesh) -> Result<f64, crate::error::Error> {
 }
 
 /// `touchfem bench --hard`: the table (returned, for the caller to print) of every hard case and the locking table; with `json`, writes
-/// them as `{"hard": [HardCase...], "locking": [LockingRow...], "locking_free": {"rows",
-/// "references"}, "machine"}` (the last from [`crate::locking_free::study`]).
+/// them as `{"hard": [HardCase...], "locking": [LockingRow...], "locking_free": {LOAD:
+/// {"rows", "references"}}, "machine"}` (one study per [`crate::locking_free::Load`], by its
+/// name, from [`crate::locking_free::study`]).
 pub fn bench(json: Option<&std::path::Path>) -> Result<String, crate::error::Error> {
     let mut out = String::new();
     let cases = cases()?;
@@ -398,14 +400,22 @@ pub fn bench(json: Option<&std::path::Path>) -> Result<String, crate::error::Err
             );
         }
     }
-    let (rows, refs) = crate::locking_free::study(&[0.3, 0.49, 0.4999], &[4, 8], [8, 16, 32])?;
-    let _ = writeln!(out);
-    out.push_str(&crate::locking_free::table(&rows, &refs));
+    let mut studies = serde_json::Map::new();
+    for load in crate::locking_free::Load::ALL {
+        let (rows, refs) =
+            crate::locking_free::study(load, &[0.3, 0.49, 0.4999], &[4, 8], [8, 16, 32])?;
+        let _ = writeln!(out);
+        out.push_str(&crate::locking_free::table(load, &rows, &refs));
+        studies.insert(
+            load.name().to_string(),
+            serde_json::json!({"rows": rows, "references": refs}),
+        );
+    }
     if let Some(path) = json {
         let v = serde_json::json!({
             "hard": cases,
             "locking": lock,
-            "locking_free": {"rows": rows, "references": refs},
+            "locking_free": studies,
             "machine": crate::report::machine(),
         });
         crate::tradeoff::write_json(path, &v)?;

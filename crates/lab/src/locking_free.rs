@@ -1,14 +1,16 @@
 //! The locking-free study: the standard stiffness against the two locking-free smoothings
 //! ([`Smoothing::Nodal`], [`Smoothing::ElementAveraged`]) on the paper's cube (30 mm,
-//! E = 10 kPa, bottom clamped) under a uniform 100 Pa pressure on its top face — a distributed
-//! load, so no point-load singularity decides the error.
+//! E = 10 kPa, bottom clamped) under one of two [`Load`]s: the test, a point force
+//! at the top centre compared away from it, and a harder one, a uniform 100 Pa pressure on
+//! the whole top face, compared everywhere.
 //!
 //! The reference at each ν is a converged solution: the Richardson extrapolation (order
-//! observed from the top-centre settlement) of the three finest meshes, done for each
-//! locking-free smoothing and averaged (at ν = 0.3 the standard element's extrapolation joins
-//! them); the spread between them is reported as the reference's own uncertainty. The error
-//! of a coarse mesh is measured at the coarsest grid's nodes (every mesh has them), as
-//! `max |u − u_ref| / max |u_ref|` over those nodes (the field error), and at the top centre.
+//! observed from the field at the compared nodes: the ratio of successive differences) of
+//! the three finest meshes, done for each locking-free smoothing and averaged (at ν = 0.3 the standard
+//! element's extrapolation joins them); the spread between them is reported as the
+//! reference's own uncertainty. The error of a coarse mesh is measured at the coarsest grid's
+//! nodes (every mesh has them) that the load's comparison keeps ([`Load::compared`]), as
+//! `max |u − u_ref| / max |u_ref|` over those nodes (the field error), and at the monitor.
 
 use glam::DVec3;
 use std::fmt::Write as _;
@@ -17,6 +19,75 @@ use touchfem_core::fem::locking_free::{self, Smoothing};
 use touchfem_core::fem::Stiffness;
 use touchfem_core::mesh::{cube_with, Mesh};
 use touchfem_core::units::Material;
+
+/// The load of the study.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Load {
+    /// A 0.1 N point force down at the top centre (the finger's press, as a force: a
+    /// prescribed displacement at one node has no converged limit). The displacement under
+    /// a point force is singular, so the comparison leaves out the nodes of the coarse cells
+    /// around the loaded node, and the monitor is the top edge's midpoint (15 mm away).
+    PointPress,
+    /// 100 Pa down on the whole top face, compared at every node, the monitor the top
+    /// centre. Harder for any linear-displacement element near ν = 0.5: the incompressible
+    /// solution is singular along the clamped bottom edges, where the sides bulge.
+    TopPressure,
+}
+
+impl Load {
+    /// Both loads, the first.
+    pub const ALL: [Load; 2] = [Load::PointPress, Load::TopPressure];
+
+    /// A short name for tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            Load::PointPress => "point-press",
+            Load::TopPressure => "top-pressure",
+        }
+    }
+
+    /// What the table's title says.
+    fn describe(self) -> &'static str {
+        match self {
+            Load::PointPress => "0.1 N at the top centre, compared away from it",
+            Load::TopPressure => "100 Pa on the top face, compared everywhere",
+        }
+    }
+
+    /// The nodal forces (N) on `mesh` (the cube, `cells` per edge).
+    fn forces(self, mesh: &Mesh, cells: usize) -> Vec<(u32, DVec3)> {
+        match self {
+            Load::PointPress => {
+                let h = cells / 2;
+                let c = (cells * (cells + 1) + h) * (cells + 1) + h;
+                vec![(c as u32, DVec3::new(0.0, 0.0, -0.1))]
+            }
+            Load::TopPressure => top_pressure_forces(mesh),
+        }
+    }
+
+    /// The monitor node on the `base`-cell grid `(i, j, k)`: its settlement fills the
+    /// table's `u_mon` column.
+    pub fn monitor(self, base: usize) -> (usize, usize, usize) {
+        match self {
+            Load::PointPress => (base / 2, 0, base),
+            Load::TopPressure => (base / 2, base / 2, base),
+        }
+    }
+
+    /// Whether the field error counts the `base`-grid node `(i, j, k)`: for the point press,
+    /// not the nodes of the coarse cells touching the loaded node.
+    pub fn compared(self, base: usize, (i, j, k): (usize, usize, usize)) -> bool {
+        match self {
+            Load::PointPress => {
+                let h = base / 2;
+                !(i.abs_diff(h) <= 1 && j.abs_diff(h) <= 1 && k + 1 >= base)
+            }
+            Load::TopPressure => true,
+        }
+    }
+}
 
 /// A stiffness: the standard element or a locking-free smoothing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -32,11 +103,12 @@ fn smoothing_name<S: serde::Serializer>(s: &Smoothing, ser: S) -> Result<S::Ok, 
 }
 
 impl Method {
-    /// The three methods compared.
-    pub const ALL: [Method; 3] = [
+    /// The methods compared.
+    pub const ALL: [Method; 4] = [
         Method::Standard,
         Method::LockingFree(Smoothing::Nodal),
         Method::LockingFree(Smoothing::ElementAveraged),
+        Method::LockingFree(Smoothing::Stabilised),
     ];
 
     /// A short name for tables.
@@ -45,6 +117,7 @@ impl Method {
             Method::Standard => "standard",
             Method::LockingFree(Smoothing::Nodal) => "nodal",
             Method::LockingFree(Smoothing::ElementAveraged) => "elem-avg",
+            Method::LockingFree(Smoothing::Stabilised) => "stabilised",
         }
     }
 
@@ -62,21 +135,22 @@ impl Method {
 pub struct Solve {
     /// Cells per edge.
     pub cells: usize,
-    /// Top-centre settlement, m.
+    /// The monitor's settlement ([`Load::monitor`]), m.
     pub settlement_m: f64,
     /// Non-zeros of the clamped K.
     pub k_nonzeros: usize,
     /// Assembly and solve, s.
     pub seconds: f64,
-    /// Displacements at the coarsest grid's nodes, m.
+    /// Displacements at the coarsest grid's compared nodes, m.
     #[serde(skip)]
     pub probes: Vec<DVec3>,
 }
 
-/// The paper's cube with `cells` per edge at `poisson`, and the settlement under 100 Pa on
-/// the top face by `method`, with the field at the nodes of the `base`-cell grid.
+/// The paper's cube with `cells` per edge at `poisson` under `load`, solved by `method`:
+/// the monitor's settlement and the field at the compared nodes of the `base`-cell grid.
 pub fn solve(
     method: Method,
+    load: Load,
     cells: usize,
     base: usize,
     poisson: f64,
@@ -90,16 +164,18 @@ pub fn solve(
             poisson,
         },
     )?;
-    let forces = top_pressure_forces(&mesh);
+    let forces = load.forces(&mesh, cells);
     let k = method.stiffness(&mesh)?;
     let u = k.solve(mesh.nodes.len(), &forces)?;
     let s = cells / base.max(1);
     let id = |i: usize, j: usize, k: usize| (k * s * (cells + 1) + j * s) * (cells + 1) + i * s;
     let probes: Vec<DVec3> = (0..=base)
         .flat_map(|k| (0..=base).flat_map(move |j| (0..=base).map(move |i| (i, j, k))))
+        .filter(|&p| load.compared(base, p))
         .map(|(i, j, k)| u[id(i, j, k)])
         .collect();
-    let c = id(base / 2, base / 2, base);
+    let (mi, mj, mk) = load.monitor(base);
+    let c = id(mi, mj, mk);
     Ok(Solve {
         cells,
         settlement_m: -u[c].z,
@@ -118,11 +194,11 @@ pub struct Row {
     pub method: Method,
     /// Cells per edge.
     pub cells: usize,
-    /// Top-centre settlement, m.
+    /// The monitor's settlement, m.
     pub settlement_m: f64,
     /// `|settlement − reference| / reference`.
     pub settlement_error: f64,
-    /// `max |u − u_ref| / max |u_ref|` at the coarsest grid's nodes.
+    /// `max |u − u_ref| / max |u_ref|` at the coarsest grid's compared nodes.
     pub field_error: f64,
     /// Non-zeros of the clamped K.
     pub k_nonzeros: usize,
@@ -133,14 +209,14 @@ pub struct Row {
 pub struct Reference {
     /// Poisson's ratio.
     pub poisson: f64,
-    /// The reference top-centre settlement, m.
+    /// The reference monitor settlement, m.
     pub settlement_m: f64,
     /// Each extrapolation's (method, settlement m, observed order).
     pub extrapolations: Vec<(String, f64, f64)>,
     /// Largest relative difference between the extrapolations' settlements and fields (the
     /// reference's uncertainty).
     pub spread: f64,
-    /// Reference displacements at the coarsest grid's nodes, m.
+    /// Reference displacements at the coarsest grid's compared nodes, m.
     #[serde(skip)]
     pub probes: Vec<DVec3>,
 }
@@ -152,6 +228,21 @@ fn extrapolate(f: [&[DVec3]; 3], p: f64) -> Vec<DVec3> {
         .zip(f[1])
         .map(|(c, b)| *c + (*c - *b) / r)
         .collect()
+}
+
+/// The observed order of convergence of a field from three meshes refined by 2:
+/// `log2(‖f₁ − f₀‖ / ‖f₂ − f₁‖)` (Euclidean norms over the probes), `None` unless the
+/// differences shrink.
+fn field_order(f: [&[DVec3]; 3]) -> Option<f64> {
+    let norm = |a: &[DVec3], b: &[DVec3]| -> f64 {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (*x - *y).length_squared())
+            .sum::<f64>()
+            .sqrt()
+    };
+    let (d1, d2) = (norm(f[1], f[0]), norm(f[2], f[1]));
+    (d2 > 0.0 && d2 < d1).then(|| (d1 / d2).log2())
 }
 
 fn max_len(v: &[DVec3]) -> f64 {
@@ -166,10 +257,11 @@ fn field_diff(a: &[DVec3], b: &[DVec3]) -> f64 {
         / max_len(b)
 }
 
-/// The study at each of `poissons`: every method on the `coarse` meshes (cells per edge, the
-/// first the base grid), against the reference from `fine` (three meshes, each twice the
-/// last, multiples of the base). Returns the rows and the references.
+/// The study under `load` at each of `poissons`: every method on the `coarse` meshes (cells
+/// per edge, the first the base grid), against the reference from `fine` (three meshes, each
+/// twice the last, multiples of the base). Returns the rows and the references.
 pub fn study(
+    load: Load,
     poissons: &[f64],
     coarse: &[usize],
     fine: [usize; 3],
@@ -184,7 +276,7 @@ pub fn study(
         for m in Method::ALL {
             let mut s = Vec::new();
             for &c in coarse {
-                s.push(solve(m, c, base, nu)?);
+                s.push(solve(m, load, c, base, nu)?);
             }
             // The standard element converges too slowly near ν = 0.5 to extrapolate (its
             // error constant grows with the bulk modulus): only at ν ≤ 0.3.
@@ -193,18 +285,17 @@ pub fn study(
                     .iter()
                     .map(|&c| match s.iter().find(|x| x.cells == c) {
                         Some(x) => Ok(x.clone()),
-                        None => solve(m, c, base, nu),
+                        None => solve(m, load, c, base, nu),
                     })
                     .collect::<Result<_, _>>()?;
-                let set = [f[0].settlement_m, f[1].settlement_m, f[2].settlement_m];
-                if let Some((limit, order)) = crate::ladder::richardson(set, 2.0) {
+                let three = [&f[0].probes[..], &f[1].probes[..], &f[2].probes[..]];
+                if let Some(order) = field_order(three) {
+                    let (b, c) = (f[1].settlement_m, f[2].settlement_m);
+                    let limit = c + (c - b) / (2f64.powf(order) - 1.0);
                     extrapolations.push((m.name().to_string(), limit, order));
-                    fields.push(extrapolate(
-                        [&f[0].probes, &f[1].probes, &f[2].probes],
-                        order,
-                    ));
+                    fields.push(extrapolate(three, order));
                 } else {
-                    log::warn!("{} at ν {nu}: no monotone convergence {set:?}", m.name());
+                    log::warn!("{} at ν {nu}: the field does not converge", m.name());
                 }
             }
             solves.push((m, s));
@@ -264,25 +355,31 @@ pub fn ratios(rows: &[Row], cells: usize) -> Vec<(Smoothing, f64, f64)> {
             .find(|r| r.method == m && r.poisson == nu && r.cells == cells)
             .map_or(f64::NAN, |r| r.field_error)
     };
-    [Smoothing::Nodal, Smoothing::ElementAveraged]
-        .iter()
-        .map(|&s| {
-            let lf = err(Method::LockingFree(s), hi);
-            (
-                s,
-                lf / err(Method::Standard, lo),
-                lf / err(Method::Standard, hi),
-            )
-        })
-        .collect()
+    [
+        Smoothing::Nodal,
+        Smoothing::ElementAveraged,
+        Smoothing::Stabilised,
+    ]
+    .iter()
+    .map(|&s| {
+        let lf = err(Method::LockingFree(s), hi);
+        (
+            s,
+            lf / err(Method::Standard, lo),
+            lf / err(Method::Standard, hi),
+        )
+    })
+    .collect()
 }
 
-/// The study's table as text.
-pub fn table(rows: &[Row], refs: &[Reference]) -> String {
+/// The study's table under `load` as text.
+pub fn table(load: Load, rows: &[Row], refs: &[Reference]) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "locking-free study: the paper's cube, 100 Pa on the top face; error against a converged reference"
+        "locking-free study ({}): the paper's cube, {}; error against a converged reference",
+        load.name(),
+        load.describe()
     );
     for r in refs {
         let ex: Vec<String> = r
@@ -302,7 +399,7 @@ pub fn table(rows: &[Row], refs: &[Reference]) -> String {
     let _ = writeln!(
         out,
         "{:>8} {:>10} {:>6} {:>11} {:>10} {:>10} {:>9}",
-        "poisson", "method", "cells", "u_top um", "u_err", "field_err", "K_nnz"
+        "poisson", "method", "cells", "u_mon um", "u_err", "field_err", "K_nnz"
     );
     for r in rows {
         let _ = writeln!(

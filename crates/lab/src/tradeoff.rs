@@ -106,7 +106,7 @@ pub fn cpu_rows(
         // The alternative to precomputing L: a forward/back substitution per frame.
         let mut direct = vec![DVec3::ZERO; nr];
         let tds = median_us(reps.clamp(3, 50), || {
-            let mut b = faer::Mat::<f64>::zeros(stiff.dofs.n_free, 1);
+            let mut b = faer::Mat::<f64>::zeros(stiff.n(), 1);
             for &(col, f) in &forces {
                 let node = c.cols()[col as usize];
                 for a in 0..3 {
@@ -130,7 +130,10 @@ pub fn cpu_rows(
             time_us: tds,
             rel_error: rel_err(&direct, &reference),
         });
-        rows.extend(cg_rows(name, scene, &stiff, &forces, reps));
+        // Conjugate gradients need K itself (symmetric positive definite), not a mixed system.
+        if stiff.n_aux() == 0 {
+            rows.extend(cg_rows(name, scene, &stiff, &forces, reps));
+        }
     }
     rows.extend(force_rows(name, scene, reps)?);
     Ok(rows)

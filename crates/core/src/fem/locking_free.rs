@@ -27,13 +27,17 @@ use super::{shape_gradients, FemError, Stiffness};
 use crate::mesh::Mesh;
 use crate::units::Formulation;
 
-/// Where the volumetric strain is smoothed (see the module's text).
+/// How the volumetric strain is treated (see the module's text).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Smoothing {
     /// Averaged nodal dilatation (Bonet & Burton 1998): two-ring stencil.
     Nodal,
     /// Each tet's dilatation the mean of its nodes' averaged dilatations: three-ring stencil.
     ElementAveraged,
+    /// The nodal pressure of [`Smoothing::Nodal`] with the MINI element's bubble condensed
+    /// per tet: a pressure-gradient stabilisation that relaxes the nodal volume constraints
+    /// (see [`mixed`]). Its condensed stiffness is dense; it exists as a mixed system only.
+    Stabilised,
 }
 
 impl Smoothing {
@@ -45,6 +49,7 @@ impl Smoothing {
         match self {
             Smoothing::Nodal => "nodal",
             Smoothing::ElementAveraged => "element-averaged",
+            Smoothing::Stabilised => "stabilised",
         }
     }
 }
@@ -221,8 +226,9 @@ pub(crate) fn blocks(mesh: &Mesh, smoothing: Smoothing, skip_fixed: bool) -> Blo
         ..
     } = groups(mesh, &mut slot);
     // The volumetric rank-one terms (weight, vector): Σ weight·(vᵀu)².
+    // (`Stabilised` has no assembled form; its callers branch before.)
     let terms: Vec<(f64, Sparse)> = match smoothing {
-        Smoothing::Nodal => b
+        Smoothing::Nodal | Smoothing::Stabilised => b
             .into_iter()
             .enumerate()
             .map(|(g, v)| (kappa_g[g] * vol_g[g], v))
@@ -308,33 +314,51 @@ pub(crate) fn blocks(mesh: &Mesh, smoothing: Smoothing, skip_fixed: bool) -> Blo
 }
 
 /// The locking-free stiffness of `mesh` over its free DOFs with `smoothing` (whatever
-/// `mesh.formulation` says; [`Stiffness::assemble`] uses [`Smoothing::CHOSEN`] for
-/// [`Formulation::LockingFree`]). Checks the materials (ν = 0.5 exactly is
-/// [`FemError::Incompressible`]) and the clamps as `assemble` does.
+/// `mesh.formulation` says), assembled; for [`Smoothing::Stabilised`], whose condensed
+/// stiffness is dense, its mixed system ([`mixed`]), which solves to the same displacements.
+/// Checks the materials (ν = 0.5 exactly is [`FemError::Incompressible`]) and the clamps as
+/// [`Stiffness::assemble`] does.
 pub fn stiffness(mesh: &Mesh, smoothing: Smoothing) -> Result<Stiffness, FemError> {
+    if smoothing == Smoothing::Stabilised {
+        return mixed(mesh, smoothing);
+    }
     mesh.validate_materials()?;
     super::check_constrained(mesh)?;
     Stiffness::from_blocks(mesh, &blocks(mesh, smoothing, true))
 }
 
-/// The mixed system of the locking-free formulation ([`Smoothing::Nodal`]): the same
-/// displacements as [`stiffness`] gives, from a sparser system. With `p_g = κ_g V_g θ_g` one
-/// unknown per nodal group (node and region), the energy's stationarity reads
+/// The mixed system of the locking-free formulation with `smoothing` ([`Smoothing::Nodal`]
+/// or [`Smoothing::Stabilised`]; `Err` for [`Smoothing::ElementAveraged`]). With
+/// `p_g = κ_g V_g θ_g` one unknown per nodal group (node and region; `P_g = p_g / V_g` is
+/// the group's pressure), the energy's stationarity reads
 ///
 /// ```text
-/// [ K_dev   Bᵀ ] [u]   [f]        B: row g is b_gᵀ (θ_g = b_gᵀ u),
-/// [ B      −C  ] [p] = [0],       C = diag(1 / (κ_g V_g)),
+/// [ K_dev   Bᵀ      ] [u]   [f]        B: row g is b_gᵀ (θ_g = b_gᵀ u),
+/// [ B      −(C + S) ] [p] = [0],       C = diag(1 / (κ_g V_g)),
 /// ```
 ///
-/// and eliminating `p` gives back `K_dev + Bᵀ C⁻¹ B`, the assembled stiffness. The system is
-/// quasi-definite (`K_dev` positive definite once clamped, `−C` negative definite), so it has
-/// an `LDLᵀ` factorisation in any symmetric order, with positive pivots at the
-/// displacements and negative ones at the pressures ([`super::Factor`]). Its pattern is the
-/// standard element's (each `b_g` lives on the node's one-ring) with a fourth unknown per
-/// node, where the assembled stiffness couples two rings: ordered node by node, its factor
-/// has about half the non-zeros (docs/measurements/2026-12-03-locking-free.md). Checks as
-/// [`stiffness`] does.
-pub fn mixed(mesh: &Mesh) -> Result<Stiffness, FemError> {
+/// and eliminating `p` gives `K_dev + Bᵀ (C + S)⁻¹ B`. For `Nodal`, `S = 0`: that is the
+/// assembled stiffness of [`stiffness`]. For `Stabilised`, `S = Σ_e S_e` condenses the MINI
+/// element's cubic bubble (`φ = 256 λ₁λ₂λ₃λ₄`, one vector per tet, deviatoric energy only,
+/// orthogonal to the linear field) out of each tet: in pressures,
+/// `Ŝ_e = (∫φ)² G_eᵀ K_bb⁻¹ G_e`, `G_e = [∇N₁ … ∇N₄]`, `K_bb = μ tr(M) I + (μ/3) M`,
+/// `M = ∫∇φ∇φᵀ = (256² V / 15120) Σ_a ∇N_a∇N_aᵀ`, `∫φ = 32V/105` — a pressure-gradient
+/// penalty that relaxes the nodal volume constraints (the P1–P1 pair is not inf-sup stable
+/// without it); `Ŝ_e 1 = 0`, so a uniform pressure, and the patch test, are untouched.
+///
+/// The system is quasi-definite (`K_dev` positive definite once clamped, `−(C + S)` negative
+/// definite), so it has an `LDLᵀ` factorisation in any symmetric order, with positive pivots
+/// at the displacements and negative ones at the pressures ([`super::Factor`]). Its pattern
+/// is the standard element's (each `b_g` and `S_e` live on the one-ring) with a fourth unknown
+/// per node, where the assembled nodal stiffness couples two rings: ordered node by node,
+/// its factor has about half the non-zeros (docs/measurements/2026-12-03-locking-free.md).
+/// Checks as [`stiffness`] does.
+pub fn mixed(mesh: &Mesh, smoothing: Smoothing) -> Result<Stiffness, FemError> {
+    if smoothing == Smoothing::ElementAveraged {
+        return Err(FemError::Factorisation(
+            "the element-averaged dilatation has no mixed form here".into(),
+        ));
+    }
     mesh.validate_materials()?;
     super::check_constrained(mesh)?;
     let n = mesh.nodes.len();
@@ -370,18 +394,95 @@ pub fn mixed(mesh: &Mesh) -> Result<Stiffness, FemError> {
             }
         }
     }
-    let aux: Vec<(u32, f64, Sparse)> =
+    let s = match smoothing {
+        Smoothing::Stabilised => bubble_stabilisation(mesh, &g),
+        _ => vec![Vec::new(); g.owner.len()],
+    };
+    let aux: Vec<super::AuxRow> =
         g.b.into_iter()
+            .zip(s)
             .enumerate()
-            .map(|(k, b)| (g.owner[k], -1.0 / (g.kappa[k] * g.vol[k]), b))
+            .map(|(k, (b, mut row))| {
+                // −(C + S): the diagonal, and the other groups' couplings.
+                let mut diag = -1.0 / (g.kappa[k] * g.vol[k]);
+                if let Some(i) = row.iter().position(|e| e.0 as usize == k) {
+                    diag -= row.swap_remove(i).1;
+                }
+                row.iter_mut().for_each(|e| e.1 = -e.1);
+                (g.owner[k], diag, b, row)
+            })
             .collect();
     Stiffness::from_mixed(mesh, &dev, &aux)
+}
+
+/// `S` of [`Smoothing::Stabilised`] in the groups' unknowns `p_g = V_g P_g`: per group, its
+/// row `(group, value)` (the diagonal included), `S[g][h] = Σ_e Ŝ_e[g][h] / (V_g V_h)`.
+fn bubble_stabilisation(mesh: &Mesh, g: &Groups) -> Vec<Vec<(u32, f64)>> {
+    let mut rows: Vec<Vec<(u32, f64)>> = vec![Vec::new(); g.owner.len()];
+    for t in 0..mesh.tets.len() {
+        let (gr, vol, mu, _) = &g.geo[t];
+        let mut m = glam::DMat3::ZERO;
+        for v in gr {
+            m += glam::DMat3::from_cols(*v * v.x, *v * v.y, *v * v.z);
+        }
+        m *= 65536.0 * vol / 15120.0;
+        let trace = m.x_axis.x + m.y_axis.y + m.z_axis.z;
+        let kbb = glam::DMat3::from_diagonal(DVec3::splat(mu * trace)) + m * (mu / 3.0);
+        let kinv = kbb.inverse();
+        let c = 32.0 * vol / 105.0;
+        for k in 0..4 {
+            let gk = g.group[4 * t + k];
+            let x = kinv * gr[k];
+            for (l, gradient) in gr.iter().enumerate() {
+                let gl = g.group[4 * t + l];
+                let v = c * c * x.dot(*gradient) / (g.vol[gk as usize] * g.vol[gl as usize]);
+                let row = &mut rows[gk as usize];
+                match row.iter_mut().find(|e| e.0 == gl) {
+                    Some(e) => e.1 += v,
+                    None => row.push((gl, v)),
+                }
+            }
+        }
+    }
+    rows
 }
 
 /// The full (unclamped, singular) locking-free stiffness as a dense matrix, for tests on small
 /// meshes (the materials unchecked, as in [`super::dense_stiffness`]).
 pub fn dense(mesh: &Mesh, smoothing: Smoothing) -> Vec<Vec<f64>> {
-    super::dense_from_blocks(mesh.nodes.len(), &blocks(mesh, smoothing, false))
+    if smoothing != Smoothing::Stabilised {
+        return super::dense_from_blocks(mesh.nodes.len(), &blocks(mesh, smoothing, false));
+    }
+    // K_dev + Bᵀ (C + S)⁻¹ B, densely.
+    let n = 3 * mesh.nodes.len();
+    let mut slot = vec![usize::MAX; mesh.nodes.len()];
+    let g = groups(mesh, &mut slot);
+    let ng = g.owner.len();
+    let mut cs = nalgebra::DMatrix::<f64>::zeros(ng, ng);
+    for (k, row) in bubble_stabilisation(mesh, &g).into_iter().enumerate() {
+        cs[(k, k)] += 1.0 / (g.kappa[k] * g.vol[k]);
+        for (h, v) in row {
+            cs[(k, h as usize)] += v;
+        }
+    }
+    let mut b = nalgebra::DMatrix::<f64>::zeros(ng, n);
+    for (k, bk) in g.b.iter().enumerate() {
+        for &(node, v) in bk {
+            for a in 0..3 {
+                b[(k, 3 * node as usize + a)] = v[a];
+            }
+        }
+    }
+    // C + S is positive definite; were it not (a degenerate mesh), NaN says so.
+    let inv = match cs.clone().cholesky() {
+        Some(c) => c.inverse(),
+        None => cs * f64::NAN,
+    };
+    let vol = b.transpose() * inv * &b;
+    let dev = dense_deviatoric(mesh);
+    (0..n)
+        .map(|i| (0..n).map(|j| dev[i][j] + vol[(i, j)]).collect())
+        .collect()
 }
 
 /// The full (unclamped, singular) stiffness of the deviatoric part alone as a dense matrix:
@@ -420,7 +521,11 @@ mod tests {
     use faer::Mat;
     use nalgebra::{DMatrix, DVector};
 
-    const BOTH: [Smoothing; 2] = [Smoothing::Nodal, Smoothing::ElementAveraged];
+    const ALL: [Smoothing; 3] = [
+        Smoothing::Nodal,
+        Smoothing::ElementAveraged,
+        Smoothing::Stabilised,
+    ];
 
     fn material(poisson: f64) -> Material {
         Material {
@@ -503,7 +608,7 @@ mod tests {
                 })
                 .collect();
             assert_eq!(interior.len(), 8);
-            for s in BOTH {
+            for s in ALL {
                 let k = matrix(&dense(&m, s));
                 let f = &k * &u;
                 let diff = (&f - &f_std).amax() / scale;
@@ -555,8 +660,8 @@ mod tests {
         // The deviatoric part alone also leaves the uniform dilatation free: seven zeros.
         assert_eq!(dev_e.iter().filter(|&&e| e.abs() < 1e-10 * max).count(), 7);
         let dev_max = dev_e[dev_e.len() - 1];
-        let mut prev: Option<Vec<f64>> = None;
-        for s in BOTH {
+        let mut nodal: Option<Vec<f64>> = None;
+        for s in ALL {
             let e = eigenvalues(&dense(&m, s));
             let zeros = e.iter().filter(|&&v| v.abs() < 1e-10 * max).count();
             assert_eq!(zeros, 6, "{s:?}: {:?}", &e[..8]);
@@ -569,15 +674,23 @@ mod tests {
                     dev_e[k] - tol <= e[k] && e[k] <= std_e[k] + tol,
                     "{s:?} eigenvalue {k}"
                 );
-                if let Some(p) = &prev {
-                    assert!(e[k] <= p[k] + tol, "element-averaged above nodal at {k}");
+                if let Some(p) = &nodal {
+                    assert!(e[k] <= p[k] + tol, "{s:?} above nodal at {k}");
                 }
             }
             // Modes that carry the bulk modulus (ν = 0.4999: κ ≈ 5000 μ).
             let stiff = e.iter().filter(|&&v| v > 20.0 * dev_max).count();
             eprintln!("modes carrying the bulk modulus: {s:?} {stiff}, first non-rigid {} vs deviatoric {}", e[6], dev_e[7]);
             assert!((1..=27).contains(&stiff), "{s:?}: {stiff}");
-            prev = Some(e);
+            if s == Smoothing::Stabilised {
+                // The stabilisation penalises pressure gradients at the shear modulus's
+                // scale: only the smoothest pressures (the uniform and the three linear
+                // ones, the patch's whole-volume constraints) still carry the bulk modulus.
+                assert!(stiff <= 4, "stabilised: {stiff}");
+            }
+            if s == Smoothing::Nodal {
+                nodal = Some(e);
+            }
         }
         let std_stiff = std_e.iter().filter(|&&v| v > 20.0 * dev_max).count();
         eprintln!("modes carrying the bulk modulus: standard {std_stiff}");
@@ -587,9 +700,6 @@ mod tests {
         );
     }
 
-    /// The sparse, clamped stiffness equals the dense one on the free DOFs, is symmetric, and
-    /// honours per-tet materials: a two-region mesh (a stiff, nearly incompressible half on
-    /// a soft, compressible one) keeps the sandwich deviatoric ≤ locking-free ≤ standard.
     /// A distorted 4×3×5 block with a stiffer, nearly incompressible top region.
     fn two_region_block() -> Mesh {
         let mut raw = grid_raw([4, 3, 5], [30.0, 24.0, 36.0], |_, _, _| true);
@@ -617,11 +727,12 @@ mod tests {
 
     #[test]
     fn the_mixed_system_gives_the_assembled_displacements_on_every_path() {
+        // (Method::Stabilised's too, against its dense condensed stiffness.)
         use super::super::{FactorStore, Ordering};
         use crate::compliance::{Compliance, Method, Selection};
         let m = two_region_block();
         let assembled = stiffness(&m, Smoothing::Nodal).expect("K");
-        let mixed = Stiffness::system(&m).expect("mixed");
+        let mixed = Stiffness::assemble(&m).expect("mixed");
         let nf = assembled.n();
         // One pressure per node and region: the top region's boundary nodes have two.
         let boundary = m
@@ -668,6 +779,37 @@ mod tests {
                 );
             }
         }
+        // The stabilised system against its condensed stiffness, formed densely.
+        let stab = super::mixed(&m, Smoothing::Stabilised).expect("stabilised");
+        let kd = dense(&m, Smoothing::Stabilised);
+        let owner = &assembled.dofs.owner;
+        let kff = DMatrix::from_fn(nf, nf, |i, j| {
+            let (a, x) = owner[i];
+            let (b, y) = owner[j];
+            kd[3 * a as usize + x as usize][3 * b as usize + y as usize]
+        });
+        let dense_inv = kff.cholesky().expect("positive definite").inverse();
+        let dscale = (0..nf).map(|i| dense_inv[(i, i)]).fold(0.0f64, f64::max);
+        for store in &stores {
+            let (f, _, _) = stab.factorize_in(Ordering::Metis, store).expect("LDLᵀ");
+            let mut b = Mat::<f64>::zeros(stab.n(), nf);
+            for j in 0..nf {
+                b[(j, j)] = 1.0;
+            }
+            f.solve_in_place(&mut b);
+            let mut worst = 0.0f64;
+            for j in 0..nf {
+                for i in 0..nf {
+                    worst = worst.max((b[(i, j)] - dense_inv[(i, j)]).abs());
+                }
+            }
+            assert!(
+                worst <= 1e-9 * dscale,
+                "stabilised {store:?}: {worst:e} of {dscale:e}"
+            );
+            // Softer than the nodal average: the stabilisation relaxes its constraints.
+            assert!(dscale > scale, "{dscale:e} vs {scale:e}");
+        }
         // Every precompute method, both stores: L against the reference's blocks.
         let sel = Selection::default();
         for how in [Method::Columns, Method::Full, Method::Gram] {
@@ -708,7 +850,7 @@ mod tests {
         let (s, a, x) = (
             nnz(&std_k),
             nnz(&stiffness(&m, Smoothing::Nodal).expect("K")),
-            nnz(&Stiffness::system(&m).expect("mixed")),
+            nnz(&super::mixed(&m, Smoothing::Nodal).expect("mixed")),
         );
         // Four unknowns per node on the standard pattern: about (4/3)² of the standard
         // factor; the two-ring assembled stiffness is denser still.
@@ -718,6 +860,9 @@ mod tests {
         );
     }
 
+    /// The sparse, clamped stiffness equals the dense one on the free DOFs, is symmetric, and
+    /// honours per-tet materials: a two-region mesh (a stiff, nearly incompressible half on
+    /// a soft, compressible one) keeps the sandwich deviatoric ≤ locking-free ≤ standard.
     #[test]
     fn sparse_equals_dense_and_regions_are_honoured() {
         let mut raw = grid_raw([3, 3, 3], [30.0; 3], |_, _, _| true);
@@ -743,9 +888,12 @@ mod tests {
             s.formulation = Formulation::Standard;
             super::super::dense_stiffness(&s)
         };
-        let k = super::super::dense_stiffness(&m);
-        assert_eq!(k, dense(&m, Smoothing::CHOSEN));
-        let sparse = Stiffness::assemble(&m).expect("K");
+        assert_eq!(
+            super::super::dense_stiffness(&m),
+            dense(&m, Smoothing::CHOSEN)
+        );
+        let k = dense(&m, Smoothing::Nodal);
+        let sparse = stiffness(&m, Smoothing::Nodal).expect("K");
         let max = k.iter().flatten().fold(0.0f64, |a, v| a.max(v.abs()));
         let owner = &sparse.dofs.owner;
         let mut nnz = 0;
@@ -824,13 +972,16 @@ mod tests {
         assert!(std_u[0] > std_u[1], "standard: {std_u:?}");
         assert!(std_u[1] / std_u[2] < 0.75, "standard: {std_u:?}");
         let std_03 = settle(4, 0.3, None);
-        for s in BOTH {
+        for s in ALL {
             let u: Vec<f64> = [2, 4, 8]
                 .iter()
                 .map(|&n| settle(n, 0.4999, Some(s)))
                 .collect();
             assert!(u[0] < u[1] && u[1] < u[2], "{s:?}: {u:?}");
             assert!(u[1] / u[2] > 0.8, "{s:?}: {u:?}");
+            if s == Smoothing::Stabilised {
+                assert!(u[1] / u[2] > 0.9, "{s:?}: {u:?}");
+            }
             let v = settle(4, 0.3, Some(s));
             assert!((v / std_03 - 1.0).abs() < 0.02, "{s:?}: {v} vs {std_03}");
         }
@@ -847,7 +998,14 @@ mod tests {
                 matches!(Stiffness::assemble(&m), Err(FemError::Incompressible)),
                 "{f}"
             );
-            for s in BOTH {
+            assert!(
+                matches!(
+                    super::mixed(&m, Smoothing::CHOSEN),
+                    Err(FemError::Incompressible)
+                ),
+                "{f}"
+            );
+            for s in ALL {
                 assert!(matches!(stiffness(&m, s), Err(FemError::Incompressible)));
             }
             m.material.poisson = 0.499_999;

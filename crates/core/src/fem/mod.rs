@@ -183,7 +183,7 @@ pub struct Stiffness {
     /// the geometry the nested-dissection ordering cuts.
     free_coords: Vec<DVec3>,
     /// The node of each auxiliary unknown (DOF `n_free + j`): empty for `K` itself; for the
-    /// mixed system of [`Stiffness::system`], one pressure per node and region, which the
+    /// mixed system of [`locking_free::mixed`], one pressure per node and region, which the
     /// factorisation eliminates with negative pivots.
     aux_owner: Vec<u32>,
     /// The position of each auxiliary unknown's node, metres (for the ordering).
@@ -216,9 +216,10 @@ pub enum FactorStore {
     },
 }
 
-/// One auxiliary unknown of a mixed system: its node, its diagonal entry, and its couplings
-/// to the displacements (per node, a 3-vector).
-pub(crate) type AuxRow = (u32, f64, Vec<(u32, DVec3)>);
+/// One auxiliary unknown of a mixed system: its node, its diagonal entry, its couplings to
+/// the displacements (per node, a 3-vector), and to other auxiliary unknowns (by index; each
+/// pair given from both sides).
+pub(crate) type AuxRow = (u32, f64, Vec<(u32, DVec3)>, Vec<(u32, f64)>);
 
 /// The fill-reducing ordering of the sparse Cholesky factorisation.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -374,11 +375,14 @@ fn nested_dissection(coords: &[DVec3], ptr: &[usize], idx: &[usize]) -> Vec<usiz
 
 impl Stiffness {
     /// Assembles K with the clamped DOFs eliminated, in the mesh's formulation, each tet of its
-    /// own material ([`Mesh::tet_material`]). Checks the materials and that every
-    /// connected part of the mesh is held by at least three non-collinear clamped nodes.
+    /// own material ([`Mesh::tet_material`]): for the standard formulation K itself, for
+    /// the locking-free one its mixed system ([`locking_free::mixed`]: the same
+    /// displacements, with [`Stiffness::n_aux`] pressures after the free DOFs). Checks the
+    /// materials and that every connected part of the mesh is held by at least three
+    /// non-collinear clamped nodes.
     pub fn assemble(mesh: &Mesh) -> Result<Stiffness, FemError> {
         if locking_free::wanted(mesh) {
-            return locking_free::stiffness(mesh, locking_free::Smoothing::CHOSEN);
+            return locking_free::mixed(mesh, locking_free::Smoothing::CHOSEN);
         }
         mesh.validate_materials()?;
         check_constrained(mesh)?;
@@ -455,8 +459,11 @@ impl Stiffness {
                 }
             }
         }
-        for (k, (_, diag, coupling)) in aux.iter().enumerate() {
+        for (k, (_, diag, coupling, others)) in aux.iter().enumerate() {
             let p = nf + k;
+            for &(h, v) in others {
+                cols[p].push((nf + h as usize, v));
+            }
             for &(node, v) in coupling {
                 for a in 0..3 {
                     if let Some(d) = dofs.free(node, a) {
@@ -495,16 +502,6 @@ impl Stiffness {
             aux_owner: aux.iter().map(|a| a.0).collect(),
             aux_coords: aux.iter().map(|a| mesh.nodes[a.0 as usize]).collect(),
         })
-    }
-
-    /// The linear system the precompute and [`solve_static`] factorise: `K` itself, or for
-    /// the locking-free formulation the equivalent mixed system of
-    /// [`locking_free::mixed`] (the same displacements, a sparser factor).
-    pub fn system(mesh: &Mesh) -> Result<Stiffness, FemError> {
-        if locking_free::wanted(mesh) {
-            return locking_free::mixed(mesh);
-        }
-        Stiffness::assemble(mesh)
     }
 
     /// Unknowns of the system: the free DOFs, then the auxiliary ones.
@@ -822,7 +819,7 @@ impl Stiffness {
         })
     }
 
-    /// y = K·x over free DOFs.
+    /// y = K·x over the system's unknowns (for a mixed system, the mixed matrix's product).
     pub fn mul(&self, x: &[f64], y: &mut [f64]) {
         y.iter_mut().for_each(|v| *v = 0.0);
         let k = self.k.as_ref();
@@ -855,7 +852,7 @@ pub(crate) fn signed_column(col: &mut [f64], j: usize, negative: bool) -> Result
 }
 
 /// The factor of the system: `P K Pᵀ = G Gᵀ` (Cholesky) for `K`; for a mixed system
-/// ([`Stiffness::system`], quasi-definite), `P K Pᵀ = G Σ Gᵀ` with `Σ = diag(±1)`: −1 at the
+/// ([`locking_free::mixed`], quasi-definite), `P K Pᵀ = G Σ Gᵀ` with `Σ = diag(±1)`: −1 at the
 /// auxiliary unknowns' columns. `G` has a positive diagonal either way, so forward solves
 /// are the same; the solves and the Gram product put `Σ` between.
 pub struct Factor {
@@ -958,7 +955,7 @@ impl Factor {
 /// (node, force in N); returns the displacement of every node in metres (zero on clamped nodes).
 /// This is the direct reference that the precomputed `L·F` must reproduce.
 pub fn solve_static(mesh: &Mesh, forces: &[(u32, DVec3)]) -> Result<Vec<DVec3>, FemError> {
-    Stiffness::system(mesh)?.solve(mesh.nodes.len(), forces)
+    Stiffness::assemble(mesh)?.solve(mesh.nodes.len(), forces)
 }
 
 impl Stiffness {
