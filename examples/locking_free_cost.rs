@@ -54,10 +54,11 @@ fn main() {
     );
     // None: the standard stiffness; Some((s, false)): the assembled locking-free stiffness;
     // Some((s, true)): the mixed system the formulation factorises.
-    let methods: [(&str, Option<(Smoothing, bool)>); 4] = [
+    let methods: [(&str, Option<(Smoothing, bool)>); 5] = [
         ("standard", None),
         ("nodal (assembled)", Some((Smoothing::Nodal, false))),
         ("nodal (mixed)", Some((Smoothing::Nodal, true))),
+        ("stabilised (mixed)", Some((Smoothing::Stabilised, true))),
         (
             "element-averaged",
             Some((Smoothing::ElementAveraged, false)),

@@ -8,9 +8,10 @@ pub enum FemError {
     /// E or ν out of range.
     #[error("bad material: {0}")]
     BadMaterial(String),
-    /// ν = 0.5 exactly: the bulk modulus is infinite, and a displacement-only `K` (either
-    /// formulation) cannot hold it; that needs a mixed displacement–pressure solve, which
-    /// touchfem does not have.
+    /// ν = 0.5 exactly: the bulk modulus is infinite, and a displacement-only `K` cannot hold
+    /// it; the locking-free formulation's mixed system would lose the compressibility that
+    /// makes its pressure block negative definite, which its factorisation without pivoting
+    /// relies on, so both formulations refuse it.
     #[error(
         "Poisson's ratio 0.5 (exactly incompressible) has an infinite bulk modulus: no \
          displacement-only stiffness holds it; use 0.4999 with formulation \"locking-free\" \

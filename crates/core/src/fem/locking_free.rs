@@ -6,20 +6,24 @@
 //!
 //! With `θ_e = Σ_b ∇N_b·u_b` the dilatation of tet `e` (volume `V_e`, bulk modulus
 //! `κ_e = λ_e + 2μ_e/3`), the nodal dilatation is the volume-weighted mean around node `a`,
-//! `θ_a = Σ_{e∋a} (V_e/4) θ_e / V_a` with `V_a = Σ_{e∋a} V_e/4`, and
+//! `θ_a = Σ_{e∋a} (V_e/4) θ_e / V_a` with `V_a = Σ_{e∋a} V_e/4` (per node *and region*), and
 //!
 //! * [`Smoothing::Nodal`] (averaged nodal pressure, Bonet & Burton 1998): volumetric energy
-//!   `½ Σ_a κ_a V_a θ_a²` (`κ_a` the volume-weighted mean of `κ_e`); `K_vol = Σ_a κ_a V_a b_a b_aᵀ`
-//!   with `θ_a = b_aᵀu`, which couples nodes up to two edges apart;
+//!   `½ Σ_a κ_a V_a θ_a²`; `K_vol = Σ_a κ_a V_a b_a b_aᵀ` with `θ_a = b_aᵀu`, which couples
+//!   nodes up to two edges apart;
 //! * [`Smoothing::ElementAveraged`]: the tet's dilatation is the mean of its four nodal ones,
-//!   `θ̄_e = ¼ Σ_{a∈e} θ_a`, volumetric energy `½ Σ_e κ_e V_e θ̄_e²`: three edges apart, a
-//!   denser `K`.
+//!   `θ̄_e = ¼ Σ_{a∈e} θ_a`, volumetric energy `½ Σ_e κ_e V_e θ̄_e²`: three edges apart;
+//! * [`Smoothing::Stabilised`] (the formulation's, [`Smoothing::CHOSEN`]): the nodal pressure
+//!   with the MINI element's bubble condensed per tet, a pressure-gradient penalty that relaxes
+//!   the nodal volume constraints, which otherwise still over-constrain a coarse mesh.
 //!
-//! Both are sums of positive semi-definite rank-one terms plus the standard deviatoric
-//! element matrices, so `K` stays linear, symmetric and positive definite once clamped; for an
-//! affine displacement every θ equals the tet's, so the nodal forces are those of the standard
-//! element (the patch test passes). [`Formulation::LockingFree`] uses [`Smoothing::CHOSEN`];
-//! `docs/measurements/2026-12-03-locking-free.md` says why.
+//! All keep `K` linear, symmetric and positive definite once clamped, between the deviatoric
+//! part's and the standard one's; for an affine displacement every θ equals the tet's, so the
+//! nodal forces are those of the standard element (the patch test passes). The precompute
+//! never forms `K` for the formulation: it factorises the equivalent mixed system of
+//! [`mixed`] (a pressure per node and region beside the displacements), whose factor is about
+//! half the assembled nodal stiffness's. `docs/measurements/2026-12-03-locking-free.md` gives
+//! the comparison and the reasons for the choice.
 
 use glam::DVec3;
 
@@ -42,7 +46,7 @@ pub enum Smoothing {
 
 impl Smoothing {
     /// The smoothing of [`Formulation::LockingFree`].
-    pub const CHOSEN: Smoothing = Smoothing::Nodal;
+    pub const CHOSEN: Smoothing = Smoothing::Stabilised;
 
     /// A short name for tables.
     pub fn name(self) -> &'static str {
@@ -647,10 +651,10 @@ mod tests {
     /// The eigenvalues of a free (unclamped) 2×2×2 patch, distorted: exactly six zero (the
     /// rigid motions) and no spurious mode; every eigenvalue between the deviatoric part's and
     /// the standard stiffness's (the averaged dilatation's energy is at most the per-tet one,
-    /// by Jensen's inequality, and at least zero), element-averaged below nodal; and the
-    /// number of modes that stiffen with the bulk modulus is at most the number of nodal
-    /// dilatations (27), against up to one per tet (40) for the standard element: the volume
-    /// constraints that lock it.
+    /// by Jensen's inequality, and at least zero), element-averaged and stabilised below nodal;
+    /// and the number of modes that stiffen with the bulk modulus is at most the number of
+    /// nodal dilatations (27; stabilised: 4), against up to one per tet (40) for the standard
+    /// element: the volume constraints that lock it.
     #[test]
     fn a_free_patch_has_exactly_six_zero_modes_and_no_spurious_ones() {
         let m = jittered(2, 0.4999);
