@@ -14,6 +14,7 @@ mod gram;
 mod haptics;
 mod hard_cases;
 mod ladder;
+mod locking_free;
 mod mesh_io;
 mod near;
 mod physics;

@@ -544,8 +544,7 @@ impl Worker {
                 for (j, &neg) in negative.iter().enumerate() {
                     let col = l11.rb_mut().col_mut(j).try_as_col_major_mut();
                     let col = col.ok_or_else(|| bad("a front column is not contiguous".into()))?;
-                    crate::fem::signed_column(col.as_slice_mut(), j, neg)
-                        .map_err(|()| singular(j))?;
+                    signed_column(col.as_slice_mut(), j, neg).map_err(|()| singular(j))?;
                 }
                 faer::linalg::triangular_solve::solve_lower_triangular_in_place(
                     l11.rb(),
@@ -646,6 +645,23 @@ fn split(sh: &Shared<'_>, workers: usize) -> Vec<Vec<usize>> {
         roots.sort_unstable();
     }
     out
+}
+
+/// One column `j` of an `LDLᵀ` supernode (`col`: its rows from the diagonal block's top,
+/// `d` on the diagonal, `L` below) in the signed form `G Σ Gᵀ`: `G = L·√|d|`, `σ = sign d`,
+/// which must be negative exactly when `negative`. `Err` for a zero, non-finite or wrongly
+/// signed pivot (the system is not quasi-definite: singular).
+pub(crate) fn signed_column(col: &mut [f64], j: usize, negative: bool) -> Result<(), ()> {
+    let d = col[j];
+    if !d.is_finite() || d == 0.0 || (d < 0.0) != negative {
+        return Err(());
+    }
+    let r = d.abs().sqrt();
+    col[j] = r;
+    for v in &mut col[j + 1..] {
+        *v *= r;
+    }
+    Ok(())
 }
 
 /// The elimination order of a factorisation: the permutation (`fwd`: new → old, `inv`:

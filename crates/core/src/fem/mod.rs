@@ -1,9 +1,11 @@
 //! Linear-elastic constant-strain tetrahedra: element and global stiffness (the paper's eq. 1),
-//! elimination of the clamped DOFs, and the sparse Cholesky factorisation of `K` (faer, supernodal
-//! with AMD ordering).
+//! elimination of the clamped DOFs, and the sparse factorisation of `K` (faer's supernodal
+//! analysis, METIS ordering): Cholesky, or for the locking-free formulation's mixed system a
+//! signed `G Σ Gᵀ` ([`Factor`]).
 
+use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::sparse::SparseColMat;
-use faer::{Mat, Side};
+use faer::{Accum, Mat, MatMut, MatRef, Par, Side};
 use glam::DVec3;
 
 use crate::mesh::Mesh;
@@ -769,8 +771,12 @@ impl Stiffness {
                 let m = ns + sn.supernode(sup).pattern().len();
                 let block = &mut values[vp[sup]..vp[sup + 1]];
                 for j in 0..ns {
-                    signed_column(&mut block[j * m..(j + 1) * m], j, negative[b0 + j])
-                        .map_err(|()| singular(b0 + j))?;
+                    crate::frontal::signed_column(
+                        &mut block[j * m..(j + 1) * m],
+                        j,
+                        negative[b0 + j],
+                    )
+                    .map_err(|()| singular(b0 + j))?;
                 }
             }
         }
@@ -834,23 +840,6 @@ impl Stiffness {
     }
 }
 
-/// One column `j` of an `LDLᵀ` supernode (`col`: its rows from the diagonal block's top,
-/// `d` on the diagonal, `L` below) in the signed form `G Σ Gᵀ`: `G = L·√|d|`, `σ = sign d`,
-/// which must be negative exactly when `negative`. `Err` for a zero, non-finite or wrongly
-/// signed pivot (the system is not quasi-definite: singular).
-pub(crate) fn signed_column(col: &mut [f64], j: usize, negative: bool) -> Result<(), ()> {
-    let d = col[j];
-    if !d.is_finite() || d == 0.0 || (d < 0.0) != negative {
-        return Err(());
-    }
-    let r = d.abs().sqrt();
-    col[j] = r;
-    for v in &mut col[j + 1..] {
-        *v *= r;
-    }
-    Ok(())
-}
-
 /// The factor of the system: `P K Pᵀ = G Gᵀ` (Cholesky) for `K`; for a mixed system
 /// ([`locking_free::mixed`], quasi-definite), `P K Pᵀ = G Σ Gᵀ` with `Σ = diag(±1)`: −1 at the
 /// auxiliary unknowns' columns. `G` has a positive diagonal either way, so forward solves
@@ -878,7 +867,7 @@ impl Factor {
                     x[(p, j)] = b[(d, j)];
                 }
             }
-            crate::gram::solve_in_factor_order(self, x.as_mut());
+            self.solve_in_factor_order(x.as_mut());
             for j in 0..b.ncols() {
                 for (d, &p) in pos.iter().enumerate() {
                     b[(d, j)] = x[(p, j)];
@@ -898,6 +887,105 @@ impl Factor {
             faer::Par::Seq,
             MemStack::new(&mut buf),
         );
+    }
+
+    /// Solves `K X = B` in place with `B`'s rows in the factor's order (the elimination order):
+    /// forward, `Σ`, back, over every supernode (a supernodal factor only; else nothing).
+    pub(crate) fn solve_in_factor_order(&self, x: MatMut<'_, f64>) {
+        let Some((sym, _)) = self.supernodal() else {
+            return;
+        };
+        let all = vec![true; sym.n_supernodes()];
+        self.sweeps(x, &all, &all);
+    }
+
+    /// The forward sweep `G⁻¹` over the supernodes `reach`, `Σ`, and the back sweep `G⁻ᵀ` over
+    /// `keep`, on `x` in the factor's order.
+    pub(crate) fn sweeps(&self, mut x: MatMut<'_, f64>, reach: &[bool], keep: &[bool]) {
+        let f = self;
+        let Some((sym, val)) = f.supernodal() else {
+            return;
+        };
+        let nsn = sym.n_supernodes();
+        let k = x.ncols();
+        let vp = sym.col_ptr_for_val();
+        let mut tmp: Vec<f64> = Vec::new();
+        let (begin, end) = (sym.supernode_begin(), sym.supernode_end());
+        let block = |s: usize| {
+            let pattern = sym.supernode(s).pattern();
+            let ns = end[s] - begin[s];
+            let ls =
+                MatRef::from_column_major_slice(&val[vp[s]..vp[s + 1]], ns + pattern.len(), ns);
+            (begin[s], ns, pattern, ls)
+        };
+        // Values passed since the last release: the forward sweep climbs the values, the back
+        // sweep descends them.
+        let mut passed = crate::frontal::Passed::default();
+        let mut pass = |s: usize| {
+            if let Some(r) = passed.add(vp[s]..vp[s + 1]) {
+                f.release(r);
+            }
+        };
+        for s in (0..nsn).filter(|&s| reach[s]) {
+            let (start, ns, pattern, ls) = block(s);
+            let (l11, l21) = ls.split_at_row(ns);
+            let npat = pattern.len();
+            let mut xs = x.rb_mut().subrows_mut(start, ns);
+            faer::linalg::triangular_solve::solve_lower_triangular_in_place(
+                l11,
+                xs.rb_mut(),
+                Par::Seq,
+            );
+            tmp.clear();
+            tmp.resize(npat * k, 0.0);
+            let mut t = MatMut::from_column_major_slice_mut(&mut tmp, npat, k);
+            faer::linalg::matmul::matmul(t.rb_mut(), Accum::Replace, l21, xs.rb(), 1.0, Par::Seq);
+            for j in 0..k {
+                let tc = &tmp[j * npat..][..npat];
+                let mut xc = x.rb_mut().col_mut(j);
+                for (&r, v) in pattern.iter().zip(tc) {
+                    xc[r] -= *v;
+                }
+            }
+            pass(s);
+        }
+        for (r, _) in f.negative().iter().enumerate().filter(|(_, &n)| n) {
+            for j in 0..k {
+                x[(r, j)] = -x[(r, j)];
+            }
+        }
+        for s in (0..nsn).rev().filter(|&s| keep[s]) {
+            let (start, ns, pattern, ls) = block(s);
+            let (l11, l21) = ls.split_at_row(ns);
+            let npat = pattern.len();
+            tmp.clear();
+            tmp.resize(npat * k, 0.0);
+            for j in 0..k {
+                let xc = x.rb().col(j);
+                for (t, &r) in tmp[j * npat..][..npat].iter_mut().zip(pattern) {
+                    *t = xc[r];
+                }
+            }
+            let t = MatRef::from_column_major_slice(&tmp, npat, k);
+            let mut xs = x.rb_mut().subrows_mut(start, ns);
+            faer::linalg::matmul::matmul(
+                xs.rb_mut(),
+                Accum::Add,
+                l21.transpose(),
+                t,
+                -1.0,
+                Par::Seq,
+            );
+            faer::linalg::triangular_solve::solve_upper_triangular_in_place(
+                l11.transpose(),
+                xs.rb_mut(),
+                Par::Seq,
+            );
+            pass(s);
+        }
+        if let Some(r) = passed.rest() {
+            f.release(r);
+        }
     }
 
     /// Whether the values stream from a file ([`FactorStore::File`]).
