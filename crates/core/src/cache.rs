@@ -10,7 +10,7 @@
 //! rows         u32      R
 //! cols         u32      C
 //! batch        u32      columns per batch (compliance::BATCH_COLS)
-//! key          u64      xxh3 of mesh nodes + tets + material + regions (+ formulation unless standard) + fixed set + row/column selection
+//! key          u64      xxh3 of mesh nodes + tets + material + regions (+ formulation unless standard, with the locking-free element's name) + fixed set + row/column selection
 //! shard        u32 ×2   index I (1-based) and count N; a complete file is 1 of 1
 //! col range    u32 ×2   col_begin, col_end (on the batch grid)
 //! free_dofs    u32
@@ -262,6 +262,16 @@ pub fn key(mesh: &Mesh, sel: &Selection) -> u64 {
     if mesh.formulation != crate::units::Formulation::Standard {
         h.update(b"formulation:");
         h.update(mesh.formulation.name().as_bytes());
+        // Which element the locking-free formulation is: a file made with another (the
+        // nodal average, before 2026-12-03's stabilised element) must not be reused.
+        if mesh.formulation == crate::units::Formulation::LockingFree {
+            h.update(b":");
+            h.update(
+                crate::fem::locking_free::Smoothing::CHOSEN
+                    .name()
+                    .as_bytes(),
+            );
+        }
     }
     for &f in &mesh.fixed {
         h.update(&[f as u8]);
