@@ -198,6 +198,12 @@ pub fn dense_k(k: &Stiffness) -> nalgebra::DMatrix<f64> {
 mod tests {
     use super::*;
 
+    /// The smallest and the largest of the eigenvalues `ev`.
+    fn extremes(ev: &nalgebra::DVector<f64>) -> (f64, f64) {
+        ev.iter()
+            .fold((f64::INFINITY, 0.0f64), |(l, h), v| (l.min(*v), h.max(*v)))
+    }
+
     /// The locking-free cube (a mixed system): the smallest eigenvalue from inverse
     /// iteration on the mixed factor equals the condensed stiffness's (formed densely by the
     /// Schur complement, an independent route), and the largest is bounded above by the
@@ -211,9 +217,7 @@ mod tests {
         assert!(k.n_aux() > 0);
         let c = estimate(&mesh, 200).unwrap();
         let ev = dense_k(&k).symmetric_eigenvalues();
-        let (lo, hi) = ev
-            .iter()
-            .fold((f64::INFINITY, 0.0f64), |(l, h), v| (l.min(*v), h.max(*v)));
+        let (lo, hi) = extremes(&ev);
         assert!(
             (c.lambda_min - lo).abs() < 1e-6 * lo,
             "{} vs {lo}",
@@ -233,9 +237,7 @@ mod tests {
         let k = Stiffness::assemble(&mesh).unwrap();
         let a = dense_k(&k);
         let ev = a.symmetric_eigenvalues();
-        let (lo, hi) = ev
-            .iter()
-            .fold((f64::INFINITY, 0.0f64), |(l, h), v| (l.min(*v), h.max(*v)));
+        let (lo, hi) = extremes(&ev);
         assert!(
             (c.lambda_min - lo).abs() < 1e-6 * lo,
             "{} vs {lo}",

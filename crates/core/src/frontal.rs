@@ -477,16 +477,18 @@ impl Worker {
             }
         };
         let negative = sh.negative.get(b0..b0 + ns).filter(|n| n.contains(&true));
+        // The diagonal block: G₁₁ G₁₁ᵀ, or for a mixed system's front L₁₁ D L₁₁ᵀ in the
+        // signed form G₁₁ Σ G₁₁ᵀ.
         match negative {
             None => {
-                let need = faer::linalg::cholesky::llt::factor::cholesky_in_place_scratch::<f64>(
-                    ns,
-                    par,
-                    Default::default(),
+                reserve(
+                    &mut self.scratch,
+                    faer::linalg::cholesky::llt::factor::cholesky_in_place_scratch::<f64>(
+                        ns,
+                        par,
+                        Default::default(),
+                    ),
                 );
-                if self.scratch.len() < need.unaligned_bytes_required() + 64 {
-                    self.scratch = faer::dyn_stack::MemBuffer::new(need);
-                }
                 faer::linalg::cholesky::llt::factor::cholesky_in_place(
                     l11.rb_mut(),
                     Default::default(),
@@ -499,37 +501,16 @@ impl Worker {
                         e;
                     singular(index)
                 })?;
-                faer::linalg::triangular_solve::solve_lower_triangular_in_place(
-                    l11.rb(),
-                    l21.rb_mut().transpose_mut(),
-                    par,
-                );
-                if nb > 0 {
-                    let l21 = l21.rb();
-                    faer::linalg::matmul::triangular::matmul(
-                        f2.subrows_mut(ns, nb),
-                        faer::linalg::matmul::triangular::BlockStructure::TriangularLower,
-                        Accum::Add,
-                        l21,
-                        faer::linalg::matmul::triangular::BlockStructure::Rectangular,
-                        l21.transpose(),
-                        faer::linalg::matmul::triangular::BlockStructure::Rectangular,
-                        -1.0,
-                        par,
-                    );
-                }
             }
             Some(negative) => {
-                // A mixed system's front: L₁₁ D L₁₁ᵀ, in the signed form G₁₁ Σ G₁₁ᵀ; then
-                // X = F₂₁ G₁₁⁻ᵀ, G₂₁ = X Σ, and the update F₂₂ −= X Σ Xᵀ = G₂₁ Xᵀ.
-                let need = faer::linalg::cholesky::ldlt::factor::cholesky_in_place_scratch::<f64>(
-                    ns,
-                    par,
-                    Default::default(),
+                reserve(
+                    &mut self.scratch,
+                    faer::linalg::cholesky::ldlt::factor::cholesky_in_place_scratch::<f64>(
+                        ns,
+                        par,
+                        Default::default(),
+                    ),
                 );
-                if self.scratch.len() < need.unaligned_bytes_required() + 64 {
-                    self.scratch = faer::dyn_stack::MemBuffer::new(need);
-                }
                 faer::linalg::cholesky::ldlt::factor::cholesky_in_place(
                     l11.rb_mut(),
                     Default::default(),
@@ -546,31 +527,35 @@ impl Worker {
                     let col = col.ok_or_else(|| bad("a front column is not contiguous".into()))?;
                     signed_column(col.as_slice_mut(), j, neg).map_err(|()| singular(j))?;
                 }
-                faer::linalg::triangular_solve::solve_lower_triangular_in_place(
-                    l11.rb(),
-                    l21.rb_mut().transpose_mut(),
-                    par,
-                );
-                if nb > 0 {
-                    let x = l21.to_owned();
-                    for (j, &neg) in negative.iter().enumerate() {
-                        if neg {
-                            l21.rb_mut().col_mut(j).iter_mut().for_each(|v| *v = -*v);
-                        }
-                    }
-                    faer::linalg::matmul::triangular::matmul(
-                        f2.subrows_mut(ns, nb),
-                        faer::linalg::matmul::triangular::BlockStructure::TriangularLower,
-                        Accum::Add,
-                        l21.rb(),
-                        faer::linalg::matmul::triangular::BlockStructure::Rectangular,
-                        x.transpose(),
-                        faer::linalg::matmul::triangular::BlockStructure::Rectangular,
-                        -1.0,
-                        par,
-                    );
-                }
             }
+        }
+        // X = F₂₁ G₁₁⁻ᵀ; signed: G₂₁ = X Σ, and the update F₂₂ −= X Σ Xᵀ = G₂₁ Xᵀ.
+        faer::linalg::triangular_solve::solve_lower_triangular_in_place(
+            l11.rb(),
+            l21.rb_mut().transpose_mut(),
+            par,
+        );
+        if nb > 0 {
+            let x = negative.map(|negative| {
+                let x = l21.to_owned();
+                for (j, _) in negative.iter().enumerate().filter(|(_, &n)| n) {
+                    l21.rb_mut().col_mut(j).iter_mut().for_each(|v| *v = -*v);
+                }
+                x
+            });
+            let l21 = l21.rb();
+            let rhs = x.as_ref().map_or(l21, |x| x.as_ref());
+            faer::linalg::matmul::triangular::matmul(
+                f2.subrows_mut(ns, nb),
+                faer::linalg::matmul::triangular::BlockStructure::TriangularLower,
+                Accum::Add,
+                l21,
+                faer::linalg::matmul::triangular::BlockStructure::Rectangular,
+                rhs.transpose(),
+                faer::linalg::matmul::triangular::BlockStructure::Rectangular,
+                -1.0,
+                par,
+            );
         }
         let front: &[f64] = bytemuck::cast_slice(&self.front[..]);
         out.write(
@@ -662,6 +647,13 @@ pub(crate) fn signed_column(col: &mut [f64], j: usize, negative: bool) -> Result
         *v *= r;
     }
     Ok(())
+}
+
+/// Grows the dense kernels' `scratch` to `need`.
+fn reserve(scratch: &mut faer::dyn_stack::MemBuffer, need: faer::dyn_stack::StackReq) {
+    if scratch.len() < need.unaligned_bytes_required() + 64 {
+        *scratch = faer::dyn_stack::MemBuffer::new(need);
+    }
 }
 
 /// The elimination order of a factorisation: the permutation (`fwd`: new → old, `inv`:

@@ -704,6 +704,28 @@ mod tests {
         );
     }
 
+    /// `max |(K⁻¹)_ij − want(i, j)|` over the first `nf` unknowns, `K⁻¹` by `f` (a system of
+    /// `n` unknowns) solving the unit right-hand sides.
+    fn inverse_error(
+        f: &super::super::Factor,
+        n: usize,
+        nf: usize,
+        want: impl Fn(usize, usize) -> f64,
+    ) -> f64 {
+        let mut b = Mat::<f64>::zeros(n, nf);
+        for j in 0..nf {
+            b[(j, j)] = 1.0;
+        }
+        f.solve_in_place(&mut b);
+        let mut worst = 0.0f64;
+        for j in 0..nf {
+            for i in 0..nf {
+                worst = worst.max((b[(i, j)] - want(i, j)).abs());
+            }
+        }
+        worst
+    }
+
     /// A distorted 4×3×5 block with a stiffer, nearly incompressible top region.
     fn two_region_block() -> Mesh {
         let mut raw = grid_raw([4, 3, 5], [30.0, 24.0, 36.0], |_, _, _| true);
@@ -774,17 +796,7 @@ mod tests {
             for store in &stores {
                 let (f, _, _) = mixed.factorize_in(ord, store).expect("LDLᵀ");
                 assert_eq!(f.negative().iter().filter(|&&n| n).count(), mixed.n_aux());
-                let mut b = Mat::<f64>::zeros(mixed.n(), nf);
-                for j in 0..nf {
-                    b[(j, j)] = 1.0;
-                }
-                f.solve_in_place(&mut b);
-                let mut worst = 0.0f64;
-                for j in 0..nf {
-                    for i in 0..nf {
-                        worst = worst.max((b[(i, j)] - reference[(i, j)]).abs());
-                    }
-                }
+                let worst = inverse_error(&f, mixed.n(), nf, |i, j| reference[(i, j)]);
                 assert!(
                     worst <= 1e-10 * scale,
                     "{ord:?} {store:?}: {worst:e} of {scale:e}"
@@ -804,17 +816,7 @@ mod tests {
         let dscale = (0..nf).map(|i| dense_inv[(i, i)]).fold(0.0f64, f64::max);
         for store in &stores {
             let (f, _, _) = stab.factorize_in(Ordering::Metis, store).expect("LDLᵀ");
-            let mut b = Mat::<f64>::zeros(stab.n(), nf);
-            for j in 0..nf {
-                b[(j, j)] = 1.0;
-            }
-            f.solve_in_place(&mut b);
-            let mut worst = 0.0f64;
-            for j in 0..nf {
-                for i in 0..nf {
-                    worst = worst.max((b[(i, j)] - dense_inv[(i, j)]).abs());
-                }
-            }
+            let worst = inverse_error(&f, stab.n(), nf, |i, j| dense_inv[(i, j)]);
             assert!(
                 worst <= 1e-9 * dscale,
                 "stabilised {store:?}: {worst:e} of {dscale:e}"
