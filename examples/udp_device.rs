@@ -103,6 +103,12 @@ pub struct ClientReport {
     /// The hand's position at each tick, m.
     #[serde(skip)]
     pub positions: Vec<DVec3>,
+    /// Ticks the machine disturbed, with how late each started, s: a tick more than a period
+    /// late (the client was stalled), or one whose force did not arrive in time (counted as
+    /// the wait, 100 ms in lockstep). touchfem sees such a gap as it is: one over its watchdog
+    /// releases the contact and ramps the force back in, and the hand moves.
+    #[serde(skip)]
+    pub stalls: Vec<(u64, f64)>,
 }
 
 /// How the client keeps time.
@@ -160,6 +166,7 @@ pub fn run_client_keyed(
         // servo loop drops it): touchfem measures the time between packets.
         let now = Instant::now();
         if now > next + period {
+            rep.stalls.push((i, (now - next).as_secs_f64()));
             next = now;
         }
         let due = next;
@@ -230,6 +237,7 @@ pub fn run_client_keyed(
         }
         if !got {
             rep.late += 1;
+            rep.stalls.push((i, (until - due).as_secs_f64()));
         }
         // The hand: m a = k (target − x) − b v + F, the force held over the tick.
         let t = i as f64 * dt;

@@ -83,9 +83,36 @@ fn press(world: &World, start: DVec3, end: DVec3) -> Outcome {
     out
 }
 
+/// The first tick of the window in which a press must have settled (the last second).
+const SETTLED_FROM: usize = 9_000;
+
 /// The same press over loopback: `serve --clock device` and the example device in lockstep,
-/// recorded to `record`.
+/// recorded to `record`. A stall of this machine near the watchdog (20 ms) is a real
+/// disturbance over a socket: the contact is released, the force ramped back in, and the hand
+/// moves. A run with such a stall in or just before the settle window is run again (at most
+/// three times; the stall is measured by the client's clock, not read from the outcome).
+/// Shorter stalls, every few ticks when the machine is loaded, leave the press settled.
 fn press_over_udp(world: &World, start: DVec3, end: DVec3, record: &std::path::Path) -> Outcome {
+    // The ramp (0.1 s) and the hand's decay in contact (~0.05 s) before the window.
+    let quiet_from = (SETTLED_FROM - 300) as u64;
+    let mut attempt = 0;
+    loop {
+        attempt += 1;
+        let (out, stalls) = press_over_udp_once(world, start, end, record);
+        let long: Vec<(u64, f64)> = stalls.into_iter().filter(|s| s.1 >= 0.01).collect();
+        eprintln!("attempt {attempt}: stalls of 10 ms or more (tick, s): {long:?}");
+        if long.iter().all(|s| s.0 < quiet_from) || attempt == 3 {
+            return out;
+        }
+    }
+}
+
+fn press_over_udp_once(
+    world: &World,
+    start: DVec3,
+    end: DVec3,
+    record: &std::path::Path,
+) -> (Outcome, Vec<(u64, f64)>) {
     let stop = AtomicBool::new(false);
     let (tx, rx) = std::sync::mpsc::channel();
     let rep = std::thread::scope(|s| {
@@ -126,12 +153,15 @@ fn press_over_udp(world: &World, start: DVec3, end: DVec3, record: &std::path::P
         rep.late <= 5,
         "every force arrived, all but a stall's: {rep:?}"
     );
-    Outcome {
-        work: rep.work,
-        x: rep.positions,
-        max_force: rep.max_force_n,
-        limited: 0,
-    }
+    (
+        Outcome {
+            work: rep.work,
+            x: rep.positions,
+            max_force: rep.max_force_n,
+            limited: 0,
+        },
+        rep.stalls,
+    )
 }
 
 fn peak_to_peak(xs: &[DVec3]) -> f64 {
@@ -151,7 +181,7 @@ fn check(with: &Outcome, without: &Outcome, what: &str) {
 /// [`check`] with the coupled press's energy growth held under `energy_j` (over a real
 /// socket the device's measured tick times jitter, and the damping follows them).
 fn check_within(with: &Outcome, without: &Outcome, what: &str, energy_j: f64) {
-    let late = |o: &Outcome| peak_to_peak(&o.x[9000..]);
+    let late = |o: &Outcome| peak_to_peak(&o.x[SETTLED_FROM..]);
     // Energy the device put into the hand from 2 s on (the hold): it never grows.
     let grow = |o: &Outcome| {
         o.work[2000..]
