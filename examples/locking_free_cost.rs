@@ -58,7 +58,7 @@ fn main() {
         ("standard", None),
         ("nodal (assembled)", Some((Smoothing::Nodal, false))),
         ("nodal (mixed)", Some((Smoothing::Nodal, true))),
-        ("stabilised (mixed)", Some((Smoothing::Stabilised, true))),
+        ("projection (mixed)", Some((Smoothing::Projection, true))),
         (
             "element-averaged",
             Some((Smoothing::ElementAveraged, false)),

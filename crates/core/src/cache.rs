@@ -263,7 +263,8 @@ pub fn key(mesh: &Mesh, sel: &Selection) -> u64 {
         h.update(b"formulation:");
         h.update(mesh.formulation.name().as_bytes());
         // Which element the locking-free formulation is: a file made with another (the
-        // nodal average, before 2026-12-03's stabilised element) must not be reused.
+        // nodal average, or the MINI bubble before 2026-12-03's pressure projection) must
+        // not be reused.
         if mesh.formulation == crate::units::Formulation::LockingFree {
             h.update(b":");
             h.update(

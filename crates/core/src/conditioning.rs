@@ -26,7 +26,7 @@ pub struct Conditioning {
 
 /// Estimates K's extreme eigenvalues with `iters` power and inverse iterations. For the
 /// locking-free formulation, whose K is only held as a mixed system, the power iteration runs
-/// on the nodal-average stiffness (an upper bound: the stabilised element is softer), the
+/// on the nodal-average stiffness (an upper bound: the stabilised system is softer), the
 /// inverse iteration on the mixed system itself.
 pub fn estimate(mesh: &Mesh, iters: usize) -> Result<Conditioning, crate::Error> {
     let k = Stiffness::assemble(mesh)?;
