@@ -400,15 +400,8 @@ pub fn mixed(mesh: &Mesh, smoothing: Smoothing) -> Result<Stiffness, FemError> {
                 if mesh.fixed[b as usize] {
                     continue;
                 }
-                let s = match row.iter().position(|e| e.0 == b) {
-                    Some(p) => p,
-                    None => {
-                        row.push((b, [0.0; 9]));
-                        row.len() - 1
-                    }
-                };
-                for (x, y) in row[s]
-                    .1
+                let block = super::row_entry(row, b, [0.0; 9]);
+                for (x, y) in block
                     .iter_mut()
                     .zip(deviatoric_block(gr, la, lb, *vol, *mu))
                 {
@@ -453,11 +446,7 @@ fn stabilisation(mesh: &Mesh, g: &Groups, smoothing: Smoothing) -> Vec<Vec<(u32,
             for (l, s) in row_k.iter().enumerate() {
                 let gl = g.group[4 * t + l];
                 let v = s / (g.vol[gk as usize] * g.vol[gl as usize]);
-                let row = &mut rows[gk as usize];
-                match row.iter_mut().find(|e| e.0 == gl) {
-                    Some(e) => e.1 += v,
-                    None => row.push((gl, v)),
-                }
+                *super::row_entry(&mut rows[gk as usize], gl, 0.0) += v;
             }
         }
     }

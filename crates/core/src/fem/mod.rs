@@ -100,6 +100,19 @@ fn csc_from_blocks(
     Ok(SparseColMat::new(sym, val))
 }
 
+/// The value under `key` in a short row of `(key, value)` pairs (a node's neighbours), appended
+/// as `zero` when absent.
+pub(crate) fn row_entry<T>(row: &mut Vec<(u32, T)>, key: u32, zero: T) -> &mut T {
+    let i = match row.iter().position(|e| e.0 == key) {
+        Some(i) => i,
+        None => {
+            row.push((key, zero));
+            row.len() - 1
+        }
+    };
+    &mut row[i].1
+}
+
 /// Gradients of the four linear shape functions of a tet and its volume.
 pub(crate) fn shape_gradients(p: [DVec3; 4]) -> ([DVec3; 4], f64) {
     let j = glam::DMat3::from_cols(p[1] - p[0], p[2] - p[0], p[3] - p[0]);
@@ -402,16 +415,10 @@ impl Stiffness {
                     if mesh.fixed[t[b] as usize] {
                         continue;
                     }
-                    let slot = match row.iter().position(|e| e.0 == t[b]) {
-                        Some(p) => p,
-                        None => {
-                            row.push((t[b], [0.0; 9]));
-                            row.len() - 1
-                        }
-                    };
+                    let block = row_entry(row, t[b], [0.0; 9]);
                     for i in 0..3 {
                         for j in 0..3 {
-                            row[slot].1[3 * i + j] += ke[3 * a + i][3 * b + j];
+                            block[3 * i + j] += ke[3 * a + i][3 * b + j];
                         }
                     }
                 }
