@@ -333,7 +333,8 @@ pub(crate) fn blocks(mesh: &Mesh, smoothing: Smoothing, skip_fixed: bool) -> Blo
 
 /// The locking-free stiffness of `mesh` over its free DOFs with `smoothing` (whatever
 /// `mesh.formulation` says), assembled; for the stabilised ones
-/// ([`Smoothing::is_stabilised`]), whose condensed stiffness is dense, their mixed system ([`mixed`]), which solves to the same displacements.
+/// ([`Smoothing::is_stabilised`]), whose condensed stiffness is dense, their mixed system
+/// ([`mixed`]), which solves to the same displacements.
 /// Checks the materials (ν = 0.5 exactly is [`FemError::Incompressible`]) and the clamps as
 /// [`Stiffness::assemble`] does.
 pub fn stiffness(mesh: &Mesh, smoothing: Smoothing) -> Result<Stiffness, FemError> {
