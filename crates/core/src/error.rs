@@ -17,6 +17,9 @@ pub enum Error {
     /// The UDP bridge cannot start (address, socket, key).
     #[error(transparent)]
     Udp(#[from] crate::devices::udp::UdpError),
+    /// A tool or friction value that cannot be used.
+    #[error(transparent)]
+    Contact(#[from] crate::contact::ContactError),
     /// The haptic loop's thread ended by a panic (the message).
     #[error("the haptic thread panicked: {0}")]
     HapticThread(String),
@@ -62,6 +65,7 @@ macro_rules! from_domain_errors {
             $crate::mesh::MeshError,
             $crate::fem::FemError,
             $crate::cache::CacheError,
+            $crate::contact::ContactError,
             $crate::devices::udp::UdpError);
     };
     (@each $err:ident $variant:ident $($t:ty),*) => {$(

@@ -11,6 +11,7 @@ pub mod bench_plot;
 pub mod cg;
 pub mod error;
 pub mod hard;
+pub mod hertz;
 pub mod ladder;
 pub mod locking_free;
 pub mod report;

@@ -9,7 +9,7 @@
 mod cube;
 pub mod io;
 
-pub use cube::{cube, cube_with, grid_raw, mouse, phantom, CUBE_EDGE_MM};
+pub use cube::{cube, cube_with, graded_block, grid_raw, mouse, phantom, CUBE_EDGE_MM};
 
 use glam::DVec3;
 use std::collections::{BTreeMap, HashMap};

@@ -5,7 +5,9 @@ use glam::DVec3;
 use std::path::Path;
 
 use crate::compliance::{Compliance, Selection};
-use crate::contact::{ContactPoint, GodObject, Surface};
+use crate::contact::{
+    Budget, ContactPoint, Friction, GodObject, Patch, PatchReport, Sphere, Surface,
+};
 use crate::force::{finger_force, ForceBc, ForceModel};
 use crate::mesh::{self, Mesh, MeshError};
 use crate::units::{LengthUnit, Material};
@@ -125,7 +127,119 @@ pub struct Poke {
     pub bc: ForceBc,
 }
 
+/// The outcome of a sphere's poke ([`Body::poke_sphere`]).
+#[derive(Clone, Debug)]
+pub struct SpherePoke {
+    /// Where the sphere first touched (the surface point nearest the requested point), m.
+    pub touch_point: DVec3,
+    /// The sphere's centre at the start (R outside along the surface normal there), m.
+    pub start_centre: DVec3,
+    /// The sphere's centre at the end, m.
+    pub centre: DVec3,
+    /// The force fed back to the finger (minus the sum of the contact forces), N.
+    pub feedback: DVec3,
+    /// The contact forces on the object: (column of `L`, force), N.
+    pub forces: Vec<(u32, DVec3)>,
+    /// The mesh nodes carrying a contact force at the end.
+    pub contact_nodes: Vec<u32>,
+    /// With a slide: per step, the distance slid (m) and the feedback (N).
+    pub trace: Vec<[f64; 4]>,
+    /// The last solve's report.
+    pub report: PatchReport,
+}
+
+/// Ticks a sphere's push is split into by [`Body::poke_sphere`] (the contact state, and with
+/// friction the stick–slip history, carried from one to the next).
+pub const SPHERE_PUSH_STEPS: usize = 20;
+
 impl Body {
+    /// The largest contact problem [`Body::poke_sphere`] solves: every touchable node, at most
+    /// 1024.
+    pub fn patch_capacity(&self) -> usize {
+        self.compliance.cols().len().clamp(1, 1024)
+    }
+
+    /// A sphere of `radius` (m) touches the surface point nearest `at` (its centre `radius`
+    /// outside along the surface normal there), moves by `push` in [`SPHERE_PUSH_STEPS`]
+    /// steps, then by `slide` (total, steps) with the contact state carried along; every
+    /// step is solved to convergence. Errors on non-finite input or a bad radius.
+    pub fn poke_sphere(
+        &self,
+        at: DVec3,
+        push: DVec3,
+        radius: f64,
+        friction: Option<Friction>,
+        slide: Option<(DVec3, usize)>,
+    ) -> Result<SpherePoke, Error> {
+        let tool = crate::contact::Tool::sphere(radius)?;
+        let (lo, hi) = self.mesh.bounds();
+        tool.check_fits(lo.distance(hi))?;
+        if !at.is_finite() || !push.is_finite() {
+            return Err(Error::Input(format!(
+                "non-finite sphere position {at} or push {push}"
+            )));
+        }
+        if let Some((d, _)) = slide {
+            if !d.is_finite() {
+                return Err(Error::Input(format!("non-finite slide {d}")));
+            }
+        }
+        let (tri, p0) = self.surface.closest_global(at);
+        let (_, bc) = self.surface.closest_on_tri(tri, p0);
+        let n = self
+            .surface
+            .pseudo_normal(tri, crate::contact::feature_of(&bc));
+        let start = p0 + n * radius;
+        let mut patch = Patch::with_capacity(self.patch_capacity());
+        let mut report = PatchReport::default();
+        let solve = |centre: DVec3, patch: &mut Patch| {
+            let sphere = [Sphere { centre, radius }];
+            patch.solve(
+                &self.compliance,
+                &self.surface,
+                &sphere,
+                friction,
+                Budget::UNLIMITED,
+            )
+        };
+        for s in 1..=SPHERE_PUSH_STEPS {
+            let c = start + push * (s as f64 / SPHERE_PUSH_STEPS as f64);
+            report = solve(c, &mut patch);
+        }
+        let mut centre = start + push;
+        let mut trace = Vec::new();
+        if let Some((d, steps)) = slide {
+            let steps = steps.max(1);
+            for s in 1..=steps {
+                let c = start + push + d * (s as f64 / steps as f64);
+                report = solve(c, &mut patch);
+                let f = -patch.sphere_force(0);
+                trace.push([(c - start - push).length(), f.x, f.y, f.z]);
+                centre = c;
+            }
+        }
+        let forces: Vec<(u32, DVec3)> = patch
+            .nodes()
+            .filter(|n| n.pressure > 0.0)
+            .map(|n| (n.col, n.force))
+            .collect();
+        let contact_nodes = patch
+            .nodes()
+            .filter(|n| n.pressure > 0.0)
+            .map(|n| n.node)
+            .collect();
+        Ok(SpherePoke {
+            touch_point: p0,
+            start_centre: start,
+            centre,
+            feedback: -patch.sphere_force(0),
+            forces,
+            contact_nodes,
+            trace,
+            report,
+        })
+    }
+
     /// Precomputes the compliance for `sel` and builds the surface.
     pub fn new(mesh: Mesh, sel: &Selection) -> Result<Body, Error> {
         let compliance = Compliance::compute(&mesh, sel)?;

@@ -13,6 +13,13 @@ use glam::DVec3;
 
 use crate::mesh::Mesh;
 
+mod friction;
+mod sphere;
+mod tool;
+pub use friction::StickSlip;
+pub use sphere::{Budget, Patch, PatchNode, PatchReport, Sphere, MAX_PATCH};
+pub use tool::{ContactError, Friction, Tool};
+
 /// Where on its triangle the proxy is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Feature {
@@ -108,6 +115,8 @@ pub struct Surface {
     vt: Vec<u32>,
     vertex_normal: Vec<DVec3>,
     grid: Grid,
+    /// The surface's nodes bucketed on the same cells as `grid`.
+    node_grid: Grid,
 }
 
 #[derive(Clone, Debug)]
@@ -177,6 +186,7 @@ impl Surface {
             *nrm = nrm.normalize_or_zero();
         }
         let grid = build_grid(&nodes, &tris);
+        let node_grid = build_node_grid(&grid, &nodes, &tris);
         Surface {
             nodes,
             tris,
@@ -186,6 +196,41 @@ impl Surface {
             vt,
             vertex_normal,
             grid,
+            node_grid,
+        }
+    }
+
+    /// The outward angle-weighted normal of a surface node (zero for an interior node).
+    #[inline]
+    pub fn vertex_normal(&self, v: u32) -> DVec3 {
+        self.vertex_normal
+            .get(v as usize)
+            .copied()
+            .unwrap_or(DVec3::ZERO)
+    }
+
+    /// Calls `f` with every surface node within `r` of `c` (rest positions). Allocates
+    /// nothing.
+    pub fn for_nodes_near(&self, c: DVec3, r: f64, mut f: impl FnMut(u32)) {
+        if !c.is_finite() || !r.is_finite() || r < 0.0 {
+            return;
+        }
+        let g = &self.node_grid;
+        let cells = g.cell_range(c - DVec3::splat(r), c + DVec3::splat(r));
+        let r2 = r * r;
+        for k in cells[2].clone() {
+            for j in cells[1].clone() {
+                for i in cells[0].clone() {
+                    let cell = (k * g.dims[1] + j) * g.dims[0] + i;
+                    let s = g.start[cell] as usize;
+                    let e = g.start[cell + 1] as usize;
+                    for &v in &g.items[s..e] {
+                        if self.nodes[v as usize].distance_squared(c) <= r2 {
+                            f(v);
+                        }
+                    }
+                }
+            }
         }
     }
 
@@ -387,8 +432,48 @@ fn build_grid(nodes: &[DVec3], tris: &[[u32; 3]]) -> Grid {
     }
 }
 
+/// The surface's nodes on the cells of the triangle grid `g`, each node once.
+fn build_node_grid(g: &Grid, nodes: &[DVec3], tris: &[[u32; 3]]) -> Grid {
+    let mut on_surface = vec![false; nodes.len()];
+    for t in tris {
+        for &v in t {
+            on_surface[v as usize] = true;
+        }
+    }
+    let ncell = g.dims[0] * g.dims[1] * g.dims[2];
+    let mut count = vec![0u32; ncell + 1];
+    let cell_of = |p: DVec3| {
+        let r = g.cell_range(p, p);
+        (r[2].start() * g.dims[1] + r[1].start()) * g.dims[0] + r[0].start()
+    };
+    for (v, &s) in on_surface.iter().enumerate() {
+        if s {
+            count[cell_of(nodes[v]) + 1] += 1;
+        }
+    }
+    for i in 0..ncell {
+        count[i + 1] += count[i];
+    }
+    let mut fill = count.clone();
+    let mut items = vec![0u32; count[ncell] as usize];
+    for (v, &s) in on_surface.iter().enumerate() {
+        if s {
+            let c = cell_of(nodes[v]);
+            items[fill[c] as usize] = v as u32;
+            fill[c] += 1;
+        }
+    }
+    Grid {
+        lo: g.lo,
+        inv_cell: g.inv_cell,
+        dims: g.dims,
+        start: count,
+        items,
+    }
+}
+
 /// The feature a barycentric triple lies on (exact zeros come from the region tests).
-fn feature_of(bc: &[f64; 3]) -> Feature {
+pub(crate) fn feature_of(bc: &[f64; 3]) -> Feature {
     let zeros = bc.iter().filter(|&&v| v == 0.0).count();
     match zeros {
         0 => Feature::Face,
