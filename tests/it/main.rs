@@ -6,6 +6,8 @@ mod cli;
 mod common;
 mod contact_force;
 mod coupling;
+mod fingertip;
+mod fingertip_cli;
 mod frontal;
 mod golden;
 mod gpu;

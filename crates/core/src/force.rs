@@ -21,8 +21,9 @@ use crate::contact::ContactPoint;
 
 /// Most fingers the coupled solve takes.
 pub const MAX_FINGERS: usize = 4;
-/// Most entries in a force boundary condition (three vertices per finger).
-pub(crate) const MAX_BC: usize = 3 * MAX_FINGERS;
+/// Most entries in a force boundary condition: three vertices per point finger, and the
+/// contact nodes of the spheres on the object.
+pub(crate) const MAX_BC: usize = 3 * MAX_FINGERS + crate::contact::MAX_PATCH;
 
 /// Which force formula to use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]

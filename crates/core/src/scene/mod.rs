@@ -298,6 +298,86 @@ impl Body {
         Ok(out)
     }
 
+    /// A point finger touches the surface point nearest `at`, moves by `push` in `steps`
+    /// ticks, then by `slide` (total, steps) over an object with `friction` (none: the
+    /// frictionless god-object): the god-object sticks and slips
+    /// ([`crate::contact::StickSlip`]). Returns the final poke (its `contact` and `bc` with
+    /// friction applied) and, per slide step, the distance slid (m) and the feedback (N).
+    pub fn poke_slide(
+        &self,
+        at: DVec3,
+        push: DVec3,
+        model: ForceModel,
+        friction: Option<Friction>,
+        slide: Option<(DVec3, usize)>,
+        steps: usize,
+    ) -> Result<(Poke, Vec<[f64; 4]>), Error> {
+        if !at.is_finite() || !push.is_finite() {
+            return Err(Error::Input(format!(
+                "non-finite finger position {at} or push {push}"
+            )));
+        }
+        let (dslide, nslide) = slide.unwrap_or((DVec3::ZERO, 0));
+        if !dslide.is_finite() {
+            return Err(Error::Input(format!("non-finite slide {dslide}")));
+        }
+        let (tri, p0) = self.surface.closest_global(at);
+        let mut god = GodObject::touching(tri);
+        let mut stick = crate::contact::StickSlip::default();
+        let steps = steps.max(1);
+        let feel = |c: &ContactPoint| {
+            finger_force(&self.compliance, c, model, &mut ForceBc::default()).feedback
+        };
+        let mut contact = None;
+        let mut step = |x: DVec3| -> Option<ContactPoint> {
+            let free = god.update(&self.surface, x);
+            match (free, friction.filter(|f| !f.is_none())) {
+                (Some(c), Some(fr)) => Some(stick.apply(&self.surface, &c, fr, feel)),
+                (Some(c), None) => Some(c),
+                (None, _) => {
+                    stick.reset();
+                    None
+                }
+            }
+        };
+        for s in 1..=steps {
+            contact = step(p0 + push * (s as f64 / steps as f64));
+        }
+        let mut trace = Vec::with_capacity(nslide);
+        for s in 1..=nslide {
+            let d = dslide * (s as f64 / nslide as f64);
+            contact = step(p0 + push + d);
+            let f = contact.as_ref().map_or(DVec3::ZERO, feel);
+            trace.push([d.length(), f.x, f.y, f.z]);
+        }
+        let mut out = Poke {
+            touch_point: p0,
+            contact,
+            feedback: DVec3::ZERO,
+            feedback_paper: DVec3::ZERO,
+            feedback_exact: DVec3::ZERO,
+            bc: ForceBc::default(),
+        };
+        if let Some(c) = contact {
+            out.feedback_paper = finger_force(
+                &self.compliance,
+                &c,
+                ForceModel::Paper,
+                &mut ForceBc::default(),
+            )
+            .feedback;
+            out.feedback_exact = finger_force(
+                &self.compliance,
+                &c,
+                ForceModel::Exact,
+                &mut ForceBc::default(),
+            )
+            .feedback;
+            out.feedback = finger_force(&self.compliance, &c, model, &mut out.bc).feedback;
+        }
+        Ok((out, trace))
+    }
+
     /// The contact of a finger at `x` that entered through the surface point nearest it
     /// (`None` if `x` is outside). Brute force: for tests and reports, not the haptic loop.
     pub fn surface_contact(&self, x: DVec3) -> Option<ContactPoint> {

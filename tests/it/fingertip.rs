@@ -1,0 +1,1 @@
+//! Fingertip: sphere contact and friction against Hertz, Signorini and Coulomb.

@@ -1,0 +1,1 @@
+//! Fingertip command line: `poke --sphere/--friction/--slide/--steps` (written by the CLI work).
