@@ -265,11 +265,13 @@ fn sliding_across_near_zero_area_triangles_is_continuous() {
             name: "sliver".into(),
             body: touchfem::scene::Body::new(mesh, &sel).unwrap(),
             offset: DVec3::ZERO,
+            friction: None,
         }],
         fingers: vec![touchfem::scene::FingerSpec {
             device: touchfem::scene::DeviceSpec::Pointer,
             model: touchfem::force::ForceModel::Paper,
             limits: None,
+            tool: Default::default(),
         }],
         haptics: Default::default(),
         source: String::new(),

@@ -326,11 +326,13 @@ fn a_10_mm_jump_across_a_thin_plate_does_not_pop_through() {
             name: "plate".into(),
             body: touchfem::scene::Body::with_compliance(mesh, c),
             offset: DVec3::ZERO,
+            friction: None,
         }],
         fingers: vec![touchfem::scene::FingerSpec {
             device: touchfem::scene::DeviceSpec::Pointer,
             model: ForceModel::Paper,
             limits: None,
+            tool: Default::default(),
         }],
         haptics: Default::default(),
         source: String::new(),

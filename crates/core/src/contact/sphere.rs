@@ -146,6 +146,7 @@ pub struct Patch {
     chol: Vec<f64>,
     rhs: Vec<f64>,
     report: PatchReport,
+    stiffness: [f64; crate::force::MAX_FINGERS],
 }
 
 impl Default for Patch {
@@ -189,6 +190,7 @@ impl Patch {
             chol: vec![0.0; m * m],
             rhs: vec![0.0; m],
             report: PatchReport::default(),
+            stiffness: [0.0; crate::force::MAX_FINGERS],
         }
     }
 
@@ -217,6 +219,79 @@ impl Patch {
             gap: self.g[i],
             slipping: self.slipping[i],
         })
+    }
+
+    /// The normal stiffness (N/m) of sphere `s`'s patch after the last solve: the force per
+    /// metre of a rigid normal push of its active nodes, `Σ (A_SS⁻¹)` over them (what a
+    /// device's virtual coupling is sized against). 0 when it touches nothing.
+    pub fn normal_stiffness(&self, s: usize) -> f64 {
+        self.stiffness.get(s).copied().unwrap_or(0.0)
+    }
+
+    /// The mean outward normal of sphere `s`'s contact nodes (zero when none).
+    pub fn mean_normal(&self, s: usize) -> DVec3 {
+        (0..self.n)
+            .filter(|&i| self.p[i] > 0.0 && self.owner[i] as usize == s)
+            .map(|i| self.normal[i] * self.p[i])
+            .sum::<DVec3>()
+            .normalize_or_zero()
+    }
+
+    /// The force-weighted mean rest position of sphere `s`'s contact nodes (`None` when it
+    /// touches nothing), m.
+    pub fn centroid(&self, s: usize) -> Option<DVec3> {
+        let mut w = 0.0;
+        let mut x = DVec3::ZERO;
+        for i in 0..self.n {
+            if self.p[i] > 0.0 && self.owner[i] as usize == s {
+                w += self.p[i];
+                x += self.rest[i] * self.p[i];
+            }
+        }
+        (w > 0.0).then(|| x / w)
+    }
+
+    /// Per sphere, `Σ (A_SS⁻¹ 1_s)` over its own active nodes, from the last factor.
+    fn update_stiffness(&mut self) {
+        self.stiffness = [0.0; crate::force::MAX_FINGERS];
+        let k = self.set.len();
+        if k == 0 {
+            return;
+        }
+        let s = self.cap;
+        for sphere in 0..crate::force::MAX_FINGERS {
+            if !self.set.iter().any(|&i| self.owner[i] as usize == sphere) {
+                continue;
+            }
+            for r in 0..k {
+                let one = if self.owner[self.set[r]] as usize == sphere {
+                    1.0
+                } else {
+                    0.0
+                };
+                let mut v = one;
+                for t in 0..r {
+                    v -= self.chol[r * s + t] * self.rhs[t];
+                }
+                self.rhs[r] = v / self.chol[r * s + r];
+            }
+            for r in (0..k).rev() {
+                let mut v = self.rhs[r];
+                for t in r + 1..k {
+                    v -= self.chol[t * s + r] * self.rhs[t];
+                }
+                self.rhs[r] = v / self.chol[r * s + r];
+            }
+            let total: f64 = (0..k)
+                .filter(|&r| self.owner[self.set[r]] as usize == sphere)
+                .map(|r| self.rhs[r])
+                .sum();
+            self.stiffness[sphere] = if total.is_finite() {
+                total.max(0.0)
+            } else {
+                0.0
+            };
+        }
     }
 
     /// The total contact force on the object from sphere `s`, N (the finger feels its
@@ -382,6 +457,7 @@ impl Patch {
                 }
             }
         }
+        self.update_stiffness();
         report.contacts = (0..m).filter(|&i| self.p[i] > 0.0).count();
         report.slipping = (0..m)
             .filter(|&i| self.p[i] > 0.0 && self.slipping[i])

@@ -12,6 +12,16 @@
 //!   all the point forces at once. A fingertip compliance of [`SKIN`] × the point's own
 //!   compliance keeps the system well posed when two fingers touch the same triangle, or the
 //!   same point (they then share the load).
+//! * **A sphere finger** ([`crate::contact::Tool::Sphere`]) has no god-object: every
+//!   object's spheres are solved together as one contact problem on the deformed surface
+//!   ([`crate::contact::Patch`], Signorini and Coulomb, warm-started, within a
+//!   [`crate::contact::Budget`]; a solve cut short is counted in
+//!   [`HapticWorld::budget_exhausted`]). Its force is minus the sum of its nodes' contact
+//!   forces, on every object it presses. A point and a sphere on one object are solved
+//!   apart.
+//! * **Friction** (`[[object]] friction`): a point finger's god-object sticks and slips
+//!   ([`crate::contact::StickSlip`], judged on the finger's own single-contact force);
+//!   a sphere's nodes each have their cone.
 //! * **Bounded**: each finger's force is saturated at the scene's `max_force_n`, and the nodal
 //!   forces it causes are scaled by the same factor, so the visual path shows what the finger
 //!   feels. After the model, the ramp and the coupling, every finger's force passes its
@@ -39,7 +49,9 @@ use glam::{DMat3, DVec3};
 use super::bound::ForceBound;
 use super::coupling::VirtualCoupling;
 use super::sample::{FingerView, WorldSample, MAX_OBJECTS};
-use crate::contact::{ContactPoint, GodObject};
+use crate::contact::{
+    Budget, ContactPoint, GodObject, Patch, PatchReport, Sphere, StickSlip, Tool,
+};
 use crate::force::{
     add_point_force, coupled_point_forces, finger_force, saturate, ForceBc, ForceModel, MAX_FINGERS,
 };
@@ -62,6 +74,9 @@ struct FingerState {
     /// Force ramp, 0..=1.
     ramp: f64,
     model: ForceModel,
+    tool: Tool,
+    /// Per object, the stick–slip state of a point finger's god-object (friction).
+    sticks: [StickSlip; MAX_OBJECTS],
 }
 
 /// The haptic state of a scene: every finger's god-objects and ramp. See the module docs.
@@ -76,6 +91,13 @@ pub struct HapticWorld<'w> {
     contacts: [Option<(usize, ContactPoint)>; MAX_FINGERS],
     couplings: [Option<VirtualCoupling>; MAX_FINGERS],
     limited: [bool; MAX_FINGERS],
+    /// Per object, the contact problem of its spheres (only when a finger is a sphere).
+    patches: [Option<Box<Patch>>; MAX_OBJECTS],
+    /// Per finger, the object its sphere presses, the patch's centroid (scene frame) and
+    /// its normal stiffness along its mean normal.
+    sphere_touch: [Option<(usize, DVec3, DMat3)>; MAX_FINGERS],
+    budget: Budget,
+    exhausted: u64,
 }
 
 impl<'w> HapticWorld<'w> {
@@ -88,6 +110,8 @@ impl<'w> HapticWorld<'w> {
             max_jump: f64::INFINITY,
             ramp: 1.0,
             model: ForceModel::Paper,
+            tool: Tool::Point,
+            sticks: [StickSlip::default(); MAX_OBJECTS],
         };
         let mut fingers = [absent; MAX_FINGERS];
         let n_fingers = world.fingers.len().min(MAX_FINGERS);
@@ -95,6 +119,7 @@ impl<'w> HapticWorld<'w> {
         let mut bounds = [ForceBound::new(max_force, None); MAX_FINGERS];
         for ((f, b), spec) in fingers.iter_mut().zip(&mut bounds).zip(&world.fingers) {
             f.model = spec.model;
+            f.tool = spec.tool;
             *b = ForceBound::new(max_force, spec.limits.as_ref());
             if let Some(l) = &spec.limits {
                 if l.workspace_radius_m.is_finite() && l.workspace_radius_m > 0.0 {
@@ -109,9 +134,19 @@ impl<'w> HapticWorld<'w> {
                 .and_then(|f| f.limits.as_ref())
                 .map(VirtualCoupling::new)
         });
+        let any_sphere = fingers[..n_fingers]
+            .iter()
+            .any(|f| matches!(f.tool, Tool::Sphere { .. }));
+        let patches = std::array::from_fn(|o| {
+            (any_sphere && o < world.objects.len()).then(|| Box::new(Patch::new()))
+        });
         HapticWorld {
             world,
             couplings,
+            patches,
+            sphere_touch: [None; MAX_FINGERS],
+            budget: Budget::default(),
+            exhausted: 0,
             limited: [false; MAX_FINGERS],
             fingers,
             n_fingers,
@@ -192,8 +227,23 @@ impl<'w> HapticWorld<'w> {
                     };
                 }
             }
+            if matches!(f.tool, Tool::Sphere { .. }) {
+                continue;
+            }
             for (o, obj) in objects.iter().take(n_obj).enumerate() {
-                let c = f.gods[o].update(&obj.body.surface, x - obj.offset);
+                let mut c = f.gods[o].update(&obj.body.surface, x - obj.offset);
+                match (c, obj.friction.filter(|fr| !fr.is_none())) {
+                    (Some(free), Some(fr)) => {
+                        let comp = &obj.body.compliance;
+                        let model = f.model;
+                        let feel = |c: &ContactPoint| {
+                            finger_force(comp, c, model, &mut ForceBc::default()).feedback
+                        };
+                        c = Some(f.sticks[o].apply(&obj.body.surface, &free, fr, feel));
+                    }
+                    (None, _) => f.sticks[o].reset(),
+                    _ => {}
+                }
                 if touch[i].is_none() {
                     touch[i] = c.map(|c| (o, c));
                 }
@@ -205,6 +255,7 @@ impl<'w> HapticWorld<'w> {
         // Forces, object by object.
         forces[..n].fill(DVec3::ZERO);
         self.limited[..n].fill(false);
+        self.spheres(dt, n, positions, &valid, forces, sample);
         for (o, obj) in objects.iter().take(n_obj).enumerate() {
             let comp = &obj.body.compliance;
             let mut who = [0usize; MAX_FINGERS];
@@ -288,15 +339,135 @@ impl<'w> HapticWorld<'w> {
         }
         for i in 0..n {
             let x = positions[i];
+            let (proxy, object) = match (touch[i], self.sphere_touch[i]) {
+                (Some((o, c)), _) => (Some(c.proxy + objects[o].offset), Some(o as u8)),
+                (None, Some((o, p, _))) => (Some(p), Some(o as u8)),
+                (None, None) => (None, None),
+            };
             sample.fingers[i] = FingerView {
                 position: x,
-                proxy: touch[i].map(|(o, c)| c.proxy + objects[o].offset),
-                object: touch[i].map(|(o, _)| o as u8),
+                proxy,
+                object,
                 force: forces[i],
             };
         }
         self.ticks += 1;
         sample.tick = self.ticks;
+    }
+
+    /// The contact problem of object `o`'s spheres after the last step (`None` when no finger
+    /// of the scene is a sphere): its nodes, forces and gaps.
+    pub fn patch(&self, o: usize) -> Option<&Patch> {
+        self.patches.get(o).and_then(|p| p.as_deref())
+    }
+
+    /// How many sphere solves ran out of their budget so far (each still gave a finite,
+    /// bounded force).
+    pub fn budget_exhausted(&self) -> u64 {
+        self.exhausted
+    }
+
+    /// Sets the work a sphere solve may do each tick (default [`Budget::default`]).
+    pub fn set_budget(&mut self, budget: Budget) {
+        self.budget = budget;
+    }
+
+    /// The spheres' contact problems, object by object: each sphere finger's force is minus
+    /// the sum of its contact nodes' forces on every object it presses, saturated and ramped
+    /// like a point's; its nodes' forces, scaled by the same factor, go to the sample.
+    fn spheres(
+        &mut self,
+        dt: f64,
+        n: usize,
+        positions: &[DVec3],
+        valid: &[bool; MAX_FINGERS],
+        forces: &mut [DVec3],
+        sample: &mut WorldSample,
+    ) {
+        self.sphere_touch = [None; MAX_FINGERS];
+        let objects = &self.world.objects;
+        let mut raw = [DVec3::ZERO; MAX_FINGERS];
+        let mut any = false;
+        for (o, obj) in objects.iter().enumerate().take(MAX_OBJECTS) {
+            let Some(patch) = self.patches[o].as_deref_mut() else {
+                continue;
+            };
+            let mut spheres = [Sphere {
+                centre: DVec3::NAN,
+                radius: 0.0,
+            }; MAX_FINGERS];
+            let mut live = false;
+            for i in 0..n {
+                if let (Tool::Sphere { radius_m }, true) = (self.fingers[i].tool, valid[i]) {
+                    spheres[i] = Sphere {
+                        centre: positions[i] - obj.offset,
+                        radius: radius_m,
+                    };
+                    live = true;
+                }
+            }
+            if !live {
+                patch.reset();
+                continue;
+            }
+            let report: PatchReport = patch.solve(
+                &obj.body.compliance,
+                &obj.body.surface,
+                &spheres[..n],
+                obj.friction,
+                self.budget,
+            );
+            if report.exhausted {
+                self.exhausted += 1;
+            }
+            for i in 0..n {
+                if !matches!(self.fingers[i].tool, Tool::Sphere { .. }) || !valid[i] {
+                    continue;
+                }
+                let f = -patch.sphere_force(i);
+                if f != DVec3::ZERO {
+                    raw[i] += f;
+                    any = true;
+                    if self.sphere_touch[i].is_none() {
+                        let nrm = patch.mean_normal(i);
+                        let k = DMat3::from_cols(nrm, DVec3::ZERO, DVec3::ZERO)
+                            * DMat3::from_cols(nrm, DVec3::ZERO, DVec3::ZERO).transpose()
+                            * patch.normal_stiffness(i);
+                        let c = patch.centroid(i).unwrap_or(positions[i] - obj.offset);
+                        self.sphere_touch[i] = Some((o, c + obj.offset, k));
+                    }
+                }
+            }
+        }
+        if !any {
+            return;
+        }
+        for i in 0..n {
+            if self.sphere_touch[i].is_none() {
+                continue;
+            }
+            let f = raw[i];
+            self.fingers[i].ramp = (self.fingers[i].ramp + dt / RAMP_S).min(1.0);
+            let out = saturate(f, self.max_force) * self.fingers[i].ramp;
+            let len = f.length();
+            let scale = if len > 0.0 && out.is_finite() {
+                out.length() / len
+            } else {
+                0.0
+            };
+            for (o, _) in objects.iter().enumerate().take(MAX_OBJECTS) {
+                let Some(patch) = self.patches[o].as_deref() else {
+                    continue;
+                };
+                for node in patch.nodes() {
+                    if node.sphere == i && node.pressure > 0.0 {
+                        sample.bcs[o].add(node.col, node.force * scale);
+                    }
+                }
+            }
+            forces[i] = if out.is_finite() { out } else { DVec3::ZERO };
+            self.limited[i] = len > self.max_force;
+        }
     }
 
     /// Whether finger `i`'s force in the last step was changed by a limit: saturated at the
@@ -311,6 +482,9 @@ impl<'w> HapticWorld<'w> {
     /// clamped vertex counts with the clamp compliance). What a virtual coupling is sized
     /// against. Allocates nothing.
     pub(crate) fn contact_stiffness(&self, i: usize) -> Option<DMat3> {
+        if let Some((_, _, k)) = self.sphere_touch.get(i).copied().flatten() {
+            return Some(k);
+        }
         let (o, c) = self.contacts.get(i).copied().flatten()?;
         let comp = &self.world.objects[o].body.compliance;
         match self.fingers[i].model {

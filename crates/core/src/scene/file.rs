@@ -56,8 +56,26 @@ struct ObjectToml {
     fixed: Option<Spanned<String>>,
     touchable: Option<Spanned<TouchableToml>>,
     offset: Option<Spanned<[f64; 3]>>,
+    friction: Option<Spanned<FrictionToml>>,
     #[serde(default)]
     region: Vec<Spanned<RegionToml>>,
+}
+
+/// `friction = { static = 0.6, dynamic = 0.4 }`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FrictionToml {
+    #[serde(rename = "static")]
+    static_mu: f64,
+    dynamic: f64,
+}
+
+/// `tool = { sphere = R }` (R in the scene's unit).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ToolToml {
+    sphere: Option<f64>,
+    blade: Option<f64>,
 }
 
 /// `[[object.region]]`: the tets of a physical volume group, of another material.
@@ -90,6 +108,7 @@ struct FingerToml {
     path: Option<Spanned<Vec<[f64; 4]>>>,
     model: Option<Spanned<String>>,
     limits: Option<Spanned<LimitsToml>>,
+    tool: Option<Spanned<ToolToml>>,
 }
 
 /// A finger's device limits: a preset's name, or the numbers (SI, the unit in each key).
@@ -396,6 +415,16 @@ impl World {
                         .map_err(|e| at(f.span(), "formulation", e))?,
                 ),
             };
+            let friction = match &o.friction {
+                None => None,
+                Some(f) => {
+                    let v = f.get_ref();
+                    Some(
+                        crate::contact::Friction::new(v.static_mu, v.dynamic)
+                            .map_err(|e| at(f.span(), "friction", e.to_string()))?,
+                    )
+                }
+            };
             let fixed = o
                 .fixed
                 .as_ref()
@@ -595,6 +624,7 @@ impl World {
                 name,
                 body: Body::with_compliance(mesh, compliance),
                 offset,
+                friction,
             });
         }
         let mut fingers = Vec::new();
@@ -699,10 +729,49 @@ impl World {
                     Some(limits.map_err(|e| at(span, "limits", e.to_string()))?)
                 }
             };
+            let tool = match &f.tool {
+                None => crate::contact::Tool::Point,
+                Some(t) => {
+                    let span = t.span();
+                    match (t.get_ref().sphere, t.get_ref().blade) {
+                        (Some(r), None) => {
+                            let tool = crate::contact::Tool::sphere(r * s)
+                                .map_err(|e| at(span.clone(), "tool.sphere", e.to_string()))?;
+                            if let Some(e) = objects
+                                .iter()
+                                .map(|o: &Object| {
+                                    let (lo, hi) = o.body.mesh.bounds();
+                                    tool.check_fits(lo.distance(hi))
+                                })
+                                .reduce(|a, b| if a.is_ok() || b.is_ok() { Ok(()) } else { a })
+                                .and_then(|r| r.err())
+                            {
+                                return Err(at(span, "tool.sphere", e.to_string()));
+                            }
+                            tool
+                        }
+                        (None, Some(_)) => {
+                            return Err(at(
+                                span,
+                                "tool.blade",
+                                "blades are not supported yet (cutting is a later issue)".into(),
+                            ))
+                        }
+                        _ => {
+                            return Err(at(
+                                span,
+                                "tool",
+                                "give exactly one of `sphere = R` or `blade = DEPTH`".into(),
+                            ))
+                        }
+                    }
+                }
+            };
             fingers.push(FingerSpec {
                 device,
                 model,
                 limits,
+                tool,
             });
         }
         let mut haptics = HapticSettings::default();

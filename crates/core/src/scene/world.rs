@@ -16,6 +16,8 @@ pub struct Object {
     pub body: Body,
     /// Where the mesh's origin sits in the scene, metres.
     pub offset: DVec3,
+    /// Its Coulomb friction (`None`: frictionless, the paper's god-object).
+    pub friction: Option<crate::contact::Friction>,
 }
 
 /// Which device drives a finger.
@@ -43,6 +45,8 @@ pub struct FingerSpec {
     /// them ([`crate::runtime::coupling`]); `None`: the paper's force, saturated at
     /// `max_force_n`.
     pub limits: Option<DeviceLimits>,
+    /// What it touches with: the paper's point (default) or a sphere.
+    pub tool: crate::contact::Tool,
 }
 
 /// The haptic loop's settings.
