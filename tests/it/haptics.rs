@@ -135,3 +135,38 @@ fn the_multi_finger_tick_and_its_recording_allocate_nothing() {
     drop(rec);
     assert_eq!(writer.join().unwrap().unwrap(), n as u64 + 1);
 }
+
+#[test]
+fn the_sphere_tick_with_friction_allocates_nothing() {
+    use touchfem::runtime::{HapticWorld, WorldSample};
+    use touchfem::scene::{SceneSource, World};
+    let src = SceneSource {
+        name: "sphere".into(),
+        text: "unit = \"mm\"\n[[object]]\nmesh = \"mouse\"\nfriction = { static = 0.6, dynamic = 0.4 }\n[[finger]]\ndevice = \"pointer\"\ntool = { sphere = 8.0 }\n[[finger]]\ndevice = \"pointer\"\n".into(),
+        dir: ".".into(),
+        label: "sphere scene".into(),
+    };
+    let world = World::from_source_with(&src, None).unwrap();
+    let mut hw = HapticWorld::new(&world);
+    let mut sample = WorldSample::default();
+    let mut f = [DVec3::ZERO; 2];
+    let n = 1500;
+    let mut pressing = 0;
+    // Warm up off the surface (the first tick places the fingers).
+    hw.step(&[DVec3::new(-0.01, 0.0, 0.07); 2], &mut f, &mut sample);
+    ALLOCS.store(0, Ordering::SeqCst);
+    ARMED.with(|a| a.set(true));
+    for i in 0..=n {
+        let t = i as f64 / n as f64;
+        let d = 6e-3 * (std::f64::consts::PI * t).sin();
+        let pos = [
+            DVec3::new(-0.010 + 0.01 * t, 0.0, 0.054 - d),
+            DVec3::new(0.02, 0.0, 0.07 - d),
+        ];
+        hw.step(&pos, &mut f, &mut sample);
+        pressing += (sample.bc(0).len() > 3) as usize;
+    }
+    ARMED.with(|a| a.set(false));
+    assert_eq!(ALLOCS.load(Ordering::SeqCst), 0, "the sphere tick allocated");
+    assert!(pressing > n / 3, "the sphere pressed ({pressing} ticks)");
+}
