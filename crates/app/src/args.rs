@@ -5,6 +5,7 @@ use clap::{Args, Parser, Subcommand};
 use glam::DVec3;
 use std::path::PathBuf;
 
+use touchfem_core::contact::{Friction, Tool};
 use touchfem_core::mesh::Mesh;
 use touchfem_core::scene::{load_mesh, LoadOptions};
 use touchfem_core::units::{Formulation, LengthUnit, Material};
@@ -28,6 +29,9 @@ pub enum Command {
         /// How to load the mesh.
         #[command(flatten)]
         load: LoadArgs,
+        /// The finger's tool, checked against the mesh.
+        #[command(flatten)]
+        tool: ToolArgs,
         /// Print one JSON object.
         #[arg(long)]
         json: bool,
@@ -361,9 +365,73 @@ pub struct PokeArgs {
     /// Keep the precomputed compliance in this cache file (recomputed if stale or corrupt).
     #[arg(long)]
     pub cache: Option<PathBuf>,
-    /// Haptic ticks over which the finger moves, 1 to 1000000.
+    /// Haptic ticks over which the finger moves, 1 to 1000000; with --slide also the slide's
+    /// equal steps.
     #[arg(long, default_value_t = 50, value_parser = parse_steps, allow_hyphen_values = true)]
     pub steps: usize,
+    /// The finger is a sphere of radius R (mesh units, finite, > 0, not larger than the
+    /// object) whose surface first touches the surface point nearest --at.
+    #[arg(long, value_name = "R", value_parser = parse_sphere, allow_hyphen_values = true, conflicts_with = "exact")]
+    pub sphere: Option<f64>,
+    /// Coulomb friction: static and dynamic coefficients MS,MD (finite, >= 0, MD <= MS).
+    #[arg(long, value_name = "MS,MD", value_parser = parse_friction, allow_hyphen_values = true)]
+    pub friction: Option<Friction>,
+    /// After the push, move the finger by DX,DY,DZ (mesh units) in --steps equal steps, the
+    /// contact state carried along.
+    #[arg(long, value_name = "DX,DY,DZ", value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub slide: Option<DVec3>,
+}
+
+/// The finger's tool flags of `info` (checked as `poke` checks them, echoed in `--json`).
+#[derive(Args, Debug, Clone)]
+pub struct ToolArgs {
+    /// A sphere finger of radius R (mesh units, finite, > 0, not larger than the object).
+    #[arg(long, value_name = "R", value_parser = parse_sphere, allow_hyphen_values = true)]
+    pub sphere: Option<f64>,
+    /// Coulomb friction: static and dynamic coefficients MS,MD (finite, >= 0, MD <= MS).
+    #[arg(long, value_name = "MS,MD", value_parser = parse_friction, allow_hyphen_values = true)]
+    pub friction: Option<Friction>,
+}
+
+/// `--sphere R`: a finite radius > 0 (mesh units; whether it fits the object is checked once
+/// the mesh is loaded, [`check_sphere_fits`]).
+pub fn parse_sphere(s: &str) -> Result<f64, String> {
+    let r: f64 = s
+        .trim()
+        .parse()
+        .map_err(|e| format!("'{s}' is not a number: {e}"))?;
+    Tool::sphere(r).map_err(|e| e.to_string())?;
+    Ok(r)
+}
+
+/// Checks a `--sphere R` (mesh units) against the loaded mesh (metres, `unit` its file's
+/// unit): a sphere larger than the object's bounding-box diagonal is an error naming the flag.
+pub fn check_sphere_fits(
+    r: f64,
+    mesh: &Mesh,
+    unit: LengthUnit,
+) -> Result<f64, crate::error::Error> {
+    let bad = |e: touchfem_core::contact::ContactError| {
+        crate::error::Error::Input(format!("--sphere {r}: {e}"))
+    };
+    let r_m = r * unit.to_metres();
+    let tool = Tool::sphere(r_m).map_err(bad)?;
+    let (lo, hi) = mesh.bounds();
+    tool.check_fits(lo.distance(hi)).map_err(bad)?;
+    Ok(r_m)
+}
+
+/// `--friction MS,MD`: static and dynamic Coulomb coefficients, finite, >= 0, MD <= MS.
+pub fn parse_friction(s: &str) -> Result<Friction, String> {
+    let (ms, md) = s
+        .split_once(',')
+        .ok_or_else(|| format!("expected MS,MD (e.g. 0.6,0.4), got '{s}'"))?;
+    let num = |v: &str| {
+        v.trim()
+            .parse::<f64>()
+            .map_err(|e| format!("'{v}' is not a number: {e}"))
+    };
+    Friction::new(num(ms)?, num(md)?).map_err(|e| e.to_string())
 }
 
 /// `--color`: how pictures colour the surface.

@@ -20,7 +20,12 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         headless_vulkan();
     }
     match cli.command {
-        Command::Info { mesh, load, json } => info(&mesh, &load, json),
+        Command::Info {
+            mesh,
+            load,
+            tool,
+            json,
+        } => info(&mesh, &load, &tool, json),
         Command::Poke(args) => poke(&args),
         Command::Demo(args) => demo(&args),
         Command::Replay(args) => replay(&args),
@@ -455,8 +460,12 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
     Ok(())
 }
 
-fn info(spec: &str, load: &LoadArgs, json: bool) -> Result<(), Error> {
+fn info(spec: &str, load: &LoadArgs, tool: &ToolArgs, json: bool) -> Result<(), Error> {
     let (mesh, unit) = load.load(spec)?;
+    let sphere_m = match tool.sphere {
+        Some(r) => Some(check_sphere_fits(r, &mesh, unit)?),
+        None => None,
+    };
     let t = mesh.table1();
     let cond = touchfem_core::conditioning::estimate(&mesh, 60)?;
     let (e32, e16) = touchfem_core::conditioning::predict_storage_error(&mesh)?;
@@ -488,6 +497,12 @@ fn info(spec: &str, load: &LoadArgs, json: bool) -> Result<(), Error> {
                 })
             })
             .collect();
+        if let Some(r) = sphere_m {
+            v["sphere_m"] = serde_json::json!(r);
+        }
+        if let Some(fr) = tool.friction {
+            v["friction"] = serde_json::json!([fr.static_mu, fr.dynamic_mu]);
+        }
         println!("{v}");
     } else {
         println!("mesh                 {spec} (coordinates in {unit})");
@@ -517,6 +532,15 @@ fn info(spec: &str, load: &LoadArgs, json: bool) -> Result<(), Error> {
             cond.worst_quality
         );
         println!("storage error        f32 {e32:.1e}, f16 {e16:.1e} (of the largest displacement)");
+        if let Some(r) = sphere_m {
+            println!("sphere finger        R = {r} m (fits the object)");
+        }
+        if let Some(fr) = tool.friction {
+            println!(
+                "friction             static {}, dynamic {}",
+                fr.static_mu, fr.dynamic_mu
+            );
+        }
         report_changes(&mesh);
     }
     Ok(())
@@ -539,12 +563,34 @@ fn report_changes(mesh: &touchfem_core::Mesh) {
     }
 }
 
+/// What a poke leaves behind for its outputs, whatever the finger.
+struct PokeOutcome {
+    /// The force fed back to the finger, N.
+    feedback: DVec3,
+    /// The force on the object: (column of `L`, N).
+    forces: Vec<(u32, DVec3)>,
+    /// Mesh nodes in contact at the end.
+    contact_nodes: Vec<u32>,
+    /// With `--slide`: per step, [s (m), fx, fy, fz (N)].
+    trace: Option<Vec<[f64; 4]>>,
+    /// For the picture: the finger's mark, the god-object (a point finger's), the arrow's
+    /// start, and the contact's point and outward normal for `--view contact`.
+    finger: DVec3,
+    proxy: Option<DVec3>,
+    arrow_at: DVec3,
+    view: (DVec3, DVec3),
+}
+
 fn poke(a: &PokeArgs) -> Result<(), Error> {
     let (mesh, unit) = a.load.load(&a.mesh)?;
     if !a.json {
         report_changes(&mesh);
     }
     let s = unit.to_metres();
+    let sphere_m = match a.sphere {
+        Some(r) => Some(check_sphere_fits(r, &mesh, unit)?),
+        None => None,
+    };
     let sel = Selection::default();
     let compliance = match &a.cache {
         Some(path) => {
@@ -563,8 +609,119 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
     } else {
         ForceModel::Paper
     };
-    let p = scene.poke(a.at * s, a.push * s, model, a.steps)?;
-    let nodal = scene.nodal_forces(&p.bc);
+    let slide = a.slide.map(|d| (d * s, a.steps));
+    let (at, push) = (a.at * s, a.push * s);
+    let mut json = serde_json::Map::new();
+    let mut text = Vec::new();
+    let out = match sphere_m {
+        Some(r) => {
+            let sp = scene.poke_sphere(at, push, r, a.friction, slide)?;
+            let normal = (sp.start_centre - sp.touch_point) / r;
+            let bottom = sp.centre - normal * r;
+            let rep = sp.report;
+            if rep.exhausted || rep.overflow {
+                eprintln!(
+                    "warning: --sphere: the contact problem {} (max penetration {:.3e} m)",
+                    if rep.overflow {
+                        "touched more nodes than it holds; the nearest were kept"
+                    } else {
+                        "ran out of its budget"
+                    },
+                    rep.max_penetration
+                );
+            }
+            json.insert("sphere_m".into(), r.into());
+            json.insert("touch_point".into(), sp.touch_point.to_array().into());
+            json.insert("start_centre".into(), sp.start_centre.to_array().into());
+            json.insert("centre".into(), sp.centre.to_array().into());
+            json.insert(
+                "patch".into(),
+                serde_json::json!({
+                    "contacts": rep.contacts,
+                    "slipping": rep.slipping,
+                    "pivots": rep.pivots,
+                    "exhausted": rep.exhausted,
+                    "overflow": rep.overflow,
+                    "max_penetration": rep.max_penetration,
+                }),
+            );
+            text.push(format!(
+                "sphere: R = {} mm, {} node(s) in contact ({} slipping)",
+                touchfem_gpu::render::format_significant(r * 1e3, 6),
+                sp.contact_nodes.len(),
+                rep.slipping
+            ));
+            PokeOutcome {
+                feedback: sp.feedback,
+                forces: sp.forces,
+                contact_nodes: sp.contact_nodes,
+                trace: slide.map(|_| sp.trace),
+                finger: bottom,
+                proxy: None,
+                arrow_at: bottom,
+                view: (sp.touch_point, normal),
+            }
+        }
+        None => {
+            let (p, trace) = if a.friction.is_none() && a.slide.is_none() {
+                (scene.poke(at, push, model, a.steps)?, None)
+            } else {
+                let (p, t) = scene.poke_slide(at, push, model, a.friction, slide, a.steps)?;
+                (p, slide.map(|_| t))
+            };
+            let diff = (p.feedback_paper - p.feedback_exact).length();
+            let finger = p.touch_point + push + slide.map_or(DVec3::ZERO, |(d, _)| d);
+            json.insert(
+                "model".into(),
+                (if a.exact { "exact" } else { "paper" }).into(),
+            );
+            json.insert("force_paper".into(), p.feedback_paper.to_array().into());
+            json.insert("force_exact".into(), p.feedback_exact.to_array().into());
+            json.insert("paper_exact_difference".into(), diff.into());
+            json.insert("touch_point".into(), p.touch_point.to_array().into());
+            json.insert(
+                "contact".into(),
+                p.contact.map_or(serde_json::Value::Null, |c| {
+                    serde_json::json!({
+                        "triangle": c.tri,
+                        "nodes": c.nodes,
+                        "alpha": c.alpha,
+                        "proxy": c.proxy.to_array(),
+                        "finger": c.finger.to_array(),
+                    })
+                }),
+            );
+            text.push(format!("paper vs exact: |ΔF| = {diff:.3e} N"));
+            let contact_nodes = p.contact.map_or(Vec::new(), |c| {
+                (0..3)
+                    .filter(|&k| c.alpha[k] != 0.0)
+                    .map(|k| c.nodes[k])
+                    .collect()
+            });
+            let view = match p.contact {
+                Some(c) => {
+                    let [a0, a1, a2] = c.nodes.map(|i| scene.mesh.nodes[i as usize]);
+                    (c.proxy, (a1 - a0).cross(a2 - a0).normalize_or_zero())
+                }
+                None => (p.touch_point, -a.push.normalize_or_zero()),
+            };
+            PokeOutcome {
+                feedback: p.feedback,
+                forces: p.bc.entries().to_vec(),
+                contact_nodes,
+                trace,
+                finger,
+                proxy: p.contact.map(|c| c.proxy),
+                arrow_at: p.contact.map_or(finger, |c| c.proxy),
+                view,
+            }
+        }
+    };
+    let nodal: Vec<(u32, DVec3)> = out
+        .forces
+        .iter()
+        .map(|&(c, f)| (scene.compliance.cols()[c as usize], f))
+        .collect();
     let u = touchfem_core::fem::solve_static(&scene.mesh, &nodal)?;
     let max_u = u.iter().map(|v| v.length()).fold(0.0, f64::max);
     if let Some(path) = &a.vtu {
@@ -572,79 +729,21 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
         for &(n, v) in &nodal {
             f[n as usize] += v;
         }
-        crate::vtu::write_vtu(path, &scene.mesh, &u, &f)?;
+        // The nodal forces are the contact forces: the point finger's equivalent forces on
+        // its triangle's nodes, or the sphere's contact problem's forces.
+        crate::vtu::write_vtu(path, &scene.mesh, &u, &f, &f)?;
     }
     if let Some(path) = &a.png {
-        let (f32s, n) = p.bc.to_f32();
-        let finger = p.touch_point + a.push * s;
-        let (lo, hi) = scene.mesh.bounds();
-        let diag = (hi - lo).length();
-        // The largest displacement shown: u = L·F over the displayed rows (f64, as the GPU).
-        let mut shown = vec![DVec3::ZERO; scene.compliance.rows().len()];
-        scene.compliance.displace(p.bc.entries(), &mut shown);
-        let max_surface_u = shown.iter().map(|v| v.length()).fold(0.0, f64::max);
-        let coloring = match a.color {
-            ColorArg::Displacement => touchfem_gpu::render::Coloring::displacement(max_surface_u),
-            ColorArg::Plain => touchfem_gpu::render::Coloring::Plain,
-        };
-        // The arrow: about a quarter of the object's size for this force, in nice mm/N.
-        let arrow = touchfem_gpu::render::ForceArrow {
-            at: p.contact.map_or(finger, |c| c.proxy),
-            force_n: p.feedback,
-            m_per_n: touchfem_gpu::render::arrow_scale(p.feedback.length(), 0.25 * diag),
-        };
-        let view = match a.view {
-            ViewArg::Auto => touchfem_gpu::render::View::Auto,
-            ViewArg::Contact => {
-                let (point, normal) = match p.contact {
-                    Some(c) => {
-                        let [a0, a1, a2] = c.nodes.map(|i| scene.mesh.nodes[i as usize]);
-                        (c.proxy, (a1 - a0).cross(a2 - a0).normalize_or_zero())
-                    }
-                    None => (p.touch_point, -a.push.normalize_or_zero()),
-                };
-                touchfem_gpu::render::View::Contact {
-                    point,
-                    normal,
-                    radius_m: (3.0 * a.push.length() * s).max(0.2 * diag),
-                }
-            }
-        };
-        let scene_r = touchfem_gpu::render::Picture {
-            mesh: &scene.mesh,
-            compliance: &scene.compliance,
-            forces: &f32s[..n],
-            finger: Some(finger),
-            proxy: p.contact.map(|c| c.proxy),
-            wireframe: true,
-            coloring,
-            arrow: Some(arrow),
-            view,
-            legend: true,
-        };
-        touchfem_gpu::render::render_png(path, a.size, &scene_r)?;
+        poke_png(a, &scene, &out, s, path)?;
     }
-    let diff = (p.feedback_paper - p.feedback_exact).length();
+    let f = out.feedback;
     if a.json {
-        let contact = p.contact.map(|c| {
-            serde_json::json!({
-                "triangle": c.tri,
-                "nodes": c.nodes,
-                "alpha": c.alpha,
-                "proxy": c.proxy.to_array(),
-                "finger": c.finger.to_array(),
-            })
-        });
-        let v = serde_json::json!({
-            "force": p.feedback.to_array(),
+        let mut v = serde_json::json!({
+            "force": f.to_array(),
             "max_displacement": max_u,
-            "model": if a.exact { "exact" } else { "paper" },
-            "force_paper": p.feedback_paper.to_array(),
-            "force_exact": p.feedback_exact.to_array(),
-            "paper_exact_difference": diff,
-            "touch_point": p.touch_point.to_array(),
-            "contact": contact,
-            "active_columns": p.bc.len(),
+            "tool": if sphere_m.is_some() { "sphere" } else { "point" },
+            "contact_nodes": out.contact_nodes,
+            "active_columns": out.forces.len(),
             "precompute": {
                 "seconds": st.seconds,
                 "bytes": st.bytes,
@@ -653,13 +752,21 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
                 "rows": scene.compliance.rows().len(),
                 "cols": scene.compliance.cols().len(),
             },
-            "units": {"force": "N", "max_displacement": "m", "positions": "m"},
+            "units": {"force": "N", "max_displacement": "m", "positions": "m", "trace": ["m", "N", "N", "N"]},
         });
+        for (k, x) in json {
+            v[k] = x;
+        }
+        if let Some(fr) = a.friction {
+            v["friction"] = serde_json::json!([fr.static_mu, fr.dynamic_mu]);
+        }
+        if let Some(t) = &out.trace {
+            v["trace"] = serde_json::json!(t);
+        }
         println!("{v}");
     } else {
         // Six significant digits at any scale (scientific when tiny), never `-0`.
         let g = |v: f64| touchfem_gpu::render::format_significant(v, 6);
-        let f = p.feedback;
         // A component below 1e-12 of |F| is rounding noise: shown as 0.
         let c = |v: f64| {
             g(if v.abs() <= 1e-12 * f.length() {
@@ -669,14 +776,31 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
             })
         };
         println!(
-            "force fed back: ({}, {}, {}) N, |F| = {} N ({} model)",
+            "force fed back: ({}, {}, {}) N, |F| = {} N ({})",
             c(f.x),
             c(f.y),
             c(f.z),
             g(f.length()),
-            if a.exact { "exact" } else { "paper" }
+            match (sphere_m.is_some(), a.exact) {
+                (true, _) => "sphere",
+                (false, true) => "exact model",
+                (false, false) => "paper model",
+            }
         );
-        println!("paper vs exact: |ΔF| = {diff:.3e} N");
+        for line in &text {
+            println!("{line}");
+        }
+        if let Some(t) = &out.trace {
+            let last = t.last().copied().unwrap_or([0.0; 4]);
+            println!(
+                "slide: {} mm in {} steps, last force ({}, {}, {}) N",
+                g(last[0] * 1e3),
+                t.len(),
+                c(last[1]),
+                c(last[2]),
+                c(last[3])
+            );
+        }
         println!("max displacement: {} mm", g(max_u * 1e3));
         println!(
             "precompute: {} rows × {} columns in {:.3} s, {:.1} MiB, max|K·L − I| = {:.1e}, symmetry {:.1e}",
@@ -687,10 +811,65 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
             st.residual,
             st.symmetry
         );
-        if p.contact.is_none() {
+        if out.contact_nodes.is_empty() {
             println!("(the finger is not in contact)");
         }
     }
+    Ok(())
+}
+
+/// `poke --png`: the deformation under the poke's forces, the finger, its god-object and the
+/// force on the finger as an arrow.
+fn poke_png(
+    a: &PokeArgs,
+    scene: &Body,
+    out: &PokeOutcome,
+    s: f64,
+    path: &std::path::Path,
+) -> Result<(), Error> {
+    let f32s: Vec<(u32, [f32; 3])> = out
+        .forces
+        .iter()
+        .map(|&(c, f)| (c, f.as_vec3().to_array()))
+        .collect();
+    let (lo, hi) = scene.mesh.bounds();
+    let diag = (hi - lo).length();
+    // The largest displacement shown: u = L·F over the displayed rows (f64, as the GPU).
+    let mut shown = vec![DVec3::ZERO; scene.compliance.rows().len()];
+    scene.compliance.displace(&out.forces, &mut shown);
+    let max_surface_u = shown.iter().map(|v| v.length()).fold(0.0, f64::max);
+    let coloring = match a.color {
+        ColorArg::Displacement => touchfem_gpu::render::Coloring::displacement(max_surface_u),
+        ColorArg::Plain => touchfem_gpu::render::Coloring::Plain,
+    };
+    // The arrow: about a quarter of the object's size for this force, in nice mm/N.
+    let arrow = touchfem_gpu::render::ForceArrow {
+        at: out.arrow_at,
+        force_n: out.feedback,
+        m_per_n: touchfem_gpu::render::arrow_scale(out.feedback.length(), 0.25 * diag),
+    };
+    let view = match a.view {
+        ViewArg::Auto => touchfem_gpu::render::View::Auto,
+        ViewArg::Contact => touchfem_gpu::render::View::Contact {
+            point: out.view.0,
+            normal: out.view.1,
+            radius_m: (3.0 * (a.push + a.slide.unwrap_or(DVec3::ZERO)).length() * s)
+                .max(0.2 * diag),
+        },
+    };
+    let picture = touchfem_gpu::render::Picture {
+        mesh: &scene.mesh,
+        compliance: &scene.compliance,
+        forces: &f32s,
+        finger: Some(out.finger),
+        proxy: out.proxy,
+        wireframe: true,
+        coloring,
+        arrow: Some(arrow),
+        view,
+        legend: true,
+    };
+    touchfem_gpu::render::render_png(path, a.size, &picture)?;
     Ok(())
 }
 

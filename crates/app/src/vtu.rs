@@ -1,6 +1,6 @@
 //! VTK XML UnstructuredGrid output (readable by ParaView and meshio): the tets with point arrays
-//! `displacement` (m), `force` (N, the external nodal force applied) and `fixed` (1 on clamped
-//! nodes), and cell arrays `young` (Pa), `poisson` and `region` (0 for the object's material,
+//! `displacement` (m), `force` (N, the external nodal force applied), `contact_force` (N, the
+//! contact force on the object at each node, zero elsewhere) and `fixed` (1 on clamped nodes), and cell arrays `young` (Pa), `poisson` and `region` (0 for the object's material,
 //! k for its k-th region, in the order given). Points in metres.
 
 use glam::DVec3;
@@ -9,19 +9,22 @@ use std::path::Path;
 
 use touchfem_core::mesh::Mesh;
 
-/// Writes the mesh with its displacement and applied nodal forces (one entry per node).
+/// Writes the mesh with its displacement, applied nodal forces and contact forces (one entry
+/// per node each).
 pub(crate) fn write_vtu(
     path: &Path,
     mesh: &Mesh,
     displacement: &[DVec3],
     force: &[DVec3],
+    contact_force: &[DVec3],
 ) -> Result<(), crate::error::Error> {
     let n = mesh.nodes.len();
-    if displacement.len() != n || force.len() != n {
+    if displacement.len() != n || force.len() != n || contact_force.len() != n {
         return Err(crate::error::Error::Input(format!(
-            "vtu: {n} nodes but {} displacements and {} forces",
+            "vtu: {n} nodes but {} displacements, {} forces and {} contact forces",
             displacement.len(),
-            force.len()
+            force.len(),
+            contact_force.len()
         )));
     }
     let mut s = String::with_capacity(200 * n + 64 * mesh.tets.len());
@@ -50,7 +53,11 @@ pub(crate) fn write_vtu(
         s.push_str("10\n");
     }
     s.push_str("</DataArray>\n</Cells>\n<PointData Vectors=\"displacement\">\n");
-    for (name, v) in [("displacement", displacement), ("force", force)] {
+    for (name, v) in [
+        ("displacement", displacement),
+        ("force", force),
+        ("contact_force", contact_force),
+    ] {
         let _ = writeln!(
             s,
             "<DataArray type=\"Float64\" Name=\"{name}\" NumberOfComponents=\"3\" format=\"ascii\">"
