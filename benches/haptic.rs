@@ -254,8 +254,87 @@ fn udp_bridge(c: &mut Criterion) {
     g.finish();
 }
 
+/// A sphere's tick (the contact problem, warm-started, the default budget) at about 10, 30
+/// and 100 contact nodes on the Hertz block (0.7 mm cells under the contact), frictionless and
+/// with friction, beside the point finger's exact tick on the same body.
+fn sphere_tick(c: &mut Criterion) {
+    use touchfem::contact::{Budget, Friction, Patch, Sphere};
+    use touchfem_lab::hertz::{block_body, HertzSetup};
+    let mut g = c.benchmark_group("sphere_tick");
+    let setup = HertzSetup::block(0.3, 0.7);
+    let (body, top) = block_body(&setup).unwrap();
+    let r = setup.radius_mm * 1e-3;
+    let mut point = Finger::new(top + DVec3::new(0.0, 0.0, 1e-3));
+    for (k, x) in [top + DVec3::new(0.0, 0.0, -0.5e-3); 4].iter().enumerate() {
+        point.step(&body.surface, &body.compliance, *x, ForceModel::Exact, 8.5);
+        let _ = k;
+    }
+    let mut i = 0usize;
+    g.bench_function("point_exact", |b| {
+        b.iter(|| {
+            i = (i + 1) & 63;
+            let x = top + DVec3::new(1e-6 * (i as f64 / 64.0), 0.0, -0.5e-3);
+            black_box(point.step(
+                &body.surface,
+                &body.compliance,
+                black_box(x),
+                ForceModel::Exact,
+                8.5,
+            ))
+        })
+    });
+    for depth_mm in [0.2, 0.45, 1.5] {
+        for friction in [None, Some(Friction::new(0.6, 0.4).unwrap())] {
+            let mut patch = Patch::new();
+            let centre = |t: f64| top + DVec3::new(2e-6 * t, 0.0, r - depth_mm * 1e-3);
+            for s in 0..20 {
+                let sp = [Sphere {
+                    centre: centre(s as f64 / 20.0),
+                    radius: r,
+                }];
+                patch.solve(
+                    &body.compliance,
+                    &body.surface,
+                    &sp,
+                    friction,
+                    Budget::UNLIMITED,
+                );
+            }
+            let nodes = patch.report().contacts;
+            let name = format!(
+                "{}_{}nodes",
+                if friction.is_some() {
+                    "friction"
+                } else {
+                    "frictionless"
+                },
+                nodes
+            );
+            let mut i = 0usize;
+            g.bench_function(name, |b| {
+                b.iter(|| {
+                    i = (i + 1) & 63;
+                    let sp = [Sphere {
+                        centre: centre(1.0 + (i as f64) / 64.0),
+                        radius: r,
+                    }];
+                    black_box(patch.solve(
+                        &body.compliance,
+                        &body.surface,
+                        black_box(&sp),
+                        friction,
+                        Budget::default(),
+                    ))
+                })
+            });
+        }
+    }
+    g.finish();
+}
+
 criterion_group!(
     benches,
+    sphere_tick,
     force_step,
     scene_tick,
     udp_bridge,

@@ -167,6 +167,10 @@ fn the_sphere_tick_with_friction_allocates_nothing() {
         pressing += (sample.bc(0).len() > 3) as usize;
     }
     ARMED.with(|a| a.set(false));
-    assert_eq!(ALLOCS.load(Ordering::SeqCst), 0, "the sphere tick allocated");
+    assert_eq!(
+        ALLOCS.load(Ordering::SeqCst),
+        0,
+        "the sphere tick allocated"
+    );
     assert!(pressing > n / 3, "the sphere pressed ({pressing} ticks)");
 }

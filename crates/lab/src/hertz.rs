@@ -103,9 +103,9 @@ pub fn hertz_force(young_pa: f64, poisson: f64, r: f64, d: f64) -> f64 {
     4.0 / 3.0 * young_pa / (1.0 - poisson * poisson) * r.sqrt() * d.powf(1.5)
 }
 
-/// Runs the study: the graded block, its compliance for the top nodes under the sphere, the
-/// sphere pressed to each depth (frictionless), and a point finger at the same depths.
-pub fn study(s: &HertzSetup) -> Result<HertzTable, Error> {
+/// The study's body: the graded block with its compliance for the top nodes the deepest press
+/// can reach, and the middle of its top face (m).
+pub fn block_body(s: &HertzSetup) -> Result<(Body, DVec3), Error> {
     let material = Material {
         young_pa: s.young_pa,
         poisson: s.poisson,
@@ -133,8 +133,16 @@ pub fn study(s: &HertzSetup) -> Result<HertzTable, Error> {
         rows: NodeSet::Nodes(touch.clone()),
         cols: NodeSet::Nodes(touch),
     };
-    let nodes = mesh.nodes.len();
-    let body = Body::new(mesh, &sel)?;
+    Ok((Body::new(mesh, &sel)?, top))
+}
+
+/// Runs the study: the graded block, its compliance for the top nodes under the sphere, the
+/// sphere pressed to each depth (frictionless), and a point finger at the same depths.
+pub fn study(s: &HertzSetup) -> Result<HertzTable, Error> {
+    let mm = 1e-3;
+    let r = s.radius_mm * mm;
+    let (body, top) = block_body(s)?;
+    let nodes = body.mesh.nodes.len();
     let mut rows = Vec::new();
     for &d in &s.depths_mm {
         let d = d * mm;
