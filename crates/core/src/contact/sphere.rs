@@ -140,6 +140,11 @@ pub struct Patch {
     u: Vec<DVec3>,
     /// A = NᵀWN over the candidates, row-major with stride `cap`.
     a: Vec<f64>,
+    /// The 3×3 blocks W_ij = L(node i, column j) of the candidates, stride `cap`: read from
+    /// `L` once, when a node becomes a candidate.
+    wblk: Vec<DMat3>,
+    /// For each mesh node, its slot + 1 among the candidates (0: none); sized on first use.
+    slot: Vec<u32>,
     /// The active set, in the order of the factor's rows.
     set: Vec<usize>,
     /// Lower Cholesky factor of A on the active set, stride `cap`.
@@ -186,6 +191,8 @@ impl Patch {
             z: vec![0.0; m],
             u: vec![DVec3::ZERO; m],
             a: vec![0.0; m * m],
+            wblk: vec![DMat3::ZERO; m * m],
+            slot: Vec::new(),
             set: Vec::with_capacity(m),
             chol: vec![0.0; m * m],
             rhs: vec![0.0; m],
@@ -196,6 +203,11 @@ impl Patch {
 
     /// Forgets every contact (the spheres were lifted, or a device lost its position).
     pub fn reset(&mut self) {
+        for i in 0..self.n {
+            if let Some(s) = self.slot.get_mut(self.node[i] as usize) {
+                *s = 0;
+            }
+        }
         self.n = 0;
         self.set.clear();
         self.report = PatchReport::default();
@@ -313,8 +325,16 @@ impl Patch {
     }
 
     #[inline]
-    fn w(c: &Compliance, i: u32, j: u32) -> DMat3 {
-        c.touch_block(i as usize, j as usize)
+    fn w(&self, i: usize, j: usize) -> DMat3 {
+        self.wblk[i * self.cap + j]
+    }
+
+    /// Sizes the node table for a mesh of `nodes` nodes (done by the first solve otherwise:
+    /// call it up front to keep every tick allocation-free).
+    pub fn reserve_nodes(&mut self, nodes: usize) {
+        if self.slot.len() < nodes {
+            self.slot.resize(nodes, 0);
+        }
     }
 
     /// Solves the contact problem of `spheres` (object frame) on the object whose compliance
@@ -330,12 +350,13 @@ impl Patch {
     ) -> PatchReport {
         let mut report = PatchReport::default();
         let friction = friction.filter(|f| !f.is_none());
+        self.reserve_nodes(surf.nodes.len());
         // 1. Candidates: touchable surface nodes near a sphere (rest positions).
         let mut max_u = 0.0f64;
         for i in 0..self.n {
             self.seen[i] = false;
             if self.p[i] > 0.0 {
-                max_u = max_u.max(self.u[i].length());
+                max_u = max_u.max(self.u[i].length()).max(self.g[i] - self.gap0[i]);
             }
         }
         for (s, sp) in spheres.iter().enumerate() {
@@ -343,11 +364,19 @@ impl Patch {
                 continue;
             }
             let reach = sp.radius * 1.02 + 0.5 * max_u + 1e-9;
+            // A node becomes a candidate when its rest gap is within this (the surface
+            // around a press sinks; a bulge towards the sphere is a fraction of the press).
+            let margin = 0.5 * max_u + 0.02 * sp.radius;
             let overflow = &mut report.overflow;
             surf.for_nodes_near(sp.centre, reach, |v| {
                 let Some(col) = c.col_of(v) else { return };
-                if let Some(i) = (0..self.n).find(|&i| self.node[i] == v) {
-                    self.seen[i] = true;
+                let slot = self.slot[v as usize];
+                if slot > 0 {
+                    self.seen[slot as usize - 1] = true;
+                    return;
+                }
+                let x = surf.nodes[v as usize];
+                if ray_gap(x, surf.vertex_normal(v), sp.centre, sp.radius) > margin {
                     return;
                 }
                 if self.n == self.cap {
@@ -407,7 +436,7 @@ impl Patch {
         };
         let mut pivots_left = budget.pivots;
         for round in 0..rounds {
-            self.normal_rhs(c, friction.is_some());
+            self.normal_rhs(friction.is_some());
             let (used, done) = self.nnls(tol, pivots_left);
             report.pivots += used;
             pivots_left = pivots_left.saturating_sub(used);
@@ -418,14 +447,14 @@ impl Patch {
                 let change = self.friction_sweep(c, spheres, fr);
                 if round + 1 == rounds {
                     // The last sweep changed τ: one more normal solve keeps Signorini exact.
-                    self.normal_rhs(c, true);
+                    self.normal_rhs(true);
                     let (used, done) = self.nnls(tol, pivots_left);
                     report.pivots += used;
                     if !done {
                         report.exhausted = true;
                     }
                 } else if change <= 1e-9 * self.p[..m].iter().sum::<f64>().max(1e-300) {
-                    self.normal_rhs(c, true);
+                    self.normal_rhs(true);
                     let (used, done) = self.nnls(tol, pivots_left);
                     report.pivots += used;
                     if !done {
@@ -445,8 +474,8 @@ impl Patch {
                 self.slipping[i] = false;
             }
         }
-        self.update_u(c);
-        if let Some(_fr) = friction {
+        if friction.is_some() {
+            self.update_u();
             for i in 0..m {
                 if self.p[i] > 0.0 && (!self.anchored[i] || self.slipping[i]) {
                     let sp = spheres[self.owner[i] as usize];
@@ -486,7 +515,10 @@ impl Patch {
         let nk = self.normal[k];
         let s = self.cap;
         for j in 0..=k {
-            let a = nk.dot(Self::w(c, col, self.col[j]) * self.normal[j]);
+            let w = c.touch_block(col as usize, self.col[j] as usize);
+            self.wblk[k * s + j] = w;
+            self.wblk[j * s + k] = w.transpose();
+            let a = nk.dot(w * self.normal[j]);
             self.a[k * s + j] = a;
             self.a[j * s + k] = a;
         }
@@ -494,10 +526,15 @@ impl Patch {
         let mut u = DVec3::ZERO;
         for j in 0..k {
             if self.p[j] > 0.0 {
-                u += Self::w(c, col, self.col[j]) * self.force_at(j);
+                u += self.wblk[k * s + j] * self.force_at(j);
             }
         }
         self.u[k] = u;
+        self.g[k] = 0.0;
+        self.gap0[k] = 0.0;
+        if let Some(sl) = self.slot.get_mut(v as usize) {
+            *sl = k as u32 + 1;
+        }
         self.n += 1;
     }
 
@@ -508,18 +545,30 @@ impl Patch {
         if let Some(pos) = self.set.iter().position(|&x| x == i) {
             self.set.remove(pos);
         }
+        if let Some(sl) = self.slot.get_mut(self.node[i] as usize) {
+            *sl = 0;
+        }
         if i != last {
+            if let Some(sl) = self.slot.get_mut(self.node[last] as usize) {
+                *sl = i as u32 + 1;
+            }
             macro_rules! mv {
                 ($($f:ident),*) => {$( self.$f[i] = self.$f[last]; )*};
             }
-            mv!(node, col, normal, rest, owner, seen, p, tau, anchor, anchored, slipping, u);
+            mv!(
+                node, col, normal, rest, owner, seen, p, tau, anchor, anchored, slipping, u, g,
+                gap0
+            );
             for j in 0..self.n {
                 self.a[i * s + j] = self.a[last * s + j];
+                self.wblk[i * s + j] = self.wblk[last * s + j];
             }
             for j in 0..self.n {
                 self.a[j * s + i] = self.a[j * s + last];
+                self.wblk[j * s + i] = self.wblk[j * s + last];
             }
             self.a[i * s + i] = self.a[last * s + last];
+            self.wblk[i * s + i] = self.wblk[last * s + last];
             for x in &mut self.set {
                 if *x == last {
                     *x = i;
@@ -530,7 +579,7 @@ impl Patch {
     }
 
     /// `q = gap0 − n·(W τ)`.
-    fn normal_rhs(&mut self, c: &Compliance, with_tau: bool) {
+    fn normal_rhs(&mut self, with_tau: bool) {
         let m = self.n;
         for i in 0..m {
             let mut q = self.gap0[i];
@@ -538,7 +587,7 @@ impl Patch {
                 let mut ut = DVec3::ZERO;
                 for j in 0..m {
                     if self.p[j] > 0.0 && self.tau[j] != DVec3::ZERO {
-                        ut += Self::w(c, self.col[i], self.col[j]) * self.tau[j];
+                        ut += self.w(i, j) * self.tau[j];
                     }
                 }
                 q -= self.normal[i].dot(ut);
@@ -735,14 +784,15 @@ impl Patch {
         }
     }
 
-    /// u_i = Σ_j W_ij λ_j for the candidates (from the forces carried).
-    fn update_u(&mut self, c: &Compliance) {
+    /// u_i = Σ_j W_ij λ_j at the nodes carrying force (from the forces carried); zero at
+    /// the others.
+    fn update_u(&mut self) {
         let m = self.n;
         for i in 0..m {
             let mut u = DVec3::ZERO;
-            for j in 0..m {
-                if self.p[j] > 0.0 {
-                    u += Self::w(c, self.col[i], self.col[j]) * self.force_at(j);
+            if self.p[i] > 0.0 {
+                for &j in &self.set {
+                    u += self.w(i, j) * self.force_at(j);
                 }
             }
             self.u[i] = u;
@@ -752,7 +802,7 @@ impl Patch {
     /// One projected Gauss–Seidel sweep over the tangential forces. Returns Σ|Δτ|.
     fn friction_sweep(&mut self, c: &Compliance, spheres: &[Sphere], fr: Friction) -> f64 {
         let m = self.n;
-        self.update_u(c);
+        self.update_u();
         let mut change = 0.0;
         for i in 0..m {
             if self.p[i] <= 0.0 {
@@ -788,8 +838,9 @@ impl Patch {
             if d != DVec3::ZERO {
                 change += d.length();
                 self.tau[i] = t_new;
-                for j in 0..m {
-                    self.u[j] += Self::w(c, self.col[j], self.col[i]) * d;
+                for r in 0..self.set.len() {
+                    let j = self.set[r];
+                    self.u[j] += self.wblk[j * self.cap + i] * d;
                 }
             }
         }

@@ -138,7 +138,11 @@ impl<'w> HapticWorld<'w> {
             .iter()
             .any(|f| matches!(f.tool, Tool::Sphere { .. }));
         let patches = std::array::from_fn(|o| {
-            (any_sphere && o < world.objects.len()).then(|| Box::new(Patch::new()))
+            (any_sphere && o < world.objects.len()).then(|| {
+                let mut p = Box::new(Patch::new());
+                p.reserve_nodes(world.objects[o].body.mesh.nodes.len());
+                p
+            })
         });
         HapticWorld {
             world,
