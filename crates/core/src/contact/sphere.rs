@@ -150,6 +150,8 @@ pub struct Patch {
     /// Lower Cholesky factor of A on the active set, stride `cap`.
     chol: Vec<f64>,
     rhs: Vec<f64>,
+    /// Whether `chol` is the factor of A on `set` (in its order).
+    factored: bool,
     report: PatchReport,
     stiffness: [f64; crate::force::MAX_FINGERS],
 }
@@ -196,6 +198,7 @@ impl Patch {
             set: Vec::with_capacity(m),
             chol: vec![0.0; m * m],
             rhs: vec![0.0; m],
+            factored: false,
             report: PatchReport::default(),
             stiffness: [0.0; crate::force::MAX_FINGERS],
         }
@@ -210,6 +213,7 @@ impl Patch {
         }
         self.n = 0;
         self.set.clear();
+        self.factored = true;
         self.report = PatchReport::default();
     }
 
@@ -400,6 +404,7 @@ impl Patch {
         report.candidates = m;
         if m == 0 {
             self.set.clear();
+            self.factored = true;
             self.report = report;
             return report;
         }
@@ -544,6 +549,7 @@ impl Patch {
         // Its place in the active set (it carries no force, so normally none).
         if let Some(pos) = self.set.iter().position(|&x| x == i) {
             self.set.remove(pos);
+            self.factored = false;
         }
         if let Some(sl) = self.slot.get_mut(self.node[i] as usize) {
             *sl = 0;
@@ -602,18 +608,32 @@ impl Patch {
         let m = self.n;
         let s = self.cap;
         self.blocked[..m].fill(false);
-        // The warm start: the nodes carrying force.
-        self.set.clear();
+        // The warm start: the nodes carrying force. When they are the last solve's set, its
+        // factor still holds (A depends only on the node pairs): keep it.
+        let carrying = (0..m).filter(|&i| self.p[i] > 0.0).count();
+        let same = carrying == self.set.len()
+            && self.factored
+            && self.set.iter().all(|&i| i < m && self.p[i] > 0.0);
         for i in 0..m {
-            if self.p[i] > 0.0 {
-                self.set.push(i);
-            } else {
+            if self.p[i] <= 0.0 {
                 self.p[i] = 0.0;
             }
         }
-        if !self.refactor() {
+        if same {
+            // Reuse.
+        } else {
+            self.set.clear();
+            self.factored = true;
+            for i in 0..m {
+                if self.p[i] > 0.0 {
+                    self.set.push(i);
+                }
+            }
+        }
+        if !same && !self.refactor() {
             // A (numerically) singular warm set: start cold.
             self.set.clear();
+            self.factored = true;
             self.p[..m].fill(0.0);
         }
         let mut pivots = 0usize;
@@ -662,6 +682,7 @@ impl Patch {
                 pivots += before - self.set.len();
                 if !self.refactor() {
                     self.set.clear();
+                    self.factored = true;
                     self.p[..m].fill(0.0);
                 }
                 if pivots >= budget {
@@ -740,6 +761,12 @@ impl Patch {
 
     /// Factors `A` on the current set from scratch. False when not positive definite.
     fn refactor(&mut self) -> bool {
+        let ok = self.refactor_inner();
+        self.factored = ok;
+        ok
+    }
+
+    fn refactor_inner(&mut self) -> bool {
         let s = self.cap;
         let k = self.set.len();
         for r in 0..k {
