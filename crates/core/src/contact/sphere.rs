@@ -63,7 +63,7 @@ impl Default for Budget {
     fn default() -> Self {
         Budget {
             pivots: 64,
-            friction_sweeps: 4,
+            friction_sweeps: 2,
         }
     }
 }
@@ -143,6 +143,9 @@ pub struct Patch {
     /// The 3×3 blocks W_ij = L(node i, column j) of the candidates, stride `cap`: read from
     /// `L` once, when a node becomes a candidate.
     wblk: Vec<DMat3>,
+    /// `W_ijᵀ n_i`, stride `cap`: a tangential force τ_j moves node i along its normal by
+    /// `B_ij · τ_j`.
+    bvec: Vec<DVec3>,
     /// For each mesh node, its slot + 1 among the candidates (0: none); sized on first use.
     slot: Vec<u32>,
     /// The active set, in the order of the factor's rows.
@@ -194,6 +197,7 @@ impl Patch {
             u: vec![DVec3::ZERO; m],
             a: vec![0.0; m * m],
             wblk: vec![DMat3::ZERO; m * m],
+            bvec: vec![DVec3::ZERO; m * m],
             slot: Vec::new(),
             set: Vec::with_capacity(m),
             chol: vec![0.0; m * m],
@@ -523,6 +527,8 @@ impl Patch {
             let w = c.touch_block(col as usize, self.col[j] as usize);
             self.wblk[k * s + j] = w;
             self.wblk[j * s + k] = w.transpose();
+            self.bvec[k * s + j] = w.transpose() * nk;
+            self.bvec[j * s + k] = w * self.normal[j];
             let a = nk.dot(w * self.normal[j]);
             self.a[k * s + j] = a;
             self.a[j * s + k] = a;
@@ -568,13 +574,16 @@ impl Patch {
             for j in 0..self.n {
                 self.a[i * s + j] = self.a[last * s + j];
                 self.wblk[i * s + j] = self.wblk[last * s + j];
+                self.bvec[i * s + j] = self.bvec[last * s + j];
             }
             for j in 0..self.n {
                 self.a[j * s + i] = self.a[j * s + last];
                 self.wblk[j * s + i] = self.wblk[j * s + last];
+                self.bvec[j * s + i] = self.bvec[j * s + last];
             }
             self.a[i * s + i] = self.a[last * s + last];
             self.wblk[i * s + i] = self.wblk[last * s + last];
+            self.bvec[i * s + i] = self.bvec[last * s + last];
             for x in &mut self.set {
                 if *x == last {
                     *x = i;
@@ -590,13 +599,13 @@ impl Patch {
         for i in 0..m {
             let mut q = self.gap0[i];
             if with_tau {
-                let mut ut = DVec3::ZERO;
-                for j in 0..m {
-                    if self.p[j] > 0.0 && self.tau[j] != DVec3::ZERO {
-                        ut += self.w(i, j) * self.tau[j];
-                    }
+                // The nodes carrying force are the active set's.
+                let row = &self.bvec[i * self.cap..];
+                let mut un = 0.0;
+                for &j in &self.set {
+                    un += row[j].dot(self.tau[j]);
                 }
-                q -= self.normal[i].dot(ut);
+                q -= un;
             }
             self.q[i] = q;
         }
