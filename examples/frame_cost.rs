@@ -127,6 +127,8 @@ fn main() {
             objects: &objects,
             camera: cam,
             fingers: &[],
+            finger_radii: &[],
+            patch: &[],
             proxies: &[],
             scale: (max - min).length(),
             wireframe: wire,

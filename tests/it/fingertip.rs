@@ -410,3 +410,88 @@ fn hostile_spheres_give_finite_bounded_forces() {
         }
     }
 }
+
+/// A bundled scene's scripted finger through the haptic path, 1 kHz: (position, force) of
+/// each tick of its slide (the keyframes 1 → 2, at the slide's depth).
+fn scripted_slide(name: &str) -> Vec<(DVec3, DVec3)> {
+    use touchfem::scene::DeviceSpec;
+    let w = World::load_with(name, "script", None).unwrap();
+    let DeviceSpec::Script(keys) = &w.fingers[0].device else {
+        panic!("a scripted finger")
+    };
+    let mut hw = HapticWorld::new(&w);
+    let mut sample = WorldSample::default();
+    let mut f = [DVec3::ZERO; 1];
+    let mut out = Vec::new();
+    let end = keys.last().unwrap().0;
+    for k in 0..=(end * 1000.0) as usize {
+        let t = k as f64 / 1000.0;
+        let i = keys.iter().rposition(|k| k.0 <= t).unwrap_or(0);
+        let x = match keys.get(i + 1) {
+            None => keys[i].1,
+            Some(n) => keys[i]
+                .1
+                .lerp(n.1, ((t - keys[i].0) / (n.0 - keys[i].0)).clamp(0.0, 1.0)),
+        };
+        hw.step(&[x], &mut f, &mut sample);
+        assert!(f[0].is_finite() && f[0].length() <= w.haptics.max_force_n);
+        if i == 1 && t > keys[1].0 + 0.05 {
+            out.push((x, f[0]));
+        }
+    }
+    out
+}
+
+/// Over the nodule (|x| < 3 mm, the largest) against beside it (15–21 mm either side, the
+/// mean) of `get`.
+fn nodule_ratio(trace: &[(DVec3, DVec3)], get: impl Fn(DVec3) -> f64) -> (f64, f64) {
+    let over = trace
+        .iter()
+        .filter(|(x, _)| x.x.abs() < 0.003)
+        .map(|(_, f)| get(*f))
+        .fold(0.0f64, f64::max);
+    let beside: Vec<f64> = trace
+        .iter()
+        .filter(|(x, _)| (0.015..0.021).contains(&x.x.abs()))
+        .map(|(_, f)| get(*f))
+        .collect();
+    let beside = beside.iter().sum::<f64>() / beside.len() as f64;
+    (over, beside)
+}
+
+#[test]
+fn the_nodule_is_felt_by_the_fingertip_and_in_the_rub_both_ways() {
+    // palpate: the fingertip's normal force over the nodule against beside it.
+    let palpate = scripted_slide("palpate");
+    let (over, beside) = nodule_ratio(&palpate, |f| f.z);
+    eprintln!(
+        "palpate fingertip: over {over:.4} N, beside {beside:.4} N, ratio {:.3}",
+        over / beside
+    );
+    assert!(beside > 0.005 && over / beside > 1.4, "{over} vs {beside}");
+    // rub: with friction the tangential force resists the stroke (+x) and rises with the
+    // normal force over the nodule.
+    let rub = scripted_slide("rub");
+    let (n_over, n_beside) = nodule_ratio(&rub, |f| f.z);
+    let (t_over, t_beside) = nodule_ratio(&rub, |f| -f.x);
+    eprintln!(
+        "rub: normal {n_over:.4}/{n_beside:.4} = {:.3}, tangential {t_over:.4}/{t_beside:.4} = {:.3}",
+        n_over / n_beside,
+        t_over / t_beside
+    );
+    assert!(n_over / n_beside > 1.4, "normal {n_over} vs {n_beside}");
+    assert!(
+        t_over / t_beside > 1.15,
+        "tangential {t_over} vs {t_beside}"
+    );
+    let pushing_on: Vec<&(DVec3, DVec3)> = rub
+        .iter()
+        .filter(|(x, _)| x.x > -0.02 && x.x < 0.02)
+        .collect();
+    let resisting = pushing_on.iter().filter(|(_, f)| f.x < 0.0).count();
+    assert!(
+        resisting * 10 >= pushing_on.len() * 9,
+        "{resisting} of {}",
+        pushing_on.len()
+    );
+}

@@ -651,3 +651,112 @@ fn contact_view_looks_at_the_touched_point_from_outside() {
         "the contact view is not closer than the whole-object view"
     );
 }
+
+/// A fingertip's picture: the body under the sphere's contact forces, the sphere drawn at its
+/// size (centre `centre`, radius `r`), the contact patch's nodes as dots on the deformed
+/// surface, and the force on the finger from the patch's centre.
+fn render_fingertip(
+    s: &touchfem::scene::Body,
+    forces: &[(u32, DVec3)],
+    centre: DVec3,
+    r: f64,
+    feedback: DVec3,
+) -> image::RgbaImage {
+    let f = fixture();
+    let mut u = vec![DVec3::ZERO; s.compliance.rows().len()];
+    s.compliance.displace(forces, &mut u);
+    let max_u = u.iter().map(|v| v.length()).fold(0.0, f64::max);
+    let patch: Vec<DVec3> = forces
+        .iter()
+        .map(|&(c, _)| {
+            let node = s.compliance.cols()[c as usize];
+            s.mesh.nodes[node as usize] + u[s.compliance.row_of(node).unwrap()]
+        })
+        .collect();
+    let mid = patch.iter().copied().sum::<DVec3>() / patch.len().max(1) as f64;
+    let f32s: Vec<(u32, [f32; 3])> = forces
+        .iter()
+        .map(|&(c, v)| (c, v.as_vec3().to_array()))
+        .collect();
+    let (lo, hi) = s.mesh.bounds();
+    let diag = (hi - lo).length();
+    let scene = Picture {
+        forces: &f32s,
+        finger: Some(centre),
+        finger_radius: Some(r),
+        patch: &patch,
+        proxy: None,
+        wireframe: true,
+        coloring: Coloring::displacement(max_u),
+        arrow: Some(ForceArrow {
+            at: mid,
+            force_n: feedback,
+            m_per_n: touchfem::render::arrow_scale(feedback.length(), 0.25 * diag),
+        }),
+        view: View::Auto,
+        legend: true,
+        ..Picture::at_rest(&s.mesh, &s.compliance)
+    };
+    f.renderer
+        .render(&f.gpu.device, &f.gpu.queue, &scene)
+        .expect("render")
+}
+
+/// The scene `palpate`'s fingertip (R = 8 mm) pressed 3 mm over the nodule, frictionless.
+#[test]
+fn golden_palpate_fingertip() {
+    let s = palpate_scene();
+    let p = s
+        .poke_sphere(
+            DVec3::new(0.0, 0.0, 0.02),
+            DVec3::new(0.0, 0.0, -0.003),
+            8e-3,
+            None,
+            None,
+        )
+        .expect("sphere poke");
+    assert!(
+        p.contact_nodes.len() >= 3,
+        "{} nodes",
+        p.contact_nodes.len()
+    );
+    check_golden(
+        "palpate_fingertip",
+        &render_fingertip(s, &p.forces, p.centre, 8e-3, p.feedback),
+    );
+}
+
+/// The scene `rub` half-way through its stroke (t = 2.5 s, just past the nodule), replayed
+/// through the haptic path: the fingertip with friction, the patch, the force leaning back
+/// against the stroke.
+#[test]
+fn golden_rub_mid_stroke() {
+    use touchfem::runtime::{HapticWorld, WorldSample};
+    use touchfem::scene::{DeviceSpec, World};
+    let w = World::load_with("rub", "script", None).expect("rub");
+    let DeviceSpec::Script(keys) = &w.fingers[0].device else {
+        panic!("a scripted finger")
+    };
+    let mut hw = HapticWorld::new(&w);
+    let mut sample = WorldSample::default();
+    let mut f = [DVec3::ZERO; 1];
+    let mut x = DVec3::ZERO;
+    for k in 0..=2500 {
+        let t = k as f64 / 1000.0;
+        let i = keys.iter().rposition(|k| k.0 <= t).unwrap_or(0);
+        x = match keys.get(i + 1) {
+            None => keys[i].1,
+            Some(n) => keys[i]
+                .1
+                .lerp(n.1, ((t - keys[i].0) / (n.0 - keys[i].0)).clamp(0.0, 1.0)),
+        };
+        hw.step(&[x], &mut f, &mut sample);
+    }
+    assert!(f[0].x < 0.0 && f[0].z > 0.0, "{:?}", f[0]);
+    let body = &w.objects[0].body;
+    let forces = sample.bc(0).entries().to_vec();
+    check_golden(
+        "rub_mid_stroke",
+        &render_fingertip(body, &forces, x - w.objects[0].offset, 8e-3, f[0]),
+    );
+}

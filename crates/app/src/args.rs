@@ -107,6 +107,10 @@ pub struct ViewArgs {
     /// it), or plain.
     #[arg(long, value_enum, default_value_t = ColorArg::Displacement)]
     pub color: ColorArg,
+    /// The pointer is a sphere of this radius (the scene's unit; mm for a bundled mesh)
+    /// instead of a point, drawn at its size.
+    #[arg(long)]
+    pub sphere: Option<f64>,
 }
 
 /// `touchfem bench` flags.

@@ -579,6 +579,8 @@ struct PokeOutcome {
     proxy: Option<DVec3>,
     arrow_at: DVec3,
     view: (DVec3, DVec3),
+    /// A sphere's centre and radius (m), drawn at its size.
+    sphere: Option<(DVec3, f64)>,
 }
 
 fn poke(a: &PokeArgs) -> Result<(), Error> {
@@ -660,6 +662,7 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
                 proxy: None,
                 arrow_at: bottom,
                 view: (sp.touch_point, normal),
+                sphere: Some((sp.centre, r)),
             }
         }
         None => {
@@ -714,6 +717,7 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
                 proxy: p.contact.map(|c| c.proxy),
                 arrow_at: p.contact.map_or(finger, |c| c.proxy),
                 view,
+                sphere: None,
             }
         }
     };
@@ -857,11 +861,26 @@ fn poke_png(
                 .max(0.2 * diag),
         },
     };
+    // A sphere is drawn at its size, and its contact patch as dots on the deformed surface.
+    let patch: Vec<DVec3> = out
+        .contact_nodes
+        .iter()
+        .filter_map(|&n| {
+            let row = scene.compliance.row_of(n)?;
+            Some(scene.mesh.nodes[n as usize] + shown[row])
+        })
+        .collect();
+    let (finger, finger_radius) = match out.sphere {
+        Some((c, r)) => (c, Some(r)),
+        None => (out.finger, None),
+    };
     let picture = touchfem_gpu::render::Picture {
         mesh: &scene.mesh,
         compliance: &scene.compliance,
         forces: &f32s,
-        finger: Some(out.finger),
+        finger: Some(finger),
+        finger_radius,
+        patch: if out.sphere.is_some() { &patch } else { &[] },
         proxy: out.proxy,
         wireframe: true,
         coloring,

@@ -164,8 +164,10 @@ impl<'a> Visual<'a> {
 pub struct SampleMarks {
     /// Finger positions, metres (scene frame).
     pub fingers: [DVec3; MAX_FINGERS],
-    /// God-objects of the touching fingers.
+    /// God-objects of the touching fingers (a sphere's: its patch's centre).
     pub proxies: [DVec3; MAX_FINGERS],
+    /// Each finger's sphere radius, m (0 for a point): set by [`SampleMarks::with_tools`].
+    pub radii: [f64; MAX_FINGERS],
     /// Force arrows from the god-objects of the touching fingers.
     pub arrows: [crate::render::ForceArrow; MAX_FINGERS],
     /// Fingers in the sample.
@@ -184,6 +186,7 @@ impl SampleMarks {
             fingers: [DVec3::NAN; MAX_FINGERS],
             proxies: [DVec3::NAN; MAX_FINGERS],
             arrows: [none; MAX_FINGERS],
+            radii: [0.0; MAX_FINGERS],
             n: sample.n_fingers.min(MAX_FINGERS),
         };
         for (i, f) in sample.fingers().iter().enumerate().take(MAX_FINGERS) {
@@ -195,6 +198,14 @@ impl SampleMarks {
             }
         }
         m
+    }
+
+    /// The marks with each sphere finger of `world` drawn at its radius.
+    pub fn with_tools(mut self, world: &World) -> SampleMarks {
+        for (r, f) in self.radii.iter_mut().zip(&world.fingers) {
+            *r = f.tool.radius().unwrap_or(0.0);
+        }
+        self
     }
 }
 

@@ -177,6 +177,119 @@ pub fn study(s: &HertzSetup) -> Result<HertzTable, Error> {
     })
 }
 
+/// Draws F against d on log–log axes: each table's sphere (one series per table), Hertz's
+/// curve for the first table's material, and the first table's point finger.
+pub fn write_plot(path: &std::path::Path, tables: &[(String, HertzTable)]) -> Result<(), Error> {
+    use plotters::prelude::*;
+    let perr = |e: String| Error::Study(format!("{}: cannot draw the plot: {e}", path.display()));
+    static FONT_ONCE: std::sync::Once = std::sync::Once::new();
+    FONT_ONCE.call_once(|| {
+        let _ = plotters::style::register_font(
+            "sans-serif",
+            FontStyle::Normal,
+            touchfem_gpu::render::FONT,
+        );
+    });
+    let Some((_, first)) = tables.first() else {
+        return Err(Error::Study("no table to plot".into()));
+    };
+    let all = tables.iter().flat_map(|t| t.1.rows.iter());
+    let (mut fmin, mut fmax) = (f64::INFINITY, 0.0f64);
+    for r in all {
+        for f in [r.sphere_n, r.hertz_n, r.point_n] {
+            fmin = fmin.min(f);
+            fmax = fmax.max(f);
+        }
+    }
+    let dmin = first.rows.first().map_or(1e-4, |r| r.depth_m) * 1e3 * 0.8;
+    let dmax = first.rows.last().map_or(2e-3, |r| r.depth_m) * 1e3 * 1.2;
+    let root = BitMapBackend::new(path, (720, 520)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| perr(e.to_string()))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "A rigid sphere (R = 10 mm) pressed into a block: force against depth",
+            ("sans-serif", 18),
+        )
+        .margin(14)
+        .x_label_area_size(44)
+        .y_label_area_size(70)
+        .build_cartesian_2d(
+            (dmin..dmax).log_scale(),
+            (fmin * 0.7..fmax * 1.4).log_scale(),
+        )
+        .map_err(|e| perr(e.to_string()))?;
+    chart
+        .configure_mesh()
+        .x_desc("depth d (mm)")
+        .y_desc("force (N)")
+        .draw()
+        .map_err(|e| perr(e.to_string()))?;
+    let hertz: Vec<(f64, f64)> = (0..=40)
+        .map(|k| {
+            let d = dmin * (dmax / dmin).powf(k as f64 / 40.0);
+            let r = first
+                .rows
+                .first()
+                .map_or(0.0, |r| r.hertz_n / r.depth_m.powf(1.5));
+            (d, r * (d * 1e-3).powf(1.5))
+        })
+        .collect();
+    chart
+        .draw_series(LineSeries::new(hertz, BLACK.stroke_width(2)))
+        .map_err(|e| perr(e.to_string()))?
+        .label(format!("Hertz, ν = {}", first.poisson))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
+    let point: Vec<(f64, f64)> = first
+        .rows
+        .iter()
+        .map(|r| (r.depth_m * 1e3, r.point_n))
+        .collect();
+    chart
+        .draw_series(LineSeries::new(
+            point.clone(),
+            RGBColor(120, 120, 120).stroke_width(2),
+        ))
+        .map_err(|e| perr(e.to_string()))?
+        .label("point finger (∝ d)")
+        .legend(|(x, y)| {
+            PathElement::new(
+                vec![(x, y), (x + 18, y)],
+                RGBColor(120, 120, 120).stroke_width(2),
+            )
+        });
+    let palette = [
+        RGBColor(230, 25, 75),
+        RGBColor(0, 130, 200),
+        RGBColor(60, 180, 75),
+        RGBColor(245, 130, 48),
+    ];
+    for (k, (label, t)) in tables.iter().enumerate() {
+        let c = palette[k % palette.len()];
+        let pts: Vec<(f64, f64)> = t
+            .rows
+            .iter()
+            .map(|r| (r.depth_m * 1e3, r.sphere_n))
+            .collect();
+        chart
+            .draw_series(pts.iter().map(|&p| Circle::new(p, 4, c.filled())))
+            .map_err(|e| perr(e.to_string()))?
+            .label(format!(
+                "{label}: exponent {:.3}, {:.3}× Hertz",
+                t.exponent, t.prefactor_ratio
+            ))
+            .legend(move |(x, y)| Circle::new((x + 9, y), 4, c.filled()));
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| perr(e.to_string()))?;
+    root.present().map_err(|e| perr(e.to_string()))?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -202,5 +315,43 @@ mod tests {
         let table = study(&setup).unwrap();
         println!("{}", serde_json::to_string_pretty(&table).unwrap());
         println!("took {:?}", t.elapsed());
+    }
+
+    /// The docs' plot and table: `cargo test --release -p touchfem-lab hertz_docs -- --ignored`.
+    #[test]
+    #[ignore = "writes docs/fingertip_hertz.png; a study"]
+    fn hertz_docs() {
+        let mut tables = Vec::new();
+        for (nu, h, scale) in [
+            (0.3, 0.7, 1.0),
+            (0.3, 0.35, 1.0),
+            (0.45, 0.7, 1.0),
+            (0.3, 1.0, 4.0),
+        ] {
+            let mut s = HertzSetup::block(nu, h);
+            s.size_mm = s.size_mm.map(|v| v * scale);
+            let t = study(&s).unwrap();
+            println!(
+                "nu {nu} h {h} mm block ×{scale}: nodes {} exponent {:.4} prefactor {:.4} point exponent {:.4} contacts {:?}",
+                t.nodes,
+                t.exponent,
+                t.prefactor_ratio,
+                t.point_exponent,
+                t.rows.iter().map(|r| r.contact_nodes).collect::<Vec<_>>()
+            );
+            for r in &t.rows {
+                println!(
+                    "  d {:.1} mm: sphere {:.5} N hertz {:.5} N point {:.5} N",
+                    r.depth_m * 1e3,
+                    r.sphere_n,
+                    r.hertz_n,
+                    r.point_n
+                );
+            }
+            tables.push((format!("ν {nu}, h {h} mm, block ×{scale}"), t));
+        }
+        let out =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/fingertip_hertz.png");
+        write_plot(&out, &tables).unwrap();
     }
 }

@@ -515,6 +515,8 @@ pub fn frame_ms(
         objects: &objects,
         camera: Camera::framing(bounds.0, bounds.1, f64::from(w) / f64::from(h)),
         fingers: &[],
+        finger_radii: &[],
+        patch: &[],
         proxies: &[],
         scale,
         wireframe,

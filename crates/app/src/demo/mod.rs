@@ -274,13 +274,16 @@ fn draw(
         return Ok(None);
     };
     let objects = touchfem_gpu::visual::frame_objects(world, deformers, edges);
-    let marks = touchfem_gpu::visual::SampleMarks::of(sample, style.arrow_m_per_n);
+    let marks =
+        touchfem_gpu::visual::SampleMarks::of(sample, style.arrow_m_per_n).with_tools(world);
     let n_f = marks.n;
     let (lo, hi) = world.bounds();
     let frame = touchfem_gpu::render::Frame {
         objects: &objects,
         camera: style.camera,
         fingers: &marks.fingers[..n_f],
+        finger_radii: &marks.radii[..n_f],
+        patch: &[],
         proxies: &marks.proxies[..n_f],
         scale: (hi - lo).length(),
         wireframe: true,

@@ -470,7 +470,8 @@ impl<'a> App<'a> {
         let t0 = Instant::now();
         let sample = *self.reader.read();
         let force = self.pointer_force(&sample);
-        let marks = touchfem_gpu::visual::SampleMarks::of(&sample, self.arrow_m_per_n);
+        let marks = touchfem_gpu::visual::SampleMarks::of(&sample, self.arrow_m_per_n)
+            .with_tools(self.world);
         let touching = sample.fingers().iter().any(|f| f.object.is_some());
         let coloring = self.coloring();
         let status_due = self
@@ -542,6 +543,8 @@ impl<'a> App<'a> {
             objects: &objects,
             camera,
             fingers: &marks.fingers[..n_f],
+            finger_radii: &marks.radii[..n_f],
+            patch: &[],
             proxies: &marks.proxies[..n_f],
             scale: self.scale,
             wireframe: self.wireframe,

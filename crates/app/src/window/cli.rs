@@ -52,6 +52,21 @@ fn devices(
 /// [`MAX_FINGERS`] fingers it is shown as it is. Compliances are cached in `cache` (`None`: no
 /// cache).
 pub fn load_with_pointer(spec: &str, cache: Option<&Path>) -> Result<World, Error> {
+    load_with_pointer_as(spec, cache, None)
+}
+
+/// [`load_with_pointer`], the added pointer finger a sphere of radius `sphere` (the scene's
+/// unit; millimetres for a bundled mesh) when given: `view --sphere R`. A scene that already
+/// has a pointer keeps its own tool.
+pub fn load_with_pointer_as(
+    spec: &str,
+    cache: Option<&Path>,
+    sphere: Option<f64>,
+) -> Result<World, Error> {
+    if let Some(r) = sphere {
+        touchfem_core::contact::Tool::sphere(r)
+            .map_err(|e| Error::Input(format!("--sphere {r}: {e}")))?;
+    }
     let mut src =
         SceneSource::find(spec)?.unwrap_or_else(|| SceneSource::for_mesh(spec, "pointer"));
     let world = World::from_source_holding(&src, cache, Hold::Live)?;
@@ -66,6 +81,12 @@ pub fn load_with_pointer(spec: &str, cache: Option<&Path>) -> Result<World, Erro
     // wrote (or, with the cache off, computes it again). A text that cannot take one more
     // `[[finger]]` table (an inline `finger = [...]` array) is shown as it is.
     src.text.push_str("\n[[finger]]\ndevice = \"pointer\"\n");
+    if let Some(r) = sphere {
+        src.text.push_str(&format!("tool = {{ sphere = {r:?} }}\n"));
+        // A bad radius for this scene (a sphere larger than the object) is an error.
+        return World::from_source_holding(&src, cache, Hold::Live)
+            .map_err(|e| Error::Input(format!("--sphere {r}: {e}")));
+    }
     Ok(World::from_source_holding(&src, cache, Hold::Live).unwrap_or(world))
 }
 
@@ -79,7 +100,7 @@ pub(crate) fn view_command(args: &crate::args::ViewArgs) -> Result<(), Error> {
     if std::env::var_os("LP_NUM_THREADS").is_none() {
         std::env::set_var("LP_NUM_THREADS", "0");
     }
-    let world = load_with_pointer(&args.scene, cache_dir().as_deref())?;
+    let world = load_with_pointer_as(&args.scene, cache_dir().as_deref(), args.sphere)?;
     let pointer = Arc::new(PointerShared::default());
     let mut devs = devices(&world, &pointer)?;
     let has_pointer = world

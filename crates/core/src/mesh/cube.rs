@@ -138,6 +138,71 @@ pub fn phantom() -> Mesh {
     m
 }
 
+/// Node coordinates from `0` to `len` with spacing `h` over the first `fine` and then growing
+/// by `growth` a cell (the last cell stretched or merged to end exactly at `len`).
+fn graded_axis(len: f64, fine: f64, h: f64, growth: f64) -> Vec<f64> {
+    let mut xs = vec![0.0];
+    let mut step = h;
+    loop {
+        let last = *xs.last().unwrap_or(&0.0);
+        if last >= len - 1e-9 {
+            break;
+        }
+        if last + 1e-9 >= fine {
+            step *= growth;
+        }
+        let next = last + step;
+        if next >= len - 0.5 * step {
+            xs.push(len);
+            break;
+        }
+        xs.push(next);
+    }
+    xs
+}
+
+/// A box `[0, size]` (millimetres) whose cells are `h_mm` wide within `fine_mm` of the middle
+/// of its top face (in x and y, and down from the top in z) and grow by `growth` a cell
+/// beyond: a block for contact studies, fine under the contact and coarse where nothing
+/// happens. Five tets a cell as in [`cube_with`]; the bottom face z = 0 is the group `fixed`
+/// and is clamped.
+pub fn graded_block(
+    size_mm: [f64; 3],
+    fine_mm: f64,
+    h_mm: f64,
+    growth: f64,
+    material: Material,
+) -> Result<Mesh, MeshError> {
+    let h = h_mm.max(1e-6);
+    let g = growth.max(1.0);
+    let half = |len: f64| {
+        let right = graded_axis(0.5 * len, fine_mm, h, g);
+        let mut axis: Vec<f64> = right.iter().rev().map(|v| 0.5 * len - v).collect();
+        axis.extend(right.iter().skip(1).map(|v| 0.5 * len + v));
+        axis
+    };
+    let xs = half(size_mm[0]);
+    let ys = half(size_mm[1]);
+    let zs: Vec<f64> = graded_axis(size_mm[2], fine_mm, h, g)
+        .iter()
+        .rev()
+        .map(|v| size_mm[2] - v)
+        .collect();
+    let cells = [xs.len() - 1, ys.len() - 1, zs.len() - 1];
+    let mut raw = grid_raw(cells, [1.0; 3], |_, _, _| true);
+    let [nx, ny, _] = cells;
+    for (k, &z) in zs.iter().enumerate() {
+        for (j, &y) in ys.iter().enumerate() {
+            for (i, &x) in xs.iter().enumerate() {
+                raw.nodes[(k * (ny + 1) + j) * (nx + 1) + i] = [x, y, z];
+            }
+        }
+    }
+    let mut mesh = Mesh::from_raw(raw, LengthUnit::Millimetre, material)?;
+    mesh.set_fixed_group("fixed")?;
+    Ok(mesh)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -228,69 +293,4 @@ mod tests {
             .sum();
         assert!((v - 0.03f64.powi(3)).abs() < 1e-15, "{v}");
     }
-}
-
-/// Node coordinates from `0` to `len` with spacing `h` over the first `fine` and then growing
-/// by `growth` a cell (the last cell stretched or merged to end exactly at `len`).
-fn graded_axis(len: f64, fine: f64, h: f64, growth: f64) -> Vec<f64> {
-    let mut xs = vec![0.0];
-    let mut step = h;
-    loop {
-        let last = *xs.last().unwrap_or(&0.0);
-        if last >= len - 1e-9 {
-            break;
-        }
-        if last + 1e-9 >= fine {
-            step *= growth;
-        }
-        let next = last + step;
-        if next >= len - 0.5 * step {
-            xs.push(len);
-            break;
-        }
-        xs.push(next);
-    }
-    xs
-}
-
-/// A box `[0, size]` (millimetres) whose cells are `h_mm` wide within `fine_mm` of the middle
-/// of its top face (in x and y, and down from the top in z) and grow by `growth` a cell
-/// beyond: a block for contact studies, fine under the contact and coarse where nothing
-/// happens. Five tets a cell as in [`cube_with`]; the bottom face z = 0 is the group `fixed`
-/// and is clamped.
-pub fn graded_block(
-    size_mm: [f64; 3],
-    fine_mm: f64,
-    h_mm: f64,
-    growth: f64,
-    material: Material,
-) -> Result<Mesh, MeshError> {
-    let h = h_mm.max(1e-6);
-    let g = growth.max(1.0);
-    let half = |len: f64| {
-        let right = graded_axis(0.5 * len, fine_mm, h, g);
-        let mut axis: Vec<f64> = right.iter().rev().map(|v| 0.5 * len - v).collect();
-        axis.extend(right.iter().skip(1).map(|v| 0.5 * len + v));
-        axis
-    };
-    let xs = half(size_mm[0]);
-    let ys = half(size_mm[1]);
-    let zs: Vec<f64> = graded_axis(size_mm[2], fine_mm, h, g)
-        .iter()
-        .rev()
-        .map(|v| size_mm[2] - v)
-        .collect();
-    let cells = [xs.len() - 1, ys.len() - 1, zs.len() - 1];
-    let mut raw = grid_raw(cells, [1.0; 3], |_, _, _| true);
-    let [nx, ny, _] = cells;
-    for (k, &z) in zs.iter().enumerate() {
-        for (j, &y) in ys.iter().enumerate() {
-            for (i, &x) in xs.iter().enumerate() {
-                raw.nodes[(k * (ny + 1) + j) * (nx + 1) + i] = [x, y, z];
-            }
-        }
-    }
-    let mut mesh = Mesh::from_raw(raw, LengthUnit::Millimetre, material)?;
-    mesh.set_fixed_group("fixed")?;
-    Ok(mesh)
 }

@@ -29,6 +29,7 @@ pub const BUNDLED_SCENES: &[(&str, &str)] = &[
     ("fig2", include_str!("../../../../scenes/fig2.toml")),
     ("pinch", include_str!("../../../../scenes/pinch.toml")),
     ("palpate", include_str!("../../../../scenes/palpate.toml")),
+    ("rub", include_str!("../../../../scenes/rub.toml")),
 ];
 
 #[derive(Debug, Deserialize)]

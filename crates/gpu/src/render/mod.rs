@@ -75,8 +75,12 @@ pub const SAMPLES: u32 = 4;
 pub(crate) const SPHERE_RADIUS: f64 = 0.018;
 /// Most objects one [`Frame`] may hold.
 pub const MAX_FRAME_OBJECTS: usize = 8;
-/// Most spheres (fingers plus god-objects) one [`Frame`] may hold.
-pub(crate) const MAX_SPHERES: usize = 16;
+/// Most spheres (fingers, god-objects and contact-patch dots) one [`Frame`] may hold.
+pub(crate) const MAX_SPHERES: usize = 16 + MAX_PATCH_MARKS;
+/// Most contact-patch dots ([`Frame::patch`]) one frame may hold.
+pub const MAX_PATCH_MARKS: usize = 256;
+/// A contact-patch dot's radius relative to a finger marker's.
+const PATCH_DOT: f64 = 0.3;
 /// Most force arrows one [`Frame`] may hold.
 pub(crate) const MAX_ARROWS: usize = 8;
 /// Force arrow shaft radius as a fraction of the scene's size (its head is 4 radii long and
@@ -215,6 +219,10 @@ pub struct Picture<'a> {
     pub finger: Option<DVec3>,
     /// God-object (proxy) position, metres; drawn blue.
     pub proxy: Option<DVec3>,
+    /// The finger's sphere radius (m), when it is a sphere: drawn at that size.
+    pub finger_radius: Option<f64>,
+    /// The contact patch: the nodes in contact (m, deformed), drawn as small blue dots.
+    pub patch: &'a [DVec3],
     /// Overlay the surface edges.
     pub wireframe: bool,
     /// How the surface is coloured.
@@ -237,6 +245,8 @@ impl<'a> Picture<'a> {
             forces: &[],
             finger: None,
             proxy: None,
+            finger_radius: None,
+            patch: &[],
             wireframe: false,
             coloring: Coloring::Plain,
             arrow: None,
@@ -419,6 +429,11 @@ pub struct Frame<'a> {
     pub camera: Camera,
     /// Finger tips, drawn red (non-finite positions are skipped).
     pub fingers: &'a [DVec3],
+    /// Per finger, the radius (m) of its sphere tool, drawn at that size; missing or 0: the
+    /// marker size (`SPHERE_RADIUS` × `scale`).
+    pub finger_radii: &'a [f64],
+    /// Nodes in contact with a sphere (scene frame), drawn as small blue dots: the patch.
+    pub patch: &'a [DVec3],
     /// God-objects, drawn blue (non-finite positions are skipped).
     pub proxies: &'a [DVec3],
     /// The scene's size, metres (e.g. its rest bounding box's diagonal): the spheres' radius is
@@ -826,12 +841,15 @@ impl Renderer {
             edges: edges.as_ref(),
         }];
         let fingers: Vec<DVec3> = scene.finger.into_iter().collect();
+        let radii: Vec<f64> = scene.finger_radius.into_iter().collect();
         let proxies: Vec<DVec3> = scene.proxy.into_iter().collect();
         let arrows: Vec<ForceArrow> = scene.arrow.into_iter().collect();
         let frame = Frame {
             objects: &objects,
             camera,
             fingers: &fingers,
+            finger_radii: &radii,
+            patch: scene.patch,
             proxies: &proxies,
             scale,
             wireframe: scene.wireframe,
@@ -917,6 +935,8 @@ impl Renderer {
             objects: &objects,
             camera: Camera::framing(min, max, f64::from(w) / f64::from(h)),
             fingers,
+            finger_radii: &[],
+            patch: &[],
             proxies,
             scale: (max - min).length(),
             wireframe,
@@ -1070,22 +1090,30 @@ impl Renderer {
         let radius = (SPHERE_RADIUS * frame.scale) as f32;
         let mut instances = [SphereInstance::default(); MAX_SPHERES];
         let mut count = 0;
-        for (p, color) in frame
+        let wanted = frame.fingers.len() + frame.proxies.len() + frame.patch.len();
+        let finger_r = |i: usize| match frame.finger_radii.get(i) {
+            Some(&r) if r.is_finite() && r > 0.0 => r as f32,
+            _ => radius,
+        };
+        let dot = radius * PATCH_DOT as f32;
+        for (p, color, r) in frame
             .fingers
             .iter()
-            .map(|p| (p, FINGER))
-            .chain(frame.proxies.iter().map(|p| (p, PROXY)))
-            .filter(|(p, _)| p.is_finite())
+            .enumerate()
+            .map(|(i, p)| (p, FINGER, finger_r(i)))
+            .chain(frame.proxies.iter().map(|p| (p, PROXY, radius)))
+            .chain(frame.patch.iter().map(|p| (p, PROXY, dot)))
+            .filter(|(p, _, _)| p.is_finite())
         {
             if count == MAX_SPHERES {
                 return Err(RenderError::TooMany {
                     what: "spheres",
-                    count: frame.fingers.len() + frame.proxies.len(),
+                    count: wanted,
                     max: MAX_SPHERES,
                 });
             }
             instances[count] = SphereInstance {
-                center_radius: [p.x as f32, p.y as f32, p.z as f32, radius],
+                center_radius: [p.x as f32, p.y as f32, p.z as f32, r],
                 color,
             };
             count += 1;
