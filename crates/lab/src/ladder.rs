@@ -10,6 +10,9 @@
 //! * **punch** — a finger of radius `radius`: every surface node within it moves by `push`
 //!   (a rigid, bonded flat punch). This has a limit; its error is measured against a
 //!   Richardson extrapolation of the finest three rungs.
+//! * **sphere** — a frictionless rigid sphere of radius `2·radius` pressed `|push|` deep
+//!   (the fingertip, [`touchfem_core::contact::Patch`]): the contact decides its own area,
+//!   so this force converges too.
 
 use glam::{DVec3, Vec3};
 use std::fmt::Write as _;
@@ -29,6 +32,10 @@ pub struct Rung {
     pub h_m: f64,
     /// Force of the point press, N.
     pub point_force_n: f64,
+    /// Force of the sphere press, N.
+    pub sphere_force_n: f64,
+    /// Nodes in contact under the sphere.
+    pub sphere_nodes: usize,
     /// Force of the punch, N.
     pub punch_force_n: f64,
     /// Nodes under the punch.
@@ -162,6 +169,24 @@ pub fn rung(
     let node =
         nearest(mesh, at).ok_or_else(|| crate::error::Error::Study("no free surface".into()))?;
     let point = press_nodes(mesh, &[node], push, &[node])?.reaction;
+    // The sphere: columns for the free-surface nodes it can reach.
+    let (sphere_force_n, sphere_nodes) = {
+        let r = 2.0 * radius;
+        let reach = (2.0 * r * push.length()).sqrt() * 1.5 + 1e-9;
+        let centre = mesh.nodes[node as usize];
+        let cols: Vec<u32> = mesh
+            .free_surface_nodes()
+            .into_iter()
+            .filter(|&v| mesh.nodes[v as usize].distance(centre) <= reach)
+            .collect();
+        let sel = Selection {
+            rows: NodeSet::Nodes(cols.clone()),
+            cols: NodeSet::Nodes(cols),
+        };
+        let body = touchfem_core::scene::Body::new(mesh.clone(), &sel)?;
+        let p = body.poke_sphere(centre, push, r, None, None)?;
+        (p.feedback.length(), p.contact_nodes.len())
+    };
     let s = under(mesh, mesh.nodes[node as usize], radius);
     let punch = press_nodes(mesh, &s, push, probe_nodes)?;
     let (punch, probes) = (punch.reaction, punch.probes);
@@ -195,6 +220,8 @@ pub fn rung(
         nodes: mesh.nodes.len(),
         h_m: h,
         point_force_n: point.length(),
+        sphere_force_n,
+        sphere_nodes,
         punch_force_n: punch.length(),
         punch_nodes: s.len(),
         punch_error: f64::NAN,
@@ -389,11 +416,12 @@ pub(crate) fn mouse_ladder(
 fn print_rungs(out: &mut String, rungs: &[Rung], limit: f64, order: f64) {
     let _ = writeln!(
         out,
-        "{:>10} {:>6} {:>7} {:>9} {:>9} {:>6} {:>9} {:>9} {:>10} {:>9} {:>9}",
+        "{:>10} {:>6} {:>7} {:>9} {:>9} {:>9} {:>6} {:>9} {:>9} {:>10} {:>9} {:>9}",
         "rung",
         "nodes",
         "h_mm",
         "point_N",
+        "sphere_N",
         "punch_N",
         "under",
         "punch_err",
@@ -406,11 +434,12 @@ fn print_rungs(out: &mut String, rungs: &[Rung], limit: f64, order: f64) {
         let opt = |v: Option<f64>, k: f64| v.map_or("-".to_string(), |v| format!("{:.3}", v * k));
         let _ = writeln!(
             out,
-            "{:>10} {:>6} {:>7.3} {:>9.4} {:>9.4} {:>6} {:>9.2e} {:>9.2e} {:>10} {:>9} {:>9}",
+            "{:>10} {:>6} {:>7.3} {:>9.4} {:>9.4} {:>9.4} {:>6} {:>9.2e} {:>9.2e} {:>10} {:>9} {:>9}",
             r.label,
             r.nodes,
             r.h_m * 1e3,
             r.point_force_n,
+            r.sphere_force_n,
             r.punch_force_n,
             r.punch_nodes,
             r.punch_error,
