@@ -137,7 +137,6 @@ pub struct Patch {
     gap0: Vec<f64>,
     g: Vec<f64>,
     z: Vec<f64>,
-    u: Vec<DVec3>,
     /// A = NᵀWN over the candidates, row-major with stride `cap`.
     a: Vec<f64>,
     /// The 3×3 blocks W_ij = L(node i, column j) of the candidates, stride `cap`: read from
@@ -194,7 +193,6 @@ impl Patch {
             gap0: vec![0.0; m],
             g: vec![0.0; m],
             z: vec![0.0; m],
-            u: vec![DVec3::ZERO; m],
             a: vec![0.0; m * m],
             wblk: vec![DMat3::ZERO; m * m],
             bvec: vec![DVec3::ZERO; m * m],
@@ -332,11 +330,6 @@ impl Patch {
         }
     }
 
-    #[inline]
-    fn w(&self, i: usize, j: usize) -> DMat3 {
-        self.wblk[i * self.cap + j]
-    }
-
     /// Sizes the node table for a mesh of `nodes` nodes (done by the first solve otherwise:
     /// call it up front to keep every tick allocation-free).
     pub fn reserve_nodes(&mut self, nodes: usize) {
@@ -364,7 +357,8 @@ impl Patch {
         for i in 0..self.n {
             self.seen[i] = false;
             if self.p[i] > 0.0 {
-                max_u = max_u.max(self.u[i].length()).max(self.g[i] - self.gap0[i]);
+                // How far it was pushed in along its normal.
+                max_u = max_u.max(self.g[i] - self.gap0[i]);
             }
         }
         for (s, sp) in spheres.iter().enumerate() {
@@ -484,12 +478,11 @@ impl Patch {
             }
         }
         if friction.is_some() {
-            self.update_u();
             for i in 0..m {
                 if self.p[i] > 0.0 && (!self.anchored[i] || self.slipping[i]) {
                     let sp = spheres[self.owner[i] as usize];
                     let n = self.normal[i];
-                    let r = self.rest[i] + self.u[i] - sp.centre;
+                    let r = self.rest[i] + self.u_at(i) - sp.centre;
                     self.anchor[i] = r - n * n.dot(r);
                     self.anchored[i] = true;
                 }
@@ -520,7 +513,6 @@ impl Patch {
         self.tau[k] = DVec3::ZERO;
         self.anchored[k] = false;
         self.slipping[k] = false;
-        self.u[k] = DVec3::ZERO;
         let nk = self.normal[k];
         let s = self.cap;
         for j in 0..=k {
@@ -533,14 +525,6 @@ impl Patch {
             self.a[k * s + j] = a;
             self.a[j * s + k] = a;
         }
-        // Its displacement under the forces already applied.
-        let mut u = DVec3::ZERO;
-        for j in 0..k {
-            if self.p[j] > 0.0 {
-                u += self.wblk[k * s + j] * self.force_at(j);
-            }
-        }
-        self.u[k] = u;
         self.g[k] = 0.0;
         self.gap0[k] = 0.0;
         if let Some(sl) = self.slot.get_mut(v as usize) {
@@ -567,10 +551,7 @@ impl Patch {
             macro_rules! mv {
                 ($($f:ident),*) => {$( self.$f[i] = self.$f[last]; )*};
             }
-            mv!(
-                node, col, normal, rest, owner, seen, p, tau, anchor, anchored, slipping, u, g,
-                gap0
-            );
+            mv!(node, col, normal, rest, owner, seen, p, tau, anchor, anchored, slipping, g, gap0);
             for j in 0..self.n {
                 self.a[i * s + j] = self.a[last * s + j];
                 self.wblk[i * s + j] = self.wblk[last * s + j];
@@ -820,33 +801,27 @@ impl Patch {
         }
     }
 
-    /// u_i = Σ_j W_ij λ_j at the nodes carrying force (from the forces carried); zero at
-    /// the others.
-    fn update_u(&mut self) {
-        let m = self.n;
-        for i in 0..m {
-            let mut u = DVec3::ZERO;
-            if self.p[i] > 0.0 {
-                for &j in &self.set {
-                    u += self.w(i, j) * self.force_at(j);
-                }
-            }
-            self.u[i] = u;
+    /// `u_i = Σ_j W_ij λ_j`: node i's displacement under the forces carried (the active
+    /// set's).
+    #[inline]
+    fn u_at(&self, i: usize) -> DVec3 {
+        let row = &self.wblk[i * self.cap..];
+        let mut u = DVec3::ZERO;
+        for &j in &self.set {
+            u += row[j] * (self.tau[j] - self.normal[j] * self.p[j]);
         }
+        u
     }
 
     /// One projected Gauss–Seidel sweep over the tangential forces. Returns Σ|Δτ|.
     fn friction_sweep(&mut self, c: &Compliance, spheres: &[Sphere], fr: Friction) -> f64 {
-        let m = self.n;
-        self.update_u();
         let mut change = 0.0;
-        for i in 0..m {
-            if self.p[i] <= 0.0 {
-                continue;
-            }
+        for r in 0..self.set.len() {
+            let i = self.set[r];
             let sp = spheres[self.owner[i] as usize];
             let n = self.normal[i];
-            let r = self.rest[i] + self.u[i] - sp.centre;
+            // Gauss–Seidel: the latest tangential forces of the nodes before it.
+            let r = self.rest[i] + self.u_at(i) - sp.centre;
             let rt = r - n * n.dot(r);
             if !self.anchored[i] {
                 // A new contact sticks where it touched.
@@ -874,10 +849,6 @@ impl Patch {
             if d != DVec3::ZERO {
                 change += d.length();
                 self.tau[i] = t_new;
-                for r in 0..self.set.len() {
-                    let j = self.set[r];
-                    self.u[j] += self.wblk[j * self.cap + i] * d;
-                }
             }
         }
         change
