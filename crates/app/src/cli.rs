@@ -90,7 +90,7 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
     let (reps, active): (usize, &[usize]) = if a.quick {
         (20, &[9])
     } else {
-        (200, &[3, 9, 90, 900])
+        (200, &[3, 9, 40, 90, 900])
     };
     lavapipe_inline();
     let placement = touchfem_core::threads::VisualPlacement::split();
