@@ -495,3 +495,106 @@ fn the_nodule_is_felt_by_the_fingertip_and_in_the_rub_both_ways() {
         pushing_on.len()
     );
 }
+
+#[test]
+fn a_sphere_driven_through_a_sliver_thin_layer_stays_finite_and_bounded() {
+    // The hard cases' cube with a 1 µm layer (triangles of 7.5 mm × 1 µm at z = 12 mm),
+    // pressed by a 6 mm sphere in through the side and down across the layer, with friction.
+    // (A sphere smaller than the 7.5 mm cells would pass between the nodes: the contact is
+    // node to sphere.)
+    let mesh = touchfem_lab::hard::sliver_cube().unwrap();
+    let sel = Selection::default();
+    let w = World {
+        name: "sliver".into(),
+        unit: touchfem::LengthUnit::Millimetre,
+        objects: vec![touchfem::scene::Object {
+            name: "sliver".into(),
+            body: Body::new(mesh, &sel).unwrap(),
+            offset: DVec3::ZERO,
+            friction: Some(Friction::new(0.6, 0.4).unwrap()),
+        }],
+        fingers: vec![touchfem::scene::FingerSpec {
+            device: touchfem::scene::DeviceSpec::Pointer,
+            model: ForceModel::Paper,
+            limits: None,
+            tool: Tool::sphere(6e-3).unwrap(),
+        }],
+        haptics: Default::default(),
+        source: String::new(),
+        dir: ".".into(),
+        hash: 0,
+    };
+    let mut hw = HapticWorld::new(&w);
+    let mut sample = WorldSample::default();
+    let mut f = [DVec3::ZERO; 1];
+    let mm = |x: f64, y: f64, z: f64| DVec3::new(x, y, z) * 1e-3;
+    let inn = (0..=60).map(|i| mm(-8.0 + 0.1 * f64::from(i), 11.0, 14.0));
+    let down = (0..=600).map(|i| mm(-2.0, 11.0, 14.0 - 0.01 * f64::from(i)));
+    let mut touching = 0;
+    for x in inn.chain(down) {
+        hw.step(&[x], &mut f, &mut sample);
+        assert!(f[0].is_finite() && f[0].length() <= w.haptics.max_force_n + 1e-12);
+        touching += (f[0].length() > 0.0) as usize;
+        for (_, v) in sample.bc(0).entries() {
+            assert!(v.is_finite());
+        }
+    }
+    assert!(touching > 300, "{touching} ticks touching");
+}
+
+/// The new keys fuzzed: any value in `tool` and `friction` loads or is an error naming the
+/// key; never a panic, and a loaded sphere or friction is valid.
+#[test]
+fn the_new_keys_fuzzed_never_panic() {
+    use proptest::prelude::*;
+    use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
+    let values = [
+        "0.0", "-0.0", "1.0", "8", "-3.5", "nan", "inf", "-inf", "1e308", "1e-308", "\"x\"", "[]",
+        "{}", "true", "0.5", "0.7", "30.0", "1e5",
+    ];
+    let mut runner = TestRunner::new_with_rng(
+        Config {
+            cases: 96,
+            ..Config::default()
+        },
+        TestRng::deterministic_rng(RngAlgorithm::ChaCha),
+    );
+    runner
+        .run(
+            &(0..values.len(), 0..values.len(), 0..values.len(), 0..4usize),
+            |(a, b, c, shape)| {
+                let (r, ms, md) = (values[a], values[b], values[c]);
+                let (tool, fr) = match shape {
+                    0 => (format!("tool = {{ sphere = {r} }}"), format!("friction = {{ static = {ms}, dynamic = {md} }}")),
+                    1 => (format!("tool = {{ blade = {r} }}"), format!("friction = {{ dynamic = {md} }}")),
+                    2 => (format!("tool = {r}"), format!("friction = {ms}")),
+                    _ => (format!("tool = {{ sphere = {r}, sphere2 = {ms} }}"), format!("friction = {{ static = {ms}, dynamic = {md}, x = 1 }}")),
+                };
+                let text = format!(
+                    "unit = \"mm\"\n[[object]]\nmesh = \"cube\"\n{fr}\n[[finger]]\ndevice = \"pointer\"\n{tool}\n"
+                );
+                let src = SceneSource {
+                    name: "fuzz".into(),
+                    text,
+                    dir: ".".into(),
+                    label: "fuzz".into(),
+                };
+                match World::from_source_with(&src, None) {
+                    Ok(w) => {
+                        if let Some(r) = w.fingers[0].tool.radius() {
+                            prop_assert!(r.is_finite() && r > 0.0);
+                        }
+                        if let Some(f) = w.objects[0].friction {
+                            prop_assert!(f.static_mu >= f.dynamic_mu && f.dynamic_mu >= 0.0);
+                        }
+                    }
+                    Err(e) => {
+                        let e = e.to_string();
+                        prop_assert!(e.contains("tool") || e.contains("friction"), "{e}");
+                    }
+                }
+                Ok(())
+            },
+        )
+        .unwrap();
+}
