@@ -514,6 +514,7 @@ pub fn worst(stats: &[HapticStats]) -> HapticStats {
     w.seconds = stats.iter().map(|s| s.seconds).sum();
     w.ticks = stats.iter().map(|s| s.ticks).sum();
     w.missed_deadlines = stats.iter().map(|s| s.missed_deadlines).sum();
+    w.contact_budget_exhausted = stats.iter().map(|s| s.contact_budget_exhausted).sum();
     w
 }
 

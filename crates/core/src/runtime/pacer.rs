@@ -156,6 +156,7 @@ impl Pacer {
             ticks: self.ticks,
             max_force_n: 0.0,
             realtime: false,
+            contact_budget_exhausted: 0,
         }
     }
 }
@@ -234,6 +235,9 @@ pub struct HapticStats {
     pub max_force_n: f64,
     /// Whether the loop ran at real-time priority.
     pub realtime: bool,
+    /// Sphere contact solves that ran out of their budget (each still sent a finite, bounded
+    /// force; 0 without spheres).
+    pub contact_budget_exhausted: u64,
 }
 
 /// The q-quantile (0..=1) of sorted data; 0 when empty.

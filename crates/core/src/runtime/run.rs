@@ -118,6 +118,7 @@ pub fn run_haptic(
     devices.release();
     out.stats = pacer.stats();
     out.stats.max_force_n = max_force;
+    out.stats.contact_budget_exhausted = hw.budget_exhausted();
     out.records_dropped = recorder.map_or(0, |r| r.dropped());
     out
 }
