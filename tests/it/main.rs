@@ -6,6 +6,7 @@ mod cli;
 mod common;
 mod contact_force;
 mod coupling;
+mod cut;
 mod fingertip;
 mod fingertip_cli;
 mod frontal;

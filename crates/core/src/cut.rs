@@ -1,0 +1,401 @@
+//! Cutting without recomputing `L`: removing tets subtracts their element stiffness, a change
+//! of rank at most 6 a tet, and the Sherman–Morrison–Woodbury identity (James & Pai's
+//! capacitance matrix) gives the new compliance exactly from `L`'s columns at the changed
+//! DOFs `D`:
+//!
+//! `L′ = L + L_D (I − ΔK′ L_DD)⁻¹ ΔK′ L_Dᵀ`, with `ΔK′` the removed stiffness on `D`.
+//!
+//! `L_D` (every free DOF's row, `D`'s columns, interior ones included) comes from solves with
+//! the stiffness's factor, kept for that: a tet's 12 DOFs cost 12 solves. Nothing is
+//! recomputed. Two kinds of DOF would make `K′` singular, and are handled before any solve:
+//! * a node left with no tet is **pinned**: its DOFs keep a stiffness of their own diagonal
+//!   in `K` and nothing else (so `L′` is exactly the inverse of the remaining tets' stiffness
+//!   with that node removed); it does not move.
+//! * a piece that no clamp holds (cut right through, a flap hanging by nothing) is
+//!   **removed**: its tets join the cut and its nodes are pinned; the cut reports it.
+//!
+//! The standard formulation only (a locking-free mixed system's cut is not this rank).
+
+use glam::{DMat3, DVec3};
+use nalgebra::DMatrix;
+
+use crate::fem::{element_stiffness, Dofs, Factor, Stiffness};
+use crate::mesh::Mesh;
+use crate::Error;
+
+/// What one [`Cut::remove`] did.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct CutReport {
+    /// Tets removed by this call (those asked for and not yet removed, and those of the
+    /// pieces it cut off).
+    pub tets_removed: usize,
+    /// Pieces that lost every clamp and were removed.
+    pub pieces_removed: usize,
+    /// Nodes pinned (left with no tet).
+    pub nodes_pinned: usize,
+    /// The correction's rank (the DOFs it touches) after the call.
+    pub rank: usize,
+}
+
+/// A body being cut: its factor, the tets removed so far and the exact correction of `L`.
+pub struct Cut {
+    dofs: Dofs,
+    factor: Factor,
+    /// Per tet: removed.
+    removed: Vec<bool>,
+    /// Per node: tets left.
+    tets_left: Vec<u32>,
+    /// Per node: pinned (no tet left, or in a removed piece).
+    pinned: Vec<bool>,
+    /// The free DOFs the correction touches, in order; and each free DOF's place (or MAX).
+    d: Vec<usize>,
+    place: Vec<u32>,
+    /// `ΔK′` on `D`.
+    dk: DMatrix<f64>,
+    /// `L_D`: every free DOF's row, `D`'s columns.
+    ld: DMatrix<f64>,
+    /// `C = (I − ΔK′ L_DD)⁻¹ ΔK′`.
+    cap: DMatrix<f64>,
+    /// The diagonal of K at each free DOF (a pinned DOF's own stiffness).
+    kdiag: Vec<f64>,
+}
+
+impl Cut {
+    /// Prepares `mesh` for cutting: assembles and factors its stiffness (as the precompute
+    /// does). Errors on the locking-free formulation.
+    pub fn new(mesh: &Mesh) -> Result<Cut, Error> {
+        if mesh.formulation != crate::units::Formulation::Standard {
+            return Err(Error::Input(
+                "cutting needs the standard formulation (the locking-free mixed system is not a low-rank change)"
+                    .into(),
+            ));
+        }
+        let k = Stiffness::assemble(mesh)?;
+        let factor = k.factorize()?;
+        let n_free = k.dofs.n_free;
+        let mut kdiag = vec![0.0; n_free];
+        for (j, kd) in kdiag.iter_mut().enumerate() {
+            let col = k.k.col_range(j);
+            let rows = &k.k.symbolic().row_idx()[col.clone()];
+            let vals = &k.k.val()[col];
+            if let Some(p) = rows.iter().position(|&r| r == j) {
+                *kd = vals[p];
+            }
+        }
+        let nn = mesh.nodes.len();
+        let mut tets_left = vec![0u32; nn];
+        for t in &mesh.tets {
+            for &v in t {
+                tets_left[v as usize] += 1;
+            }
+        }
+        Ok(Cut {
+            place: vec![u32::MAX; n_free],
+            dofs: k.dofs,
+            factor,
+            removed: vec![false; mesh.tets.len()],
+            tets_left,
+            pinned: vec![false; nn],
+            d: Vec::new(),
+            dk: DMatrix::zeros(0, 0),
+            ld: DMatrix::zeros(n_free, 0),
+            cap: DMatrix::zeros(0, 0),
+            kdiag,
+        })
+    }
+
+    /// Tets removed so far.
+    pub fn removed(&self) -> &[bool] {
+        &self.removed
+    }
+
+    /// Nodes pinned so far (no tet left, or cut off in a piece).
+    pub fn pinned(&self) -> &[bool] {
+        &self.pinned
+    }
+
+    /// The correction's rank: the free DOFs it touches.
+    pub fn rank(&self) -> usize {
+        self.d.len()
+    }
+
+    /// Removes `tets` (indices into `mesh.tets`; repeats and removed ones are ignored), and any
+    /// piece that loses every clamp, and updates the correction exactly. Errors (and changes
+    /// nothing) on an index out of range.
+    pub fn remove(&mut self, mesh: &Mesh, tets: &[usize]) -> Result<CutReport, Error> {
+        if let Some(&bad) = tets.iter().find(|&&t| t >= mesh.tets.len()) {
+            return Err(Error::Input(format!(
+                "tet {bad} does not exist (the mesh has {})",
+                mesh.tets.len()
+            )));
+        }
+        let mut report = CutReport::default();
+        let mut new_tets: Vec<usize> = Vec::new();
+        for &t in tets {
+            if !self.removed[t] {
+                self.removed[t] = true;
+                new_tets.push(t);
+            }
+        }
+        for &t in &new_tets {
+            for &v in &mesh.tets[t] {
+                self.tets_left[v as usize] -= 1;
+            }
+        }
+        // Pieces no clamp holds.
+        let cut_off = self.free_pieces(mesh);
+        if !cut_off.is_empty() {
+            report.pieces_removed = cut_off.len();
+            for piece in cut_off {
+                for t in piece {
+                    if !self.removed[t] {
+                        self.removed[t] = true;
+                        new_tets.push(t);
+                        for &v in &mesh.tets[t] {
+                            self.tets_left[v as usize] -= 1;
+                        }
+                    }
+                }
+            }
+        }
+        report.tets_removed = new_tets.len();
+        // Nodes left with no tet.
+        let mut new_pins: Vec<u32> = Vec::new();
+        for &t in &new_tets {
+            for &v in &mesh.tets[t] {
+                if self.tets_left[v as usize] == 0 && !self.pinned[v as usize] {
+                    self.pinned[v as usize] = true;
+                    new_pins.push(v);
+                }
+            }
+        }
+        report.nodes_pinned = new_pins.len();
+        // The DOFs the correction now touches.
+        let mut new_d: Vec<usize> = Vec::new();
+        for &t in &new_tets {
+            for &v in &mesh.tets[t] {
+                for a in 0..3 {
+                    if let Some(f) = self.dofs.free(v, a) {
+                        if self.place[f] == u32::MAX {
+                            self.place[f] = (self.d.len() + new_d.len()) as u32;
+                            new_d.push(f);
+                        }
+                    }
+                }
+            }
+        }
+        if !new_d.is_empty() {
+            self.grow(&new_d);
+        }
+        // ΔK′: the removed tets' stiffness, minus a pin on the pinned DOFs.
+        for &t in &new_tets {
+            let nodes = mesh.tets[t];
+            let ke =
+                element_stiffness(nodes.map(|i| mesh.nodes[i as usize]), &mesh.tet_material(t));
+            for a in 0..4 {
+                for i in 0..3 {
+                    let Some(fa) = self.dofs.free(nodes[a], i) else {
+                        continue;
+                    };
+                    let pa = self.place[fa] as usize;
+                    for b in 0..4 {
+                        for j in 0..3 {
+                            let Some(fb) = self.dofs.free(nodes[b], j) else {
+                                continue;
+                            };
+                            let pb = self.place[fb] as usize;
+                            self.dk[(pa, pb)] += ke[3 * a + i][3 * b + j];
+                        }
+                    }
+                }
+            }
+        }
+        for &v in &new_pins {
+            for a in 0..3 {
+                if let Some(f) = self.dofs.free(v, a) {
+                    let p = self.place[f] as usize;
+                    self.dk[(p, p)] -= self.kdiag[f];
+                }
+            }
+        }
+        self.capacitance()?;
+        report.rank = self.d.len();
+        Ok(report)
+    }
+
+    /// Appends the uncut `L`'s columns at `new` (solves with the factor) to `L_D`; the cut
+    /// lives in `C` alone.
+    fn grow(&mut self, new: &[usize]) {
+        let n = self.dofs.n_free;
+        let mut b = faer::Mat::<f64>::zeros(n, new.len());
+        for (j, &f) in new.iter().enumerate() {
+            b[(f, j)] = 1.0;
+        }
+        self.factor.solve_in_place(&mut b);
+        let old = self.d.len();
+        let m = old + new.len();
+        let mut ld = DMatrix::zeros(n, m);
+        ld.view_mut((0, 0), (n, old)).copy_from(&self.ld);
+        for j in 0..new.len() {
+            for i in 0..n {
+                ld[(i, old + j)] = b[(i, j)];
+            }
+        }
+        self.ld = ld;
+        let mut dk = DMatrix::zeros(m, m);
+        dk.view_mut((0, 0), (old, old)).copy_from(&self.dk);
+        self.dk = dk;
+        self.d.extend_from_slice(new);
+    }
+
+    /// `C = (I − ΔK′ L_DD)⁻¹ ΔK′`.
+    fn capacitance(&mut self) -> Result<(), Error> {
+        let m = self.d.len();
+        let mut ldd = DMatrix::zeros(m, m);
+        for (a, &fa) in self.d.iter().enumerate() {
+            for b in 0..m {
+                ldd[(a, b)] = self.ld[(fa, b)];
+            }
+        }
+        let mmat = DMatrix::identity(m, m) - &self.dk * ldd;
+        let lu = mmat.lu();
+        let cap = lu.solve(&self.dk).ok_or_else(|| {
+            Error::Input(
+                "the cut left a singular stiffness (a piece that no clamp holds was not found)"
+                    .into(),
+            )
+        })?;
+        if !cap.iter().all(|v| v.is_finite()) {
+            return Err(Error::Input("the cut's correction is not finite".into()));
+        }
+        self.cap = cap;
+        Ok(())
+    }
+
+    /// The pieces of the remaining tets that hold no clamped node: each a list of tets.
+    fn free_pieces(&self, mesh: &Mesh) -> Vec<Vec<usize>> {
+        let nn = mesh.nodes.len();
+        let mut parent: Vec<u32> = (0..nn as u32).collect();
+        fn find(p: &mut [u32], mut x: u32) -> u32 {
+            while p[x as usize] != x {
+                p[x as usize] = p[p[x as usize] as usize];
+                x = p[x as usize];
+            }
+            x
+        }
+        for (ti, t) in mesh.tets.iter().enumerate() {
+            if self.removed[ti] {
+                continue;
+            }
+            let r0 = find(&mut parent, t[0]);
+            for &v in &t[1..] {
+                let r = find(&mut parent, v);
+                if r != r0 {
+                    parent[r as usize] = r0;
+                }
+            }
+        }
+        let mut held = vec![false; nn];
+        for v in 0..nn {
+            if mesh.fixed[v] && self.tets_left[v] > 0 {
+                let r = find(&mut parent, v as u32);
+                held[r as usize] = true;
+            }
+        }
+        let mut pieces: std::collections::BTreeMap<u32, Vec<usize>> = Default::default();
+        for (ti, t) in mesh.tets.iter().enumerate() {
+            if self.removed[ti] {
+                continue;
+            }
+            let r = find(&mut parent, t[0]);
+            if !held[r as usize] {
+                pieces.entry(r).or_default().push(ti);
+            }
+        }
+        pieces.into_values().collect()
+    }
+
+    /// The displacement of every node (m) under nodal `forces` (mesh node, N) on the cut
+    /// body: `L′ f` by a solve and the correction. Pinned and clamped nodes do not move; a
+    /// force on them is ignored.
+    pub fn displace(&self, forces: &[(u32, DVec3)]) -> Vec<DVec3> {
+        let n = self.dofs.n_free;
+        let mut f = faer::Mat::<f64>::zeros(n, 1);
+        for &(v, fv) in forces {
+            if self.pinned.get(v as usize).copied().unwrap_or(true) {
+                continue;
+            }
+            for a in 0..3 {
+                if let Some(d) = self.dofs.free(v, a) {
+                    f[(d, 0)] += fv[a];
+                }
+            }
+        }
+        let m = self.d.len();
+        // y = L_Dᵀ f, z = C y.
+        let mut y = nalgebra::DVector::zeros(m);
+        for b in 0..m {
+            let mut s = 0.0;
+            for i in 0..n {
+                let fi = f[(i, 0)];
+                if fi != 0.0 {
+                    s += self.ld[(i, b)] * fi;
+                }
+            }
+            y[b] = s;
+        }
+        let z = &self.cap * y;
+        let mut x = f;
+        self.factor.solve_in_place(&mut x);
+        let corr = &self.ld * z;
+        let mut u = vec![DVec3::ZERO; self.pinned.len()];
+        for (d, &(v, a)) in self.dofs.owner.iter().enumerate() {
+            if !self.pinned[v as usize] {
+                u[v as usize][a as usize] = x[(d, 0)] + corr[d];
+            }
+        }
+        u
+    }
+
+    /// The 3×3 block `L′(i, j)` between two nodes (m/N): what the haptic path's force solve
+    /// reads after the cut. Zero for a clamped or pinned node.
+    pub fn block(&self, i: u32, j: u32) -> DMat3 {
+        let mut out = DMat3::ZERO;
+        if self.pinned[i as usize] || self.pinned[j as usize] {
+            return out;
+        }
+        let n = self.dofs.n_free;
+        let mut b = faer::Mat::<f64>::zeros(n, 3);
+        let mut any = false;
+        for c in 0..3 {
+            if let Some(d) = self.dofs.free(j, c) {
+                b[(d, c)] = 1.0;
+                any = true;
+            }
+        }
+        if !any {
+            return out;
+        }
+        self.factor.solve_in_place(&mut b);
+        let m = self.d.len();
+        for c in 0..3 {
+            let Some(dj) = self.dofs.free(j, c) else {
+                continue;
+            };
+            // L′ e_j = L e_j + L_D C L_Dᵀ e_j, and L_Dᵀ e_j is L_D's row at j.
+            let y = nalgebra::DVector::from_fn(m, |b, _| self.ld[(dj, b)]);
+            let z = &self.cap * y;
+            for r in 0..3 {
+                let Some(di) = self.dofs.free(i, r) else {
+                    continue;
+                };
+                let mut v = b[(di, c)];
+                for k in 0..m {
+                    v += self.ld[(di, k)] * z[k];
+                }
+                out.col_mut(c)[r] = v;
+            }
+        }
+        out
+    }
+}
