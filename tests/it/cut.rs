@@ -332,3 +332,155 @@ fn cuts_on_the_mouse_and_the_phantom_equal_a_full_recompute() {
         }
     }
 }
+
+/// Runs `touchfem` with no compliance cache; (exit status, stdout, stderr).
+fn touchfem(args: &[&str]) -> (i32, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args(args)
+        .env("TOUCHFEM_CACHE_DIR", "")
+        .output()
+        .expect("runs");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn poke_json(args: &[&str]) -> serde_json::Value {
+    let (code, out, err) = touchfem(args);
+    assert_eq!(code, 0, "{args:?}: {err}");
+    serde_json::from_str(out.trim()).unwrap()
+}
+
+#[test]
+fn pressing_beside_a_deepening_incision_needs_less_force() {
+    // The cube's top pressed 3 mm at x = 20 mm, beside a blade drawn across y at x = 11 mm.
+    let base = [
+        "poke", "cube", "--at", "20,15,30", "--push", "0,0,-3", "--json",
+    ];
+    let uncut = poke_json(&[&base[..], &["--exact"]].concat());
+    let f0 = uncut["force"][2].as_f64().unwrap();
+    let mut last = f0;
+    let mut removed_last = 0;
+    for depth in ["2", "8", "16", "24"] {
+        let v = poke_json(&[&base[..], &["--cut", "11,0.5,30:11,29.5,30", "--depth", depth]].concat());
+        let f = v["force"][2].as_f64().unwrap();
+        let removed = v["tets_removed"].as_u64().unwrap();
+        eprintln!(
+            "depth {depth} mm: {removed} tets, rank {}, force {f:.5} N",
+            v["correction_rank"]
+        );
+        assert!(removed >= removed_last && removed > 0);
+        assert!(f <= last * (1.0 + 1e-12), "depth {depth}: {f} after {last}");
+        assert!(f > 0.0);
+        last = f;
+        removed_last = removed;
+    }
+    assert!(last < 0.95 * f0, "{last} vs uncut {f0}");
+}
+
+#[test]
+fn a_cut_pokes_vtu_agrees_with_an_independent_fem_of_the_remaining_tets() {
+    let dir = tempfile::tempdir().unwrap();
+    let vtu = dir.path().join("cut.vtu");
+    let v = poke_json(&[
+        "poke",
+        "cube",
+        "--at",
+        "20,15,30",
+        "--push",
+        "0,0,-3",
+        "--cut",
+        "11,0.5,30:11,29.5,30",
+        "--depth",
+        "16",
+        "--json",
+        "--vtu",
+        vtu.to_str().unwrap(),
+    ]);
+    let text = std::fs::read_to_string(&vtu).unwrap();
+    let array = |name: &str| -> Vec<f64> {
+        let start = text.find(&format!("Name=\"{name}\"")).unwrap();
+        let body = &text[start..];
+        let open = body.find('>').unwrap() + 1;
+        let close = body.find("</DataArray>").unwrap();
+        body[open..close]
+            .split_whitespace()
+            .map(|x| x.parse().unwrap())
+            .collect()
+    };
+    let conn: Vec<usize> = array("connectivity").iter().map(|&x| x as usize).collect();
+    let mesh = cube();
+    let kept: std::collections::HashSet<[usize; 4]> =
+        conn.chunks(4).map(|c| [c[0], c[1], c[2], c[3]]).collect();
+    let removed: Vec<bool> = mesh
+        .tets
+        .iter()
+        .map(|t| !kept.contains(&t.map(|v| v as usize)))
+        .collect();
+    assert_eq!(
+        removed.iter().filter(|&&r| r).count() as u64,
+        v["tets_removed"].as_u64().unwrap()
+    );
+    let disp = array("displacement");
+    let force = array("force");
+    let forces: Vec<(u32, DVec3)> = force
+        .chunks(3)
+        .enumerate()
+        .filter(|(_, f)| f.iter().any(|&x| x != 0.0))
+        .map(|(i, f)| (i as u32, DVec3::new(f[0], f[1], f[2])))
+        .collect();
+    assert!(!forces.is_empty());
+    let reference = sparse_reference(&mesh, &removed, &forces);
+    let u: Vec<DVec3> = disp
+        .chunks(3)
+        .map(|d| DVec3::new(d[0], d[1], d[2]))
+        .collect();
+    let e = rel_err(&u, &reference);
+    eprintln!("cut poke's VTU against an independent FEM: {e:.2e}");
+    assert!(e < 1e-6, "{e}");
+    // The finger feels minus the nodal forces.
+    let sum: DVec3 = forces.iter().map(|f| f.1).sum();
+    let fb = DVec3::from_slice(
+        &v["force"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect::<Vec<_>>(),
+    );
+    assert!((fb + sum).length() < 1e-6 * sum.length());
+}
+
+#[test]
+fn bad_cut_flags_exit_2_naming_the_flag() {
+    for (args, flag) in [
+        (vec!["--cut", "1,1,30:20,20,30", "--depth", "0"], "--depth"),
+        (
+            vec!["--cut", "1,1,30:20,20,30", "--depth", "nan"],
+            "--depth",
+        ),
+        (vec!["--cut", "1,1,30:20,20,30", "--depth", "-3"], "--depth"),
+        (vec!["--cut", "1,1,30:20,20,30"], "--depth"),
+        (vec!["--cut", "1,1,30", "--depth", "3"], "--cut"),
+        (vec!["--cut", "1,nan,30:2,2,2", "--depth", "3"], "--cut"),
+        (vec!["--depth", "3"], "--cut"),
+        (
+            vec!["--cut", "1,1,30:20,20,30", "--depth", "3", "--sphere", "8"],
+            "--sphere",
+        ),
+    ] {
+        let all = [
+            &["poke", "cube", "--at", "15,15,30", "--push", "0,0,-3"][..],
+            &args[..],
+        ]
+        .concat();
+        let (code, _, err) = touchfem(&all);
+        assert_eq!(code, 2, "{all:?}: {err}");
+        assert!(
+            err.starts_with("error:") && err.contains(flag),
+            "{all:?}: {err}"
+        );
+    }
+}

@@ -384,6 +384,14 @@ pub struct PokeArgs {
     /// contact state carried along.
     #[arg(long, value_name = "DX,DY,DZ", value_parser = parse_vec3, allow_hyphen_values = true)]
     pub slide: Option<DVec3>,
+    /// Before the push, a blade of `--depth` cuts along the surface from the surface point
+    /// nearest the first point to the one nearest the second (mesh units), removing the tets
+    /// it sweeps; the poke then runs on the cut object (a point finger, exact force).
+    #[arg(long, value_name = "X1,Y1,Z1:X2,Y2,Z2", value_parser = parse_segment, allow_hyphen_values = true, requires = "depth")]
+    pub cut: Option<(DVec3, DVec3)>,
+    /// The blade's depth (mesh units, > 0) for `--cut`.
+    #[arg(long, value_name = "D", value_parser = parse_depth, allow_hyphen_values = true, requires = "cut")]
+    pub depth: Option<f64>,
 }
 
 /// The finger's tool flags of `info` (checked as `poke` checks them, echoed in `--json`).
@@ -539,6 +547,26 @@ pub fn parse_steps(s: &str) -> Result<usize, String> {
         .ok()
         .filter(|n| (1..=1_000_000).contains(n))
         .ok_or_else(|| format!("'{s}' is not a whole number in 1..=1000000"))
+}
+
+/// `X1,Y1,Z1:X2,Y2,Z2`: two points.
+pub fn parse_segment(s: &str) -> Result<(DVec3, DVec3), String> {
+    let Some((a, b)) = s.split_once(':') else {
+        return Err(format!("expected X1,Y1,Z1:X2,Y2,Z2, got '{s}'"));
+    };
+    Ok((parse_vec3(a)?, parse_vec3(b)?))
+}
+
+/// A blade's depth: a positive, finite length.
+pub fn parse_depth(s: &str) -> Result<f64, String> {
+    let d: f64 = s
+        .trim()
+        .parse()
+        .map_err(|e| format!("'{s}' is not a number: {e}"))?;
+    if !(d.is_finite() && d > 0.0 && d <= MAX_COORDINATE) {
+        return Err(format!("'{s}' must be a positive, finite depth"));
+    }
+    Ok(d)
 }
 
 /// Parses "x,y,z" into a finite vector, each component at most [`MAX_COORDINATE`] in

@@ -399,3 +399,125 @@ impl Cut {
         out
     }
 }
+
+/// The tets a blade sweeps: the blade is the segment from the surface point `p1` down to
+/// `depth` (m) below it along `inward` (the object's inward surface normal where it
+/// entered), drawn along the surface to `p2`; its swept surface is the quad `p1, p2,
+/// p2 + depth·inward, p1 + depth·inward`. A tet is removed when the quad's plane separates
+/// its corners and the plane's section of the tet meets the quad. Empty for a degenerate or
+/// non-finite blade (depth ≤ 0, `p1 = p2`).
+pub fn blade_tets(mesh: &Mesh, p1: DVec3, p2: DVec3, inward: DVec3, depth: f64) -> Vec<usize> {
+    let along = p2 - p1;
+    let len = along.length();
+    let inward = inward.normalize_or_zero();
+    if !(depth.is_finite() && depth > 0.0 && len.is_finite() && len > 0.0)
+        || !p1.is_finite()
+        || inward == DVec3::ZERO
+    {
+        return Vec::new();
+    }
+    let t = along / len;
+    // The blade's down direction, made perpendicular to its path.
+    let down = (inward - t * t.dot(inward)).normalize_or_zero();
+    if down == DVec3::ZERO {
+        return Vec::new();
+    }
+    let m = t.cross(down);
+    let inside = |q: DVec3| {
+        let r = q - p1;
+        let (u, v) = (r.dot(t), r.dot(down));
+        (-1e-12..=len + 1e-12).contains(&u) && (-1e-12..=depth + 1e-12).contains(&v)
+    };
+    let mut out = Vec::new();
+    for (ti, tet) in mesh.tets.iter().enumerate() {
+        let p = tet.map(|v| mesh.nodes[v as usize]);
+        let s = p.map(|q| (q - p1).dot(m));
+        let (lo, hi) = s
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        if !(lo < 0.0 && hi > 0.0) {
+            continue;
+        }
+        // The section's corners: where the tet's edges cross the plane.
+        let mut hit = false;
+        let mut section = [DVec3::ZERO; 4];
+        let mut k = 0;
+        for a in 0..4 {
+            for b in a + 1..4 {
+                if (s[a] < 0.0) != (s[b] < 0.0) {
+                    let w = s[a] / (s[a] - s[b]);
+                    let q = p[a] + (p[b] - p[a]) * w;
+                    if k < 4 {
+                        section[k] = q;
+                        k += 1;
+                    }
+                    hit |= inside(q);
+                }
+            }
+        }
+        // The quad may lie inside a large tet's section: test its corners against the
+        // section (a triangle or a quadrilateral, convex).
+        if !hit && k >= 3 {
+            let c = section[..k].iter().copied().sum::<DVec3>() / k as f64;
+            let corners = [p1, p2, p2 + down * depth, p1 + down * depth];
+            hit = corners.iter().any(|&q| in_convex(&section[..k], c, q, m));
+        }
+        if hit {
+            out.push(ti);
+        }
+    }
+    out
+}
+
+/// Whether `q` (on the plane of normal `m`) lies in the convex hull of `pts` (unordered,
+/// 3 or 4 points, centroid `c`).
+fn in_convex(pts: &[DVec3], c: DVec3, q: DVec3, m: DVec3) -> bool {
+    // Order the points by angle around the centroid, then test the edges.
+    let e1 = (pts[0] - c).normalize_or_zero();
+    let e2 = m.cross(e1);
+    let mut order: Vec<(f64, DVec3)> = pts
+        .iter()
+        .map(|&p| ((p - c).dot(e2).atan2((p - c).dot(e1)), p))
+        .collect();
+    order.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let n = order.len();
+    (0..n).all(|i| {
+        let a = order[i].1;
+        let b = order[(i + 1) % n].1;
+        (b - a).cross(q - a).dot(m) >= -1e-15
+    })
+}
+
+/// A point finger's poke on a cut body: the contact's nodes (`nodes`, area coordinates
+/// `alpha`) move the contact point by `u` (m) under the exact point force `G = W′⁻¹ u`,
+/// `W′ = Σ α_i α_j L′_ij` from the cut compliance. Returns the feedback (N, on the finger),
+/// the nodal forces (mesh node, N) and every node's displacement. `None` when `W′` is
+/// singular (every contact node pinned or clamped).
+pub fn point_poke(
+    cut: &Cut,
+    nodes: [u32; 3],
+    alpha: [f64; 3],
+    u: DVec3,
+) -> Option<(DVec3, Vec<(u32, DVec3)>, Vec<DVec3>)> {
+    let mut w = DMat3::ZERO;
+    for a in 0..3 {
+        for b in 0..3 {
+            let s = alpha[a] * alpha[b];
+            if s != 0.0 {
+                w += cut.block(nodes[a], nodes[b]) * s;
+            }
+        }
+    }
+    let g = crate::compliance::invert3(w)? * u;
+    if !g.is_finite() {
+        return None;
+    }
+    let forces: Vec<(u32, DVec3)> = (0..3)
+        .filter(|&a| alpha[a] != 0.0 && !cut.pinned()[nodes[a] as usize])
+        .map(|a| (nodes[a], g * alpha[a]))
+        .collect();
+    let disp = cut.displace(&forces);
+    Some((-g, forces, disp))
+}

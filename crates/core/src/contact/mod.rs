@@ -254,7 +254,7 @@ impl Surface {
 
     /// The point of the whole surface nearest `x` (brute force; for placing a finger, not for
     /// the haptic loop). Returns (triangle, point).
-    pub(crate) fn closest_global(&self, x: DVec3) -> (u32, DVec3) {
+    pub fn closest_global(&self, x: DVec3) -> (u32, DVec3) {
         let mut best = (0u32, self.nodes[self.tris[0][0] as usize], f64::INFINITY);
         for t in 0..self.tris.len() as u32 {
             let (q, _) = self.closest_on_tri(t, x);

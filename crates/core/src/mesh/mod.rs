@@ -439,6 +439,51 @@ impl Mesh {
         }
     }
 
+    /// This mesh without the tets `removed[t]` (a cut body, for output): the tets renumbered,
+    /// regions and tet groups following them; nodes, surface and clamps as they are, except
+    /// that a node left with no tet is not clamped.
+    pub fn without_tets(&self, removed: &[bool]) -> Mesh {
+        let mut new_index = vec![u32::MAX; self.tets.len()];
+        let mut m = self.clone();
+        m.tets.clear();
+        m.tet_region.clear();
+        for (t, tet) in self.tets.iter().enumerate() {
+            if !removed.get(t).copied().unwrap_or(false) {
+                new_index[t] = m.tets.len() as u32;
+                m.tets.push(*tet);
+                if let Some(&k) = self.tet_region.get(t) {
+                    m.tet_region.push(k);
+                }
+            }
+        }
+        let remap = |v: &Vec<u32>| -> Vec<u32> {
+            v.iter()
+                .filter_map(|&t| {
+                    new_index
+                        .get(t as usize)
+                        .copied()
+                        .filter(|&i| i != u32::MAX)
+                })
+                .collect()
+        };
+        for r in &mut m.regions {
+            r.tets = remap(&r.tets);
+        }
+        for g in m.tet_groups.values_mut() {
+            *g = remap(g);
+        }
+        let mut has_tet = vec![false; m.nodes.len()];
+        for t in &m.tets {
+            for &v in t {
+                has_tet[v as usize] = true;
+            }
+        }
+        for (f, h) in m.fixed.iter_mut().zip(has_tet) {
+            *f &= h;
+        }
+        m
+    }
+
     /// The region index of each tet: 0 for the base material, k + 1 for `regions[k]`.
     pub fn tet_region_index(&self) -> Vec<u32> {
         if self.tet_region.is_empty() {
