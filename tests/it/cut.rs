@@ -364,7 +364,13 @@ fn pressing_beside_a_deepening_incision_needs_less_force() {
     let mut last = f0;
     let mut removed_last = 0;
     for depth in ["2", "8", "16", "24"] {
-        let v = poke_json(&[&base[..], &["--cut", "11,0.5,30:11,29.5,30", "--depth", depth]].concat());
+        let v = poke_json(
+            &[
+                &base[..],
+                &["--cut", "11,0.5,30:11,29.5,30", "--depth", depth],
+            ]
+            .concat(),
+        );
         let f = v["force"][2].as_f64().unwrap();
         let removed = v["tets_removed"].as_u64().unwrap();
         eprintln!(

@@ -410,8 +410,7 @@ pub fn blade_tets(mesh: &Mesh, p1: DVec3, p2: DVec3, inward: DVec3, depth: f64) 
     let along = p2 - p1;
     let len = along.length();
     let inward = inward.normalize_or_zero();
-    if !(depth.is_finite() && depth > 0.0 && len.is_finite() && len > 0.0)
-        || !p1.is_finite()
+    if !(depth.is_finite() && depth > 0.0 && len.is_finite() && len > 0.0 && p1.is_finite())
         || inward == DVec3::ZERO
     {
         return Vec::new();
@@ -490,17 +489,16 @@ fn in_convex(pts: &[DVec3], c: DVec3, q: DVec3, m: DVec3) -> bool {
     })
 }
 
+/// What [`point_poke`] returns: the feedback (N, on the finger), the nodal forces (mesh
+/// node, N) and every node's displacement (m).
+pub type CutPoke = (DVec3, Vec<(u32, DVec3)>, Vec<DVec3>);
+
 /// A point finger's poke on a cut body: the contact's nodes (`nodes`, area coordinates
 /// `alpha`) move the contact point by `u` (m) under the exact point force `G = W′⁻¹ u`,
 /// `W′ = Σ α_i α_j L′_ij` from the cut compliance. Returns the feedback (N, on the finger),
 /// the nodal forces (mesh node, N) and every node's displacement. `None` when `W′` is
 /// singular (every contact node pinned or clamped).
-pub fn point_poke(
-    cut: &Cut,
-    nodes: [u32; 3],
-    alpha: [f64; 3],
-    u: DVec3,
-) -> Option<(DVec3, Vec<(u32, DVec3)>, Vec<DVec3>)> {
+pub fn point_poke(cut: &Cut, nodes: [u32; 3], alpha: [f64; 3], u: DVec3) -> Option<CutPoke> {
     let mut w = DMat3::ZERO;
     for a in 0..3 {
         for b in 0..3 {
