@@ -332,8 +332,48 @@ fn sphere_tick(c: &mut Criterion) {
     g.finish();
 }
 
+/// Cutting the mouse: removing 1 and 50 tets near its back (the factor's solves at the new
+/// DOFs and the capacitance), and the cut body's displacement under a press (a solve and the
+/// correction), at the correction's rank after 50 tets.
+fn cut(c: &mut Criterion) {
+    use criterion::BatchSize;
+    use touchfem::cut::Cut;
+    let mut g = c.benchmark_group("cut");
+    g.sample_size(10);
+    let mesh = touchfem::mesh::mouse();
+    let at = DVec3::new(-0.01, 0.0, 0.04);
+    let mut order: Vec<(f64, usize)> = mesh
+        .tets
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            let c = t.iter().map(|&k| mesh.nodes[k as usize]).sum::<DVec3>() / 4.0;
+            (c.distance(at), i)
+        })
+        .collect();
+    order.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let near: Vec<usize> = order.iter().map(|x| x.1).take(50).collect();
+    for n in [1usize, 50] {
+        g.bench_function(format!("remove_{n}_tets_mouse"), |b| {
+            b.iter_batched(
+                || Cut::new(&mesh).unwrap(),
+                |mut cut| black_box(cut.remove(&mesh, &near[..n]).unwrap()),
+                BatchSize::PerIteration,
+            )
+        });
+    }
+    let mut cut = Cut::new(&mesh).unwrap();
+    let rank = cut.remove(&mesh, &near).unwrap().rank;
+    let node = mesh.surface_nodes[100];
+    g.bench_function(format!("displace_mouse_rank_{rank}"), |b| {
+        b.iter(|| black_box(cut.displace(&[(node, DVec3::new(0.0, 0.0, -0.01))])))
+    });
+    g.finish();
+}
+
 criterion_group!(
     benches,
+    cut,
     sphere_tick,
     force_step,
     scene_tick,
