@@ -26,6 +26,21 @@ pub fn rand01(state: &mut u64) -> f64 {
     (z >> 11) as f64 / (1u64 << 53) as f64
 }
 
+/// Runs `touchfem ARGS` with no compliance cache, whatever its outcome: (exit status, stdout,
+/// stderr).
+pub fn touchfem_status(args: &[&str]) -> (i32, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args(args)
+        .env("TOUCHFEM_CACHE_DIR", "")
+        .output()
+        .expect("run touchfem");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
 /// Runs the `touchfem` binary with `args` and no compliance cache (so that two runs compute
 /// the same bits whatever an older build left in the user's cache); asserts that it succeeded
 /// and returns its standard output.
@@ -47,4 +62,15 @@ pub fn touchfem_uncached(args: &[&str]) -> Vec<u8> {
 pub fn replay_json(session: &std::path::Path) -> serde_json::Value {
     let out = touchfem_uncached(&["replay", session.to_str().expect("utf-8 path"), "--json"]);
     serde_json::from_slice(&out).expect("replay prints JSON")
+}
+
+/// A scene from its TOML text (relative paths from the working directory).
+pub fn world_from_text(toml: &str) -> Result<touchfem::scene::World, touchfem::Error> {
+    let src = touchfem::scene::SceneSource {
+        name: "test".into(),
+        text: toml.into(),
+        dir: ".".into(),
+        label: "test scene".into(),
+    };
+    touchfem::scene::World::from_source_with(&src, None)
 }

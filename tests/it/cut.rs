@@ -333,19 +333,7 @@ fn cuts_on_the_mouse_and_the_phantom_equal_a_full_recompute() {
     }
 }
 
-/// Runs `touchfem` with no compliance cache; (exit status, stdout, stderr).
-fn touchfem(args: &[&str]) -> (i32, String, String) {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
-        .args(args)
-        .env("TOUCHFEM_CACHE_DIR", "")
-        .output()
-        .expect("runs");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+use crate::common::touchfem_status as touchfem;
 
 fn poke_json(args: &[&str]) -> serde_json::Value {
     let (code, out, err) = touchfem(args);

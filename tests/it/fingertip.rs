@@ -9,23 +9,11 @@ use touchfem::scene::{Body, SceneSource, World};
 use touchfem_lab::hertz::{study, HertzSetup};
 
 fn world(toml: &str) -> World {
-    let src = SceneSource {
-        name: "test".into(),
-        text: toml.into(),
-        dir: ".".into(),
-        label: "test scene".into(),
-    };
-    World::from_source_with(&src, None).unwrap()
+    crate::common::world_from_text(toml).unwrap()
 }
 
 fn world_err(toml: &str) -> String {
-    let src = SceneSource {
-        name: "test".into(),
-        text: toml.into(),
-        dir: ".".into(),
-        label: "test scene".into(),
-    };
-    match World::from_source_with(&src, None) {
+    match crate::common::world_from_text(toml) {
         Ok(_) => panic!("the scene loaded"),
         Err(e) => e.to_string(),
     }

@@ -2,21 +2,7 @@
 //! (docs/reference/cli.md): the numbers they print, the VTU's `contact_force`, and bad values
 //! named with exit status 2.
 
-use std::process::Command;
-
-/// Runs `touchfem` with no compliance cache; (exit status, stdout, stderr).
-fn touchfem(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_touchfem"))
-        .args(args)
-        .env("TOUCHFEM_CACHE_DIR", "")
-        .output()
-        .expect("runs");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+use crate::common::touchfem_status as touchfem;
 
 /// `touchfem ARGS --json`, asserted to succeed, parsed.
 fn json(args: &[&str]) -> serde_json::Value {

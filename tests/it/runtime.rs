@@ -14,17 +14,11 @@ use touchfem::runtime::haptic::{RAMP_S, SKIN};
 use touchfem::runtime::{
     join_haptic, run_haptic, sample_channel, DoneGuard, HapticWorld, LiveStatus, WorldSample,
 };
-use touchfem::scene::{SceneSource, World};
+use touchfem::scene::World;
 use touchfem::visual::Visual;
 
 fn world(toml: &str) -> World {
-    let src = SceneSource {
-        name: "test".into(),
-        text: toml.into(),
-        dir: ".".into(),
-        label: "test scene".into(),
-    };
-    World::from_source_with(&src, None).unwrap()
+    crate::common::world_from_text(toml).unwrap()
 }
 
 const CUBE_ONE: &str = r#"

@@ -9,18 +9,23 @@ use crate::tradeoff::Row;
 /// Errors below this are drawn at it (the f64 reference has error 0).
 pub(crate) const ERROR_FLOOR: f64 = 1e-16;
 
-/// Draws the visual-update rows of `meshes` (panels left to right) into a PNG.
-pub fn write_plot(path: &Path, rows: &[Row], meshes: &[&str]) -> Result<(), Error> {
-    use plotters::prelude::*;
-    let perr = |e: String| Error::Study(format!("{}: cannot draw the plot: {e}", path.display()));
+/// Registers the bundled font as plotters' "sans-serif" (once per process).
+pub(crate) fn register_font() {
     static FONT_ONCE: std::sync::Once = std::sync::Once::new();
     FONT_ONCE.call_once(|| {
         let _ = plotters::style::register_font(
             "sans-serif",
-            FontStyle::Normal,
+            plotters::style::FontStyle::Normal,
             touchfem_gpu::render::FONT,
         );
     });
+}
+
+/// Draws the visual-update rows of `meshes` (panels left to right) into a PNG.
+pub fn write_plot(path: &Path, rows: &[Row], meshes: &[&str]) -> Result<(), Error> {
+    use plotters::prelude::*;
+    let perr = |e: String| Error::Study(format!("{}: cannot draw the plot: {e}", path.display()));
+    register_font();
     let visual: Vec<&Row> = rows
         .iter()
         .filter(|r| crate::tradeoff::is_visual(r) && r.time_us > 0.0)

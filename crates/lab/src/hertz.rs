@@ -182,14 +182,7 @@ pub fn study(s: &HertzSetup) -> Result<HertzTable, Error> {
 pub fn write_plot(path: &std::path::Path, tables: &[(String, HertzTable)]) -> Result<(), Error> {
     use plotters::prelude::*;
     let perr = |e: String| Error::Study(format!("{}: cannot draw the plot: {e}", path.display()));
-    static FONT_ONCE: std::sync::Once = std::sync::Once::new();
-    FONT_ONCE.call_once(|| {
-        let _ = plotters::style::register_font(
-            "sans-serif",
-            FontStyle::Normal,
-            touchfem_gpu::render::FONT,
-        );
-    });
+    crate::bench_plot::register_font();
     let Some((_, first)) = tables.first() else {
         return Err(Error::Study("no table to plot".into()));
     };

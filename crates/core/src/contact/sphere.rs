@@ -276,30 +276,18 @@ impl Patch {
         if k == 0 {
             return;
         }
-        let s = self.cap;
         for sphere in 0..crate::force::MAX_FINGERS {
             if !self.set.iter().any(|&i| self.owner[i] as usize == sphere) {
                 continue;
             }
             for r in 0..k {
-                let one = if self.owner[self.set[r]] as usize == sphere {
+                self.rhs[r] = if self.owner[self.set[r]] as usize == sphere {
                     1.0
                 } else {
                     0.0
                 };
-                let mut v = one;
-                for t in 0..r {
-                    v -= self.chol[r * s + t] * self.rhs[t];
-                }
-                self.rhs[r] = v / self.chol[r * s + r];
             }
-            for r in (0..k).rev() {
-                let mut v = self.rhs[r];
-                for t in r + 1..k {
-                    v -= self.chol[t * s + r] * self.rhs[t];
-                }
-                self.rhs[r] = v / self.chol[r * s + r];
-            }
+            self.chol_solve();
             let total: f64 = (0..k)
                 .filter(|&r| self.owner[self.set[r]] as usize == sphere)
                 .map(|r| self.rhs[r])
@@ -778,12 +766,12 @@ impl Patch {
         true
     }
 
-    /// z[set] = −A_SS⁻¹ q_S.
-    fn solve_set(&mut self) {
+    /// `rhs ← A_SS⁻¹ rhs` with the active set's factor (forward, then back substitution).
+    fn chol_solve(&mut self) {
         let s = self.cap;
         let k = self.set.len();
         for r in 0..k {
-            let mut v = -self.q[self.set[r]];
+            let mut v = self.rhs[r];
             for t in 0..r {
                 v -= self.chol[r * s + t] * self.rhs[t];
             }
@@ -796,6 +784,15 @@ impl Patch {
             }
             self.rhs[r] = v / self.chol[r * s + r];
         }
+    }
+
+    /// z[set] = −A_SS⁻¹ q_S.
+    fn solve_set(&mut self) {
+        let k = self.set.len();
+        for r in 0..k {
+            self.rhs[r] = -self.q[self.set[r]];
+        }
+        self.chol_solve();
         for r in 0..k {
             self.z[self.set[r]] = self.rhs[r];
         }

@@ -62,6 +62,20 @@ pub const SKIN: f64 = 1e-3;
 /// Seconds over which the force of a finger attached from inside is ramped in.
 pub const RAMP_S: f64 = 0.1;
 
+/// A finger's force saturated at `max` and ramped, and the factor its nodal forces are
+/// scaled by so that the visual path shows what the finger feels.
+#[inline]
+fn bounded(f: DVec3, max: f64, ramp: f64) -> (DVec3, f64) {
+    let out = saturate(f, max) * ramp;
+    let len = f.length();
+    let scale = if len > 0.0 && out.is_finite() {
+        out.length() / len
+    } else {
+        0.0
+    };
+    (out, scale)
+}
+
 #[derive(Clone, Copy, Debug)]
 struct FingerState {
     gods: [GodObject; MAX_OBJECTS],
@@ -298,13 +312,8 @@ impl<'w> HapticWorld<'w> {
             for k in 0..m {
                 let i = who[k];
                 let f = feedback[k];
-                let out = saturate(f, self.max_force) * self.fingers[i].ramp;
+                let (out, scale) = bounded(f, self.max_force, self.fingers[i].ramp);
                 let len = f.length();
-                let scale = if len > 0.0 && out.is_finite() {
-                    out.length() / len
-                } else {
-                    0.0
-                };
                 for &(col, v) in own[k].entries() {
                     sample.bcs[o].add(col, v * scale);
                 }
@@ -452,13 +461,8 @@ impl<'w> HapticWorld<'w> {
             }
             let f = raw[i];
             self.fingers[i].ramp = (self.fingers[i].ramp + dt / RAMP_S).min(1.0);
-            let out = saturate(f, self.max_force) * self.fingers[i].ramp;
+            let (out, scale) = bounded(f, self.max_force, self.fingers[i].ramp);
             let len = f.length();
-            let scale = if len > 0.0 && out.is_finite() {
-                out.length() / len
-            } else {
-                0.0
-            };
             for (o, _) in objects.iter().enumerate().take(MAX_OBJECTS) {
                 let Some(patch) = self.patches[o].as_deref() else {
                     continue;

@@ -278,6 +278,12 @@ impl Body {
             let x = p0 + push * (s as f64 / steps as f64);
             contact = god.update(&self.surface, x);
         }
+        Ok(self.poke_result(p0, contact, model))
+    }
+
+    /// A poke's outcome from its final contact: the feedback with `model`, the paper's and the
+    /// exact one, and the boundary condition of `model`.
+    fn poke_result(&self, p0: DVec3, contact: Option<ContactPoint>, model: ForceModel) -> Poke {
         let mut out = Poke {
             touch_point: p0,
             contact,
@@ -295,7 +301,7 @@ impl Body {
                 finger_force(&self.compliance, &c, ForceModel::Exact, &mut scratch).feedback;
             out.feedback = finger_force(&self.compliance, &c, model, &mut out.bc).feedback;
         }
-        Ok(out)
+        out
     }
 
     /// A point finger touches the surface point nearest `at`, moves by `push` in `steps`
@@ -350,31 +356,7 @@ impl Body {
             let f = contact.as_ref().map_or(DVec3::ZERO, feel);
             trace.push([d.length(), f.x, f.y, f.z]);
         }
-        let mut out = Poke {
-            touch_point: p0,
-            contact,
-            feedback: DVec3::ZERO,
-            feedback_paper: DVec3::ZERO,
-            feedback_exact: DVec3::ZERO,
-            bc: ForceBc::default(),
-        };
-        if let Some(c) = contact {
-            out.feedback_paper = finger_force(
-                &self.compliance,
-                &c,
-                ForceModel::Paper,
-                &mut ForceBc::default(),
-            )
-            .feedback;
-            out.feedback_exact = finger_force(
-                &self.compliance,
-                &c,
-                ForceModel::Exact,
-                &mut ForceBc::default(),
-            )
-            .feedback;
-            out.feedback = finger_force(&self.compliance, &c, model, &mut out.bc).feedback;
-        }
+        let out = self.poke_result(p0, contact, model);
         Ok((out, trace))
     }
 
