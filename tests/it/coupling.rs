@@ -271,3 +271,46 @@ fn over_udp_the_simulated_hand_is_stable_with_the_falcons_limits_and_not_without
         check_within(&with, &without, what, 1e-3);
     }
 }
+
+/// The stiff cube touched by a fingertip (a 5 mm sphere) with friction, with or without the
+/// Falcon's limits.
+fn stiff_cube_fingertip(limits: bool) -> World {
+    let limits = if limits { "limits = \"falcon\"\n" } else { "" };
+    World::from_source_with(
+        &SceneSource {
+            name: "stiff".into(),
+            text: format!("unit = \"mm\"\n[[object]]\nmesh = \"cube\"\nyoung = 1.0e6\nfriction = {{ static = 0.6, dynamic = 0.4 }}\n[[finger]]\ndevice = \"pointer\"\ntool = {{ sphere = 5.0 }}\n{limits}[haptics]\nmax_force_n = 8.0\n"),
+            dir: ".".into(),
+            label: "stiff cube, fingertip".into(),
+        },
+        None,
+    )
+    .unwrap()
+}
+
+#[test]
+fn a_fingertip_with_friction_stays_passive_through_the_coupling_and_the_bound() {
+    // Pressed straight down, and pressed while the hand is pulled sideways (a rub held at
+    // its end): with the Falcon's limits the press settles and the device puts no energy
+    // into the hand; friction only takes energy out.
+    let r = DVec3::new(0.0, 0.0, 5.0) * MM;
+    let (a, b) = top();
+    for (what, end) in [
+        ("press", b + r),
+        ("rub", b + r + DVec3::new(4.0, 0.0, 0.0) * MM),
+    ] {
+        let with = press(&stiff_cube_fingertip(true), a + r, end);
+        let late = peak_to_peak(&with.x[SETTLED_FROM..]);
+        let grow = with.work[2000..]
+            .iter()
+            .map(|e| e - with.work[2000])
+            .fold(f64::NEG_INFINITY, f64::max);
+        eprintln!(
+            "fingertip {what}: p-p {late:.2e} m, energy growth {grow:.2e} J, max F {:.3} N",
+            with.max_force
+        );
+        assert!(late < 1e-6, "{what}: settles ({late})");
+        assert!(grow < 1e-6, "{what}: energy growth {grow}");
+        assert!(with.max_force <= 8.0 + 1e-9 && with.max_force > 0.05);
+    }
+}

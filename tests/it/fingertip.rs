@@ -586,3 +586,48 @@ fn the_new_keys_fuzzed_never_panic() {
         )
         .unwrap();
 }
+
+#[test]
+fn two_fingertips_on_one_object_are_solved_together() {
+    // Two spheres 12 mm apart press the cube's top 3 mm: solved as one contact problem, each
+    // needs less force than alone (the other's press has already lowered the surface near
+    // it), and each finger feels minus the sum of its own nodes' forces.
+    let text = "unit = \"mm\"\n[[object]]\nmesh = \"cube\"\n[[finger]]\ndevice = \"pointer\"\ntool = { sphere = 8.0 }\n[[finger]]\ndevice = \"pointer\"\ntool = { sphere = 8.0 }\n";
+    let w = world(text);
+    let a = DVec3::new(0.009, 0.015, 0.030 + 0.008);
+    let b = DVec3::new(0.021, 0.015, 0.030 + 0.008);
+    let down = |p: DVec3, s: f64| p - DVec3::new(0.0, 0.0, 0.003 * s);
+    let far = DVec3::new(0.015, 0.015, 0.2);
+    let run = |both: bool| {
+        let mut hw = HapticWorld::new(&w);
+        let mut sample = WorldSample::default();
+        let mut f = [DVec3::ZERO; 2];
+        for k in 0..=200 {
+            let s = (k as f64 / 100.0).min(1.0);
+            let pos = [down(a, s), if both { down(b, s) } else { far }];
+            hw.step(&[pos[0], pos[1]], &mut f, &mut sample);
+        }
+        let patch = hw.patch(0).unwrap();
+        for i in 0..2 {
+            let own: DVec3 = patch
+                .nodes()
+                .filter(|n| n.sphere == i)
+                .map(|n| n.force)
+                .sum();
+            assert!(
+                (f[i] + own).length() <= 1e-9 * own.length().max(1e-12),
+                "{i}"
+            );
+        }
+        f
+    };
+    let alone = run(false);
+    let both = run(true);
+    eprintln!(
+        "alone {:.4} N, together {:.4} N and {:.4} N",
+        alone[0].z, both[0].z, both[1].z
+    );
+    assert!(alone[1] == DVec3::ZERO);
+    assert!(both[0].z > 0.0 && both[1].z > 0.0);
+    assert!(both[0].z < alone[0].z, "{} vs {}", both[0].z, alone[0].z);
+}
