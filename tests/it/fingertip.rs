@@ -608,14 +608,14 @@ fn two_fingertips_on_one_object_are_solved_together() {
             hw.step(&[pos[0], pos[1]], &mut f, &mut sample);
         }
         let patch = hw.patch(0).unwrap();
-        for i in 0..2 {
+        for (i, fi) in f.iter().enumerate() {
             let own: DVec3 = patch
                 .nodes()
                 .filter(|n| n.sphere == i)
                 .map(|n| n.force)
                 .sum();
             assert!(
-                (f[i] + own).length() <= 1e-9 * own.length().max(1e-12),
+                (*fi + own).length() <= 1e-9 * own.length().max(1e-12),
                 "{i}"
             );
         }
