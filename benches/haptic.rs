@@ -368,6 +368,14 @@ fn cut(c: &mut Criterion) {
     g.bench_function(format!("displace_mouse_rank_{rank}"), |b| {
         b.iter(|| black_box(cut.displace(&[(node, DVec3::new(0.0, 0.0, -0.01))])))
     });
+    let compliance = touchfem::compliance::Compliance::compute(
+        &mesh,
+        &touchfem::compliance::Selection::default(),
+    )
+    .unwrap();
+    g.bench_function(format!("fold_mouse_rank_{rank}"), |b| {
+        b.iter(|| black_box(cut.fold(&compliance).unwrap()))
+    });
     g.finish();
 }
 

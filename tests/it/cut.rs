@@ -478,3 +478,57 @@ fn bad_cut_flags_exit_2_naming_the_flag() {
         );
     }
 }
+
+#[test]
+fn a_fold_is_exact_and_cutting_folding_and_cutting_again_stays_exact() {
+    use touchfem::compliance::{Compliance, Selection};
+    let mesh = cube();
+    let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
+    let mut cut = Cut::new(&mesh).unwrap();
+    let order = tets_near(&mesh, DVec3::new(0.012, 0.018, 0.027), 25);
+    for (step, tets) in [&order[..10], &order[10..25]].iter().enumerate() {
+        cut.remove(&mesh, tets).unwrap();
+        let folded = cut.fold(&c).unwrap();
+        // Every stored block against the correction's; a press through the folded L against
+        // the dense solve of the remaining tets.
+        let mut worst = 0.0f64;
+        let mut scale = 0.0f64;
+        for (ci, &i) in folded.cols().iter().enumerate() {
+            for (cj, &j) in folded.cols().iter().enumerate().step_by(7) {
+                // (Both sides read the same solve's bits: expect equality to round-off.)
+                let d = folded.touch_block(ci, cj) - cut.block(i, j);
+                worst = worst.max(d.abs().to_cols_array().iter().cloned().fold(0.0, f64::max));
+            }
+            scale = scale.max(
+                folded
+                    .touch_block(ci, ci)
+                    .abs()
+                    .to_cols_array()
+                    .iter()
+                    .cloned()
+                    .fold(0.0, f64::max),
+            );
+        }
+        assert!(worst <= 1e-10 * scale, "step {step}: {worst} vs {scale}");
+        let col = folded.cols().len() / 2;
+        let node = folded.cols()[col];
+        let f = DVec3::new(0.01, -0.02, -0.05);
+        let mut u = vec![DVec3::ZERO; folded.rows().len()];
+        folded.displace(&[(col as u32, f)], &mut u);
+        let reference = dense_reference(&mesh, cut.removed(), &[(node, f)]);
+        let r: Vec<DVec3> = folded
+            .rows()
+            .iter()
+            .map(|&n| reference[n as usize])
+            .collect();
+        let e = rel_err(&u, &r);
+        eprintln!(
+            "fold after {} tets: {} columns kept of {}, blocks {:.1e} of the diagonal, press {e:.2e}",
+            cut.removed().iter().filter(|&&x| x).count(),
+            folded.cols().len(),
+            c.cols().len(),
+            worst / scale
+        );
+        assert!(e < 1e-9, "step {step}: {e}");
+    }
+}

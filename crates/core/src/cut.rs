@@ -519,3 +519,76 @@ pub fn point_poke(cut: &Cut, nodes: [u32; 3], alpha: [f64; 3], u: DVec3) -> Opti
     let disp = cut.displace(&forces);
     Some((-g, forces, disp))
 }
+
+impl Cut {
+    /// Folds the correction into `c` (the uncut body's compliance, `L` on the host): a new
+    /// compliance `L′ = L + L_D C L_Dᵀ` over the same displayed rows (a pinned node's row is
+    /// zero) and the touchable columns that are not pinned. What the haptic and visual paths
+    /// read once the correction has grown too large to carry; exact, like the correction.
+    /// Costs `9·R·C·rank` multiply-adds.
+    pub fn fold(
+        &self,
+        c: &crate::compliance::Compliance,
+    ) -> Result<crate::compliance::Compliance, Error> {
+        if !c.holds_l() {
+            return Err(Error::Input(
+                "folding a cut needs L on the host (not a lean compliance)".into(),
+            ));
+        }
+        let rows = c.rows().to_vec();
+        let l_rows = c.l_rows();
+        let nr3 = 3 * l_rows;
+        let old = c.l_f64();
+        let keep: Vec<(usize, u32)> = c
+            .cols()
+            .iter()
+            .enumerate()
+            .filter(|(_, &n)| !self.pinned[n as usize])
+            .map(|(i, &n)| (i, n))
+            .collect();
+        if keep.is_empty() {
+            return Err(Error::Input("the cut left no touchable node".into()));
+        }
+        let m = self.d.len();
+        // The rows' free DOFs (None: clamped or pinned, a zero row).
+        let row_dof: Vec<Option<usize>> = (0..nr3)
+            .map(|k| {
+                let node = rows[k / 3];
+                if self.pinned[node as usize] {
+                    None
+                } else {
+                    self.dofs.free(node, k % 3)
+                }
+            })
+            .collect();
+        let mut l = vec![0.0; nr3 * 3 * keep.len()];
+        for (new_c, &(old_c, node)) in keep.iter().enumerate() {
+            for b in 0..3 {
+                let src = &old[(3 * old_c + b) * nr3..][..nr3];
+                let dst = &mut l[(3 * new_c + b) * nr3..][..nr3];
+                let y = self
+                    .dofs
+                    .free(node, b)
+                    .map(|dj| &self.cap * nalgebra::DVector::from_fn(m, |q, _| self.ld[(dj, q)]));
+                for (k, (o, &s0)) in dst.iter_mut().zip(src).enumerate() {
+                    let Some(di) = row_dof[k] else {
+                        *o = 0.0;
+                        continue;
+                    };
+                    let mut v = s0;
+                    if let Some(y) = &y {
+                        for q in 0..m {
+                            v += self.ld[(di, q)] * y[q];
+                        }
+                    }
+                    *o = v;
+                }
+            }
+        }
+        let cols: Vec<u32> = keep.iter().map(|&(_, n)| n).collect();
+        let n_nodes = self.pinned.len();
+        Ok(crate::compliance::Compliance::from_stored(
+            rows, l_rows, cols, l, n_nodes,
+        )?)
+    }
+}
