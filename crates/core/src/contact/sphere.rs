@@ -29,7 +29,8 @@
 //!   tangential force `μ_d p_i` along the force that would have held it, and its anchor
 //!   follows it. The tangential forces are updated by projected block Gauss–Seidel with
 //!   each node's own stiffness `L_ii⁻¹`, alternated with exact normal solves
-//!   ([`Budget::friction_sweeps`] rounds a tick).
+//!   ([`Budget::friction_sweeps`] rounds a tick, one by default: warm-started from the last
+//!   tick, the sweeps converge over ticks; a poke solves to convergence).
 //! * The device receives the sum of the contact forces of its sphere.
 
 use glam::{DMat3, DVec3};
@@ -63,7 +64,7 @@ impl Default for Budget {
     fn default() -> Self {
         Budget {
             pivots: 64,
-            friction_sweeps: 2,
+            friction_sweeps: 1,
         }
     }
 }
@@ -455,8 +456,10 @@ impl Patch {
                 }
             }
         }
-        // 4. Gaps, displacements and anchors for the next tick.
-        self.update_gaps();
+        // 4. Gaps (current unless the budget ran out mid-solve), anchors for the next tick.
+        if report.exhausted {
+            self.update_gaps();
+        }
         for i in 0..m {
             if self.p[i] <= 0.0 {
                 self.p[i] = 0.0;
