@@ -631,3 +631,26 @@ fn two_fingertips_on_one_object_are_solved_together() {
     assert!(both[0].z > 0.0 && both[1].z > 0.0);
     assert!(both[0].z < alone[0].z, "{} vs {}", both[0].z, alone[0].z);
 }
+
+#[test]
+fn the_friction_cones_feedback_is_the_force_steps_bit_for_bit() {
+    use touchfem::contact::GodObject;
+    use touchfem::force::{finger_feedback, finger_force, ForceBc};
+    let body = Body::new(touchfem::mesh::cube(), &Selection::default()).unwrap();
+    let (tri, _) = body.surface.closest_global(DVec3::new(0.004, 0.006, 0.03));
+    let mut god = GodObject::touching(tri);
+    let mut n = 0;
+    for k in 0..400 {
+        let t = k as f64 / 400.0;
+        // Across the top, over edges, vertices and the clamp-free face, 2 mm deep.
+        let x = DVec3::new(0.002 + 0.026 * t, 0.004 + 0.02 * t, 0.028);
+        if let Some(c) = god.update(&body.surface, x) {
+            for model in [ForceModel::Paper, ForceModel::Exact] {
+                let f = finger_force(&body.compliance, &c, model, &mut ForceBc::default()).feedback;
+                assert_eq!(finger_feedback(&body.compliance, &c, model), f);
+            }
+            n += 1;
+        }
+    }
+    assert!(n > 300, "{n}");
+}

@@ -175,6 +175,33 @@ pub fn finger_force(
     FingerForce { feedback: -total }
 }
 
+/// The feedback of [`finger_force`] alone (N, on the finger), writing no boundary
+/// condition: what a friction cone is judged by, many times a tick. Allocates nothing.
+#[inline]
+pub fn finger_feedback(c: &Compliance, contact: &ContactPoint, model: ForceModel) -> DVec3 {
+    let u = contact.displacement();
+    match model {
+        ForceModel::Paper => {
+            let k_clamp = 1.0 / c.clamp_compliance();
+            let mut total = DVec3::ZERO;
+            for a in 0..3 {
+                let alpha = contact.alpha[a];
+                if alpha == 0.0 {
+                    continue;
+                }
+                total += match c.col_of(contact.nodes[a]) {
+                    Some(col) => c.diag_inv(col) * u * alpha,
+                    None => u * (k_clamp * alpha),
+                };
+            }
+            -total
+        }
+        ForceModel::Exact => {
+            -invert3(point_compliance(c, contact)).map_or(DVec3::ZERO, |wi| wi * u)
+        }
+    }
+}
+
 /// The coupled exact solve for several fingers (the paper's future work: grasping).
 /// Writes each finger's feedback into `out[..contacts.len()]` and the nodal forces into `bc`.
 /// Returns false (and zero forces) if there are more than [`MAX_FINGERS`] contacts or the

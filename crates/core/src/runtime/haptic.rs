@@ -53,7 +53,8 @@ use crate::contact::{
     Budget, ContactPoint, GodObject, Patch, PatchReport, Sphere, StickSlip, Tool,
 };
 use crate::force::{
-    add_point_force, coupled_point_forces, finger_force, saturate, ForceBc, ForceModel, MAX_FINGERS,
+    add_point_force, coupled_point_forces, finger_feedback, finger_force, saturate, ForceBc,
+    ForceModel, MAX_FINGERS,
 };
 use crate::scene::World;
 
@@ -254,9 +255,7 @@ impl<'w> HapticWorld<'w> {
                     (Some(free), Some(fr)) => {
                         let comp = &obj.body.compliance;
                         let model = f.model;
-                        let feel = |c: &ContactPoint| {
-                            finger_force(comp, c, model, &mut ForceBc::default()).feedback
-                        };
+                        let feel = |c: &ContactPoint| finger_feedback(comp, c, model);
                         c = Some(f.sticks[o].apply(&obj.body.surface, &free, fr, feel));
                     }
                     (None, _) => f.sticks[o].reset(),

@@ -331,9 +331,7 @@ impl Body {
         let mut god = GodObject::touching(tri);
         let mut stick = crate::contact::StickSlip::default();
         let steps = steps.max(1);
-        let feel = |c: &ContactPoint| {
-            finger_force(&self.compliance, c, model, &mut ForceBc::default()).feedback
-        };
+        let feel = |c: &ContactPoint| crate::force::finger_feedback(&self.compliance, c, model);
         let mut contact = None;
         let mut step = |x: DVec3| -> Option<ContactPoint> {
             let free = god.update(&self.surface, x);
