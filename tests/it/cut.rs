@@ -532,3 +532,24 @@ fn a_fold_is_exact_and_cutting_folding_and_cutting_again_stays_exact() {
         assert!(e < 1e-9, "step {step}: {e}");
     }
 }
+
+#[test]
+fn a_piece_hanging_by_an_edge_is_removed() {
+    // A tet of the cube's top layer, with every other tet at two of its nodes cut away,
+    // touches the rest by one edge only: a hinge, which could rotate about it. The cut
+    // removes it as a piece (its two lone nodes are pinned), and the rest stays exact.
+    let mesh = cube();
+    let t0 = tets_near(&mesh, DVec3::new(0.015, 0.015, 0.028), 1)[0];
+    let [_, _, c, d] = mesh.tets[t0];
+    let around: Vec<usize> = (0..mesh.tets.len())
+        .filter(|&t| t != t0 && (mesh.tets[t].contains(&c) || mesh.tets[t].contains(&d)))
+        .collect();
+    let mut cut = Cut::new(&mesh).unwrap();
+    let rep = cut.remove(&mesh, &around).unwrap();
+    assert!(rep.pieces_removed >= 1, "{rep:?}");
+    assert!(cut.removed()[t0]);
+    let forces = [(mesh.surface_nodes[40], DVec3::new(0.0, 0.02, -0.1))];
+    let u = cut.displace(&forces);
+    let reference = sparse_reference(&mesh, cut.removed(), &forces);
+    assert!(rel_err(&u, &reference) < 1e-9);
+}

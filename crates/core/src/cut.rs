@@ -11,8 +11,9 @@
 //! * a node left with no tet is **pinned**: its DOFs keep a stiffness of their own diagonal
 //!   in `K` and nothing else (so `L′` is exactly the inverse of the remaining tets' stiffness
 //!   with that node removed); it does not move.
-//! * a piece that no clamp holds (cut right through, a flap hanging by nothing) is
-//!   **removed**: its tets join the cut and its nodes are pinned; the cut reports it.
+//! * a piece that nothing holds rigidly (cut right through, a flap hanging by nothing, or
+//!   by an edge or a vertex alone) is **removed**: its tets join the cut and its nodes are
+//!   pinned; the cut reports it.
 //!
 //! The standard formulation only (a locking-free mixed system's cut is not this rank).
 
@@ -272,10 +273,15 @@ impl Cut {
         Ok(())
     }
 
-    /// The pieces of the remaining tets that hold no clamped node: each a list of tets.
+    /// The pieces of the remaining tets that nothing holds rigidly: each a list of tets.
+    ///
+    /// Tets sharing a face form a rigid-enough block (a component). A component is held when
+    /// it has three non-collinear clamped nodes, or shares three non-collinear nodes with a
+    /// held one (repeated until nothing changes). One held by a single node or an edge alone
+    /// (a hinge), or by nothing, could move rigidly: its stiffness is singular, so it goes.
     fn free_pieces(&self, mesh: &Mesh) -> Vec<Vec<usize>> {
-        let nn = mesh.nodes.len();
-        let mut parent: Vec<u32> = (0..nn as u32).collect();
+        let nt = mesh.tets.len();
+        let mut parent: Vec<u32> = (0..nt as u32).collect();
         fn find(p: &mut [u32], mut x: u32) -> u32 {
             while p[x as usize] != x {
                 p[x as usize] = p[p[x as usize] as usize];
@@ -283,36 +289,110 @@ impl Cut {
             }
             x
         }
+        // Tets sharing a face.
+        let mut faces: std::collections::HashMap<[u32; 3], u32> = Default::default();
         for (ti, t) in mesh.tets.iter().enumerate() {
             if self.removed[ti] {
                 continue;
             }
-            let r0 = find(&mut parent, t[0]);
-            for &v in &t[1..] {
-                let r = find(&mut parent, v);
-                if r != r0 {
-                    parent[r as usize] = r0;
+            for skip in 0..4 {
+                let mut f = [0u32; 3];
+                let mut k = 0;
+                for (a, &v) in t.iter().enumerate() {
+                    if a != skip {
+                        f[k] = v;
+                        k += 1;
+                    }
+                }
+                f.sort_unstable();
+                match faces.entry(f) {
+                    std::collections::hash_map::Entry::Occupied(o) => {
+                        let (ra, rb) = (find(&mut parent, *o.get()), find(&mut parent, ti as u32));
+                        if ra != rb {
+                            parent[rb as usize] = ra;
+                        }
+                    }
+                    std::collections::hash_map::Entry::Vacant(v) => {
+                        v.insert(ti as u32);
+                    }
                 }
             }
         }
-        let mut held = vec![false; nn];
-        for v in 0..nn {
-            if mesh.fixed[v] && self.tets_left[v] > 0 {
-                let r = find(&mut parent, v as u32);
-                held[r as usize] = true;
-            }
-        }
-        let mut pieces: std::collections::BTreeMap<u32, Vec<usize>> = Default::default();
+        // Each component's nodes.
+        let mut nodes_of: std::collections::BTreeMap<u32, Vec<u32>> = Default::default();
+        let mut tets_of: std::collections::BTreeMap<u32, Vec<usize>> = Default::default();
         for (ti, t) in mesh.tets.iter().enumerate() {
             if self.removed[ti] {
                 continue;
             }
-            let r = find(&mut parent, t[0]);
-            if !held[r as usize] {
-                pieces.entry(r).or_default().push(ti);
+            let r = find(&mut parent, ti as u32);
+            nodes_of.entry(r).or_default().extend_from_slice(t);
+            tets_of.entry(r).or_default().push(ti);
+        }
+        for v in nodes_of.values_mut() {
+            v.sort_unstable();
+            v.dedup();
+        }
+        let spans_plane = |pts: &mut dyn Iterator<Item = u32>| -> bool {
+            let pts: Vec<DVec3> = pts.map(|v| mesh.nodes[v as usize]).collect();
+            let Some(&a) = pts.first() else { return false };
+            let Some(&b) = pts
+                .iter()
+                .max_by(|p, q| p.distance_squared(a).total_cmp(&q.distance_squared(a)))
+            else {
+                return false;
+            };
+            let ab = b - a;
+            let l2 = ab.length_squared();
+            l2 > 0.0
+                && pts
+                    .iter()
+                    .any(|&c| ab.cross(c - a).length_squared() > 1e-12 * l2 * l2)
+        };
+        let roots: Vec<u32> = nodes_of.keys().copied().collect();
+        let mut held: std::collections::BTreeSet<u32> = roots
+            .iter()
+            .copied()
+            .filter(|r| {
+                spans_plane(
+                    &mut nodes_of[r]
+                        .iter()
+                        .copied()
+                        .filter(|&v| mesh.fixed[v as usize]),
+                )
+            })
+            .collect();
+        // Which components each node is in.
+        let mut comps_at: std::collections::HashMap<u32, Vec<u32>> = Default::default();
+        for (&r, ns) in &nodes_of {
+            for &v in ns {
+                comps_at.entry(v).or_default().push(r);
             }
         }
-        pieces.into_values().collect()
+        loop {
+            let mut grew = false;
+            for &r in &roots {
+                if held.contains(&r) {
+                    continue;
+                }
+                let shared = nodes_of[&r]
+                    .iter()
+                    .copied()
+                    .filter(|v| comps_at[v].iter().any(|o| *o != r && held.contains(o)));
+                if spans_plane(&mut shared.into_iter()) {
+                    held.insert(r);
+                    grew = true;
+                }
+            }
+            if !grew {
+                break;
+            }
+        }
+        tets_of
+            .into_iter()
+            .filter(|(r, _)| !held.contains(r))
+            .map(|(_, t)| t)
+            .collect()
     }
 
     /// The displacement of every node (m) under nodal `forces` (mesh node, N) on the cut
