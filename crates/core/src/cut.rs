@@ -282,13 +282,7 @@ impl Cut {
     fn free_pieces(&self, mesh: &Mesh) -> Vec<Vec<usize>> {
         let nt = mesh.tets.len();
         let mut parent: Vec<u32> = (0..nt as u32).collect();
-        fn find(p: &mut [u32], mut x: u32) -> u32 {
-            while p[x as usize] != x {
-                p[x as usize] = p[p[x as usize] as usize];
-                x = p[x as usize];
-            }
-            x
-        }
+        use crate::fem::{collinear, join, root};
         // Tets sharing a face.
         let mut faces: std::collections::HashMap<[u32; 3], u32> = Default::default();
         for (ti, t) in mesh.tets.iter().enumerate() {
@@ -307,10 +301,7 @@ impl Cut {
                 f.sort_unstable();
                 match faces.entry(f) {
                     std::collections::hash_map::Entry::Occupied(o) => {
-                        let (ra, rb) = (find(&mut parent, *o.get()), find(&mut parent, ti as u32));
-                        if ra != rb {
-                            parent[rb as usize] = ra;
-                        }
+                        join(&mut parent, *o.get(), ti as u32);
                     }
                     std::collections::hash_map::Entry::Vacant(v) => {
                         v.insert(ti as u32);
@@ -325,7 +316,7 @@ impl Cut {
             if self.removed[ti] {
                 continue;
             }
-            let r = find(&mut parent, ti as u32);
+            let r = root(&mut parent, ti as u32);
             nodes_of.entry(r).or_default().extend_from_slice(t);
             tets_of.entry(r).or_default().push(ti);
         }
@@ -333,21 +324,12 @@ impl Cut {
             v.sort_unstable();
             v.dedup();
         }
+        // Three non-collinear points among these nodes (the same test as the stiffness's).
+        let (lo, hi) = mesh.bounds();
+        let scale = (hi - lo).length().max(f64::MIN_POSITIVE);
         let spans_plane = |pts: &mut dyn Iterator<Item = u32>| -> bool {
             let pts: Vec<DVec3> = pts.map(|v| mesh.nodes[v as usize]).collect();
-            let Some(&a) = pts.first() else { return false };
-            let Some(&b) = pts
-                .iter()
-                .max_by(|p, q| p.distance_squared(a).total_cmp(&q.distance_squared(a)))
-            else {
-                return false;
-            };
-            let ab = b - a;
-            let l2 = ab.length_squared();
-            l2 > 0.0
-                && pts
-                    .iter()
-                    .any(|&c| ab.cross(c - a).length_squared() > 1e-12 * l2 * l2)
+            pts.len() >= 3 && !collinear(&pts, scale)
         };
         let roots: Vec<u32> = nodes_of.keys().copied().collect();
         let mut held: std::collections::BTreeSet<u32> = roots

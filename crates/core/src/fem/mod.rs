@@ -1089,26 +1089,15 @@ fn check_constrained(mesh: &Mesh) -> Result<(), FemError> {
     }
     let n = mesh.nodes.len();
     let mut parent: Vec<u32> = (0..n as u32).collect();
-    fn find(p: &mut [u32], mut x: u32) -> u32 {
-        while p[x as usize] != x {
-            p[x as usize] = p[p[x as usize] as usize];
-            x = p[x as usize];
-        }
-        x
-    }
     for t in &mesh.tets {
-        let r0 = find(&mut parent, t[0]);
         for &v in &t[1..] {
-            let r = find(&mut parent, v);
-            if r != r0 {
-                parent[r as usize] = r0;
-            }
+            join(&mut parent, t[0], v);
         }
     }
     // Per component: node count, fixed nodes.
     let mut comp_nodes: std::collections::HashMap<u32, (usize, Vec<DVec3>)> = Default::default();
     for i in 0..n as u32 {
-        let r = find(&mut parent, i);
+        let r = root(&mut parent, i);
         let e = comp_nodes.entry(r).or_insert((0, Vec::new()));
         e.0 += 1;
         if mesh.fixed[i as usize] {
@@ -1135,8 +1124,25 @@ fn check_constrained(mesh: &Mesh) -> Result<(), FemError> {
     Ok(())
 }
 
+/// The root of `x` in the union–find forest `parent` (path halving).
+pub(crate) fn root(parent: &mut [u32], mut x: u32) -> u32 {
+    while parent[x as usize] != x {
+        parent[x as usize] = parent[parent[x as usize] as usize];
+        x = parent[x as usize];
+    }
+    x
+}
+
+/// Joins the sets of `a` and `b` in the union–find forest `parent`.
+pub(crate) fn join(parent: &mut [u32], a: u32, b: u32) {
+    let (ra, rb) = (root(parent, a), root(parent, b));
+    if ra != rb {
+        parent[rb as usize] = ra;
+    }
+}
+
 /// True when all points lie (to 1e-9 of `scale`) on one line.
-fn collinear(p: &[DVec3], scale: f64) -> bool {
+pub(crate) fn collinear(p: &[DVec3], scale: f64) -> bool {
     let a = p[0];
     let Some(b) = p.iter().copied().max_by(|x, y| {
         x.distance(a)
