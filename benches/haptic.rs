@@ -283,7 +283,7 @@ fn sphere_tick(c: &mut Criterion) {
             ))
         })
     });
-    for depth_mm in [0.2, 0.45, 1.5] {
+    for depth_mm in [0.17, 0.43, 1.5] {
         for friction in [None, Some(Friction::new(0.6, 0.4).unwrap())] {
             let mut patch = Patch::new();
             let centre = |t: f64| top + DVec3::new(2e-6 * t, 0.0, r - depth_mm * 1e-3);

@@ -218,9 +218,32 @@ impl Surface {
         let g = &self.node_grid;
         let cells = g.cell_range(c - DVec3::splat(r), c + DVec3::splat(r));
         let r2 = r * r;
+        // Cells wholly outside the ball are skipped (a large sphere's box holds far more of
+        // the surface than the ball does); a border cell also holds the nodes past it.
+        let size = 1.0 / g.inv_cell;
+        let gap = |x: f64, lo: f64, i: usize, d: usize| {
+            let a = lo + i as f64 * size;
+            let b = a + size;
+            if x < a && i > 0 {
+                a - x
+            } else if x > b && i + 1 < d {
+                x - b
+            } else {
+                0.0
+            }
+        };
         for k in cells[2].clone() {
+            let dz = gap(c.z, g.lo.z, k, g.dims[2]);
             for j in cells[1].clone() {
+                let dy = gap(c.y, g.lo.y, j, g.dims[1]);
+                if dz * dz + dy * dy > r2 {
+                    continue;
+                }
                 for i in cells[0].clone() {
+                    let dx = gap(c.x, g.lo.x, i, g.dims[0]);
+                    if dz * dz + dy * dy + dx * dx > r2 {
+                        continue;
+                    }
                     let cell = (k * g.dims[1] + j) * g.dims[0] + i;
                     let s = g.start[cell] as usize;
                     let e = g.start[cell + 1] as usize;

@@ -30,7 +30,10 @@
 //!   follows it. The tangential forces are updated by projected block Gauss–Seidel with
 //!   each node's own stiffness `L_ii⁻¹`, alternated with exact normal solves
 //!   ([`Budget::friction_sweeps`] rounds a tick, one by default: warm-started from the last
-//!   tick, the sweeps converge over ticks; a poke solves to convergence).
+//!   tick, the sweeps converge over ticks; a poke solves to convergence). The sweep reads
+//!   only the tangential rows of `W` in each node's tangent basis, in f32 (their error,
+//!   1e-7 of the displacement, is far below the anchors' scale), and keeps each node's
+//!   normal motion under the tangential forces as they change.
 //! * The device receives the sum of the contact forces of its sphere.
 
 use glam::{DMat3, DVec3};
@@ -40,7 +43,7 @@ use super::Surface;
 use crate::compliance::Compliance;
 
 /// Most candidate nodes of one object's contact problem (all its spheres together).
-pub const MAX_PATCH: usize = 128;
+pub const MAX_PATCH: usize = 256;
 
 /// A rigid sphere in the contact problem, in the object's frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -143,9 +146,15 @@ pub struct Patch {
     /// The 3×3 blocks W_ij = L(node i, column j) of the candidates, stride `cap`: read from
     /// `L` once, when a node becomes a candidate.
     wblk: Vec<DMat3>,
-    /// `W_ijᵀ n_i`, stride `cap`: a tangential force τ_j moves node i along its normal by
-    /// `B_ij · τ_j`.
-    bvec: Vec<DVec3>,
+    /// `Σ_j B_ij · τ_j`: how far the tangential forces move each candidate along its normal
+    /// (kept as τ changes, so a tick needs no pass over every pair for it).
+    btau: Vec<f64>,
+    /// `B_ij = W_ijᵀ n_i` by component, stored by column (`bx[j·cap + i]`): a tangential
+    /// force τ_j moves node i along its normal by `B_ij · τ_j`; a column is contiguous, so
+    /// the normal effect of one τ_j on every candidate is three AXPYs.
+    bx: Vec<f64>,
+    by: Vec<f64>,
+    bz: Vec<f64>,
     /// For each mesh node, its slot + 1 among the candidates (0: none); sized on first use.
     slot: Vec<u32>,
     /// The active set, in the order of the factor's rows.
@@ -157,6 +166,23 @@ pub struct Patch {
     factored: bool,
     report: PatchReport,
     stiffness: [f64; crate::force::MAX_FINGERS],
+    /// The (node, sphere) pairs, in the set's order, that `stiffness` was computed for.
+    stiff_key: Vec<(u32, u8)>,
+    /// Each node's tangential position relative to its sphere's centre after this tick's
+    /// friction sweep (with its own force's change): its anchor when it slips.
+    rt_end: Vec<DVec3>,
+    /// Whether this tick's sweep visited the node.
+    swept: Vec<bool>,
+    /// The force on each node of the set during a sweep (`τ − n p`), f32 for the sweep's
+    /// tangential products.
+    fvec: [Vec<f32>; 3],
+    /// Each candidate's tangent basis (`t₁`, `t₂`, with `n`: right-handed, orthonormal).
+    tan: Vec<[DVec3; 2]>,
+    /// `[t₁ᵢᵀ W_ij; t₂ᵢᵀ W_ij]` by entry (six arrays), f32, stride `cap`: the tangential motion of node i under a
+    /// force at j, all a friction sweep reads (24 bytes a pair against `W_ij`'s 72: a sweep
+    /// over 130 nodes stays in cache; its error, 1e-7 of the displacement, is far below the
+    /// sticking anchors' scale).
+    tblk: [Vec<f32>; 6],
 }
 
 impl Default for Patch {
@@ -166,7 +192,7 @@ impl Default for Patch {
 }
 
 impl Patch {
-    /// An empty problem with room for [`MAX_PATCH`] nodes (about 270 kB): the haptic path's.
+    /// An empty problem with room for [`MAX_PATCH`] nodes (about 7.5 MB): the haptic path's.
     pub fn new() -> Patch {
         Patch::with_capacity(MAX_PATCH)
     }
@@ -196,7 +222,10 @@ impl Patch {
             z: vec![0.0; m],
             a: vec![0.0; m * m],
             wblk: vec![DMat3::ZERO; m * m],
-            bvec: vec![DVec3::ZERO; m * m],
+            btau: vec![0.0; m],
+            bx: vec![0.0; m * m],
+            by: vec![0.0; m * m],
+            bz: vec![0.0; m * m],
             slot: Vec::new(),
             set: Vec::with_capacity(m),
             chol: vec![0.0; m * m],
@@ -204,6 +233,12 @@ impl Patch {
             factored: false,
             report: PatchReport::default(),
             stiffness: [0.0; crate::force::MAX_FINGERS],
+            stiff_key: Vec::with_capacity(m),
+            rt_end: vec![DVec3::ZERO; m],
+            swept: vec![false; m],
+            fvec: std::array::from_fn(|_| vec![0.0; m]),
+            tan: vec![[DVec3::X, DVec3::Y]; m],
+            tblk: std::array::from_fn(|_| vec![0.0; m * m]),
         }
     }
 
@@ -218,6 +253,8 @@ impl Patch {
         self.set.clear();
         self.factored = true;
         self.report = PatchReport::default();
+        self.stiff_key.clear();
+        self.stiffness = [0.0; crate::force::MAX_FINGERS];
     }
 
     /// The last solve's report.
@@ -272,8 +309,22 @@ impl Patch {
 
     /// Per sphere, `Σ (A_SS⁻¹ 1_s)` over its own active nodes, from the last factor.
     fn update_stiffness(&mut self) {
-        self.stiffness = [0.0; crate::force::MAX_FINGERS];
         let k = self.set.len();
+        // The same node pairs give the same factor, and so the same stiffness.
+        if self.factored
+            && self.stiff_key.len() == k
+            && self
+                .set
+                .iter()
+                .zip(&self.stiff_key)
+                .all(|(&i, &key)| (self.node[i], self.owner[i]) == key)
+        {
+            return;
+        }
+        self.stiff_key.clear();
+        self.stiff_key
+            .extend(self.set.iter().map(|&i| (self.node[i], self.owner[i])));
+        self.stiffness = [0.0; crate::force::MAX_FINGERS];
         if k == 0 {
             return;
         }
@@ -354,10 +405,11 @@ impl Patch {
             if !(sp.centre.is_finite() && sp.radius.is_finite() && sp.radius > 0.0) {
                 continue;
             }
-            let reach = sp.radius * 1.02 + 0.5 * max_u + 1e-9;
             // A node becomes a candidate when its rest gap is within this (the surface
             // around a press sinks; a bulge towards the sphere is a fraction of the press).
-            let margin = 0.5 * max_u + 0.02 * sp.radius;
+            let margin = candidate_margin(max_u, sp.radius);
+            // The ray gap is at least the distance to the sphere: nothing farther qualifies.
+            let reach = sp.radius + margin + 1e-9;
             let overflow = &mut report.overflow;
             surf.for_nodes_near(sp.centre, reach, |v| {
                 let Some(col) = c.col_of(v) else { return };
@@ -378,26 +430,9 @@ impl Patch {
                 self.add_candidate(c, surf, v, col as u32);
             });
         }
-        // Drop candidates no sphere is near and that carry no force.
-        let mut i = 0;
-        while i < self.n {
-            if !self.seen[i] && self.p[i] <= 0.0 {
-                self.swap_remove(i);
-            } else {
-                i += 1;
-            }
-        }
-        let m = self.n;
-        report.candidates = m;
-        if m == 0 {
-            self.set.clear();
-            self.factored = true;
-            self.report = report;
-            return report;
-        }
         // 2. Gaps with no contact force, and each node's sphere.
         let mut r_min = f64::INFINITY;
-        for i in 0..m {
+        for i in 0..self.n {
             let mut best = (f64::INFINITY, 0u8);
             for (s, sp) in spheres.iter().enumerate() {
                 if !(sp.centre.is_finite() && sp.radius.is_finite() && sp.radius > 0.0) {
@@ -414,12 +449,34 @@ impl Patch {
                 self.owner[i] = best.1;
             }
         }
+        // Drop the candidates that carry no force and that no sphere is near, or that have
+        // moved well clear of their sphere (a slide leaves them behind).
+        let mut i = 0;
+        while i < self.n {
+            let clear = spheres
+                .get(self.owner[i] as usize)
+                .is_some_and(|sp| self.gap0[i] > 2.0 * candidate_margin(max_u, sp.radius));
+            if self.p[i] <= 0.0 && (!self.seen[i] || clear) {
+                self.swap_remove(i);
+            } else {
+                i += 1;
+            }
+        }
+        let m = self.n;
+        report.candidates = m;
+        if m == 0 {
+            self.set.clear();
+            self.factored = true;
+            self.stiff_key.clear();
+            self.stiffness = [0.0; crate::force::MAX_FINGERS];
+            self.report = report;
+            return report;
+        }
         let tol = 1e-9 * if r_min.is_finite() { r_min } else { 1e-3 };
         // 3. Normal solve; with friction, alternated with tangential sweeps.
         if friction.is_none() {
-            for t in &mut self.tau[..m] {
-                *t = DVec3::ZERO;
-            }
+            self.tau[..m].fill(DVec3::ZERO);
+            self.btau[..m].fill(0.0);
         }
         let rounds = if friction.is_some() {
             budget.friction_sweeps.max(1)
@@ -427,8 +484,9 @@ impl Patch {
             1
         };
         let mut pivots_left = budget.pivots;
+        // q once: the sweeps keep it current as they change τ.
+        self.normal_rhs(friction.is_some());
         for round in 0..rounds {
-            self.normal_rhs(friction.is_some());
             let (used, done) = self.nnls(tol, pivots_left);
             report.pivots += used;
             pivots_left = pivots_left.saturating_sub(used);
@@ -436,17 +494,11 @@ impl Patch {
                 report.exhausted = true;
             }
             if let Some(fr) = friction {
+                self.release_dropped();
                 let change = self.friction_sweep(c, spheres, fr);
-                if round + 1 == rounds {
-                    // The last sweep changed τ: one more normal solve keeps Signorini exact.
-                    self.normal_rhs(true);
-                    let (used, done) = self.nnls(tol, pivots_left);
-                    report.pivots += used;
-                    if !done {
-                        report.exhausted = true;
-                    }
-                } else if change <= 1e-9 * self.p[..m].iter().sum::<f64>().max(1e-300) {
-                    self.normal_rhs(true);
+                let last = round + 1 == rounds;
+                if last || change <= 1e-9 * self.p[..m].iter().sum::<f64>().max(1e-300) {
+                    // The sweep changed τ: one more normal solve keeps Signorini exact.
                     let (used, done) = self.nnls(tol, pivots_left);
                     report.pivots += used;
                     if !done {
@@ -463,6 +515,10 @@ impl Patch {
         for i in 0..m {
             if self.p[i] <= 0.0 {
                 self.p[i] = 0.0;
+                if self.tau[i] != DVec3::ZERO {
+                    let t = self.tau[i];
+                    self.shift_q(i, -t);
+                }
                 self.tau[i] = DVec3::ZERO;
                 self.anchored[i] = false;
                 self.slipping[i] = false;
@@ -470,7 +526,12 @@ impl Patch {
         }
         if friction.is_some() {
             for i in 0..m {
-                if self.p[i] > 0.0 && (!self.anchored[i] || self.slipping[i]) {
+                if self.p[i] > 0.0 && self.slipping[i] && self.swept[i] {
+                    // Where the sweep left it (the last normal solve's motion is second
+                    // order: a slipping node's anchor is set again next tick).
+                    self.anchor[i] = self.rt_end[i];
+                    self.anchored[i] = true;
+                } else if self.p[i] > 0.0 && (!self.anchored[i] || self.slipping[i]) {
                     let sp = spheres[self.owner[i] as usize];
                     let n = self.normal[i];
                     let r = self.rest[i] + self.u_at(i) - sp.centre;
@@ -505,19 +566,46 @@ impl Patch {
         self.anchored[k] = false;
         self.slipping[k] = false;
         let nk = self.normal[k];
+        let (t1, t2) = nk.any_orthonormal_pair();
+        self.tan[k] = [t1, t2];
         let s = self.cap;
         for j in 0..=k {
             let w = c.touch_block(col as usize, self.col[j] as usize);
+            // W_kj's rows in k's tangent basis; W_jk = W_kjᵀ's in j's.
+            let rows = |a: DVec3, b: DVec3, m: DMat3| {
+                let (ra, rb) = (m.transpose() * a, m.transpose() * b);
+                [ra.x, ra.y, ra.z, rb.x, rb.y, rb.z].map(|v| v as f32)
+            };
+            for (e, v) in rows(t1, t2, w).into_iter().enumerate() {
+                self.tblk[e][k * s + j] = v;
+            }
+            let [tj1, tj2] = self.tan[j];
+            for (e, v) in rows(tj1, tj2, w.transpose()).into_iter().enumerate() {
+                self.tblk[e][j * s + k] = v;
+            }
             self.wblk[k * s + j] = w;
             self.wblk[j * s + k] = w.transpose();
-            self.bvec[k * s + j] = w.transpose() * nk;
-            self.bvec[j * s + k] = w * self.normal[j];
+            // B_jk = W_jkᵀ n_j = W_kj n_j at column k, row j; then B_kj = W_kjᵀ n_k.
+            let bjk = w * self.normal[j];
+            self.bx[k * s + j] = bjk.x;
+            self.by[k * s + j] = bjk.y;
+            self.bz[k * s + j] = bjk.z;
+            let bkj = w.transpose() * nk;
+            self.bx[j * s + k] = bkj.x;
+            self.by[j * s + k] = bkj.y;
+            self.bz[j * s + k] = bkj.z;
             let a = nk.dot(w * self.normal[j]);
             self.a[k * s + j] = a;
             self.a[j * s + k] = a;
         }
         self.g[k] = 0.0;
         self.gap0[k] = 0.0;
+        self.btau[k] = (0..k)
+            .map(|j| {
+                let t = self.tau[j];
+                self.bx[j * s + k] * t.x + self.by[j * s + k] * t.y + self.bz[j * s + k] * t.z
+            })
+            .sum();
         if let Some(sl) = self.slot.get_mut(v as usize) {
             *sl = k as u32 + 1;
         }
@@ -542,20 +630,38 @@ impl Patch {
             macro_rules! mv {
                 ($($f:ident),*) => {$( self.$f[i] = self.$f[last]; )*};
             }
-            mv!(node, col, normal, rest, owner, seen, p, tau, anchor, anchored, slipping, g, gap0);
+            mv!(
+                node, col, normal, rest, owner, seen, p, tau, anchor, anchored, slipping, g, gap0,
+                rt_end, swept, tan, btau
+            );
             for j in 0..self.n {
                 self.a[i * s + j] = self.a[last * s + j];
                 self.wblk[i * s + j] = self.wblk[last * s + j];
-                self.bvec[i * s + j] = self.bvec[last * s + j];
+                self.bx[i * s + j] = self.bx[last * s + j];
+                for t in &mut self.tblk {
+                    t[i * s + j] = t[last * s + j];
+                }
+                self.by[i * s + j] = self.by[last * s + j];
+                self.bz[i * s + j] = self.bz[last * s + j];
             }
             for j in 0..self.n {
                 self.a[j * s + i] = self.a[j * s + last];
                 self.wblk[j * s + i] = self.wblk[j * s + last];
-                self.bvec[j * s + i] = self.bvec[j * s + last];
+                self.bx[j * s + i] = self.bx[j * s + last];
+                for t in &mut self.tblk {
+                    t[j * s + i] = t[j * s + last];
+                }
+                self.by[j * s + i] = self.by[j * s + last];
+                self.bz[j * s + i] = self.bz[j * s + last];
             }
             self.a[i * s + i] = self.a[last * s + last];
             self.wblk[i * s + i] = self.wblk[last * s + last];
-            self.bvec[i * s + i] = self.bvec[last * s + last];
+            self.bx[i * s + i] = self.bx[last * s + last];
+            for t in &mut self.tblk {
+                t[i * s + i] = t[last * s + last];
+            }
+            self.by[i * s + i] = self.by[last * s + last];
+            self.bz[i * s + i] = self.bz[last * s + last];
             for x in &mut self.set {
                 if *x == last {
                     *x = i;
@@ -565,22 +671,47 @@ impl Patch {
         self.n -= 1;
     }
 
-    /// `q = gap0 − n·(W τ)`.
+    /// `q = gap0 − n·(W τ)`: the gaps under no normal force, with the tangential forces of
+    /// the nodes carrying force (kept in `btau` as τ changes).
     fn normal_rhs(&mut self, with_tau: bool) {
         let m = self.n;
-        for i in 0..m {
-            let mut q = self.gap0[i];
-            if with_tau {
-                // The nodes carrying force are the active set's.
-                let row = &self.bvec[i * self.cap..];
-                let mut un = 0.0;
-                for &j in &self.set {
-                    un += row[j].dot(self.tau[j]);
-                }
-                q -= un;
+        if with_tau {
+            for ((q, &g), &b) in self.q[..m]
+                .iter_mut()
+                .zip(&self.gap0[..m])
+                .zip(&self.btau[..m])
+            {
+                *q = g - b;
             }
-            self.q[i] = q;
+        } else {
+            self.q[..m].copy_from_slice(&self.gap0[..m]);
         }
+    }
+
+    /// Zeroes the tangential force of every node that stopped carrying force, and takes its
+    /// normal effect out of `q`.
+    fn release_dropped(&mut self) {
+        for i in 0..self.n {
+            let t = self.tau[i];
+            if self.p[i] <= 0.0 && t != DVec3::ZERO {
+                self.shift_q(i, -t);
+                self.tau[i] = DVec3::ZERO;
+            }
+        }
+    }
+
+    /// Node j's tangential force grew by `d`: `btau += B_·j · d` and `q −= B_·j · d` (column
+    /// AXPYs, contiguous).
+    #[inline]
+    fn shift_q(&mut self, j: usize, d: DVec3) {
+        let m = self.n;
+        let s = self.cap;
+        let (bx, by, bz) = (
+            &self.bx[j * s..j * s + m],
+            &self.by[j * s..j * s + m],
+            &self.bz[j * s..j * s + m],
+        );
+        shift_columns(&mut self.q[..m], &mut self.btau[..m], [bx, by, bz], d);
     }
 
     /// Lawson–Hanson on `min ½pᵀAp + qᵀp, p ≥ 0`, from the current feasible `p`. Returns
@@ -704,16 +835,19 @@ impl Patch {
         }
     }
 
-    /// g = q + A p over the candidates.
+    /// g = q + A p over the candidates (A is symmetric: its column j is row j, contiguous).
     fn update_gaps(&mut self) {
         let m = self.n;
         let s = self.cap;
-        for i in 0..m {
-            let mut g = self.q[i];
-            for &j in &self.set {
-                g += self.a[i * s + j] * self.p[j];
+        self.g[..m].copy_from_slice(&self.q[..m]);
+        for &j in &self.set {
+            let pj = self.p[j];
+            if pj == 0.0 {
+                continue;
             }
-            self.g[i] = g;
+            for (g, &a) in self.g[..m].iter_mut().zip(&self.a[j * s..j * s + m]) {
+                *g += a * pj;
+            }
         }
     }
 
@@ -780,12 +914,14 @@ impl Patch {
             }
             self.rhs[r] = v / self.chol[r * s + r];
         }
+        // Back substitution by columns of Lᵀ (rows of L: contiguous).
         for r in (0..k).rev() {
-            let mut v = self.rhs[r];
-            for t in r + 1..k {
-                v -= self.chol[t * s + r] * self.rhs[t];
+            let x = self.rhs[r] / self.chol[r * s + r];
+            self.rhs[r] = x;
+            let row = &self.chol[r * s..r * s + r];
+            for (v, &l) in self.rhs[..r].iter_mut().zip(row) {
+                *v -= l * x;
             }
-            self.rhs[r] = v / self.chol[r * s + r];
         }
     }
 
@@ -813,15 +949,43 @@ impl Patch {
         u
     }
 
+    #[inline]
+    fn set_fvec(&mut self, j: usize, f: DVec3) {
+        self.fvec[0][j] = f.x as f32;
+        self.fvec[1][j] = f.y as f32;
+        self.fvec[2][j] = f.z as f32;
+    }
+
     /// One projected Gauss–Seidel sweep over the tangential forces. Returns Σ|Δτ|.
     fn friction_sweep(&mut self, c: &Compliance, spheres: &[Sphere], fr: Friction) -> f64 {
         let mut change = 0.0;
+        self.swept[..self.n].fill(false);
+        // Every candidate's force (zero off the set): the sweep's products then run over
+        // rows in order, which the prefetcher streams (a gather in the set's order misses).
+        let m = self.n;
+        for f in &mut self.fvec {
+            f[..m].fill(0.0);
+        }
+        for r in 0..self.set.len() {
+            let j = self.set[r];
+            let f = self.tau[j] - self.normal[j] * self.p[j];
+            self.set_fvec(j, f);
+        }
         for r in 0..self.set.len() {
             let i = self.set[r];
             let sp = spheres[self.owner[i] as usize];
             let n = self.normal[i];
-            // Gauss–Seidel: the latest tangential forces of the nodes before it.
-            let r = self.rest[i] + self.u_at(i) - sp.centre;
+            // Gauss–Seidel: the latest tangential forces of the nodes before it. Only the
+            // tangential motion is needed: its two components in i's tangent basis.
+            let (ua, ub) = {
+                let o = i * self.cap;
+                let t: [&[f32]; 6] = std::array::from_fn(|e| &self.tblk[e][o..o + m]);
+                let f: [&[f32]; 3] = std::array::from_fn(|e| &self.fvec[e][..m]);
+                let (ua, ub) = tangential_dot(t, f);
+                (ua as f64, ub as f64)
+            };
+            let [t1, t2] = self.tan[i];
+            let r = self.rest[i] - sp.centre + t1 * ua + t2 * ub;
             let rt = r - n * n.dot(r);
             if !self.anchored[i] {
                 // A new contact sticks where it touched.
@@ -846,13 +1010,112 @@ impl Patch {
                 trial * (fr.dynamic_mu * self.p[i] / trial.length().max(1e-300))
             };
             let d = t_new - self.tau[i];
+            let own = self.wblk[i * self.cap + i] * d;
+            self.rt_end[i] = rt + (own - n * n.dot(own));
+            self.swept[i] = true;
             if d != DVec3::ZERO {
                 change += d.length();
                 self.tau[i] = t_new;
+                let f = t_new - n * self.p[i];
+                self.set_fvec(i, f);
+                self.shift_q(i, d);
             }
         }
         change
     }
+}
+
+/// `(Σ_j t[0..3]_j · f_j, Σ_j t[3..6]_j · f_j)`: a row of tangential blocks against the
+/// forces, in four fixed lanes (SSE on x86-64, the same sums in the same order elsewhere: the
+/// result is bit for bit the same on every machine).
+#[inline]
+fn tangential_dot(t: [&[f32]; 6], f: [&[f32]; 3]) -> (f32, f32) {
+    let n = t
+        .iter()
+        .map(|x| x.len())
+        .chain(f.iter().map(|x| x.len()))
+        .min()
+        .unwrap_or(0);
+    let full = n / 4 * 4;
+    let (mut a, mut b) = lanes4(t, f, full);
+    for j in full..n {
+        a[0] += t[0][j] * f[0][j] + t[1][j] * f[1][j] + t[2][j] * f[2][j];
+        b[0] += t[3][j] * f[0][j] + t[4][j] * f[1][j] + t[5][j] * f[2][j];
+    }
+    ((a[0] + a[1]) + (a[2] + a[3]), (b[0] + b[1]) + (b[2] + b[3]))
+}
+
+/// The lanes of [`tangential_dot`] over the first `full` entries (a multiple of 4, at most
+/// every slice's length).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+fn lanes4(t: [&[f32]; 6], f: [&[f32]; 3], full: usize) -> ([f32; 4], [f32; 4]) {
+    use std::arch::x86_64::*;
+    assert!(t.iter().all(|x| x.len() >= full) && f.iter().all(|x| x.len() >= full));
+    // SAFETY: SSE is part of x86-64; every load reads 4 floats at `o < full`, within every
+    // slice (checked above).
+    unsafe {
+        let mut a = _mm_setzero_ps();
+        let mut b = _mm_setzero_ps();
+        let mut o = 0;
+        while o < full {
+            let ld = |x: &[f32]| _mm_loadu_ps(x.as_ptr().add(o));
+            let (f0, f1, f2) = (ld(f[0]), ld(f[1]), ld(f[2]));
+            let ra = _mm_add_ps(
+                _mm_add_ps(_mm_mul_ps(ld(t[0]), f0), _mm_mul_ps(ld(t[1]), f1)),
+                _mm_mul_ps(ld(t[2]), f2),
+            );
+            let rb = _mm_add_ps(
+                _mm_add_ps(_mm_mul_ps(ld(t[3]), f0), _mm_mul_ps(ld(t[4]), f1)),
+                _mm_mul_ps(ld(t[5]), f2),
+            );
+            a = _mm_add_ps(a, ra);
+            b = _mm_add_ps(b, rb);
+            o += 4;
+        }
+        let mut oa = [0.0f32; 4];
+        let mut ob = [0.0f32; 4];
+        _mm_storeu_ps(oa.as_mut_ptr(), a);
+        _mm_storeu_ps(ob.as_mut_ptr(), b);
+        (oa, ob)
+    }
+}
+
+/// The lanes of [`tangential_dot`] over the first `full` entries: the same sums, in the same
+/// order, as the SSE version.
+#[cfg(not(target_arch = "x86_64"))]
+#[inline]
+fn lanes4(t: [&[f32]; 6], f: [&[f32]; 3], full: usize) -> ([f32; 4], [f32; 4]) {
+    let mut a = [0.0f32; 4];
+    let mut b = [0.0f32; 4];
+    let mut o = 0;
+    while o < full {
+        for l in 0..4 {
+            let j = o + l;
+            a[l] += t[0][j] * f[0][j] + t[1][j] * f[1][j] + t[2][j] * f[2][j];
+            b[l] += t[3][j] * f[0][j] + t[4][j] * f[1][j] + t[5][j] * f[2][j];
+        }
+        o += 4;
+    }
+    (a, b)
+}
+
+/// `b = bx·d.x + by·d.y + bz·d.z` by entry; `btau += b`, `q −= b`.
+#[inline]
+fn shift_columns(q: &mut [f64], btau: &mut [f64], b: [&[f64]; 3], d: DVec3) {
+    for ((((q, bt), &x), &y), &z) in q.iter_mut().zip(btau).zip(b[0]).zip(b[1]).zip(b[2]) {
+        let v = x * d.x + y * d.y + z * d.z;
+        *bt += v;
+        *q -= v;
+    }
+}
+
+/// How near (m) a node's rest gap must come to a sphere of radius `r` for it to be a
+/// candidate, after a press that pushed the surface in by up to `max_u`: the surface around a
+/// press sinks, and a bulge towards the sphere is a fraction of the press.
+#[inline]
+fn candidate_margin(max_u: f64, r: f64) -> f64 {
+    0.25 * max_u + 0.01 * r
 }
 
 /// The gap from a node at `x` with outward normal `n` to the sphere (centre `c`, radius
