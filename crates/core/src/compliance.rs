@@ -13,6 +13,7 @@
 //! come first (`R'` = [`Compliance::l_rows`] of them), the clamped ones after. The GPU's f32 or
 //! f16 copy has the same layout, rounded while uploading: the host holds only the f64.
 
+use crate::correction::Correction;
 use crate::near::NearBlocks;
 use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::Mat;
@@ -172,8 +173,11 @@ pub struct Compliance {
     col_row: Vec<u32>,
     /// Rows that hold `L` (the free ones, first); the rest are clamped: zero, not stored.
     l_rows: usize,
-    /// Dense `L`, f64; empty when only the near blocks are held (`lean`).
-    l: Vec<f64>,
+    /// Dense `L`, f64; empty when only the near blocks are held (`lean`). Shared: a
+    /// compliance with a correction ([`Compliance::with_correction`]) holds the same `L`.
+    l: std::sync::Arc<Vec<f64>>,
+    /// An exact low-rank correction carried beside `L` (a cut), read by every accessor.
+    correction: Option<std::sync::Arc<Correction>>,
     /// Instead of `l`: the haptic path's blocks, with `L` left in its cache file.
     lean: Option<std::sync::Arc<Lean>>,
     diag_inv: Vec<DMat3>,
@@ -379,7 +383,8 @@ impl Compliance {
             col_of_node,
             col_row,
             l_rows,
-            l,
+            l: std::sync::Arc::new(l),
+            correction: None,
             lean,
             diag_inv: Vec::with_capacity(nc),
             clamp_compliance: 0.0,
@@ -436,7 +441,16 @@ impl Compliance {
     #[inline]
     pub fn col_of(&self, node: u32) -> Option<usize> {
         let c = *self.col_of_node.get(node as usize)?;
-        (c != u32::MAX).then_some(c as usize)
+        if c == u32::MAX {
+            return None;
+        }
+        // A node a cut pinned is no longer touchable: the haptic path treats it as clamped.
+        if let Some(k) = &self.correction {
+            if k.dead_cols[c as usize] {
+                return None;
+            }
+        }
+        Some(c as usize)
     }
     /// Row index of column `c`'s node.
     #[inline]
@@ -490,7 +504,12 @@ impl Compliance {
             let o = base + b * nr3;
             DVec3::new(self.l[o], self.l[o + 1], self.l[o + 2])
         };
-        DMat3::from_cols(col(0), col(1), col(2))
+        let b = DMat3::from_cols(col(0), col(1), col(2));
+        match &self.correction {
+            Some(k) if k.dead_rows[r] || k.dead_cols[c] => DMat3::ZERO,
+            Some(k) => b + k.row_block(r, c),
+            None => b,
+        }
     }
     /// The 3×3 block between two touchable columns, L(node of column i, column j).
     #[inline]
@@ -505,7 +524,48 @@ impl Compliance {
     /// `L_ii⁻¹` of column `c` (N/m): the stiffness felt at that node alone (eq. 7).
     #[inline]
     pub fn diag_inv(&self, c: usize) -> DMat3 {
-        self.diag_inv[c]
+        match &self.correction {
+            Some(k) => k.diag_inv[c],
+            None => self.diag_inv[c],
+        }
+    }
+
+    /// The low-rank correction carried beside `L`, if any (a cut).
+    pub fn correction(&self) -> Option<&Correction> {
+        self.correction.as_deref()
+    }
+
+    /// This compliance with `L` shared and `correction` carried beside it: every block,
+    /// `L_ii⁻¹` and displacement then reads `L + U C Uᵀ` (see [`crate::correction`]). Costs
+    /// the index maps' copy, not `L`'s. Errors when `L` is not held on the host or the
+    /// correction's sizes do not match this compliance's rows and columns.
+    pub fn with_correction(
+        &self,
+        correction: std::sync::Arc<Correction>,
+    ) -> Result<Compliance, FemError> {
+        let (nr, nc, r) = (self.l_rows, self.cols.len(), correction.rank);
+        if !self.holds_l() {
+            return Err(FemError::BadSelection(
+                "a correction needs L on the host (not a lean compliance)".into(),
+            ));
+        }
+        let k = &correction;
+        if k.rows.len() != 3 * nr * r
+            || k.u_cols.len() != 3 * nc * r
+            || k.v_cols.len() != 3 * nc * r
+            || k.dead_rows.len() != nr
+            || k.dead_cols.len() != nc
+            || k.diag_inv.len() != nc
+        {
+            return Err(FemError::BadSelection(format!(
+                "a correction of rank {r} for {} rows and {} columns does not fit {nr} held rows and {nc} columns",
+                k.dead_rows.len(),
+                k.dead_cols.len()
+            )));
+        }
+        let mut c = self.clone();
+        c.correction = Some(correction);
+        Ok(c)
     }
     /// Compliance (m/N) given to clamped nodes when a contact triangle touches the clamp: one
     /// tenth of the smallest touchable diagonal compliance, so that forces stay finite.
@@ -533,6 +593,11 @@ impl Compliance {
                     *o += DVec3::new(col[3 * r], col[3 * r + 1], col[3 * r + 2]) * *fb;
                 }
             }
+        }
+        if let Some(k) = &self.correction {
+            let mut z = vec![0.0; k.rank];
+            k.weights(forces, &mut z);
+            k.add_rows(&z, out);
         }
     }
 
@@ -572,6 +637,16 @@ impl Compliance {
                     );
                     *o += e * f[b];
                 }
+            }
+        }
+        if let Some(k) = &self.correction {
+            // The correction in f64, rounded once (the GPU's extra columns are f32).
+            let mut z = vec![0.0; k.rank];
+            k.weights(forces, &mut z);
+            let mut extra = vec![DVec3::ZERO; nr];
+            k.add_rows(&z, &mut extra);
+            for ((o, e), &dead) in out[..nr].iter_mut().zip(&extra).zip(&k.dead_rows) {
+                *o = if dead { Vec3::ZERO } else { *o + e.as_vec3() };
             }
         }
     }

@@ -654,3 +654,89 @@ impl Cut {
         )?)
     }
 }
+
+impl Cut {
+    /// The correction to carry beside `c` (the uncut body's compliance, `L` on the host) so
+    /// that it reads `L′` exactly: `U` at its held rows and touchable columns, `V = U Cᵀ`, the
+    /// pinned rows and columns, and `L′_cc⁻¹` of every column left. Costs
+    /// `3·C·rank²` multiply-adds (`V`) and the copy of `U`'s rows; made off the haptic
+    /// thread, then handed over with [`Compliance::with_correction`].
+    ///
+    /// [`Compliance::with_correction`]: crate::compliance::Compliance::with_correction
+    pub fn correction(
+        &self,
+        c: &crate::compliance::Compliance,
+    ) -> Result<crate::correction::Correction, Error> {
+        use crate::correction::Correction;
+        if !c.holds_l() {
+            return Err(Error::Input(
+                "carrying a cut needs L on the host (not a lean compliance)".into(),
+            ));
+        }
+        let r = self.d.len();
+        let nr = c.l_rows();
+        let nc = c.cols().len();
+        let dof = |node: u32, a: usize| -> Option<usize> {
+            if self.pinned.get(node as usize).copied().unwrap_or(true) {
+                None
+            } else {
+                self.dofs.free(node, a)
+            }
+        };
+        let mut rows = vec![0.0; 3 * nr * r];
+        let mut dead_rows = vec![false; nr];
+        for (k, &node) in c.rows()[..nr].iter().enumerate() {
+            dead_rows[k] = self.pinned.get(node as usize).copied().unwrap_or(true);
+            for a in 0..3 {
+                if let Some(d) = dof(node, a) {
+                    for q in 0..r {
+                        rows[q * 3 * nr + 3 * k + a] = self.ld[(d, q)];
+                    }
+                }
+            }
+        }
+        let mut u_cols = vec![0.0; 3 * nc * r];
+        let mut v_cols = vec![0.0; 3 * nc * r];
+        let mut dead_cols = vec![false; nc];
+        for (ci, &node) in c.cols().iter().enumerate() {
+            dead_cols[ci] = self.pinned.get(node as usize).copied().unwrap_or(true);
+            for a in 0..3 {
+                let Some(d) = dof(node, a) else { continue };
+                let u = &mut u_cols[(3 * ci + a) * r..][..r];
+                for (q, uq) in u.iter_mut().enumerate() {
+                    *uq = self.ld[(d, q)];
+                }
+                // V = U Cᵀ: V[q] = Σ_p U[p] C[q, p].
+                let v = &mut v_cols[(3 * ci + a) * r..][..r];
+                for (q, vq) in v.iter_mut().enumerate() {
+                    *vq = (0..r).map(|p| u[p] * self.cap[(q, p)]).sum();
+                }
+            }
+        }
+        let mut k = Correction {
+            rank: r,
+            rows,
+            u_cols,
+            v_cols,
+            dead_rows,
+            dead_cols,
+            diag_inv: Vec::new(),
+        };
+        let mut diag_inv = Vec::with_capacity(nc);
+        for ci in 0..nc {
+            if k.dead_cols[ci] {
+                diag_inv.push(DMat3::ZERO);
+                continue;
+            }
+            let b = c.block(c.col_row(ci), ci) + k.col_block(ci, ci);
+            diag_inv.push(crate::compliance::invert3(b).ok_or_else(|| {
+                Error::Input(format!(
+                    "the cut left node {} with a singular compliance",
+                    c.cols()[ci]
+                ))
+            })?);
+        }
+        k.diag_inv = diag_inv;
+        Ok(k)
+    }
+}

@@ -21,6 +21,7 @@ pub mod cache;
 pub mod compliance;
 pub mod conditioning;
 pub mod contact;
+pub mod correction;
 pub mod cut;
 pub mod devices;
 pub mod error;

@@ -1,0 +1,174 @@
+//! A cut carried live: the correction beside `L` ([`touchfem::correction`]) read by the
+//! compliance's accessors, against a full precompute of the cut mesh.
+
+use std::sync::Arc;
+
+use glam::{DMat3, DVec3};
+use touchfem::compliance::{Compliance, Selection};
+use touchfem::cut::Cut;
+use touchfem::Mesh;
+
+/// Tets whose centroid is nearest `p`, `n` of them.
+fn tets_near(mesh: &Mesh, p: DVec3, n: usize) -> Vec<usize> {
+    let mut v: Vec<(f64, usize)> = mesh
+        .tets
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            let c = t.iter().map(|&k| mesh.nodes[k as usize]).sum::<DVec3>() / 4.0;
+            (c.distance(p), i)
+        })
+        .collect();
+    v.sort_by(|a, b| a.0.total_cmp(&b.0));
+    v.into_iter().take(n).map(|x| x.1).collect()
+}
+
+/// Up to `n` tets near `p` whose removal leaves every node some tet (no node pinned, so that
+/// a full precompute of the remaining tets is well posed).
+fn tets_near_keeping_nodes(mesh: &Mesh, p: DVec3, n: usize) -> Vec<usize> {
+    let mut left = vec![0u32; mesh.nodes.len()];
+    for t in &mesh.tets {
+        for &v in t {
+            left[v as usize] += 1;
+        }
+    }
+    let mut out = Vec::new();
+    for t in tets_near(mesh, p, mesh.tets.len()) {
+        if out.len() == n {
+            break;
+        }
+        if mesh.tets[t].iter().all(|&v| left[v as usize] > 1) {
+            for &v in &mesh.tets[t] {
+                left[v as usize] -= 1;
+            }
+            out.push(t);
+        }
+    }
+    out
+}
+
+fn max_abs(m: DMat3) -> f64 {
+    m.to_cols_array().iter().fold(0.0f64, |a, v| a.max(v.abs()))
+}
+
+/// Cuts `n` tets near `at`, carries the correction beside `L`, and compares blocks, `L_ii⁻¹`
+/// and displacements with a full precompute of the remaining tets. Returns the worst relative
+/// differences (blocks, displacements) and the rank.
+fn carried_against_recompute(mesh: &Mesh, at: DVec3, n: usize) -> (f64, f64, usize) {
+    let base = Compliance::compute(mesh, &Selection::default()).unwrap();
+    let mut cut = Cut::new(mesh).unwrap();
+    let rep = cut
+        .remove(mesh, &tets_near_keeping_nodes(mesh, at, n))
+        .unwrap();
+    assert_eq!(rep.nodes_pinned, 0, "{rep:?}");
+    let carried = base
+        .with_correction(Arc::new(cut.correction(&base).unwrap()))
+        .unwrap();
+    let cut_mesh = mesh.without_tets(cut.removed());
+    let full = Compliance::compute(&cut_mesh, &Selection::default()).unwrap();
+    // Columns both have (a cut's exposed nodes are columns of the recompute only).
+    let common: Vec<u32> = base
+        .cols()
+        .iter()
+        .copied()
+        .filter(|&v| full.col_of(v).is_some())
+        .collect();
+    assert!(common.len() > 50);
+    let scale = common
+        .iter()
+        .map(|&v| max_abs(full.touch_block(full.col_of(v).unwrap(), full.col_of(v).unwrap())))
+        .fold(0.0f64, f64::max);
+    let mut worst_block = 0.0f64;
+    for (k, &vi) in common.iter().enumerate().step_by(7) {
+        for &vj in common.iter().skip(k % 5).step_by(11) {
+            let (ci, cj) = (carried.col_of(vi).unwrap(), carried.col_of(vj).unwrap());
+            let (fi, fj) = (full.col_of(vi).unwrap(), full.col_of(vj).unwrap());
+            let d = carried.touch_block(ci, cj) - full.touch_block(fi, fj);
+            worst_block = worst_block.max(max_abs(d) / scale);
+        }
+        let ci = carried.col_of(vi).unwrap();
+        let fi = full.col_of(vi).unwrap();
+        let d = carried.diag_inv(ci) - full.diag_inv(fi);
+        worst_block = worst_block.max(max_abs(d) / max_abs(full.diag_inv(fi)));
+    }
+    // Displacements under two forces, at every row both display.
+    let f = [
+        (common[common.len() / 3], DVec3::new(0.0, 0.0, -0.2)),
+        (common[2 * common.len() / 3], DVec3::new(0.05, -0.03, 0.02)),
+    ];
+    let fc: Vec<(u32, DVec3)> = f
+        .iter()
+        .map(|&(v, x)| (carried.col_of(v).unwrap() as u32, x))
+        .collect();
+    let ff: Vec<(u32, DVec3)> = f
+        .iter()
+        .map(|&(v, x)| (full.col_of(v).unwrap() as u32, x))
+        .collect();
+    let mut uc = vec![DVec3::ZERO; carried.rows().len()];
+    let mut uf = vec![DVec3::ZERO; full.rows().len()];
+    carried.displace(&fc, &mut uc);
+    full.displace(&ff, &mut uf);
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (r, &v) in carried.rows().iter().enumerate() {
+        if let Some(rf) = full.row_of(v) {
+            num = num.max((uc[r] - uf[rf]).length());
+            den = den.max(uf[rf].length());
+        }
+    }
+    (worst_block, num / den, rep.rank)
+}
+
+#[test]
+fn a_carried_cut_reads_what_a_full_recompute_of_the_cut_mesh_gives() {
+    let cube = touchfem::mesh::cube();
+    for n in [1, 10, 25] {
+        let (b, u, rank) = carried_against_recompute(&cube, DVec3::new(0.015, 0.015, 0.026), n);
+        eprintln!("cube, {n} tets, rank {rank}: blocks {b:.2e}, displacements {u:.2e}");
+        assert!(b < 1e-9 && u < 1e-9, "cube {n}: {b} {u}");
+    }
+    let mouse = touchfem::mesh::mouse();
+    let (b, u, rank) = carried_against_recompute(&mouse, DVec3::new(-0.01, 0.0, 0.04), 10);
+    eprintln!("mouse, 10 tets, rank {rank}: blocks {b:.2e}, displacements {u:.2e}");
+    assert!(b < 1e-9 && u < 1e-9, "mouse: {b} {u}");
+}
+
+#[test]
+fn pinned_nodes_are_no_longer_touchable_and_do_not_move() {
+    let mesh = touchfem::mesh::cube();
+    let base = Compliance::compute(&mesh, &Selection::default()).unwrap();
+    let mut cut = Cut::new(&mesh).unwrap();
+    // Every tet around one surface node: it is left with none.
+    let v = *base
+        .cols()
+        .iter()
+        .find(|&&v| {
+            let p = mesh.nodes[v as usize];
+            p.z > 0.029 && (p.x - 0.015).abs() < 0.006 && (p.y - 0.015).abs() < 0.006
+        })
+        .unwrap();
+    let around: Vec<usize> = (0..mesh.tets.len())
+        .filter(|&t| mesh.tets[t].contains(&v))
+        .collect();
+    let rep = cut.remove(&mesh, &around).unwrap();
+    assert!(rep.nodes_pinned >= 1, "{rep:?}");
+    let carried = base
+        .with_correction(Arc::new(cut.correction(&base).unwrap()))
+        .unwrap();
+    assert_eq!(carried.col_of(v), None);
+    assert!(base.col_of(v).is_some());
+    let other = base.cols()[0];
+    let f = [(
+        carried.col_of(other).unwrap() as u32,
+        DVec3::new(0.0, 0.0, -0.1),
+    )];
+    let mut u = vec![DVec3::ZERO; carried.rows().len()];
+    carried.displace(&f, &mut u);
+    assert_eq!(u[carried.row_of(v).unwrap()], DVec3::ZERO);
+    assert!(u.iter().all(|x| x.is_finite()));
+    // A correction that does not fit is refused.
+    let bad = touchfem::correction::Correction {
+        rank: 1,
+        ..Default::default()
+    };
+    assert!(base.with_correction(Arc::new(bad)).is_err());
+}
