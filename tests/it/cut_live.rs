@@ -172,3 +172,133 @@ fn pinned_nodes_are_no_longer_touchable_and_do_not_move() {
     };
     assert!(base.with_correction(Arc::new(bad)).is_err());
 }
+
+/// The blade and press of the live-cut tests: finger 0 a blade 8 mm deep, finger 1 a point.
+const CUT_SCENE: &str = r#"
+unit = "mm"
+[[object]]
+mesh = "cube"
+cuttable = "all"
+[[finger]]
+device = "pointer"
+tool = { blade = 8.0 }
+[[finger]]
+device = "pointer"
+model = "exact"
+"#;
+
+fn mm(x: f64, y: f64, z: f64) -> DVec3 {
+    DVec3::new(x, y, z) * 1e-3
+}
+
+/// Finger 1 presses from above down to 2 mm into the top at (15, 22) (finger 0 held at
+/// `blade`); returns the last force and checks every force on the way.
+fn press(
+    hw: &mut touchfem::runtime::HapticWorld,
+    bound: f64,
+    blade: DVec3,
+    sample: &mut touchfem::runtime::WorldSample,
+) -> DVec3 {
+    let mut f = [DVec3::ZERO; 2];
+    for k in 0..=200 {
+        let z = 35.0 - 7.0 * f64::from(k) / 200.0;
+        hw.step(&[blade, mm(15.0, 22.0, z)], &mut f, sample);
+        assert!(f
+            .iter()
+            .all(|v| v.is_finite() && v.length() <= bound + 1e-12));
+        assert_eq!(f[0], DVec3::ZERO, "a blade presses nothing");
+    }
+    f[1]
+}
+
+#[test]
+fn a_blade_opens_the_body_and_the_haptic_path_reads_the_cut_from_the_next_tick() {
+    use touchfem::runtime::cutting::Cutter;
+    use touchfem::runtime::{HapticWorld, WorldSample};
+    let w = crate::common::world_from_text(CUT_SCENE).unwrap();
+    let bound = w.haptics.max_force_n;
+    let mut cutter = Cutter::new(&w).unwrap();
+    let mut hw = HapticWorld::new(&w);
+    let mut sample = WorldSample::default();
+    let away = mm(15.0, 15.0, 60.0);
+    let before = press(&mut hw, bound, away, &mut sample);
+    // Lift finger 1; the blade enters at (3, 14) and is drawn to (27, 14) just under the top.
+    let lift = mm(15.0, 22.0, 35.0);
+    let mut f = [DVec3::ZERO; 2];
+    let path = std::iter::once(mm(3.0, 14.0, 31.0))
+        .chain((0..=20).map(|k| mm(3.0, 14.0, 31.0 - 1.5 * f64::from(k) / 20.0)))
+        .chain((0..=240).map(|k| mm(3.0 + 24.0 * f64::from(k) / 240.0, 14.0, 29.5)));
+    let mut installed = 0;
+    for x in path {
+        hw.step(&[x, lift], &mut f, &mut sample);
+        assert!(f
+            .iter()
+            .all(|v| v.is_finite() && v.length() <= bound + 1e-12));
+        let strokes = hw.strokes().to_vec();
+        for (o, body) in cutter.apply_all(&strokes).unwrap() {
+            hw.install_cut(o, body);
+            installed += 1;
+        }
+    }
+    let body = hw.cut_body(0).expect("the blade cut").clone();
+    assert!(installed > 3, "{installed} bodies");
+    assert!(body.tets_removed > 10, "{:?}", body.report);
+    eprintln!(
+        "{} tets removed in {installed} passes, rank {}",
+        body.tets_removed, body.report.rank
+    );
+    let after = press(&mut hw, bound, mm(15.0, 15.0, 60.0), &mut sample);
+    assert!(
+        after.length() < 0.97 * before.length(),
+        "beside the cut {after} against {before} before"
+    );
+    // The same press on a full precompute of the remaining tets (orphan nodes clamped, the
+    // opened surface's nodes displayed and touchable).
+    let mesh = &w.objects[0].body.mesh;
+    let removed = cutter.removed(0).unwrap().to_vec();
+    let mut cut_mesh = mesh.without_tets(&removed);
+    cut_mesh.surface = mesh.open_surface(&removed);
+    let mut has_tet = vec![false; cut_mesh.nodes.len()];
+    for t in &cut_mesh.tets {
+        for &v in t {
+            has_tet[v as usize] = true;
+        }
+    }
+    for (fx, h) in cut_mesh.fixed.iter_mut().zip(&has_tet) {
+        *fx |= !h;
+    }
+    let on_surface: std::collections::BTreeSet<u32> =
+        cut_mesh.surface.iter().flatten().copied().collect();
+    let sel = Selection {
+        rows: touchfem::compliance::NodeSet::Nodes(on_surface.iter().copied().collect()),
+        cols: touchfem::compliance::NodeSet::Nodes(
+            on_surface
+                .iter()
+                .copied()
+                .filter(|&v| !cut_mesh.fixed[v as usize])
+                .collect(),
+        ),
+    };
+    let reference = touchfem::scene::World {
+        name: "reference".into(),
+        unit: touchfem::LengthUnit::Millimetre,
+        objects: vec![touchfem::scene::Object {
+            name: "cut".into(),
+            body: touchfem::scene::Body::new(cut_mesh, &sel).unwrap(),
+            offset: DVec3::ZERO,
+            friction: None,
+            cuttable: None,
+        }],
+        fingers: w.fingers.clone(),
+        haptics: w.haptics,
+        source: String::new(),
+        dir: ".".into(),
+        hash: 0,
+    };
+    let mut hr = HapticWorld::new(&reference);
+    let mut sr = WorldSample::default();
+    let full = press(&mut hr, bound, mm(15.0, 15.0, 60.0), &mut sr);
+    let e = (after - full).length() / full.length();
+    eprintln!("beside the cut: {after} (full recompute {full}, {e:.1e}); before {before}");
+    assert!(e < 1e-9, "carried {after} against recomputed {full}: {e}");
+}

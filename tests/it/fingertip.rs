@@ -500,6 +500,7 @@ fn a_sphere_driven_through_a_sliver_thin_layer_stays_finite_and_bounded() {
             body: Body::new(mesh, &sel).unwrap(),
             offset: DVec3::ZERO,
             friction: Some(Friction::new(0.6, 0.4).unwrap()),
+            cuttable: None,
         }],
         fingers: vec![touchfem::scene::FingerSpec {
             device: touchfem::scene::DeviceSpec::Pointer,

@@ -266,6 +266,7 @@ fn sliding_across_near_zero_area_triangles_is_continuous() {
             body: touchfem::scene::Body::new(mesh, &sel).unwrap(),
             offset: DVec3::ZERO,
             friction: None,
+            cuttable: None,
         }],
         fingers: vec![touchfem::scene::FingerSpec {
             device: touchfem::scene::DeviceSpec::Pointer,

@@ -321,6 +321,7 @@ fn a_10_mm_jump_across_a_thin_plate_does_not_pop_through() {
             body: touchfem::scene::Body::with_compliance(mesh, c),
             offset: DVec3::ZERO,
             friction: None,
+            cuttable: None,
         }],
         fingers: vec![touchfem::scene::FingerSpec {
             device: touchfem::scene::DeviceSpec::Pointer,

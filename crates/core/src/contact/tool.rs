@@ -10,6 +10,9 @@ pub enum ContactError {
     /// A sphere's radius that is not a positive finite length.
     #[error("sphere radius {0} must be a positive, finite length")]
     Radius(f64),
+    /// A blade's depth that is not a positive finite length.
+    #[error("blade depth {0} must be a positive, finite length")]
+    Depth(f64),
     /// A sphere larger than the object it is meant to touch.
     #[error("sphere radius {radius_m} m is larger than the object ({extent_m} m across)")]
     RadiusTooLarge {
@@ -48,6 +51,15 @@ pub enum Tool {
         /// Radius, m.
         radius_m: f64,
     },
+    /// A blade ([`crate::runtime::cutting`]): the segment from the device position down to
+    /// `depth_m` below it, along the inward surface normal where it entered; moving through a
+    /// cuttable object it removes every tet its swept surface crosses. It presses nothing
+    /// (the device feels no force from it: the resistance of tissue to a blade is not
+    /// modelled).
+    Blade {
+        /// Depth, m.
+        depth_m: f64,
+    },
 }
 
 impl Tool {
@@ -60,11 +72,26 @@ impl Tool {
         }
     }
 
-    /// The sphere's radius, m (`None` for a point).
+    /// A blade of depth `depth_m` (m), checked: positive and finite.
+    pub fn blade(depth_m: f64) -> Result<Tool, ContactError> {
+        if depth_m.is_finite() && depth_m > 0.0 {
+            Ok(Tool::Blade { depth_m })
+        } else {
+            Err(ContactError::Depth(depth_m))
+        }
+    }
+    /// The sphere's radius, m (`None` for a point or a blade).
     pub fn radius(&self) -> Option<f64> {
         match *self {
-            Tool::Point => None,
             Tool::Sphere { radius_m } => Some(radius_m),
+            Tool::Point | Tool::Blade { .. } => None,
+        }
+    }
+    /// The blade's depth, m (`None` for a point or a sphere).
+    pub fn blade_depth(&self) -> Option<f64> {
+        match *self {
+            Tool::Blade { depth_m } => Some(depth_m),
+            _ => None,
         }
     }
 

@@ -484,6 +484,32 @@ impl Mesh {
         m
     }
 
+    /// The outward boundary triangles of the tets not `removed` (a cut body's surface, its
+    /// cut faces included), sorted. Unlike a loaded mesh's, it is not checked to be a closed
+    /// 2-manifold: a cut may leave two tets touching along an edge.
+    pub fn open_surface(&self, removed: &[bool]) -> Vec<[u32; 3]> {
+        let mut faces: HashMap<[u32; 3], (u32, [u32; 3])> =
+            HashMap::with_capacity(self.tets.len() * 4);
+        for (k, t) in self.tets.iter().enumerate() {
+            if removed.get(k).copied().unwrap_or(false) {
+                continue;
+            }
+            for lf in TET_FACES {
+                let f = [t[lf[0]], t[lf[1]], t[lf[2]]];
+                let mut key = f;
+                key.sort_unstable();
+                faces.entry(key).or_insert((0, f)).0 += 1;
+            }
+        }
+        let mut surface: Vec<[u32; 3]> = faces
+            .into_values()
+            .filter(|(c, _)| *c == 1)
+            .map(|(_, f)| f)
+            .collect();
+        surface.sort_unstable();
+        surface
+    }
+
     /// The region index of each tet: 0 for the base material, k + 1 for `regions[k]`.
     pub fn tet_region_index(&self) -> Vec<u32> {
         if self.tet_region.is_empty() {

@@ -48,7 +48,10 @@ use glam::{DMat3, DVec3};
 
 use super::bound::ForceBound;
 use super::coupling::VirtualCoupling;
+use super::cutting::{CutBody, Stroke};
 use super::sample::{FingerView, WorldSample, MAX_OBJECTS};
+use crate::compliance::Compliance;
+use crate::contact::Surface;
 use crate::contact::{
     Budget, ContactPoint, GodObject, Patch, PatchReport, Sphere, StickSlip, Tool,
 };
@@ -56,7 +59,8 @@ use crate::force::{
     add_point_force, coupled_point_forces, finger_feedback, finger_force, saturate, ForceBc,
     ForceModel, MAX_FINGERS,
 };
-use crate::scene::World;
+use crate::scene::{Object, World};
+use std::sync::Arc;
 
 /// Fingertip compliance of the coupled solve, relative to each contact point's own compliance.
 pub const SKIN: f64 = 1e-3;
@@ -92,6 +96,23 @@ struct FingerState {
     tool: Tool,
     /// Per object, the stick–slip state of a point finger's god-object (friction).
     sticks: [StickSlip; MAX_OBJECTS],
+    /// A blade's engagement: the object it is in, the inward normal it hangs along and the
+    /// last position of its top (object frame).
+    blade: Option<(usize, DVec3, DVec3)>,
+}
+
+/// Object `o`'s compliance and rest surface as the haptic path reads them: its installed cut
+/// body, else the scene's.
+#[inline]
+fn parts<'a>(
+    live: &'a [Option<Arc<CutBody>>; MAX_OBJECTS],
+    obj: &'a Object,
+    o: usize,
+) -> (&'a Compliance, &'a Surface) {
+    match live.get(o).and_then(|b| b.as_deref()) {
+        Some(b) => (&b.compliance, &b.surface),
+        None => (&obj.body.compliance, &obj.body.surface),
+    }
 }
 
 /// The haptic state of a scene: every finger's god-objects and ramp. See the module docs.
@@ -113,6 +134,11 @@ pub struct HapticWorld<'w> {
     sphere_touch: [Option<(usize, DVec3, DMat3)>; MAX_FINGERS],
     budget: Budget,
     exhausted: u64,
+    /// Per object, the cut body installed (`None`: the scene's, uncut).
+    live: [Option<Arc<CutBody>>; MAX_OBJECTS],
+    /// The blades' strokes of the last tick.
+    strokes: [Stroke; MAX_FINGERS],
+    n_strokes: usize,
 }
 
 impl<'w> HapticWorld<'w> {
@@ -127,6 +153,7 @@ impl<'w> HapticWorld<'w> {
             model: ForceModel::Paper,
             tool: Tool::Point,
             sticks: [StickSlip::default(); MAX_OBJECTS],
+            blade: None,
         };
         let mut fingers = [absent; MAX_FINGERS];
         let n_fingers = world.fingers.len().min(MAX_FINGERS);
@@ -166,6 +193,15 @@ impl<'w> HapticWorld<'w> {
             sphere_touch: [None; MAX_FINGERS],
             budget: Budget::default(),
             exhausted: 0,
+            live: std::array::from_fn(|_| None),
+            strokes: [Stroke {
+                object: 0,
+                from: DVec3::ZERO,
+                to: DVec3::ZERO,
+                inward: DVec3::ZERO,
+                depth: 0.0,
+            }; MAX_FINGERS],
+            n_strokes: 0,
             limited: [false; MAX_FINGERS],
             fingers,
             n_fingers,
@@ -207,6 +243,8 @@ impl<'w> HapticWorld<'w> {
     ) {
         let dt = if dt.is_finite() { dt.max(0.0) } else { 0.0 };
         let objects = &self.world.objects;
+        let live = &self.live;
+        self.n_strokes = 0;
         let n_obj = objects.len().min(MAX_OBJECTS);
         let n = self.n_fingers.min(positions.len()).min(forces.len());
         sample.n_objects = n_obj;
@@ -237,7 +275,7 @@ impl<'w> HapticWorld<'w> {
                 f.ramp = 1.0;
                 for (o, obj) in objects.iter().take(n_obj).enumerate() {
                     let local = x - obj.offset;
-                    let surf = &obj.body.surface;
+                    let surf = parts(live, obj, o).1;
                     f.gods[o] = if surf.contains(local) {
                         f.ramp = 0.0;
                         GodObject::touching(surf.closest_global(local).0)
@@ -249,14 +287,50 @@ impl<'w> HapticWorld<'w> {
             if matches!(f.tool, Tool::Sphere { .. }) {
                 continue;
             }
+            if let Tool::Blade { depth_m } = f.tool {
+                // A blade presses nothing: its god-object follows the uncut rest surface to
+                // know when it is in (in the body or in a cut it made), and each tick's motion
+                // in an object is a stroke.
+                let mut inside = None;
+                for (o, obj) in objects.iter().take(n_obj).enumerate() {
+                    let surf = &obj.body.surface;
+                    let local = x - obj.offset;
+                    if let Some(c) = f.gods[o].update(surf, local) {
+                        if inside.is_none() {
+                            inside = Some((o, c, local));
+                        }
+                    }
+                }
+                f.blade = match (inside, f.blade) {
+                    (Some((o, _, local)), Some((bo, inward, last))) if bo == o => {
+                        if local != last && self.n_strokes < MAX_FINGERS {
+                            self.strokes[self.n_strokes] = Stroke {
+                                object: o,
+                                from: last,
+                                to: local,
+                                inward,
+                                depth: depth_m,
+                            };
+                            self.n_strokes += 1;
+                        }
+                        Some((o, inward, local))
+                    }
+                    (Some((o, c, local)), _) => {
+                        let inward = -objects[o].body.surface.normals[c.tri as usize];
+                        Some((o, inward, local))
+                    }
+                    (None, _) => None,
+                };
+                continue;
+            }
             for (o, obj) in objects.iter().take(n_obj).enumerate() {
-                let mut c = f.gods[o].update(&obj.body.surface, x - obj.offset);
+                let (comp, surf) = parts(live, obj, o);
+                let mut c = f.gods[o].update(surf, x - obj.offset);
                 match (c, obj.friction.filter(|fr| !fr.is_none())) {
                     (Some(free), Some(fr)) => {
-                        let comp = &obj.body.compliance;
                         let model = f.model;
                         let feel = |c: &ContactPoint| finger_feedback(comp, c, model);
-                        c = Some(f.sticks[o].apply(&obj.body.surface, &free, fr, feel));
+                        c = Some(f.sticks[o].apply(surf, &free, fr, feel));
                     }
                     (None, _) => f.sticks[o].reset(),
                     _ => {}
@@ -274,7 +348,7 @@ impl<'w> HapticWorld<'w> {
         self.limited[..n].fill(false);
         self.spheres(dt, n, positions, &valid, forces, sample);
         for (o, obj) in objects.iter().take(n_obj).enumerate() {
-            let comp = &obj.body.compliance;
+            let comp = parts(&self.live, obj, o).0;
             let mut who = [0usize; MAX_FINGERS];
             let mut contacts = [None::<ContactPoint>; MAX_FINGERS];
             let mut m = 0;
@@ -384,6 +458,48 @@ impl<'w> HapticWorld<'w> {
         self.budget = budget;
     }
 
+    /// The blades' strokes of the last tick (object frame), for the cutter
+    /// ([`crate::runtime::cutting`]).
+    pub fn strokes(&self) -> &[Stroke] {
+        &self.strokes[..self.n_strokes]
+    }
+
+    /// Object `o`'s cut body installed, if any.
+    pub fn cut_body(&self, o: usize) -> Option<&Arc<CutBody>> {
+        self.live.get(o).and_then(|b| b.as_ref())
+    }
+
+    /// Installs object `o`'s new cut body between two ticks: from the next tick its force
+    /// solve reads the cut compliance and its god-objects walk the opened surface (each
+    /// finger's god-object on `o` placed again (a blade's keeps walking the uncut surface), as when a finger appears; sphere contacts and
+    /// friction anchors on `o` start afresh). Returns the body it replaces, to be dropped off
+    /// the haptic thread. Allocates nothing.
+    pub fn install_cut(&mut self, o: usize, body: Arc<CutBody>) -> Option<Arc<CutBody>> {
+        if o >= self.world.objects.len().min(MAX_OBJECTS) {
+            return Some(body);
+        }
+        let old = self.live[o].replace(body);
+        let obj = &self.world.objects[o];
+        let surf = parts(&self.live, obj, o).1;
+        for f in &mut self.fingers[..self.n_fingers] {
+            f.sticks[o].reset();
+            // A blade's god-object walks the uncut surface.
+            if f.absent || !f.last_x.is_finite() || matches!(f.tool, Tool::Blade { .. }) {
+                continue;
+            }
+            let local = f.last_x - obj.offset;
+            f.gods[o] = if surf.contains(local) {
+                GodObject::touching(surf.closest_global(local).0)
+            } else {
+                GodObject::new(local)
+            };
+        }
+        if let Some(p) = self.patches[o].as_deref_mut() {
+            p.reset();
+        }
+        old
+    }
+
     /// The spheres' contact problems, object by object: each sphere finger's force is minus
     /// the sum of its contact nodes' forces on every object it presses, saturated and ramped
     /// like a point's; its nodes' forces, scaled by the same factor, go to the sample.
@@ -422,13 +538,9 @@ impl<'w> HapticWorld<'w> {
                 patch.reset();
                 continue;
             }
-            let report: PatchReport = patch.solve(
-                &obj.body.compliance,
-                &obj.body.surface,
-                &spheres[..n],
-                obj.friction,
-                self.budget,
-            );
+            let (comp, surf) = parts(&self.live, obj, o);
+            let report: PatchReport =
+                patch.solve(comp, surf, &spheres[..n], obj.friction, self.budget);
             if report.exhausted {
                 self.exhausted += 1;
             }
@@ -493,7 +605,7 @@ impl<'w> HapticWorld<'w> {
             return Some(k);
         }
         let (o, c) = self.contacts.get(i).copied().flatten()?;
-        let comp = &self.world.objects[o].body.compliance;
+        let comp = parts(&self.live, &self.world.objects[o], o).0;
         match self.fingers[i].model {
             ForceModel::Paper => {
                 let mut k = DMat3::ZERO;

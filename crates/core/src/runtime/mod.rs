@@ -4,6 +4,7 @@
 
 pub mod bound;
 pub mod coupling;
+pub mod cutting;
 pub mod haptic;
 pub mod pacer;
 mod run;

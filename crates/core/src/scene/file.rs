@@ -58,6 +58,7 @@ struct ObjectToml {
     touchable: Option<Spanned<TouchableToml>>,
     offset: Option<Spanned<[f64; 3]>>,
     friction: Option<Spanned<FrictionToml>>,
+    cuttable: Option<Spanned<TouchableToml>>,
     #[serde(default)]
     region: Vec<Spanned<RegionToml>>,
 }
@@ -607,6 +608,25 @@ impl World {
                     }
                 },
             };
+            let cuttable = match &o.cuttable {
+                None => None,
+                Some(t) => Some(cut_region(&mesh, t, s, offset, &at)?),
+            };
+            // A cuttable region's free nodes are touchable too: a cut exposes them, and their
+            // columns come from the same correction as the rest.
+            let cols = match &cuttable {
+                None => cols,
+                Some(region) => {
+                    let mut set: std::collections::BTreeSet<u32> =
+                        cols.resolve(&mesh).into_iter().collect();
+                    for (t, tet) in mesh.tets.iter().enumerate() {
+                        if region.contains(t) {
+                            set.extend(tet.iter().copied().filter(|&v| !mesh.fixed[v as usize]));
+                        }
+                    }
+                    NodeSet::Nodes(set.into_iter().collect())
+                }
+            };
             let sel = Selection {
                 rows: NodeSet::Surface,
                 cols,
@@ -626,6 +646,7 @@ impl World {
                 body: Body::with_compliance(mesh, compliance),
                 offset,
                 friction,
+                cuttable,
             });
         }
         let mut fingers = Vec::new();
@@ -751,13 +772,8 @@ impl World {
                             }
                             tool
                         }
-                        (None, Some(_)) => {
-                            return Err(at(
-                                span,
-                                "tool.blade",
-                                "blades are not supported yet (cutting is a later issue)".into(),
-                            ))
-                        }
+                        (None, Some(d)) => crate::contact::Tool::blade(d * s)
+                            .map_err(|e| at(span, "tool.blade", e.to_string()))?,
                         _ => {
                             return Err(at(
                                 span,
@@ -856,6 +872,84 @@ pub struct PlannedObject {
     pub selection: Selection,
     /// The cache key ([`crate::cache::key`]).
     pub key: u64,
+}
+
+/// The tets of `mesh` a `cuttable` key names: `"all"`, a physical volume group (its tets) or a
+/// node group (the tets with every node in it), or a ball `{ center, radius }` (scene units;
+/// the tets whose centroid is in it). Errors name the key.
+fn cut_region(
+    mesh: &crate::Mesh,
+    t: &Spanned<TouchableToml>,
+    s: f64,
+    offset: DVec3,
+    at: &dyn Fn(std::ops::Range<usize>, &str, String) -> Error,
+) -> Result<crate::scene::CutRegion, Error> {
+    let nt = mesh.tets.len();
+    let mut tets = vec![false; nt];
+    match t.get_ref() {
+        TouchableToml::Name(n) if n == "all" => tets.fill(true),
+        TouchableToml::Name(g) => {
+            if let Some(ids) = mesh.tet_groups.get(g) {
+                for &i in ids {
+                    if let Some(x) = tets.get_mut(i as usize) {
+                        *x = true;
+                    }
+                }
+            } else if let Some(ids) = mesh.groups.get(g) {
+                let mut in_group = vec![false; mesh.nodes.len()];
+                for &v in ids {
+                    if let Some(x) = in_group.get_mut(v as usize) {
+                        *x = true;
+                    }
+                }
+                for (k, tet) in mesh.tets.iter().enumerate() {
+                    tets[k] = tet.iter().all(|&v| in_group[v as usize]);
+                }
+            } else {
+                let names: Vec<String> = mesh
+                    .tet_groups
+                    .keys()
+                    .chain(mesh.groups.keys())
+                    .cloned()
+                    .collect();
+                return Err(at(
+                    t.span(),
+                    "cuttable",
+                    format!("no group '{g}' in the mesh (groups: {})", names.join(", ")),
+                ));
+            }
+        }
+        TouchableToml::Ball(b) => {
+            if !(coordinates_ok(&b.center) && coordinates_ok(&[b.radius])) {
+                return Err(at(
+                    t.span(),
+                    "cuttable",
+                    format!("the ball's center and radius must be finite and at most {MAX_COORDINATE:e} in magnitude"),
+                ));
+            }
+            let c = DVec3::from_array(b.center) * s - offset;
+            let r = b.radius * s;
+            if !(c.is_finite() && r.is_finite() && r > 0.0) {
+                return Err(at(
+                    t.span(),
+                    "cuttable",
+                    "a ball needs a finite center and a positive radius".into(),
+                ));
+            }
+            for (k, tet) in mesh.tets.iter().enumerate() {
+                let g = tet.iter().map(|&v| mesh.nodes[v as usize]).sum::<DVec3>() / 4.0;
+                tets[k] = g.distance(c) <= r;
+            }
+        }
+    }
+    if !tets.iter().any(|&x| x) {
+        return Err(at(
+            t.span(),
+            "cuttable",
+            "the region holds no tet of the mesh".into(),
+        ));
+    }
+    Ok(crate::scene::CutRegion::new(tets))
 }
 
 /// The cache file name of an object: `NAME-KEY.tfc` (name made file-safe) in `dir`.

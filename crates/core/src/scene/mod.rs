@@ -16,7 +16,7 @@ use crate::Error;
 pub mod file;
 mod world;
 pub use file::{SceneSource, BUNDLED_SCENES};
-pub use world::{DeviceSpec, FingerSpec, HapticSettings, Object, World};
+pub use world::{CutRegion, DeviceSpec, FingerSpec, HapticSettings, Object, World};
 
 /// How to load a mesh given on the command line.
 #[derive(Clone, Debug)]

@@ -18,6 +18,34 @@ pub struct Object {
     pub offset: DVec3,
     /// Its Coulomb friction (`None`: frictionless, the paper's god-object).
     pub friction: Option<crate::contact::Friction>,
+    /// Where a blade may cut it (`None`: nowhere, the default; it behaves as if no blade
+    /// existed).
+    pub cuttable: Option<CutRegion>,
+}
+
+/// The tets of an object a blade may remove (scene key `cuttable`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CutRegion {
+    tets: Vec<bool>,
+}
+
+impl CutRegion {
+    /// The region of the tets `tets[t]` marks.
+    pub fn new(tets: Vec<bool>) -> CutRegion {
+        CutRegion { tets }
+    }
+    /// Whether tet `t` may be cut.
+    pub fn contains(&self, t: usize) -> bool {
+        self.tets.get(t).copied().unwrap_or(false)
+    }
+    /// How many tets may be cut.
+    pub fn len(&self) -> usize {
+        self.tets.iter().filter(|&&x| x).count()
+    }
+    /// Whether no tet may be cut.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
 }
 
 /// Which device drives a finger.
