@@ -302,3 +302,77 @@ fn a_blade_opens_the_body_and_the_haptic_path_reads_the_cut_from_the_next_tick()
     eprintln!("beside the cut: {after} (full recompute {full}, {e:.1e}); before {before}");
     assert!(e < 1e-9, "carried {after} against recomputed {full}: {e}");
 }
+
+/// Runs the bundled `incision` scene through the haptic path with the cutter applied in step
+/// (the demo runs it on its own thread); returns the fingertip's force at the end of the
+/// press before the cut (t = 1.2 s) and after (t = 6 s), and the final cut body.
+fn incision_through_the_haptic_path() -> (
+    DVec3,
+    DVec3,
+    std::sync::Arc<touchfem::runtime::cutting::CutBody>,
+) {
+    use touchfem::runtime::cutting::Cutter;
+    use touchfem::runtime::{HapticWorld, WorldSample};
+    use touchfem::scene::{DeviceSpec, World};
+    let w = World::load_with("incision", "script", None).expect("incision");
+    let keys: Vec<Vec<(f64, DVec3)>> = w
+        .fingers
+        .iter()
+        .map(|f| match &f.device {
+            DeviceSpec::Script(k) => k.clone(),
+            _ => panic!("scripted fingers"),
+        })
+        .collect();
+    let at = |k: &[(f64, DVec3)], t: f64| {
+        let i = k.iter().rposition(|k| k.0 <= t).unwrap_or(0);
+        match k.get(i + 1) {
+            None => k[i].1,
+            Some(n) => k[i]
+                .1
+                .lerp(n.1, ((t - k[i].0) / (n.0 - k[i].0)).clamp(0.0, 1.0)),
+        }
+    };
+    let mut cutter = Cutter::new(&w).unwrap();
+    let mut hw = HapticWorld::new(&w);
+    let mut sample = WorldSample::default();
+    let mut f = [DVec3::ZERO; 2];
+    let bound = w.haptics.max_force_n;
+    let mut before = DVec3::ZERO;
+    let mut strokes = Vec::new();
+    for k in 0..=6000 {
+        let t = k as f64 / 1000.0;
+        let x = [at(&keys[0], t), at(&keys[1], t)];
+        hw.step(&x, &mut f, &mut sample);
+        assert!(f
+            .iter()
+            .all(|v| v.is_finite() && v.length() <= bound + 1e-12));
+        // A pass every 20 ms, as a busy cutter's thread would make them.
+        strokes.extend_from_slice(hw.strokes());
+        if k % 20 == 0 {
+            for (o, body) in cutter.apply_all(&strokes).unwrap() {
+                hw.install_cut(o, body);
+            }
+            strokes.clear();
+        }
+        if k == 1200 {
+            before = f[0];
+        }
+    }
+    let body = hw.cut_body(0).expect("the blade cut").clone();
+    (before, f[0], body)
+}
+
+#[test]
+fn the_incision_scene_opens_a_cut_and_the_same_press_beside_it_needs_less_force() {
+    let (before, after, body) = incision_through_the_haptic_path();
+    eprintln!(
+        "incision: {} tets removed, rank {}; press before {before}, after {after}",
+        body.tets_removed, body.report.rank
+    );
+    assert!(body.tets_removed > 20, "{}", body.tets_removed);
+    assert!(before.length() > 0.01, "{before}");
+    assert!(
+        after.length() < 0.95 * before.length(),
+        "{after} against {before}"
+    );
+}

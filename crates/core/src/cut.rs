@@ -706,12 +706,14 @@ impl Cut {
                 for (q, uq) in u.iter_mut().enumerate() {
                     *uq = self.ld[(d, q)];
                 }
-                // V = U Cᵀ: V[q] = Σ_p U[p] C[q, p].
-                let v = &mut v_cols[(3 * ci + a) * r..][..r];
-                for (q, vq) in v.iter_mut().enumerate() {
-                    *vq = (0..r).map(|p| u[p] * self.cap[(q, p)]).sum();
-                }
             }
+        }
+        // V = U Cᵀ for every column at once (a matrix product; u_cols is U row by row, so
+        // U's transpose column-major: Vᵀ = C Uᵀ).
+        if r > 0 && nc > 0 {
+            let ut = nalgebra::DMatrixView::from_slice(&u_cols, r, 3 * nc);
+            let vt = &self.cap * ut;
+            v_cols.copy_from_slice(vt.as_slice());
         }
         let mut k = Correction {
             rank: r,

@@ -151,6 +151,37 @@ pub fn try_realtime_priority() -> bool {
     try_realtime_priority_at(80)
 }
 
+/// Makes the calling thread a background worker when the haptic loop spawned it: it leaves
+/// the haptic loop's real-time class (threads inherit it, and a busy real-time thread gets
+/// the whole class throttled) for the normal one, and the haptic loop's cores for the others
+/// (where there are others). What the cutter's thread does first. Returns whether the
+/// scheduling class was changed.
+pub fn become_background_worker(haptic_cpus: &[usize]) -> bool {
+    let n = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let others: Vec<usize> = (0..n).filter(|c| !haptic_cpus.contains(c)).collect();
+    if !others.is_empty() && !haptic_cpus.is_empty() {
+        pin_current_thread(&others);
+    }
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: plain FFI call on the current thread with a fully initialised parameter
+        // (priority 0 is the only one SCHED_OTHER takes).
+        unsafe {
+            let param = libc::sched_param { sched_priority: 0 };
+            libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_OTHER, &param) == 0
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        false
+    }
+}
+
+/// The cores the calling thread may run on (empty where unknown).
+pub fn cpus_of_current_thread() -> Vec<usize> {
+    current_cpus()
+}
+
 /// [`try_realtime_priority`] at `SCHED_FIFO` priority `priority` (1–99).
 pub(crate) fn try_realtime_priority_at(priority: i32) -> bool {
     #[cfg(target_os = "linux")]

@@ -62,6 +62,10 @@ pub(crate) struct ObjectReport {
     pub haptic: HapticStats,
     /// The bare loop's timing in this scene (same core, same length, visual loop running).
     pub floor: HapticStats,
+    /// What the cutter's thread did to this scene (zero without a blade and a cuttable
+    /// object): cut bodies built, tets removed, the longest pass in seconds.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cuts: Option<touchfem_core::runtime::cutting::CutStats>,
 }
 
 /// The demo report (`--report FILE.json`).
@@ -483,6 +487,7 @@ pub(crate) fn run_scene(
             max_contacts: run.max_contacts[i],
             haptic: run.stats.clone(),
             floor: floor.clone(),
+            cuts: o.cuttable.as_ref().map(|_| run.cuts),
         })
         .collect())
 }

@@ -65,6 +65,11 @@ struct ObjectCut {
     tets_removed: usize,
 }
 
+/// What a [`Cutter`] is made from: each cuttable object's mesh, compliance and region.
+pub struct CutPlan {
+    objects: Vec<Option<(crate::Mesh, Compliance, CutRegion)>>,
+}
+
 /// The off-thread side of cutting: each cuttable object's kept factor and correction.
 pub struct Cutter {
     objects: Vec<Option<ObjectCut>>,
@@ -76,6 +81,12 @@ impl Cutter {
     /// would cost a full column solve per DOF up front). Errors on an object whose `L` is not
     /// held on the host or whose formulation cannot be cut.
     pub fn new(world: &World) -> Result<Cutter, Error> {
+        Cutter::from_plan(Cutter::plan(world)?)
+    }
+
+    /// What [`Cutter::new`] needs of `world`, copied (cheap: `L` is shared), so that the
+    /// factorisation can run on another thread ([`Cutter::from_plan`]).
+    pub fn plan(world: &World) -> Result<CutPlan, Error> {
         let mut objects = Vec::with_capacity(world.objects.len());
         for obj in &world.objects {
             let Some(region) = &obj.cuttable else {
@@ -88,14 +99,30 @@ impl Cutter {
                     obj.name
                 )));
             }
-            objects.push(Some(ObjectCut {
-                cut: Cut::new(&obj.body.mesh)?,
-                base: obj.body.compliance.clone(),
-                mesh: obj.body.mesh.clone(),
-                region: region.clone(),
-                generation: 0,
-                tets_removed: 0,
-            }));
+            objects.push(Some((
+                obj.body.mesh.clone(),
+                obj.body.compliance.clone(),
+                region.clone(),
+            )));
+        }
+        Ok(CutPlan { objects })
+    }
+
+    /// Factors every planned object's stiffness.
+    pub fn from_plan(plan: CutPlan) -> Result<Cutter, Error> {
+        let mut objects = Vec::with_capacity(plan.objects.len());
+        for p in plan.objects {
+            objects.push(match p {
+                None => None,
+                Some((mesh, base, region)) => Some(ObjectCut {
+                    cut: Cut::new(&mesh)?,
+                    base,
+                    mesh,
+                    region,
+                    generation: 0,
+                    tets_removed: 0,
+                }),
+            });
         }
         Ok(Cutter { objects })
     }
@@ -176,5 +203,164 @@ impl Cutter {
             k = j;
         }
         Ok(out)
+    }
+}
+
+/// The newest cut body of each object, for the visual path: written by the cutter's thread,
+/// read by the visual loop (the haptic thread never touches it, so its lock is not shared
+/// with the haptic path).
+#[derive(Debug, Default)]
+pub struct CutFeed {
+    bodies: std::sync::Mutex<Vec<(usize, Arc<CutBody>)>>,
+    /// Bumped at each new body.
+    pub generation: std::sync::atomic::AtomicU64,
+}
+
+impl CutFeed {
+    /// Publishes object `o`'s new body.
+    pub fn publish(&self, o: usize, body: Arc<CutBody>) {
+        let mut g = self.bodies.lock().unwrap_or_else(|e| e.into_inner());
+        g.retain(|(k, _)| *k != o);
+        g.push((o, body));
+        self.generation
+            .fetch_add(1, std::sync::atomic::Ordering::Release);
+    }
+
+    /// Each object's newest body.
+    pub fn latest(&self) -> Vec<(usize, Arc<CutBody>)> {
+        self.bodies
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+}
+
+/// The haptic thread's ends of the cutter: strokes out, cut bodies in, replaced bodies back
+/// out (dropped on the cutter's thread). Wait-free rings: the haptic tick neither locks nor
+/// allocates through them.
+pub struct CutLink {
+    strokes: rtrb::Producer<Stroke>,
+    bodies: rtrb::Consumer<(usize, Arc<CutBody>)>,
+    spent: rtrb::Producer<Arc<CutBody>>,
+    /// Strokes that did not fit the ring (the cutter fell behind).
+    pub strokes_dropped: u64,
+}
+
+impl CutLink {
+    /// Sends the tick's strokes, and installs in `hw` every body the cutter has finished.
+    pub fn exchange(&mut self, hw: &mut crate::runtime::HapticWorld) {
+        for s in hw.strokes() {
+            if self.strokes.push(*s).is_err() {
+                self.strokes_dropped += 1;
+            }
+        }
+        while let Ok((o, body)) = self.bodies.pop() {
+            if let Some(old) = hw.install_cut(o, body) {
+                // Back to the cutter's thread to be freed there; if the ring is full, it is
+                // freed here (never the case at the ring's size).
+                let _ = self.spent.push(old);
+            }
+        }
+    }
+}
+
+/// The cutter's thread: it applies the strokes as they come, a pass every millisecond at
+/// most, and hands each new body to the haptic thread and the visual feed.
+pub struct CutThread {
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    handle: Option<std::thread::JoinHandle<Result<CutStats, Error>>>,
+}
+
+/// What the cutter's thread did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct CutStats {
+    /// Cut bodies built.
+    pub bodies: u64,
+    /// Tets removed.
+    pub tets_removed: usize,
+    /// The longest pass (strokes to cut body), s.
+    pub max_pass_s: f64,
+}
+
+impl CutThread {
+    /// Starts the cutter for `world`'s cuttable objects, or returns `None` when nothing in it
+    /// can be cut by a blade (no cuttable object or no blade finger). The factorisation runs
+    /// on the new thread.
+    pub fn spawn(world: &World, feed: Arc<CutFeed>) -> Result<Option<(CutLink, CutThread)>, Error> {
+        let blades = world.fingers.iter().any(|f| f.tool.blade_depth().is_some());
+        if !blades || world.objects.iter().all(|o| o.cuttable.is_none()) {
+            return Ok(None);
+        }
+        let plan = Cutter::plan(world)?;
+        let (sp, mut sc) = rtrb::RingBuffer::<Stroke>::new(1 << 14);
+        let (mut bp, bc) = rtrb::RingBuffer::<(usize, Arc<CutBody>)>::new(256);
+        let (pp, mut pc) = rtrb::RingBuffer::<Arc<CutBody>>::new(256);
+        let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let stop2 = stop.clone();
+        let haptic_cpus = crate::threads::cpus_of_current_thread();
+        let handle = std::thread::Builder::new()
+            .name("touchfem-cutter".into())
+            .spawn(move || -> Result<CutStats, Error> {
+                // Spawned from the haptic loop: off its core and out of its real-time class.
+                crate::threads::become_background_worker(&haptic_cpus);
+                let mut cutter = Cutter::from_plan(plan)?;
+                let mut stats = CutStats::default();
+                let mut pending = Vec::with_capacity(1 << 14);
+                loop {
+                    let stopping = stop2.load(std::sync::atomic::Ordering::Acquire);
+                    pending.clear();
+                    while let Ok(s) = sc.pop() {
+                        pending.push(s);
+                    }
+                    while pc.pop().is_ok() {}
+                    if !pending.is_empty() {
+                        let t = std::time::Instant::now();
+                        for (o, body) in cutter.apply_all(&pending)? {
+                            stats.bodies += 1;
+                            stats.tets_removed = body.tets_removed;
+                            feed.publish(o, body.clone());
+                            // The haptic thread takes what fits; it never waits.
+                            let _ = bp.push((o, body));
+                        }
+                        stats.max_pass_s = stats.max_pass_s.max(t.elapsed().as_secs_f64());
+                    } else if stopping {
+                        return Ok(stats);
+                    } else {
+                        std::thread::sleep(std::time::Duration::from_millis(1));
+                    }
+                }
+            })
+            .map_err(|e| Error::Input(format!("cannot start the cutter's thread: {e}")))?;
+        Ok(Some((
+            CutLink {
+                strokes: sp,
+                bodies: bc,
+                spent: pp,
+                strokes_dropped: 0,
+            },
+            CutThread {
+                stop,
+                handle: Some(handle),
+            },
+        )))
+    }
+
+    /// Stops the cutter after the strokes already sent, and joins it.
+    pub fn finish(mut self) -> Result<CutStats, Error> {
+        self.stop.store(true, std::sync::atomic::Ordering::Release);
+        match self.handle.take().map(|h| h.join()) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Err(Error::HapticThread("the cutter's thread panicked".into())),
+            None => Ok(CutStats::default()),
+        }
+    }
+}
+
+impl Drop for CutThread {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Release);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
     }
 }

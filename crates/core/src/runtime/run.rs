@@ -28,6 +28,8 @@ pub struct HapticRun {
     pub max_contacts: [usize; MAX_OBJECTS],
     /// Ticks whose record did not fit the recorder's ring (0 unless the disk stalled).
     pub records_dropped: u64,
+    /// What the cutter did (a scene with a blade and a cuttable object).
+    pub cuts: super::cutting::CutStats,
 }
 
 /// Runs the haptic loop on the calling thread at the scene's rate — or, for a device that
@@ -44,6 +46,14 @@ pub fn run_haptic(
     mut recorder: Option<&mut Recorder>,
 ) -> HapticRun {
     let mut hw = HapticWorld::new(world);
+    // A blade's cuts are made on their own thread; the loop only trades strokes and bodies.
+    let mut cutting = match super::cutting::CutThread::spawn(world, status.cuts.clone()) {
+        Ok(c) => c,
+        Err(e) => {
+            log::warn!("cutting is off: {e}");
+            None
+        }
+    };
     let n = hw.fingers();
     let rate = world.haptics.rate_hz;
     let limit = seconds.map(|s| (s * rate).ceil().max(1.0) as u64);
@@ -85,6 +95,9 @@ pub fn run_haptic(
         // tick uses move between the cores (copying the whole sample cost ~3 µs a tick).
         let sample = publish.input_buffer_mut();
         hw.step_dt(dt, &pos[..n], &mut force[..n], sample);
+        if let Some((link, _)) = &mut cutting {
+            link.exchange(&mut hw);
+        }
         for (i, (s, f)) in state.iter_mut().zip(sample.fingers()).enumerate() {
             *s = ForceState {
                 touching: f.object.is_some(),
@@ -120,6 +133,12 @@ pub fn run_haptic(
     out.stats.max_force_n = max_force;
     out.stats.contact_budget_exhausted = hw.budget_exhausted();
     out.records_dropped = recorder.map_or(0, |r| r.dropped());
+    if let Some((_, thread)) = cutting {
+        match thread.finish() {
+            Ok(s) => out.cuts = s,
+            Err(e) => log::warn!("the cutter failed: {e}"),
+        }
+    }
     out
 }
 

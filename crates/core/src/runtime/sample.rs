@@ -96,6 +96,8 @@ pub struct LiveStatus {
     /// (or on `stop`), so that the upload's reads of a multi-gigabyte cache file cost the loop
     /// no deadlines.
     pub visual_ready: AtomicBool,
+    /// The cut bodies the cutter's thread has built, for the visual loop.
+    pub cuts: std::sync::Arc<super::cutting::CutFeed>,
 }
 
 impl LiveStatus {

@@ -30,6 +30,7 @@ pub const BUNDLED_SCENES: &[(&str, &str)] = &[
     ("pinch", include_str!("../../../../scenes/pinch.toml")),
     ("palpate", include_str!("../../../../scenes/palpate.toml")),
     ("rub", include_str!("../../../../scenes/rub.toml")),
+    ("incision", include_str!("../../../../scenes/incision.toml")),
 ];
 
 #[derive(Debug, Deserialize)]
