@@ -450,7 +450,7 @@ pub(crate) fn run_scene(
     }
     let sess = session::read(&session_path)?;
     debug_assert_eq!(sess.ticks.len() as u64, recorded);
-    let traces = trace::traces(world, &sess);
+    let traces = trace::traces(world, &sess)?;
     for (o, tr) in world.objects.iter().zip(&traces) {
         let stem = format!("{}_{}_force", world.name, o.name);
         trace::write_csv(&opts.out.join(format!("{stem}.csv")), tr)?;

@@ -27,9 +27,11 @@ pub struct ForceTrace {
     pub contacts: Vec<u8>,
 }
 
-/// Replays `session` through `world`'s haptic path and returns one trace per object.
-pub fn traces(world: &World, session: &Session) -> Vec<ForceTrace> {
+/// Replays `session` through `world`'s haptic path (its cuts at the ticks they were made)
+/// and returns one trace per object.
+pub fn traces(world: &World, session: &Session) -> Result<Vec<ForceTrace>, touchfem_core::Error> {
     let mut hw = HapticWorld::new(world);
+    let mut cuts = touchfem_core::runtime::session::CutReplay::new(world, session)?;
     let n = session.header.fingers;
     let dt = 1.0 / session.header.rate_hz;
     let mut sample = WorldSample::default();
@@ -50,8 +52,9 @@ pub fn traces(world: &World, session: &Session) -> Vec<ForceTrace> {
             tr.force.push(sum);
             tr.contacts.push(c);
         }
+        cuts.after_tick(i, &mut hw)?;
     }
-    out
+    Ok(out)
 }
 
 /// Writes a trace as CSV: `t_s,fx_n,fy_n,fz_n,force_n,contacts`.

@@ -54,6 +54,9 @@ pub struct CutBody {
     pub tets_removed: usize,
     /// 1 for the first cut body of the object, then one more a body.
     pub generation: u64,
+    /// The strokes (chords) that made it from the object's previous body, in order: what a
+    /// recorded session keeps to build it again.
+    pub strokes: Vec<Stroke>,
 }
 
 struct ObjectCut {
@@ -63,6 +66,8 @@ struct ObjectCut {
     region: CutRegion,
     generation: u64,
     tets_removed: usize,
+    last: CutReport,
+    since: Vec<Stroke>,
 }
 
 /// What a [`Cutter`] is made from: each cuttable object's mesh, compliance and region.
@@ -121,6 +126,8 @@ impl Cutter {
                     region,
                     generation: 0,
                     tets_removed: 0,
+                    last: CutReport::default(),
+                    since: Vec::new(),
                 }),
             });
         }
@@ -142,8 +149,34 @@ impl Cutter {
     /// nothing (or the object is not cuttable). A degenerate or non-finite stroke removes
     /// nothing.
     pub fn apply(&mut self, stroke: &Stroke) -> Result<Option<Arc<CutBody>>, Error> {
-        let Some(Some(oc)) = self.objects.get_mut(stroke.object) else {
+        if !self.cut_only(stroke)? {
             return Ok(None);
+        }
+        self.body(stroke.object).map(Some)
+    }
+
+    /// Object `o`'s strokes, in order (a recorded cut event): cuts along each, then builds
+    /// one body. `None` when they removed nothing.
+    pub fn apply_strokes(
+        &mut self,
+        o: usize,
+        strokes: &[Stroke],
+    ) -> Result<Option<Arc<CutBody>>, Error> {
+        let mut any = false;
+        for s in strokes.iter().filter(|s| s.object == o) {
+            any |= self.cut_only(s)?;
+        }
+        if !any {
+            return Ok(None);
+        }
+        self.body(o).map(Some)
+    }
+
+    /// Removes what `stroke` sweeps; true when it removed something (and then records it
+    /// among the strokes of the object's next body).
+    fn cut_only(&mut self, stroke: &Stroke) -> Result<bool, Error> {
+        let Some(Some(oc)) = self.objects.get_mut(stroke.object) else {
+            return Ok(false);
         };
         let removed = oc.cut.removed();
         let tets: Vec<usize> = blade_tets(
@@ -157,10 +190,20 @@ impl Cutter {
         .filter(|&t| oc.region.contains(t) && !removed[t])
         .collect();
         if tets.is_empty() {
-            return Ok(None);
+            return Ok(false);
         }
         let report = oc.cut.remove(&oc.mesh, &tets)?;
         oc.tets_removed += report.tets_removed;
+        oc.last = report;
+        oc.since.push(*stroke);
+        Ok(true)
+    }
+
+    /// Object `o`'s cut body as it stands: the correction, the opened surface.
+    fn body(&mut self, o: usize) -> Result<Arc<CutBody>, Error> {
+        let Some(Some(oc)) = self.objects.get_mut(o) else {
+            return Err(Error::Input(format!("object {o} is not cuttable")));
+        };
         let correction = oc.cut.correction(&oc.base)?;
         let compliance = oc
             .base
@@ -170,20 +213,22 @@ impl Cutter {
         open.surface = oc.mesh.open_surface(oc.cut.removed());
         let surface = Surface::new(&open);
         oc.generation += 1;
-        Ok(Some(Arc::new(CutBody {
+        Ok(Arc::new(CutBody {
             compliance,
             surface,
             triangles: open.surface,
-            report,
+            report: oc.last.clone(),
             tets_removed: oc.tets_removed,
             generation: oc.generation,
-        })))
+            strokes: std::mem::take(&mut oc.since),
+        }))
     }
 
     /// [`Cutter::apply`] on a run of strokes: consecutive strokes of one object with the same
-    /// blade are joined into their chord first. Returns each object's newest body.
+    /// blade are joined into their chord first, and each object that lost tets gets one new
+    /// body (whose `strokes` are the chords, in order).
     pub fn apply_all(&mut self, strokes: &[Stroke]) -> Result<Vec<(usize, Arc<CutBody>)>, Error> {
-        let mut out: Vec<(usize, Arc<CutBody>)> = Vec::new();
+        let mut changed: Vec<usize> = Vec::new();
         let mut k = 0;
         while k < strokes.len() {
             let mut s = strokes[k];
@@ -196,13 +241,15 @@ impl Cutter {
                 s.to = strokes[j].to;
                 j += 1;
             }
-            if let Some(body) = self.apply(&s)? {
-                out.retain(|(o, _)| *o != s.object);
-                out.push((s.object, body));
+            if self.cut_only(&s)? && !changed.contains(&s.object) {
+                changed.push(s.object);
             }
             k = j;
         }
-        Ok(out)
+        changed
+            .into_iter()
+            .map(|o| Ok((o, self.body(o)?)))
+            .collect()
     }
 }
 
@@ -247,14 +294,20 @@ pub struct CutLink {
 }
 
 impl CutLink {
-    /// Sends the tick's strokes, and installs in `hw` every body the cutter has finished.
-    pub fn exchange(&mut self, hw: &mut crate::runtime::HapticWorld) {
+    /// Sends the tick's strokes, and installs in `hw` every body the cutter has finished,
+    /// telling `installed` of each (a recording keeps them).
+    pub fn exchange(
+        &mut self,
+        hw: &mut crate::runtime::HapticWorld,
+        mut installed: impl FnMut(usize, &Arc<CutBody>),
+    ) {
         for s in hw.strokes() {
             if self.strokes.push(*s).is_err() {
                 self.strokes_dropped += 1;
             }
         }
         while let Ok((o, body)) = self.bodies.pop() {
+            installed(o, &body);
             if let Some(old) = hw.install_cut(o, body) {
                 // Back to the cutter's thread to be freed there; if the ring is full, it is
                 // freed here (never the case at the ring's size).

@@ -65,6 +65,8 @@ pub fn run_haptic(
     let mut max_force: f64 = 0.0;
     let period = 1.0 / rate;
     let mut last_t: Option<f64> = None;
+    // Ticks stepped so far (the index of a cut's tick in the recording).
+    let mut recorded = 0u64;
     // A device that clocks the loop (the UDP bridge with `--clock device`) starts each tick
     // with its reading; the run then ends on wall time.
     let clocked = devices.clocked();
@@ -96,7 +98,17 @@ pub fn run_haptic(
         let sample = publish.input_buffer_mut();
         hw.step_dt(dt, &pos[..n], &mut force[..n], sample);
         if let Some((link, _)) = &mut cutting {
-            link.exchange(&mut hw);
+            let rec = &mut recorder;
+            let after_tick = recorded;
+            link.exchange(&mut hw, |object, body| {
+                if let Some(r) = rec.as_deref_mut() {
+                    r.push_cut(super::session::CutRecord {
+                        after_tick,
+                        object,
+                        body: body.clone(),
+                    });
+                }
+            });
         }
         for (i, (s, f)) in state.iter_mut().zip(sample.fingers()).enumerate() {
             *s = ForceState {
@@ -120,6 +132,7 @@ pub fn run_haptic(
         if let Some(r) = recorder.as_deref_mut() {
             r.push(&TickRecord::new(dt, &pos[..n], &force[..n]));
         }
+        recorded += 1;
         pacer.end(start);
         status.ticks.store(pacer.ticks(), Ordering::Relaxed);
         status

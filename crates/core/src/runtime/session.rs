@@ -11,6 +11,12 @@
 //! `dt` is the measured time since the previous tick that the haptic path used (the ramp,
 //! the coupling and the force bound count seconds), so a session replays bit for bit under
 //! either clock. Header version 1 (no `dt`; one nominal period a tick) still reads.
+//!
+//! A scene that can be cut (a blade and a cuttable object) is recorded as version 3: each
+//! tick's record is followed by a u32 count of the cut bodies installed after that tick, each
+//! as u32 object, u32 strokes, then per stroke 10 f64 (from, to, inward, depth; object
+//! frame, m). Replaying them at the same ticks builds the same bodies, so the forces replay
+//! bit for bit whatever the cutter's thread's timing was.
 //! The haptic loop pushes each tick into a wait-free ring ([`rtrb`]); a writer thread drains
 //! it to disk, so the loop never blocks on the file and allocates nothing.
 
@@ -142,9 +148,31 @@ impl TickRecord {
     }
 }
 
+/// A cut body installed after a tick, as the recording gets it.
+pub struct CutRecord {
+    /// The tick after which it was installed (0-based index of the records).
+    pub after_tick: u64,
+    /// Its object.
+    pub object: usize,
+    /// The body (its strokes are what is written).
+    pub body: std::sync::Arc<super::cutting::CutBody>,
+}
+
+/// A cut event read back from a session: after tick `after_tick`, object `object`'s strokes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CutEvent {
+    /// The tick after which the body was installed.
+    pub after_tick: u64,
+    /// Its object.
+    pub object: usize,
+    /// The strokes that built it from the object's previous body.
+    pub strokes: Vec<super::cutting::Stroke>,
+}
+
 /// The haptic loop's end of a recording (wait-free push, no allocation).
 pub struct Recorder {
     producer: rtrb::Producer<TickRecord>,
+    cuts: Option<rtrb::Producer<CutRecord>>,
     dropped: u64,
 }
 
@@ -160,6 +188,23 @@ impl Recorder {
     pub fn dropped(&self) -> u64 {
         self.dropped
     }
+    /// Queues a cut body installed after tick `after_tick` (before that tick's record is
+    /// pushed); ignored when the session is not recording cuts.
+    #[inline]
+    pub fn push_cut(&mut self, r: CutRecord) {
+        if let Some(p) = &mut self.cuts {
+            if p.push(r).is_err() {
+                self.dropped += 1;
+            }
+        }
+    }
+}
+
+/// Whether `world` can be cut (a blade finger and a cuttable object): its session records
+/// cuts (version 3).
+fn records_cuts(world: &World) -> bool {
+    world.fingers.iter().any(|f| f.tool.blade_depth().is_some())
+        && world.objects.iter().any(|o| o.cuttable.is_some())
 }
 
 /// Starts recording `world`'s session to `path`: writes the header, and returns the loop's
@@ -175,9 +220,10 @@ pub fn record(
     world: &World,
 ) -> Result<(Recorder, std::thread::JoinHandle<Result<u64, Error>>), Error> {
     let n = world.fingers.len();
+    let cuts = records_cuts(world);
     let header = SessionHeader {
         format: "touchfem-session".into(),
-        version: 2,
+        version: if cuts { 3 } else { 2 },
         touchfem: env!("CARGO_PKG_VERSION").into(),
         scene_name: world.name.clone(),
         scene_hash: format!("{:016x}", world.hash),
@@ -185,9 +231,14 @@ pub fn record(
         scene_dir: absolute(&world.dir),
         rate_hz: world.haptics.rate_hz,
         fingers: n,
-        record_bytes: 8 + 48 * n,
+        record_bytes: 8 + 48 * n + if cuts { 4 } else { 0 },
         layout: format!(
-            "per tick, little-endian f64: the seconds since the previous tick; then {n} finger position(s) [x, y, z] in m, scene frame; then {n} force(s) [fx, fy, fz] in N, as sent to the devices"
+            "per tick, little-endian f64: the seconds since the previous tick; then {n} finger position(s) [x, y, z] in m, scene frame; then {n} force(s) [fx, fy, fz] in N, as sent to the devices{}",
+            if cuts {
+                "; then a u32 count of cut bodies installed after the tick, each u32 object, u32 strokes, and per stroke 10 f64: from, to, inward [x, y, z] and depth, object frame, m"
+            } else {
+                ""
+            }
         ),
         finger_limits: if world.fingers.iter().any(|f| f.limits.is_some()) {
             world.fingers.iter().map(|f| f.limits.clone()).collect()
@@ -205,6 +256,12 @@ pub fn record(
     let mut w = BufWriter::new(file);
     writeln!(w, "{MAGIC}\n{json}").map_err(werr)?;
     let (producer, mut consumer) = rtrb::RingBuffer::<TickRecord>::new(RING);
+    let (cut_producer, mut cut_consumer) = if cuts {
+        let (p, c) = rtrb::RingBuffer::<CutRecord>::new(1024);
+        (Some(p), Some(c))
+    } else {
+        (None, None)
+    };
     let path = path.to_path_buf();
     let writer = std::thread::Builder::new()
         .name("touchfem-record".into())
@@ -225,6 +282,32 @@ pub fn record(
                             buf.extend_from_slice(&c.to_le_bytes());
                         }
                     }
+                    if let Some(cc) = &mut cut_consumer {
+                        // Every cut installed after this tick was queued before its record.
+                        let mut events = Vec::new();
+                        while cc.peek().is_ok_and(|e| e.after_tick <= ticks) {
+                            if let Ok(e) = cc.pop() {
+                                events.push(e);
+                            }
+                        }
+                        buf.extend_from_slice(&(events.len() as u32).to_le_bytes());
+                        for e in &events {
+                            buf.extend_from_slice(&(e.object as u32).to_le_bytes());
+                            buf.extend_from_slice(&(e.body.strokes.len() as u32).to_le_bytes());
+                            for st in &e.body.strokes {
+                                for c in st
+                                    .from
+                                    .to_array()
+                                    .into_iter()
+                                    .chain(st.to.to_array())
+                                    .chain(st.inward.to_array())
+                                    .chain([st.depth])
+                                {
+                                    buf.extend_from_slice(&c.to_le_bytes());
+                                }
+                            }
+                        }
+                    }
                     w.write_all(&buf).map_err(werr)?;
                     ticks += 1;
                 }
@@ -243,6 +326,7 @@ pub fn record(
     Ok((
         Recorder {
             producer,
+            cuts: cut_producer,
             dropped: 0,
         },
         writer,
@@ -271,6 +355,8 @@ pub struct Session {
     pub header: SessionHeader,
     /// Its ticks.
     pub ticks: Vec<TickRecord>,
+    /// The cut bodies installed, in order (version 3).
+    pub cuts: Vec<CutEvent>,
     /// Bytes at the end that did not make a whole record (a session cut off mid-write).
     pub trailing_bytes: usize,
 }
@@ -300,11 +386,13 @@ pub fn read(path: &Path) -> Result<Session, Error> {
     let header: SessionHeader =
         serde_json::from_slice(&bytes[c..d]).map_err(|e| bad(format!("bad header: {e}")))?;
     let n = header.fingers;
-    let with_dt = header.version == 2;
+    let with_dt = header.version >= 2;
+    let with_cuts = header.version == 3;
     let want_bytes = 48usize
         .saturating_mul(n)
-        .saturating_add(if with_dt { 8 } else { 0 });
-    if !(1..=2).contains(&header.version)
+        .saturating_add(if with_dt { 8 } else { 0 })
+        .saturating_add(if with_cuts { 4 } else { 0 });
+    if !(1..=3).contains(&header.version)
         || n == 0
         || n > MAX_FINGERS
         || header.record_bytes != want_bytes
@@ -318,15 +406,20 @@ pub fn read(path: &Path) -> Result<Session, Error> {
     let body = &bytes[d + 1..];
     let rb = header.record_bytes;
     let mut ticks = Vec::with_capacity(body.len() / rb);
+    let mut cuts = Vec::new();
     let period = 1.0 / header.rate_hz;
-    for rec in body.chunks_exact(rb) {
+    let mut at = 0usize;
+    let f64_at = |b: &[u8], i: usize| f64::from_le_bytes(b[i..i + 8].try_into().expect("8 bytes"));
+    let u32_at = |b: &[u8], i: usize| u32::from_le_bytes(b[i..i + 4].try_into().expect("4 bytes"));
+    while body.len() - at >= rb {
+        let rec = &body[at..at + rb];
         let (dt, rec) = if with_dt {
             let (d, rest) = rec.split_at(8);
             (f64::from_le_bytes(d.try_into().expect("8 bytes")), rest)
         } else {
             (period, rec)
         };
-        let f = |i: usize| f64::from_le_bytes(rec[8 * i..8 * i + 8].try_into().expect("8 bytes"));
+        let f = |i: usize| f64_at(rec, 8 * i);
         let mut t = TickRecord {
             dt,
             n,
@@ -337,14 +430,99 @@ pub fn read(path: &Path) -> Result<Session, Error> {
             let o = 3 * n + 3 * k;
             t.forces[k] = DVec3::new(f(o), f(o + 1), f(o + 2));
         }
+        let mut end = at + rb;
+        if with_cuts {
+            // The tick's cut events follow its fixed part; a session cut off inside them
+            // ends at the tick before.
+            let count = u32_at(body, at + rb - 4) as usize;
+            let mut events = Vec::new();
+            let mut ok = true;
+            for _ in 0..count {
+                if body.len() < end + 8 {
+                    ok = false;
+                    break;
+                }
+                let object = u32_at(body, end) as usize;
+                let m = u32_at(body, end + 4) as usize;
+                end += 8;
+                if m > (body.len() - end) / 80 {
+                    ok = false;
+                    break;
+                }
+                let mut strokes = Vec::with_capacity(m);
+                for _ in 0..m {
+                    let v = |i: usize| f64_at(body, end + 8 * i);
+                    strokes.push(super::cutting::Stroke {
+                        object,
+                        from: DVec3::new(v(0), v(1), v(2)),
+                        to: DVec3::new(v(3), v(4), v(5)),
+                        inward: DVec3::new(v(6), v(7), v(8)),
+                        depth: v(9),
+                    });
+                    end += 80;
+                }
+                events.push(CutEvent {
+                    after_tick: ticks.len() as u64,
+                    object,
+                    strokes,
+                });
+            }
+            if !ok {
+                break;
+            }
+            cuts.extend(events);
+        }
         ticks.push(t);
+        at = end;
     }
     Ok(Session {
         path: path.to_path_buf(),
-        trailing_bytes: body.len() % rb,
+        trailing_bytes: body.len() - at,
         header,
         ticks,
+        cuts,
     })
+}
+
+/// A session's cuts replayed: a cutter for the scene, and the events in order. Call
+/// [`CutReplay::after_tick`] after each replayed tick.
+pub struct CutReplay<'s> {
+    cutter: Option<super::cutting::Cutter>,
+    events: &'s [CutEvent],
+    next: usize,
+}
+
+impl<'s> CutReplay<'s> {
+    /// The cut replay of `session` on `world` (no cutter when the session holds no cut).
+    pub fn new(world: &World, session: &'s Session) -> Result<CutReplay<'s>, Error> {
+        let cutter = if session.cuts.is_empty() {
+            None
+        } else {
+            Some(super::cutting::Cutter::new(world)?)
+        };
+        Ok(CutReplay {
+            cutter,
+            events: &session.cuts,
+            next: 0,
+        })
+    }
+
+    /// Installs in `hw` every body recorded after tick `i`, built again from its strokes.
+    pub fn after_tick(&mut self, i: usize, hw: &mut HapticWorld) -> Result<(), Error> {
+        let Some(cutter) = &mut self.cutter else {
+            return Ok(());
+        };
+        while let Some(e) = self.events.get(self.next) {
+            if e.after_tick != i as u64 {
+                break;
+            }
+            if let Some(body) = cutter.apply_strokes(e.object, &e.strokes)? {
+                hw.install_cut(e.object, body);
+            }
+            self.next += 1;
+        }
+        Ok(())
+    }
 }
 
 /// What a replay found.
@@ -462,6 +640,7 @@ pub fn replay(world: &World, session: &Session) -> Result<ReplayReport, Error> {
         )));
     }
     let mut hw = HapticWorld::new(world);
+    let mut cuts = CutReplay::new(world, session)?;
     let n = session.header.fingers;
     let mut sample = WorldSample::default();
     let mut forces = [DVec3::ZERO; MAX_FINGERS];
@@ -494,6 +673,7 @@ pub fn replay(world: &World, session: &Session) -> Result<ReplayReport, Error> {
             }
         }
         rep.non_finite_ticks += usize::from(!finite);
+        cuts.after_tick(i, &mut hw)?;
     }
     Ok(rep)
 }
