@@ -379,8 +379,101 @@ fn cut(c: &mut Criterion) {
     g.finish();
 }
 
+/// The haptic tick on a cut body: the mouse with tets removed near its back (a correction of
+/// rank about 120, then 360, carried beside `L`), a point finger pressing beside the cut with
+/// the exact model (its 3×3 blocks read `L + U Vᵀ`), beside the same tick on the uncut mouse;
+/// the cut body's construction (the correction's `V` and the opened surface), the visual
+/// path's CPU product with the correction, and the fold (the new `L` and the new factor) at
+/// each rank: what sets the rank past which a cutter folds.
+fn cut_tick(c: &mut Criterion) {
+    use std::sync::Arc;
+    use touchfem::cut::Cut;
+    let mut g = c.benchmark_group("cut_tick");
+    let mesh = touchfem::mesh::mouse();
+    let base = Compliance::compute(&mesh, &Selection::default()).unwrap();
+    let at = DVec3::new(-0.01, 0.0, 0.04);
+    let mut order: Vec<(f64, usize)> = mesh
+        .tets
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            let c = t.iter().map(|&k| mesh.nodes[k as usize]).sum::<DVec3>() / 4.0;
+            (c.distance(at), i)
+        })
+        .collect();
+    order.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let plain = Surface::new(&mesh);
+    // A press on the surface a little away from the cut.
+    let (_, p) = plain.closest_global(at + DVec3::new(0.008, 0.0, 0.02));
+    let nrm = DVec3::new(0.0, 0.0, 1.0);
+    let nc = base.cols().len();
+    let forces: Vec<(u32, DVec3)> = (1..4)
+        .map(|k| ((k * nc / 5) as u32, DVec3::new(0.0, 0.0, -0.05)))
+        .collect();
+    let mut u = vec![DVec3::ZERO; base.rows().len()];
+    let tick = |g: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>,
+                name: &str,
+                comp: &Compliance,
+                surf: &Surface| {
+        let mut f = Finger::new(p + nrm * 1e-3);
+        for _ in 0..4 {
+            f.step(surf, comp, p - nrm * 5e-4, ForceModel::Exact, 8.5);
+        }
+        let mut i = 0usize;
+        g.bench_function(format!("point_exact_{name}"), |b| {
+            b.iter(|| {
+                i = (i + 1) & 63;
+                let x = p - nrm * 5e-4 + DVec3::new(1e-6 * (i as f64 / 64.0), 0.0, 0.0);
+                black_box(f.step(surf, comp, black_box(x), ForceModel::Exact, 8.5))
+            })
+        });
+    };
+    tick(&mut g, "uncut", &base, &plain);
+    g.bench_function("displace_cpu_uncut", |b| {
+        b.iter(|| base.displace(black_box(&forces), &mut u))
+    });
+    let mut cut = Cut::new(&mesh).unwrap();
+    let mut k = 0;
+    for target in [120usize, 360] {
+        while cut.rank() < target && k < order.len() {
+            cut.remove(&mesh, &[order[k].1]).unwrap();
+            k += 1;
+        }
+        let rank = cut.rank();
+        let carried = base
+            .with_correction(Arc::new(cut.correction(&base).unwrap()))
+            .unwrap();
+        let mut open = mesh.clone();
+        open.surface = mesh.open_surface(cut.removed());
+        let surface = Surface::new(&open);
+        tick(&mut g, &format!("rank_{rank}"), &carried, &surface);
+        g.bench_function(format!("displace_cpu_rank_{rank}"), |b| {
+            b.iter(|| carried.displace(black_box(&forces), &mut u))
+        });
+        g.sample_size(10);
+        g.bench_function(format!("cut_body_rank_{rank}"), |b| {
+            b.iter(|| {
+                let k = Arc::new(cut.correction(&base).unwrap());
+                let c = base.with_correction(k).unwrap();
+                let mut open = mesh.clone();
+                open.surface = mesh.open_surface(cut.removed());
+                black_box((c, Surface::new(&open)))
+            })
+        });
+        g.bench_function(format!("fold_rank_{rank}"), |b| {
+            b.iter(|| black_box(cut.fold(&base).unwrap()))
+        });
+        g.bench_function(format!("rebase_rank_{rank}"), |b| {
+            b.iter(|| black_box(cut.rebase(&mesh).unwrap()))
+        });
+        g.sample_size(100);
+    }
+    g.finish();
+}
+
 criterion_group!(
     benches,
+    cut_tick,
     cut,
     sphere_tick,
     force_step,

@@ -64,7 +64,16 @@ fn carried_against_recompute(mesh: &Mesh, at: DVec3, n: usize) -> (f64, f64, usi
     let carried = base
         .with_correction(Arc::new(cut.correction(&base).unwrap()))
         .unwrap();
-    let cut_mesh = mesh.without_tets(cut.removed());
+    let (b, u) = against_recompute(&carried, mesh, cut.removed());
+    (b, u, rep.rank)
+}
+
+/// The worst relative differences (blocks and `L_ii⁻¹`, displacements) between `carried`
+/// (a compliance of `mesh` with a cut's correction, or folded) and a full precompute of the
+/// tets not `removed`.
+fn against_recompute(carried: &Compliance, mesh: &Mesh, removed: &[bool]) -> (f64, f64) {
+    let base = carried;
+    let cut_mesh = mesh.without_tets(removed);
     let full = Compliance::compute(&cut_mesh, &Selection::default()).unwrap();
     // Columns both have (a cut's exposed nodes are columns of the recompute only).
     let common: Vec<u32> = base
@@ -115,7 +124,91 @@ fn carried_against_recompute(mesh: &Mesh, at: DVec3, n: usize) -> (f64, f64, usi
             den = den.max(uf[rf].length());
         }
     }
-    (worst_block, num / den, rep.rank)
+    (worst_block, num / den)
+}
+
+#[test]
+fn cutting_folding_and_cutting_again_reads_a_full_recompute() {
+    // Cut, fold the correction into a new L, start the cut afresh from it (a new factor of
+    // the remaining tets), cut again, fold again, cut a third time: at every step what both
+    // paths read equals a full precompute of the remaining tets, and after each fold the
+    // carried rank starts from what was cut since.
+    for (mesh, at, n) in [
+        (touchfem::mesh::cube(), DVec3::new(0.015, 0.015, 0.026), 30),
+        (touchfem::mesh::mouse(), DVec3::new(-0.01, 0.0, 0.04), 30),
+    ] {
+        let order = tets_near_keeping_nodes(&mesh, at, n);
+        let mut base = Compliance::compute(&mesh, &Selection::default()).unwrap();
+        let mut cut = Cut::new(&mesh).unwrap();
+        for (step, tets) in order.chunks(n / 3).enumerate() {
+            let rep = cut.remove(&mesh, tets).unwrap();
+            let carried = base
+                .with_correction(Arc::new(cut.correction(&base).unwrap()))
+                .unwrap();
+            let (b, u) = against_recompute(&carried, &mesh, cut.removed());
+            let folded = cut.fold(&base).unwrap();
+            let (fb, fu) = against_recompute(&folded, &mesh, cut.removed());
+            eprintln!(
+                "step {step}: rank {} carried: blocks {b:.1e}, displacements {u:.1e}; folded: {fb:.1e}, {fu:.1e}",
+                rep.rank
+            );
+            assert!(
+                b < 1e-9 && u < 1e-9 && fb < 1e-9 && fu < 1e-9,
+                "step {step}"
+            );
+            assert!(!folded.shares_l(&base));
+            assert_eq!(folded.cols(), base.cols());
+            assert_eq!(folded.correction().map(|k| k.rank), Some(0));
+            // The rank carried after a fold counts only the DOFs cut since.
+            let fresh: std::collections::BTreeSet<u32> =
+                tets.iter().flat_map(|&t| mesh.tets[t]).collect();
+            if step > 0 {
+                assert!(
+                    rep.rank <= 3 * fresh.len(),
+                    "{} > 3·{}",
+                    rep.rank,
+                    fresh.len()
+                );
+            }
+            cut = cut.rebase(&mesh).unwrap();
+            assert_eq!(cut.rank(), 0);
+            base = folded;
+        }
+    }
+}
+
+#[test]
+fn a_cutter_that_folds_feels_what_one_that_carries_feels() {
+    // The incision with the cutter folding whenever the rank reaches 60 (several folds) and
+    // with no fold: the press after the cut and every block read the same to round-off.
+    let (_, carried_f, carried) = incision_folding_at(usize::MAX);
+    let (_, folded_f, folded) = incision_folding_at(60);
+    let e = (carried_f - folded_f).length() / carried_f.length();
+    assert!(carried_f.length() > 0.01, "{carried_f}");
+    eprintln!(
+        "incision: {} folds, rank carried {} against {}; press {folded_f} against {carried_f} ({e:.1e})",
+        folded.folds,
+        folded.compliance.correction().map_or(0, |k| k.rank),
+        carried.compliance.correction().map_or(0, |k| k.rank),
+    );
+    assert!(folded.folds >= 2, "{}", folded.folds);
+    assert_eq!(carried.folds, 0);
+    assert!(e < 1e-9, "{e}");
+    let (a, b) = (&carried.compliance, &folded.compliance);
+    assert_eq!(a.cols(), b.cols());
+    let mut worst = 0.0f64;
+    let scale = (0..a.cols().len())
+        .filter(|&c| a.col_of(a.cols()[c]).is_some())
+        .map(|c| max_abs(a.touch_block(c, c)))
+        .fold(0.0f64, f64::max);
+    for i in (0..a.cols().len()).step_by(13) {
+        assert_eq!(a.col_of(a.cols()[i]), b.col_of(b.cols()[i]));
+        for j in (0..a.cols().len()).step_by(17) {
+            worst = worst.max(max_abs(a.touch_block(i, j) - b.touch_block(i, j)) / scale);
+        }
+    }
+    eprintln!("blocks differ by {worst:.1e} of the largest diagonal");
+    assert!(worst < 1e-9, "{worst}");
 }
 
 #[test]
@@ -311,6 +404,17 @@ fn incision_through_the_haptic_path() -> (
     DVec3,
     std::sync::Arc<touchfem::runtime::cutting::CutBody>,
 ) {
+    incision_folding_at(usize::MAX)
+}
+
+/// [`incision_through_the_haptic_path`] with the cutter folding at `fold_rank`.
+fn incision_folding_at(
+    fold_rank: usize,
+) -> (
+    DVec3,
+    DVec3,
+    std::sync::Arc<touchfem::runtime::cutting::CutBody>,
+) {
     use touchfem::runtime::cutting::Cutter;
     use touchfem::runtime::{HapticWorld, WorldSample};
     use touchfem::scene::{DeviceSpec, World};
@@ -333,6 +437,7 @@ fn incision_through_the_haptic_path() -> (
         }
     };
     let mut cutter = Cutter::new(&w).unwrap();
+    cutter.set_fold_rank(fold_rank);
     let mut hw = HapticWorld::new(&w);
     let mut sample = WorldSample::default();
     let mut f = [DVec3::ZERO; 2];

@@ -655,3 +655,45 @@ fn the_friction_cones_feedback_is_the_force_steps_bit_for_bit() {
     }
     assert!(n > 300, "{n}");
 }
+
+#[test]
+fn a_sphere_pressed_deeper_than_its_radius_keeps_pushing_back() {
+    // A 4 mm fingertip pressed 7 mm into the cube's top (its centre 3 mm under the rest
+    // surface): the nodes over it keep their gap along the ray into the sphere, so the force
+    // grows with the depth all the way (it once fell to zero past a depth of one radius).
+    use touchfem::runtime::{HapticWorld, WorldSample};
+    let world = crate::common::world_from_text(
+        r#"
+unit = "mm"
+[[object]]
+name = "cube"
+mesh = "cube"
+[[finger]]
+device = "script"
+tool = { sphere = 4.0 }
+path = [[0.0, 20.0, 20.0, 40.0]]
+"#,
+    )
+    .unwrap();
+    let mut hw = HapticWorld::new(&world);
+    let mut sample = WorldSample::default();
+    let mut f = [glam::DVec3::ZERO];
+    let mut last = 0.0f64;
+    for k in 0..=300 {
+        let z = 34.0 - 7.0 * (k as f64 / 300.0);
+        hw.step(
+            &[glam::DVec3::new(20.0, 20.0, z) * 1e-3],
+            &mut f,
+            &mut sample,
+        );
+        let fz = f[0].z;
+        assert!(f[0].is_finite() && fz >= 0.0);
+        assert!(
+            fz >= last - 1e-3 * last.max(1e-3),
+            "at z = {z} mm: {fz} after {last}"
+        );
+        last = fz;
+    }
+    eprintln!("7 mm deep: {last} N");
+    assert!(last > 0.3, "{last}");
+}

@@ -7,6 +7,7 @@ mod common;
 mod contact_force;
 mod coupling;
 mod cut;
+mod cut_hostile;
 mod cut_live;
 mod fingertip;
 mod fingertip_cli;

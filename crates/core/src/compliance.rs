@@ -567,6 +567,55 @@ impl Compliance {
         c.correction = Some(correction);
         Ok(c)
     }
+    /// This compliance with its correction folded into a new `L`: `L′ = L + U_R V_Cᵀ` (one
+    /// matrix product, `9·R·C·rank` multiply-adds), pinned rows and columns zeroed, the same
+    /// rows and columns (so every column index stays valid), and a rank-0 correction that
+    /// still marks the pinned ones. Exact, like the correction; made off the haptic thread
+    /// when the correction has grown too large to carry. A compliance with no correction
+    /// comes back as it is (sharing `L`).
+    pub fn folded(&self) -> Result<Compliance, FemError> {
+        let Some(k) = &self.correction else {
+            return Ok(self.clone());
+        };
+        if !self.holds_l() {
+            return Err(FemError::BadSelection(
+                "folding a correction needs L on the host (not a lean compliance)".into(),
+            ));
+        }
+        let (nr3, nc3) = (3 * self.l_rows, 3 * self.cols.len());
+        let mut l = nalgebra::DMatrix::from_column_slice(nr3, nc3, &self.l);
+        if k.rank > 0 {
+            let u = nalgebra::DMatrixView::from_slice(&k.rows, nr3, k.rank);
+            let vt = nalgebra::DMatrixView::from_slice(&k.v_cols, k.rank, nc3);
+            l.gemm(1.0, &u, &vt, 1.0);
+        }
+        for (c, &dead) in k.dead_cols.iter().enumerate() {
+            if dead {
+                l.columns_mut(3 * c, 3).fill(0.0);
+            }
+        }
+        for (r, &dead) in k.dead_rows.iter().enumerate() {
+            if dead {
+                l.rows_mut(3 * r, 3).fill(0.0);
+            }
+        }
+        if !l.iter().all(|v| v.is_finite()) {
+            return Err(FemError::BadSelection(
+                "the folded compliance is not finite".into(),
+            ));
+        }
+        let mut c = self.clone();
+        c.l = std::sync::Arc::new(l.data.into());
+        c.correction = Some(std::sync::Arc::new(k.pins_only()));
+        Ok(c)
+    }
+
+    /// Whether `self` and `other` share one `L` (the same allocation): after a fold they do
+    /// not, and a GPU copy of `L` must be uploaded again.
+    pub fn shares_l(&self, other: &Compliance) -> bool {
+        std::sync::Arc::ptr_eq(&self.l, &other.l)
+    }
+
     /// Compliance (m/N) given to clamped nodes when a contact triangle touches the clamp: one
     /// tenth of the smallest touchable diagonal compliance, so that forces stay finite.
     pub fn clamp_compliance(&self) -> f64 {

@@ -125,6 +125,20 @@ impl Correction {
         self.rows.iter().map(|&v| v as f32).collect()
     }
 
+    /// What is left of this correction once folded into `L`: rank 0, the same pinned rows
+    /// and columns and the same `L′_cc⁻¹`.
+    pub fn pins_only(&self) -> Correction {
+        Correction {
+            rank: 0,
+            rows: Vec::new(),
+            u_cols: Vec::new(),
+            v_cols: Vec::new(),
+            dead_rows: self.dead_rows.clone(),
+            dead_cols: self.dead_cols.clone(),
+            diag_inv: self.diag_inv.clone(),
+        }
+    }
+
     /// Bytes held.
     pub fn bytes(&self) -> usize {
         8 * (self.rows.len() + self.u_cols.len() + self.v_cols.len())

@@ -583,75 +583,36 @@ pub fn point_poke(cut: &Cut, nodes: [u32; 3], alpha: [f64; 3], u: DVec3) -> Opti
 }
 
 impl Cut {
-    /// Folds the correction into `c` (the uncut body's compliance, `L` on the host): a new
-    /// compliance `L′ = L + L_D C L_Dᵀ` over the same displayed rows (a pinned node's row is
-    /// zero) and the touchable columns that are not pinned. What the haptic and visual paths
-    /// read once the correction has grown too large to carry; exact, like the correction.
-    /// Costs `9·R·C·rank` multiply-adds.
+    /// Folds the correction into `c` (the compliance this cut's correction is relative to,
+    /// `L` on the host): `L′ = L + U_R V_Cᵀ` over the same rows and columns, a pinned node's
+    /// row and column zero and marked dead (see [`Compliance::folded`]). What the haptic and
+    /// visual paths read once the correction has grown too large to carry; exact, like the
+    /// correction. Costs `9·R·C·rank` multiply-adds (one matrix product).
+    ///
+    /// [`Compliance::folded`]: crate::compliance::Compliance::folded
     pub fn fold(
         &self,
         c: &crate::compliance::Compliance,
     ) -> Result<crate::compliance::Compliance, Error> {
-        if !c.holds_l() {
-            return Err(Error::Input(
-                "folding a cut needs L on the host (not a lean compliance)".into(),
-            ));
+        let k = self.correction(c)?;
+        Ok(c.with_correction(std::sync::Arc::new(k))?.folded()?)
+    }
+
+    /// This cut started afresh from the body it has made: the remaining tets' stiffness
+    /// factored (pinned nodes held as clamps), the correction empty, the tets removed and the
+    /// nodes pinned kept. Its corrections are then relative to [`Cut::fold`]'s compliance,
+    /// so that after a fold the carried rank starts from zero. `mesh` is the uncut mesh (the
+    /// one [`Cut::remove`] takes). Costs one assembly and factorisation.
+    pub fn rebase(&self, mesh: &Mesh) -> Result<Cut, Error> {
+        let mut rest = mesh.without_tets(&self.removed);
+        for (f, &p) in rest.fixed.iter_mut().zip(&self.pinned) {
+            *f |= p;
         }
-        let rows = c.rows().to_vec();
-        let l_rows = c.l_rows();
-        let nr3 = 3 * l_rows;
-        let old = c.l_f64();
-        let keep: Vec<(usize, u32)> = c
-            .cols()
-            .iter()
-            .enumerate()
-            .filter(|(_, &n)| !self.pinned[n as usize])
-            .map(|(i, &n)| (i, n))
-            .collect();
-        if keep.is_empty() {
-            return Err(Error::Input("the cut left no touchable node".into()));
-        }
-        let m = self.d.len();
-        // The rows' free DOFs (None: clamped or pinned, a zero row).
-        let row_dof: Vec<Option<usize>> = (0..nr3)
-            .map(|k| {
-                let node = rows[k / 3];
-                if self.pinned[node as usize] {
-                    None
-                } else {
-                    self.dofs.free(node, k % 3)
-                }
-            })
-            .collect();
-        let mut l = vec![0.0; nr3 * 3 * keep.len()];
-        for (new_c, &(old_c, node)) in keep.iter().enumerate() {
-            for b in 0..3 {
-                let src = &old[(3 * old_c + b) * nr3..][..nr3];
-                let dst = &mut l[(3 * new_c + b) * nr3..][..nr3];
-                let y = self
-                    .dofs
-                    .free(node, b)
-                    .map(|dj| &self.cap * nalgebra::DVector::from_fn(m, |q, _| self.ld[(dj, q)]));
-                for (k, (o, &s0)) in dst.iter_mut().zip(src).enumerate() {
-                    let Some(di) = row_dof[k] else {
-                        *o = 0.0;
-                        continue;
-                    };
-                    let mut v = s0;
-                    if let Some(y) = &y {
-                        for q in 0..m {
-                            v += self.ld[(di, q)] * y[q];
-                        }
-                    }
-                    *o = v;
-                }
-            }
-        }
-        let cols: Vec<u32> = keep.iter().map(|&(_, n)| n).collect();
-        let n_nodes = self.pinned.len();
-        Ok(crate::compliance::Compliance::from_stored(
-            rows, l_rows, cols, l, n_nodes,
-        )?)
+        let mut next = Cut::new(&rest)?;
+        next.removed = self.removed.clone();
+        next.tets_left = self.tets_left.clone();
+        next.pinned = self.pinned.clone();
+        Ok(next)
     }
 }
 

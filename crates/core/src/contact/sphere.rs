@@ -1130,7 +1130,12 @@ pub(crate) fn ray_gap(x: DVec3, n: DVec3, c: DVec3, r: f64) -> f64 {
         return d.length() - r;
     }
     let h = (r * r - rho2).sqrt();
-    if a + h < 0.0 {
+    // Wholly behind the node, and with its centre more than a radius behind: the sphere is
+    // on the far side of the body (a thin wall's other face), not pressing here. A sphere
+    // pressed deeper than its radius (its centre under the rest surface, but less than a
+    // radius under it) still presses the nodes over it: their gap stays the ray's entry,
+    // continuous as the press deepens.
+    if a + h < 0.0 && a < -r {
         return d.length() - r;
     }
     a - h

@@ -1107,7 +1107,9 @@ fn check_constrained(mesh: &Mesh) -> Result<(), FemError> {
     let (lo, hi) = mesh.bounds();
     let scale = (hi - lo).length().max(f64::MIN_POSITIVE);
     for (root, (count, fixed)) in comp_nodes {
-        let ok = fixed.len() >= 3 && !collinear(&fixed, scale);
+        // (A part clamped at every node has no free DOF: nothing there can move. A cut's
+        // rebased body has such parts: nodes left with no tet, held still.)
+        let ok = fixed.len() == count || (fixed.len() >= 3 && !collinear(&fixed, scale));
         if !ok {
             return Err(FemError::Unconstrained {
                 part_nodes: count,

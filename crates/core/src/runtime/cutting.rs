@@ -57,6 +57,9 @@ pub struct CutBody {
     /// The strokes (chords) that made it from the object's previous body, in order: what a
     /// recorded session keeps to build it again.
     pub strokes: Vec<Stroke>,
+    /// How many times the object's correction was folded into a new `L` before this body
+    /// (its compliance then holds that `L`, not the uncut one).
+    pub folds: u32,
 }
 
 struct ObjectCut {
@@ -68,6 +71,7 @@ struct ObjectCut {
     tets_removed: usize,
     last: CutReport,
     since: Vec<Stroke>,
+    folds: u32,
 }
 
 /// What a [`Cutter`] is made from: each cuttable object's mesh, compliance and region.
@@ -75,9 +79,15 @@ pub struct CutPlan {
     objects: Vec<Option<(crate::Mesh, Compliance, CutRegion)>>,
 }
 
+/// The rank past which a cutter folds its correction into `L` (see [`Cutter::fold_due`]):
+/// where carrying it costs the haptic tick and the visual pass more than the cut itself is
+/// worth (measured in docs/measurements/2026-12-04-cutting.md).
+pub const FOLD_RANK: usize = 360;
+
 /// The off-thread side of cutting: each cuttable object's kept factor and correction.
 pub struct Cutter {
     objects: Vec<Option<ObjectCut>>,
+    fold_rank: usize,
 }
 
 impl Cutter {
@@ -128,10 +138,49 @@ impl Cutter {
                     tets_removed: 0,
                     last: CutReport::default(),
                     since: Vec::new(),
+                    folds: 0,
                 }),
             });
         }
-        Ok(Cutter { objects })
+        Ok(Cutter {
+            objects,
+            fold_rank: FOLD_RANK,
+        })
+    }
+
+    /// Sets the rank past which [`Cutter::fold_due`] folds (default [`FOLD_RANK`]).
+    pub fn set_fold_rank(&mut self, rank: usize) {
+        self.fold_rank = rank;
+    }
+
+    /// Folds the correction of every object whose rank has reached the fold rank into a new
+    /// `L` ([`Cut::fold`]) and starts its cut afresh from it ([`Cut::rebase`]), so that the
+    /// next body carries only what is cut after. Returns how many objects it folded. The
+    /// bodies already handed out stay valid (they share the old `L`). An object is also
+    /// folded, when due, just before its next cut, so a fold always happens at the same point
+    /// of its cuts (a replay folds where the live run did); the cutter's thread calls this as
+    /// soon as it has handed its bodies over, to fold while the blade is still.
+    pub fn fold_due(&mut self) -> Result<usize, Error> {
+        let mut n = 0;
+        for o in 0..self.objects.len() {
+            n += usize::from(self.fold_object(o)?);
+        }
+        Ok(n)
+    }
+
+    /// Folds object `o` when its rank has reached the fold rank; true when it did.
+    fn fold_object(&mut self, o: usize) -> Result<bool, Error> {
+        let Some(Some(oc)) = self.objects.get_mut(o) else {
+            return Ok(false);
+        };
+        if oc.cut.rank() < self.fold_rank.max(1) {
+            return Ok(false);
+        }
+        let folded = oc.cut.fold(&oc.base)?;
+        oc.cut = oc.cut.rebase(&oc.mesh)?;
+        oc.base = folded;
+        oc.folds += 1;
+        Ok(true)
     }
 
     /// The tets removed from object `o` so far (`None`: it is not cuttable).
@@ -192,6 +241,11 @@ impl Cutter {
         if tets.is_empty() {
             return Ok(false);
         }
+        // (Folded only before a stroke that cuts: a recorded session holds just those.)
+        self.fold_object(stroke.object)?;
+        let Some(Some(oc)) = self.objects.get_mut(stroke.object) else {
+            return Ok(false);
+        };
         let report = oc.cut.remove(&oc.mesh, &tets)?;
         oc.tets_removed += report.tets_removed;
         oc.last = report;
@@ -221,6 +275,7 @@ impl Cutter {
             tets_removed: oc.tets_removed,
             generation: oc.generation,
             strokes: std::mem::take(&mut oc.since),
+            folds: oc.folds,
         }))
     }
 
@@ -333,6 +388,10 @@ pub struct CutStats {
     pub tets_removed: usize,
     /// The longest pass (strokes to cut body), s.
     pub max_pass_s: f64,
+    /// Folds of a correction into a new `L`.
+    pub folds: u64,
+    /// The longest fold (with the new factorisation), s.
+    pub max_fold_s: f64,
 }
 
 impl CutThread {
@@ -376,6 +435,13 @@ impl CutThread {
                             let _ = bp.push((o, body));
                         }
                         stats.max_pass_s = stats.max_pass_s.max(t.elapsed().as_secs_f64());
+                        // Fold now, while the blade is still, rather than before its next cut.
+                        let t = std::time::Instant::now();
+                        let n = cutter.fold_due()?;
+                        if n > 0 {
+                            stats.folds += n as u64;
+                            stats.max_fold_s = stats.max_fold_s.max(t.elapsed().as_secs_f64());
+                        }
                     } else if stopping {
                         return Ok(stats);
                     } else {

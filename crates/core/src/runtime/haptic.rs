@@ -275,7 +275,12 @@ impl<'w> HapticWorld<'w> {
                 f.ramp = 1.0;
                 for (o, obj) in objects.iter().take(n_obj).enumerate() {
                     let local = x - obj.offset;
-                    let surf = parts(live, obj, o).1;
+                    // A blade's god-object walks the uncut surface (as in its update below).
+                    let surf = if matches!(f.tool, Tool::Blade { .. }) {
+                        &obj.body.surface
+                    } else {
+                        parts(live, obj, o).1
+                    };
                     f.gods[o] = if surf.contains(local) {
                         f.ramp = 0.0;
                         GodObject::touching(surf.closest_global(local).0)
