@@ -380,7 +380,7 @@ fn cut(c: &mut Criterion) {
 }
 
 /// The haptic tick on a cut body: the mouse with tets removed near its back (a correction of
-/// rank about 120, then 360, carried beside `L`), a point finger pressing beside the cut with
+/// rank about 120, 160 and 360, carried beside `L`), a point finger pressing beside the cut with
 /// the exact model (its 3×3 blocks read `L + U Vᵀ`), beside the same tick on the uncut mouse;
 /// the cut body's construction (the correction's `V` and the opened surface), the visual
 /// path's CPU product with the correction, and the fold (the new `L` and the new factor) at
@@ -403,8 +403,8 @@ fn cut_tick(c: &mut Criterion) {
         .collect();
     order.sort_by(|a, b| a.0.total_cmp(&b.0));
     let plain = Surface::new(&mesh);
-    // A press on the surface a little away from the cut.
-    let (_, p) = plain.closest_global(at + DVec3::new(0.008, 0.0, 0.02));
+    // A press on the back, 20 mm from the cut's centre (clear of the largest cut).
+    let (_, p) = plain.closest_global(at + DVec3::new(0.02, 0.0, 0.02));
     let nrm = DVec3::new(0.0, 0.0, 1.0);
     let nc = base.cols().len();
     let forces: Vec<(u32, DVec3)> = (1..4)
@@ -416,9 +416,14 @@ fn cut_tick(c: &mut Criterion) {
                 comp: &Compliance,
                 surf: &Surface| {
         let mut f = Finger::new(p + nrm * 1e-3);
+        let mut first = DVec3::ZERO;
         for _ in 0..4 {
-            f.step(surf, comp, p - nrm * 5e-4, ForceModel::Exact, 8.5);
+            first = f.step(surf, comp, p - nrm * 5e-4, ForceModel::Exact, 8.5);
         }
+        assert!(
+            first.length() > 1e-4,
+            "{name}: the press does not touch ({first})"
+        );
         let mut i = 0usize;
         g.bench_function(format!("point_exact_{name}"), |b| {
             b.iter(|| {
@@ -434,7 +439,7 @@ fn cut_tick(c: &mut Criterion) {
     });
     let mut cut = Cut::new(&mesh).unwrap();
     let mut k = 0;
-    for target in [120usize, 360] {
+    for target in [120usize, 160, 360] {
         while cut.rank() < target && k < order.len() {
             cut.remove(&mesh, &[order[k].1]).unwrap();
             k += 1;

@@ -57,7 +57,20 @@ fn target(start: DVec3, end: DVec3) -> impl Fn(f64) -> DVec3 {
 
 /// The press in process, through the haptic path as `run_haptic` drives it.
 fn press(world: &World, start: DVec3, end: DVec3) -> Outcome {
+    press_on(world, None, start, end)
+}
+
+/// [`press`] on `world`'s object 0 cut to `cut` (installed before the first tick).
+fn press_on(
+    world: &World,
+    cut: Option<std::sync::Arc<touchfem::runtime::cutting::CutBody>>,
+    start: DVec3,
+    end: DVec3,
+) -> Outcome {
     let mut hw = HapticWorld::new(world);
+    if let Some(body) = cut {
+        hw.install_cut(0, body);
+    }
     let mut s = WorldSample::default();
     let aim = target(start, end);
     let mut x = start;
@@ -312,5 +325,63 @@ fn a_fingertip_with_friction_stays_passive_through_the_coupling_and_the_bound() 
         assert!(late < 1e-6, "{what}: settles ({late})");
         assert!(grow < 1e-6, "{what}: energy growth {grow}");
         assert!(with.max_force <= 8.0 + 1e-9 && with.max_force > 0.05);
+    }
+}
+
+#[test]
+fn presses_beside_a_cut_stay_passive_through_the_coupling_and_the_bound() {
+    // The stiff cube cut by a slit 10 mm deep across its top at x = 11 mm, pressed beside the
+    // slit with a point and with a fingertip through the Falcon's limits: each press settles,
+    // the device puts no energy into the hand, and the force stays within the bound.
+    use touchfem::runtime::cutting::{Cutter, Stroke};
+    for tool in ["", "tool = { sphere = 5.0 }\n"] {
+        let world = World::from_source_with(
+            &SceneSource {
+                name: "stiff-cut".into(),
+                text: format!("unit = \"mm\"\n[[object]]\nmesh = \"cube\"\nyoung = 1.0e6\ncuttable = \"all\"\n[[finger]]\ndevice = \"pointer\"\n{tool}limits = \"falcon\"\n[haptics]\nmax_force_n = 8.0\n"),
+                dir: ".".into(),
+                label: "stiff cube, cut".into(),
+            },
+            None,
+        )
+        .unwrap();
+        let body = Cutter::new(&world)
+            .unwrap()
+            .apply(&Stroke {
+                object: 0,
+                from: DVec3::new(11.0, -1.0, 29.99) * MM,
+                to: DVec3::new(11.0, 31.0, 29.99) * MM,
+                inward: DVec3::NEG_Z,
+                depth: 10.0 * MM,
+            })
+            .unwrap()
+            .expect("the slit");
+        let r = if tool.is_empty() {
+            DVec3::ZERO
+        } else {
+            DVec3::new(0.0, 0.0, 5.0) * MM
+        };
+        let (a, b) = (
+            DVec3::new(20.0, 15.0, 33.0) * MM + r,
+            DVec3::new(20.0, 15.0, 27.0) * MM + r,
+        );
+        let cut = press_on(&world, Some(body.clone()), a, b);
+        let uncut = press_on(&world, None, a, b);
+        let late = peak_to_peak(&cut.x[SETTLED_FROM..]);
+        let grow = cut.work[2000..]
+            .iter()
+            .map(|e| e - cut.work[2000])
+            .fold(f64::NEG_INFINITY, f64::max);
+        eprintln!(
+            "beside a cut ({} tets), {}: p-p {late:.2e} m, energy growth {grow:.2e} J, max F {:.3} N (uncut {:.3} N)",
+            body.tets_removed,
+            if tool.is_empty() { "point" } else { "fingertip" },
+            cut.max_force,
+            uncut.max_force
+        );
+        assert!(body.tets_removed > 0);
+        assert!(late < 1e-6, "settles ({late})");
+        assert!(grow < 1e-6, "energy growth {grow}");
+        assert!(cut.max_force <= 8.0 + 1e-9 && cut.max_force > 0.05);
     }
 }

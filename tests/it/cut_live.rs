@@ -508,6 +508,9 @@ fn a_recorded_incision_holds_its_cuts_and_replays_bit_for_bit() {
     let cuts = &r["objects"][0]["cuts"];
     assert!(cuts["bodies"].as_u64().unwrap() >= 1, "{cuts}");
     assert!(cuts["tets_removed"].as_u64().unwrap() > 20, "{cuts}");
+    // The incision's rank passes the fold rank: the live cutter folded, and the replay below
+    // folds at the same point of the cuts.
+    assert!(cuts["folds"].as_u64().unwrap() >= 1, "{cuts}");
     let s = touchfem::runtime::session::read(&rec).unwrap();
     assert_eq!(s.header.version, 3);
     assert!(!s.cuts.is_empty());
@@ -538,5 +541,114 @@ fn a_recorded_incision_holds_its_cuts_and_replays_bit_for_bit() {
     assert!(
         after < before && after > 0.5 * before,
         "{after} after, {before} before"
+    );
+}
+
+#[test]
+fn the_lips_of_a_cut_open_under_a_press_that_spreads_them() {
+    // A slit 12 mm deep across the cube's top (7.5 mm wide: the cube's cells); a 6 mm
+    // fingertip pressed into its middle bears on both lips' edges and spreads them: the lips' faces move apart, several times more than
+    // the same material planes do under the same press on the uncut cube.
+    use touchfem::runtime::cutting::{Cutter, Stroke};
+    use touchfem::runtime::{HapticWorld, WorldSample};
+    let world = crate::common::world_from_text(
+        r#"
+unit = "mm"
+[[object]]
+name = "cube"
+mesh = "cube"
+cuttable = "all"
+[[finger]]
+device = "script"
+tool = { sphere = 6.0 }
+path = [[0.0, 15.0, 11.25, 40.0]]
+"#,
+    )
+    .unwrap();
+    let mesh = &world.objects[0].body.mesh;
+    let mut cutter = Cutter::new(&world).unwrap();
+    let body = cutter
+        .apply(&Stroke {
+            object: 0,
+            from: mm(-1.0, 14.0, 29.99),
+            to: mm(31.0, 14.0, 29.99),
+            inward: DVec3::NEG_Z,
+            depth: 12e-3,
+        })
+        .unwrap()
+        .expect("the blade cuts");
+    // The lips: nodes of the cut's faces (on the opened surface, not on the cube's), above
+    // the slit's floor, away from the side faces.
+    let on_cube: std::collections::BTreeSet<u32> = mesh.surface_nodes.iter().copied().collect();
+    let lips: Vec<u32> = body
+        .triangles
+        .iter()
+        .flatten()
+        .copied()
+        .filter(|v| !on_cube.contains(v))
+        .collect::<std::collections::BTreeSet<u32>>()
+        .into_iter()
+        .chain(on_cube.iter().copied().filter(|&v| {
+            let p = mesh.nodes[v as usize];
+            (p.z - 0.03).abs() < 1e-9 && (p.y - 0.0075).abs() < 1e-9 || (p.y - 0.015).abs() < 1e-9
+        }))
+        .filter(|&v| {
+            let p = mesh.nodes[v as usize];
+            p.z > 0.02 && p.x > 0.004 && p.x < 0.026 && body.compliance.row_of(v).is_some()
+        })
+        .collect();
+    let left: Vec<u32> = lips
+        .iter()
+        .copied()
+        .filter(|&v| mesh.nodes[v as usize].y < 0.0113)
+        .collect();
+    let right: Vec<u32> = lips
+        .iter()
+        .copied()
+        .filter(|&v| mesh.nodes[v as usize].y > 0.0113)
+        .collect();
+    assert!(!left.is_empty() && !right.is_empty(), "{left:?} {right:?}");
+    // The same press on the cut cube and on the uncut one.
+    let opening = |cut: Option<&std::sync::Arc<touchfem::runtime::cutting::CutBody>>| {
+        let mut hw = HapticWorld::new(&world);
+        if let Some(b) = cut {
+            hw.install_cut(0, b.clone());
+        }
+        let mut sample = WorldSample::default();
+        let mut f = [DVec3::ZERO];
+        for k in 0..=400 {
+            let z = 40.0 - 8.0 * (k as f64 / 400.0).min(1.0);
+            hw.step(&[mm(15.0, 11.25, z)], &mut f, &mut sample);
+        }
+        let c = match cut {
+            Some(b) => &b.compliance,
+            None => &world.objects[0].body.compliance,
+        };
+        let mut u = vec![DVec3::ZERO; c.rows().len()];
+        c.displace(sample.bc(0).entries(), &mut u);
+        let mean_y = |nodes: &[u32]| {
+            nodes
+                .iter()
+                .map(|&v| u[c.row_of(v).unwrap()].y)
+                .sum::<f64>()
+                / nodes.len() as f64
+        };
+        (mean_y(&right) - mean_y(&left), mean_y(&left), f[0])
+    };
+    let (cut_open, cut_left, cut_f) = opening(Some(&body));
+    let (plain_open, _, plain_f) = opening(None);
+    eprintln!(
+        "lips ({} left, {} right): open {:.3} mm cut (left lip {:.3} mm, force {cut_f}), {:.3} mm uncut (force {plain_f})",
+        left.len(),
+        right.len(),
+        cut_open * 1e3,
+        cut_left * 1e3,
+        plain_open * 1e3
+    );
+    assert!(cut_left < 0.0, "the left lip moves left: {cut_left}");
+    assert!(cut_open > 0.1e-3, "{cut_open}");
+    assert!(
+        cut_open > 2.0 * plain_open.max(0.0),
+        "{cut_open} against {plain_open}"
     );
 }

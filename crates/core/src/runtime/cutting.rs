@@ -79,10 +79,12 @@ pub struct CutPlan {
     objects: Vec<Option<(crate::Mesh, Compliance, CutRegion)>>,
 }
 
-/// The rank past which a cutter folds its correction into `L` (see [`Cutter::fold_due`]):
-/// where carrying it costs the haptic tick and the visual pass more than the cut itself is
-/// worth (measured in docs/measurements/2026-12-04-cutting.md).
-pub const FOLD_RANK: usize = 360;
+/// The rank at which a cutter folds its correction into `L` (see [`Cutter::fold_due`]): a
+/// cut body's construction grows as the rank squared (`V = U Cᵀ`), and on the mouse it
+/// passes a display frame (16 ms, with the removal) between ranks 120 (6 ms) and 360
+/// (44 ms); a fold there costs about 0.15 s off the haptic thread (measured in
+/// docs/measurements/2026-12-04-cutting.md).
+pub const FOLD_RANK: usize = 160;
 
 /// The off-thread side of cutting: each cuttable object's kept factor and correction.
 pub struct Cutter {
