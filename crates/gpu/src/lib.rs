@@ -18,6 +18,7 @@
 mod bind;
 mod buffer_path;
 mod context;
+mod correct;
 mod deform;
 mod input;
 pub mod options;
