@@ -491,3 +491,90 @@ fn golden_incision_open() {
     assert!(near > 200, "{near}");
     assert!(in_cut > 0.3, "{in_cut}");
 }
+
+/// A cuttable cube of Young's modulus `young` (Pa) and a point finger.
+fn cube_world(young: f64) -> World {
+    crate::common::world_from_text(&format!(
+        "unit = \"mm\"\n[[object]]\nmesh = \"cube\"\nyoung = {young}\ncuttable = \"all\"\n\
+         [[finger]]\ndevice = \"pointer\"\n"
+    ))
+    .expect("cube scene")
+}
+
+/// The visual path follows a feed, on the GPU and on the CPU, and uploads `L` again for a
+/// body whose `L` is not the one on the GPU (here: another material's, same rows and columns,
+/// as a cut folded into `L` would be).
+#[test]
+fn the_visual_path_follows_a_feed_and_uploads_a_new_l() {
+    use touchfem::visual::Visual;
+    let g = gpu();
+    let w = cube_world(5.0e4);
+    let other = cube_world(1.0e5);
+    let (mesh, base) = (&w.objects[0].body.mesh, &other.objects[0].body.compliance);
+    assert_eq!(base.rows(), w.objects[0].body.compliance.rows());
+    assert!(!base.shares_l(&w.objects[0].body.compliance));
+    let at = DVec3::new(0.015, 0.015, 0.026);
+    let removed_tets = tets_near(mesh, at, 8);
+    let mut cut = Cut::new(&other.objects[0].body.mesh).unwrap();
+    let rep = cut.remove(mesh, &removed_tets).unwrap();
+    let compliance = base
+        .with_correction(Arc::new(cut.correction(base).unwrap()))
+        .unwrap();
+    let mut open = mesh.clone();
+    open.surface = mesh.open_surface(cut.removed());
+    let body = Arc::new(CutBody {
+        compliance,
+        surface: touchfem::contact::Surface::new(&open),
+        triangles: open.surface.clone(),
+        report: rep,
+        tets_removed: removed_tets.len(),
+        generation: 1,
+        strokes: Vec::new(),
+    });
+    let mut sample = WorldSample {
+        n_objects: 1,
+        ..Default::default()
+    };
+    let forces = forces_near(&body.compliance, mesh, DVec3::new(0.02, 0.02, 0.03));
+    for &(c, f) in &forces {
+        sample.bcs[0].add(c, to_f64(f));
+    }
+    let feed = Arc::new(CutFeed::default());
+    feed.publish(0, body.clone());
+    // On the GPU: the new L, its correction and the opened surface.
+    let mut visual = Visual::new(&w, Some(g));
+    visual.update(&sample);
+    let before = visual.deformers().unwrap()[0]
+        .read_back(&g.device, &g.queue)
+        .unwrap()
+        .0;
+    visual.follow_cuts(feed.clone());
+    visual.update(&sample);
+    assert_eq!(visual.backend(), "gpu", "{:?}", visual.failure());
+    assert_eq!(visual.surface_generation(), 1);
+    assert!(visual.compliance(0).shares_l(&body.compliance));
+    let d = &visual.deformers().unwrap()[0];
+    assert_eq!(d.index_count() as usize, 3 * body.triangles.len());
+    let pos = d.read_back(&g.device, &g.queue).unwrap().0;
+    let (worst, _) = check_positions(&body.compliance, &mesh.nodes, &forces, &pos);
+    let moved = pos
+        .iter()
+        .zip(&before)
+        .map(|(a, b)| (to_f64(*a) - to_f64(*b)).length())
+        .fold(0.0, f64::max);
+    eprintln!(
+        "gpu: worst error {worst:.3} of the tolerance; the new body moves a vertex {moved:.2e} m"
+    );
+    assert!(moved > 1e-6, "{moved}");
+    // The same generation again takes nothing new.
+    visual.update(&sample);
+    assert_eq!(visual.surface_generation(), 1);
+    // On the CPU: the body's displace.
+    let mut cpu = Visual::new(&w, None);
+    cpu.follow_cuts(feed);
+    cpu.update(&sample);
+    let mut want = vec![DVec3::ZERO; body.compliance.rows().len()];
+    body.compliance.displace(sample.bc(0).entries(), &mut want);
+    assert_eq!(cpu.cpu_displacement(0), &want[..]);
+    assert!(cpu.cut_body(0).is_some());
+}
