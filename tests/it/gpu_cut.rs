@@ -48,6 +48,29 @@ fn run(d: &Deformer) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
     (p, n.expect("normals"))
 }
 
+/// Median time of one frame of `d` (its forces set, encode, submit, wait), µs.
+fn frame_us(d: &mut Deformer, forces: &[(u32, [f32; 3])]) -> f64 {
+    let g = gpu();
+    let mut t: Vec<f64> = (0..30)
+        .map(|_| {
+            let t0 = std::time::Instant::now();
+            d.set_forces(&g.queue, forces).unwrap();
+            let mut enc = g.device.create_command_encoder(&Default::default());
+            d.encode(&mut enc);
+            let idx = g.queue.submit([enc.finish()]);
+            g.device
+                .poll(touchfem::wgpu::PollType::Wait {
+                    submission_index: Some(idx),
+                    timeout: None,
+                })
+                .unwrap();
+            t0.elapsed().as_secs_f64() * 1e6
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
+
 fn to_f64(v: [f32; 3]) -> DVec3 {
     DVec3::from(v.map(f64::from))
 }
@@ -328,6 +351,7 @@ fn the_opened_incision_is_drawn_with_outward_normals() {
         .collect();
     for storage in LAYOUTS {
         let mut d = deformer(base, mesh, storage);
+        let uncut_us = frame_us(&mut d, &forces);
         let before = d.index_count();
         // Every node of the opened surface is a displayed row (the cuttable region's are).
         d.set_triangles(&g.device, &g.queue, &body.triangles)
@@ -338,6 +362,7 @@ fn the_opened_incision_is_drawn_with_outward_normals() {
         d.set_correction(&g.device, &g.queue, body.compliance.correction())
             .unwrap();
         d.set_forces(&g.queue, &forces).unwrap();
+        let cut_us = frame_us(&mut d, &forces);
         let (pos, nrm) = run(&d);
         let (worst, x) = check_positions(&body.compliance, &mesh.nodes, &forces, &pos);
         // The normals are those of the opened surface, deformed.
@@ -374,10 +399,12 @@ fn the_opened_incision_is_drawn_with_outward_normals() {
         }
         eprintln!(
             "{storage:?}: {} triangles ({new_faces} new, {shaded_out} of them shaded outward) \
-             against {}, rank {}, worst position error {worst:.3} of the tolerance",
+             against {}, rank {}, worst position error {worst:.3} of the tolerance; a frame \
+             {uncut_us:.0} µs uncut, {cut_us:.0} µs with the correction ({} forces)",
             body.triangles.len(),
             before / 3,
-            d.correction_rank()
+            d.correction_rank(),
+            forces.len()
         );
         assert!(new_faces > 10, "{new_faces}");
         assert!(

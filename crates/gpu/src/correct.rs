@@ -2,8 +2,9 @@
 //! `rank` extra f32 columns, their weights `z = Σ_c V_cᵀ F_c` computed on the CPU from each
 //! frame's forces ([`Correction::weights`]), and the pinned rows put back at rest. One more
 //! dispatch of the deformer's compute pass, between the deformation and the normals, the same
-//! whatever layout `L` is stored in (`U` is always f32: its `12·R'·rank` bytes are small beside
-//! `L`'s).
+//! whatever layout `L` is stored in (`U` is always f32, a `vec4` a row and column: its
+//! `16·R'·rank` bytes are small beside `L`'s). The weights are one uniform binding of 16 KiB:
+//! a rank above [`MAX_CORRECTION_RANK`] is an error (draw that cut with the CPU's `displace`).
 
 use glam::DVec3;
 use wgpu::util::DeviceExt;
@@ -14,11 +15,17 @@ use crate::input::WORKGROUP;
 use crate::shaders::correct_source;
 use touchfem_core::correction::Correction;
 
+/// Largest rank the GPU pass carries (the weights' uniform array, `shaders/correct.wgsl`).
+pub const MAX_CORRECTION_RANK: usize = 4096;
+
+/// Bytes of the weights' uniform binding.
+const WEIGHT_BYTES: u64 = 4 * MAX_CORRECTION_RANK as u64;
+
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 struct ParamsGpu {
     l_rows: u32,
-    rank: u32,
+    rank4: u32,
     out_offset: u32,
     out_stride: u32,
 }
@@ -48,10 +55,12 @@ pub(crate) struct CorrectionPass {
     dead: wgpu::Buffer,
     out: (wgpu::Buffer, u64, u64),
     positions: Option<wgpu::TextureView>,
-    /// `U` and the weights, room for `capacity` columns.
+    /// `U`, room for `capacity` columns (a multiple of 4), and the weights.
     u_rows: wgpu::Buffer,
     weights: wgpu::Buffer,
     capacity: usize,
+    /// `U` in the shader's layout (kept to upload without allocating per cut).
+    staging: Vec<[f32; 4]>,
     bind_group: wgpu::BindGroup,
     l_rows: usize,
     /// What the weights need of the correction (`rank`, `v_cols`, `dead_cols`; the rest empty).
@@ -61,6 +70,27 @@ pub(crate) struct CorrectionPass {
     z: Vec<f64>,
     z32: Vec<f32>,
     forces: Vec<(u32, DVec3)>,
+}
+
+/// `BufferTooLarge` if a rank-`rank` `U` on `l_rows` rows does not fit one binding or its
+/// weights the uniform array.
+pub(crate) fn check_size(l_rows: usize, rank: usize, max_binding: u64) -> Result<(), GpuError> {
+    if rank > MAX_CORRECTION_RANK {
+        return Err(GpuError::BufferTooLarge {
+            what: "the cut's correction weights (one uniform binding)",
+            bytes: 4 * rank as u64,
+            limit: WEIGHT_BYTES,
+        });
+    }
+    let bytes = 16 * l_rows as u64 * rank.div_ceil(4) as u64 * 4;
+    if bytes > max_binding {
+        return Err(GpuError::BufferTooLarge {
+            what: "the cut's correction (U on the displayed rows)",
+            bytes,
+            limit: max_binding,
+        });
+    }
+    Ok(())
 }
 
 /// Bytes of `n` f32 (at least 16: no empty binding).
@@ -75,7 +105,7 @@ impl CorrectionPass {
         let mut entries = vec![
             uniform_entry(0),
             storage_entry(1, true),
-            storage_entry(2, true),
+            uniform_entry(2),
             storage_entry(3, true),
             storage_entry(4, true),
             storage_entry(5, false),
@@ -112,7 +142,7 @@ impl CorrectionPass {
             label: Some("touchfem correction params"),
             contents: bytemuck::bytes_of(&ParamsGpu {
                 l_rows: l_rows as u32,
-                rank: 0,
+                rank4: 0,
                 out_offset: t.out_word,
                 out_stride: t.stride_words,
             }),
@@ -132,7 +162,13 @@ impl CorrectionPass {
             usage: storage,
             mapped_at_creation: false,
         });
-        let (u_rows, weights) = Self::columns(device, l_rows, 0);
+        let u_rows = Self::columns(device, l_rows, 0);
+        let weights = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("touchfem correction weights"),
+            size: WEIGHT_BYTES,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         let (ob, os, oz) = t.out;
         let out = (ob.clone(), os, oz);
         let positions = t.positions.cloned();
@@ -154,6 +190,7 @@ impl CorrectionPass {
             u_rows,
             weights,
             capacity: 0,
+            staging: Vec::new(),
             bind_group,
             l_rows,
             weights_of: Correction::default(),
@@ -164,21 +201,14 @@ impl CorrectionPass {
         }
     }
 
-    /// `U`'s buffer and the weights' for `cols` columns.
-    fn columns(device: &wgpu::Device, l_rows: usize, cols: usize) -> (wgpu::Buffer, wgpu::Buffer) {
-        let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
-        let make = |label, size| {
-            device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size,
-                usage: storage,
-                mapped_at_creation: false,
-            })
-        };
-        (
-            make("touchfem correction U", f32_bytes(3 * l_rows * cols)),
-            make("touchfem correction weights", f32_bytes(cols)),
-        )
+    /// `U`'s buffer for `cols` columns.
+    fn columns(device: &wgpu::Device, l_rows: usize, cols: usize) -> wgpu::Buffer {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("touchfem correction U"),
+            size: f32_bytes(4 * l_rows * cols),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
     }
 
     fn group(
@@ -215,24 +245,16 @@ impl CorrectionPass {
         max_binding: u64,
     ) -> Result<(), GpuError> {
         let rank = k.rank;
-        let bytes = 12 * self.l_rows as u64 * rank as u64;
-        if bytes > max_binding {
-            return Err(GpuError::BufferTooLarge {
-                what: "the cut's correction (U on the displayed rows)",
-                bytes,
-                limit: max_binding,
-            });
-        }
-        if rank > self.capacity {
-            let cap = rank.max(self.capacity + self.capacity / 2);
-            let cap = if 12 * (self.l_rows * cap) as u64 > max_binding {
-                rank
+        let rank4 = rank.div_ceil(4) * 4;
+        check_size(self.l_rows, rank, max_binding)?;
+        if rank4 > self.capacity {
+            let grown = rank4.max((self.capacity + self.capacity / 2).div_ceil(4) * 4);
+            let cap = if check_size(self.l_rows, grown, max_binding).is_ok() {
+                grown
             } else {
-                cap
+                rank4
             };
-            let (u, w) = Self::columns(device, self.l_rows, cap);
-            self.u_rows = u;
-            self.weights = w;
+            self.u_rows = Self::columns(device, self.l_rows, cap);
             self.capacity = cap;
             self.bind_group = Self::group(
                 device,
@@ -249,7 +271,16 @@ impl CorrectionPass {
             );
         }
         if rank > 0 {
-            queue.write_buffer(&self.u_rows, 0, bytemuck::cast_slice(&k.rows_f32()));
+            // Column q, row r at q·R' + r, (x, y, z, 0); the padding columns zero.
+            let n = self.l_rows;
+            self.staging.clear();
+            self.staging.resize(rank4 * n, [0.0; 4]);
+            for (q, col) in k.rows.chunks_exact(3 * n).enumerate().take(rank) {
+                for (r, u) in col.chunks_exact(3).enumerate() {
+                    self.staging[q * n + r] = [u[0] as f32, u[1] as f32, u[2] as f32, 0.0];
+                }
+            }
+            queue.write_buffer(&self.u_rows, 0, bytemuck::cast_slice(&self.staging));
         }
         let dead: Vec<u32> = k.dead_rows.iter().map(|&d| u32::from(d)).collect();
         if !dead.is_empty() {
@@ -257,7 +288,7 @@ impl CorrectionPass {
         }
         let mut p = [0u32; 2];
         p[0] = self.l_rows as u32;
-        p[1] = rank as u32;
+        p[1] = (rank4 / 4) as u32;
         queue.write_buffer(&self.params, 0, bytemuck::cast_slice(&p));
         self.weights_of = Correction {
             rank,
@@ -266,7 +297,9 @@ impl CorrectionPass {
             ..Default::default()
         };
         self.z.resize(rank, 0.0);
-        self.z32.resize(rank, 0.0);
+        // Padded to whole vec4s: the padding weights stay zero.
+        self.z32.clear();
+        self.z32.resize(rank4, 0.0);
         self.active = rank > 0 || k.dead_rows.iter().any(|&d| d);
         Ok(())
     }
@@ -277,7 +310,7 @@ impl CorrectionPass {
     }
 
     /// Computes this frame's weights from `forces` (validated) and uploads them (`4·rank`
-    /// bytes; nothing at rank 0).
+    /// bytes, rounded up to 16; nothing at rank 0).
     pub(crate) fn set_forces(&mut self, queue: &wgpu::Queue, forces: &[(u32, [f32; 3])]) {
         let rank = self.weights_of.rank;
         if rank == 0 {

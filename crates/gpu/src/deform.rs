@@ -338,11 +338,12 @@ impl Deformer {
     /// rows that hold `L` uploaded as `rank` extra f32 columns (in every [`LStorage`],
     /// f16 ones included), and the rows the cut pinned held at rest. This is
     /// [`Compliance::displace`](touchfem_core::compliance::Compliance::displace) of a compliance
-    /// that carries `correction`. Uploads `12·R'·rank` bytes, re-allocating only when the rank
+    /// that carries `correction`. Uploads `16·R'·rank` bytes, re-allocating only when the rank
     /// outgrows what was allocated; a rank-0 correction that pins nothing costs no dispatch.
     ///
     /// Errors (and then changes nothing): a correction whose sizes do not fit this deformer's
-    /// rows and columns ([`GpuError::BadInput`]), or `U` larger than a storage binding
+    /// rows and columns ([`GpuError::BadInput`]), a rank above
+    /// [`MAX_CORRECTION_RANK`](crate::MAX_CORRECTION_RANK) or `U` larger than a storage binding
     /// ([`GpuError::BufferTooLarge`]; draw that cut with the CPU's `displace`).
     pub fn set_correction(
         &mut self,
@@ -369,14 +370,7 @@ impl Deformer {
                 k.dead_cols.len()
             )));
         }
-        let bytes = 12 * nl as u64 * r as u64;
-        if bytes > self.max_binding {
-            return Err(GpuError::BufferTooLarge {
-                what: "the cut's correction (U on the displayed rows)",
-                bytes,
-                limit: self.max_binding,
-            });
-        }
+        crate::correct::check_size(nl, r, self.max_binding)?;
         if self.correction.is_none() {
             let (start, size, word, stride) = self.out_binding;
             let positions = match &self.path {

@@ -31,6 +31,7 @@ pub use wgpu;
 
 pub use buffer_path::{deform_f16_wgsl, pack_f16};
 pub use context::{read_buffer, AdapterSelection, Gpu, GpuError, ReadbackError};
+pub use correct::MAX_CORRECTION_RANK;
 pub use deform::Deformer;
 pub use input::{
     DeformerInput, DeformerOptions, LData, LStorage, OutputTarget, Vertex, MAX_ACTIVE,
