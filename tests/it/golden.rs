@@ -126,7 +126,7 @@ fn update() -> bool {
     std::env::var("TOUCHFEM_UPDATE_GOLDEN").is_ok_and(|v| v == "1")
 }
 
-fn check_golden(name: &str, actual: &image::RgbaImage) {
+pub(crate) fn check_golden(name: &str, actual: &image::RgbaImage) {
     let dir = golden_dir();
     let path = dir.join(format!("{name}.png"));
     if update() {

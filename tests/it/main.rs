@@ -14,6 +14,7 @@ mod fingertip_cli;
 mod frontal;
 mod golden;
 mod gpu;
+mod gpu_cut;
 mod gpu_f16;
 mod gram;
 mod haptics;

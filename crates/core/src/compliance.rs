@@ -535,6 +535,14 @@ impl Compliance {
         self.correction.as_deref()
     }
 
+    /// Whether `self` and `other` hold the very same `L` (one shared allocation, as after
+    /// [`Compliance::with_correction`]): a copy of `L` made for one (the GPU's) is then valid
+    /// for the other. `false` for two equal but separately built matrices, and for lean
+    /// compliances (no `L` on the host).
+    pub fn shares_l(&self, other: &Compliance) -> bool {
+        self.holds_l() && other.holds_l() && std::sync::Arc::ptr_eq(&self.l, &other.l)
+    }
+
     /// This compliance with `L` shared and `correction` carried beside it: every block,
     /// `L_ii⁻¹` and displacement then reads `L + U C Uᵀ` (see [`crate::correction`]). Costs
     /// the index maps' copy, not `L`'s. Errors when `L` is not held on the host or the

@@ -84,6 +84,12 @@ pub(super) struct BufferPath {
     chunk_params: wgpu::Buffer,
     active: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
+    /// What group 0 is built from, kept to rebuild it when the triangles change.
+    layout0: wgpu::BindGroupLayout,
+    frame_buf: wgpu::Buffer,
+    rest_buf: wgpu::Buffer,
+    out: (wgpu::Buffer, u64, u64),
+    n_rows: usize,
     deform: wgpu::ComputePipeline,
     normals: wgpu::ComputePipeline,
     scratch: Vec<ActiveGpu>,
@@ -94,9 +100,7 @@ impl BufferPath {
     pub(super) fn new(sh: &Shared<'_>) -> Result<BufferPath, GpuError> {
         let (device, queue, nr, nc) = (sh.device, sh.queue, sh.nr, sh.nc);
         let limits = device.limits();
-        // The shader reads offsets[0..=nr] followed by the triangle ids, in one buffer.
-        let (mut adj, list) = touchfem_core::mesh::vertex_triangles(nr, sh.tris);
-        adj.extend_from_slice(&list);
+        let adj = adjacency(nr, sh.tris);
         sh.check("rest positions", 16 * nr as u64)?;
         sh.check("triangle list", 4 * sh.index_words)?;
         sh.check("vertex-triangle adjacency", 4 * adj.len() as u64)?;
@@ -137,11 +141,6 @@ impl BufferPath {
             contents: bytemuck::cast_slice(sh.rest_rows),
             usage: wgpu::BufferUsages::STORAGE,
         });
-        let adj_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("touchfem vertex-triangle CSR"),
-            contents: bytemuck::cast_slice(&adj),
-            usage: wgpu::BufferUsages::STORAGE,
-        });
         let chunk_params = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("touchfem chunk params"),
             size: chunk_param_stride * n_chunks as u64,
@@ -165,18 +164,16 @@ impl BufferPath {
             entries: &[uniform_entry(0), storage_entry(1, true)],
         });
         let (out, out_start, out_size) = sh.out;
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("touchfem deform group 0"),
-            layout: &layout0,
-            entries: &[
-                buffer(0, &frame_buf, 0, std::mem::size_of_val(&sh.frame) as u64),
-                buffer(1, &active, 0, active.size()),
-                buffer(2, &rest_buf, 0, 16 * nr as u64),
-                buffer(3, out, out_start, out_size),
-                buffer(4, sh.index_buffer, 0, 4 * sh.index_words),
-                buffer(5, &adj_buf, 0, 4 * adj.len() as u64),
-            ],
-        });
+        let out = (out.clone(), out_start, out_size);
+        let bind_group = group0(
+            device,
+            &layout0,
+            [&frame_buf, &active, &rest_buf],
+            nr,
+            &out,
+            (sh.index_buffer, sh.index_words),
+            &adj,
+        );
 
         let mut chunks = Vec::with_capacity(n_chunks);
         let col_len = 9 * sh.nl;
@@ -244,6 +241,11 @@ impl BufferPath {
             chunk_params,
             active,
             bind_group,
+            layout0: layout0.clone(),
+            frame_buf,
+            rest_buf,
+            out,
+            n_rows: nr,
             // The deformer's own `Vertex`es carry |u| in position.w (word 3).
             deform: specialised_pipeline(
                 device,
@@ -305,8 +307,8 @@ impl BufferPath {
     }
 
     /// Records one dispatch per chunk with active columns (chunk 0 always: it starts from the
-    /// rest pose), then the normal pass.
-    pub(super) fn record(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32, normals: bool) {
+    /// rest pose).
+    pub(super) fn record_deform(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32) {
         let groups = n_rows.div_ceil(WORKGROUP);
         pass.set_pipeline(&self.deform);
         pass.set_bind_group(0, &self.bind_group, &[]);
@@ -316,11 +318,47 @@ impl BufferPath {
                 pass.dispatch_workgroups(groups, 1, 1);
             }
         }
-        if normals {
-            pass.set_pipeline(&self.normals);
-            pass.set_bind_group(0, &self.bind_group, &[]);
-            pass.dispatch_workgroups(groups, 1, 1);
+    }
+
+    /// Records the normal pass.
+    pub(super) fn record_normals(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32) {
+        pass.set_pipeline(&self.normals);
+        pass.set_bind_group(0, &self.bind_group, &[]);
+        pass.dispatch_workgroups(n_rows.div_ceil(WORKGROUP), 1, 1);
+    }
+
+    /// Takes new triangles (row indices, checked; `index_buffer` holds them as `index_words`
+    /// words): rebuilds the vertex → triangle list and the bindings that read them.
+    pub(super) fn set_triangles(
+        &mut self,
+        device: &wgpu::Device,
+        tris: &[[u32; 3]],
+        index: (&wgpu::Buffer, u64),
+        max_binding: u64,
+    ) -> Result<(), GpuError> {
+        let adj = adjacency(self.n_rows, tris);
+        for (what, bytes) in [
+            ("triangle list", 4 * index.1),
+            ("vertex-triangle adjacency", 4 * adj.len() as u64),
+        ] {
+            if bytes > max_binding {
+                return Err(GpuError::BufferTooLarge {
+                    what,
+                    bytes,
+                    limit: max_binding,
+                });
+            }
         }
+        self.bind_group = group0(
+            device,
+            &self.layout0,
+            [&self.frame_buf, &self.active, &self.rest_buf],
+            self.n_rows,
+            &self.out,
+            index,
+            &adj,
+        );
+        Ok(())
     }
 
     /// Whether `L` is stored as half floats.
@@ -335,4 +373,46 @@ impl BufferPath {
     pub(super) fn cols_per_chunk(&self) -> usize {
         self.cols_per_chunk
     }
+}
+
+/// The normal pass's adjacency: offsets[0..=nr] followed by the triangle ids, in one list.
+fn adjacency(nr: usize, tris: &[[u32; 3]]) -> Vec<u32> {
+    let (mut adj, list) = touchfem_core::mesh::vertex_triangles(nr, tris);
+    adj.extend_from_slice(&list);
+    adj
+}
+
+/// Group 0 of both passes: frame, active list and rest positions (`b`), the output, the
+/// triangles and their adjacency (uploaded here).
+fn group0(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    b: [&wgpu::Buffer; 3],
+    nr: usize,
+    out: &(wgpu::Buffer, u64, u64),
+    index: (&wgpu::Buffer, u64),
+    adj: &[u32],
+) -> wgpu::BindGroup {
+    let adj_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("touchfem vertex-triangle CSR"),
+        contents: bytemuck::cast_slice(adj),
+        usage: wgpu::BufferUsages::STORAGE,
+    });
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("touchfem deform group 0"),
+        layout,
+        entries: &[
+            buffer(
+                0,
+                b[0],
+                0,
+                std::mem::size_of::<crate::input::FrameGpu>() as u64,
+            ),
+            buffer(1, b[1], 0, b[1].size()),
+            buffer(2, b[2], 0, 16 * nr as u64),
+            buffer(3, &out.0, out.1, out.2),
+            buffer(4, index.0, 0, 4 * index.1),
+            buffer(5, &adj_buf, 0, 4 * adj.len() as u64),
+        ],
+    })
 }

@@ -5,11 +5,13 @@ use wgpu::util::DeviceExt;
 
 use crate::buffer_path::BufferPath;
 use crate::context::GpuError;
+use crate::correct::{CorrectionPass, CorrectionTarget};
 use crate::input::{
     DeformerInput, DeformerOptions, FrameGpu, LStorage, OutputTarget, Shared, Vertex, MAX_ACTIVE,
     NO_NORMALS, VERTEX_STRIDE, WORKGROUP,
 };
 use crate::texture_path::TexturePath;
+use touchfem_core::correction::Correction;
 
 enum Path {
     Buffers(BufferPath),
@@ -27,14 +29,33 @@ enum Path {
 /// deformation dispatch(es), then the normal pass, which gathers over precomputed per-vertex
 /// adjacency (incident triangles, or triangle fans in the texture layout; WGSL has no float
 /// atomics).
+///
+/// **Cuts.** [`set_correction`](Self::set_correction) carries a cut's exact low-rank correction
+/// ([`Correction`]: `u = L·F + U_R z`) as one more dispatch between the two, whatever the
+/// [`LStorage`]; [`set_triangles`](Self::set_triangles) takes the opened surface.
 pub struct Deformer {
     n_rows: u32,
     n_cols: usize,
+    l_rows: usize,
     path: Path,
     target: OutputTarget,
     write_normals: bool,
     index_buffer: wgpu::Buffer,
     triangles: Vec<[u32; 3]>,
+    /// For each mesh node up to the largest row's, its row or `u32::MAX`.
+    row_of: Vec<u32>,
+    /// Rest positions per row (the correction pass puts pinned rows back there).
+    rest_rows: Vec<[f32; 4]>,
+    /// The output binding: start and size in bytes, vertex 0's word and the stride in words.
+    out_binding: (u64, u64, u32, u32),
+    vertex_layout: bool,
+    max_binding: u64,
+    /// The cut's correction, once one was set.
+    correction: Option<CorrectionPass>,
+    /// This frame's forces (the correction's weights are recomputed from them when it changes).
+    forces: Vec<(u32, [f32; 3])>,
+    /// Bumped by each [`set_triangles`](Self::set_triangles).
+    surface_generation: u64,
 }
 
 impl std::fmt::Debug for Deformer {
@@ -121,19 +142,7 @@ impl Deformer {
         for (i, &node) in input.rows.iter().enumerate() {
             row_of[node as usize] = i as u32;
         }
-        let mut tris = Vec::with_capacity(triangles.len());
-        for (t, tri) in triangles.iter().enumerate() {
-            let mut out = [0u32; 3];
-            for (k, &node) in tri.iter().enumerate() {
-                out[k] = row_of.get(node as usize).copied().unwrap_or(u32::MAX);
-                if out[k] == u32::MAX {
-                    return Err(GpuError::BadInput(format!(
-                        "triangle {t} {tri:?} uses node {node}, which is not a displayed row"
-                    )));
-                }
-            }
-            tris.push(out);
-        }
+        let tris = rows_of_triangles(&row_of, triangles)?;
 
         // Output target.
         let target = match &options.output {
@@ -178,14 +187,7 @@ impl Deformer {
             out_size = VERTEX_STRIDE * nr as u64;
         }
 
-        let mut tri_words: Vec<u32> = tris.iter().flatten().copied().collect();
-        let n_tri_words = tri_words.len().max(1);
-        tri_words.resize(n_tri_words.max(4), 0);
-        let index_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("touchfem triangles"),
-            contents: bytemuck::cast_slice(&tri_words),
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDEX,
-        });
+        let (index_buffer, index_words) = index_buffer(device, &tris);
 
         let shared = Shared {
             half: matches!(
@@ -201,7 +203,7 @@ impl Deformer {
             rest_rows: &rest_rows,
             tris: &tris,
             index_buffer: &index_buffer,
-            index_words: tri_words.len() as u64,
+            index_words,
             frame: FrameGpu {
                 n_rows: nr as u32,
                 out_offset: out_word,
@@ -265,11 +267,25 @@ impl Deformer {
         let mut d = Deformer {
             n_rows: nr as u32,
             n_cols: nc,
+            l_rows: nl,
             path,
             write_normals: target.normal_offset.is_some(),
             target,
             index_buffer,
             triangles: tris,
+            row_of,
+            rest_rows,
+            out_binding: (
+                out_start,
+                out_size,
+                out_word,
+                (options.output.as_ref().map_or(VERTEX_STRIDE, |t| t.stride) / 4) as u32,
+            ),
+            vertex_layout,
+            max_binding,
+            correction: None,
+            forces: Vec::with_capacity(MAX_ACTIVE),
+            surface_generation: 0,
         };
         d.set_forces(queue, &[])?;
         Ok(d)
@@ -308,7 +324,127 @@ impl Deformer {
             Path::Buffers(p) => p.set_forces(queue, forces),
             Path::Texture(p) => p.set_forces(queue, forces),
         }
+        if let Some(c) = &mut self.correction {
+            c.set_forces(queue, forces);
+        }
+        self.forces.clear();
+        self.forces.extend_from_slice(forces);
         Ok(())
+    }
+
+    /// Carries a cut's correction (`None`: none): from the next [`encode`](Self::encode)d
+    /// pass, `u = L·F + U_R z` with `z = Σ_c V_cᵀ F_c` computed on the CPU from the forces of
+    /// each [`set_forces`](Self::set_forces) (and from the current ones now), `U` on the
+    /// rows that hold `L` uploaded as `rank` extra f32 columns (in every [`LStorage`],
+    /// f16 ones included), and the rows the cut pinned held at rest. This is
+    /// [`Compliance::displace`](touchfem_core::compliance::Compliance::displace) of a compliance
+    /// that carries `correction`. Uploads `16·R'·rank` bytes, re-allocating only when the rank
+    /// outgrows what was allocated; a rank-0 correction that pins nothing costs no dispatch.
+    ///
+    /// Errors (and then changes nothing): a correction whose sizes do not fit this deformer's
+    /// rows and columns ([`GpuError::BadInput`]), a rank above
+    /// [`MAX_CORRECTION_RANK`](crate::MAX_CORRECTION_RANK) or `U` larger than a storage binding
+    /// ([`GpuError::BufferTooLarge`]; draw that cut with the CPU's `displace`).
+    pub fn set_correction(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        correction: Option<&Correction>,
+    ) -> Result<(), GpuError> {
+        let Some(k) = correction else {
+            if let Some(c) = &mut self.correction {
+                c.set(device, queue, &Correction::default(), self.max_binding)?;
+            }
+            return Ok(());
+        };
+        let (nl, nc, r) = (self.l_rows, self.n_cols, k.rank);
+        if k.rows.len() != 3 * nl * r
+            || k.v_cols.len() != 3 * nc * r
+            || k.dead_rows.len() != nl
+            || k.dead_cols.len() != nc
+        {
+            return Err(GpuError::BadInput(format!(
+                "a correction of rank {r} for {} rows and {} columns does not fit the \
+                 deformer's {nl} rows that hold L and {nc} columns",
+                k.dead_rows.len(),
+                k.dead_cols.len()
+            )));
+        }
+        crate::correct::check_size(nl, r, self.max_binding)?;
+        if self.correction.is_none() {
+            let (start, size, word, stride) = self.out_binding;
+            let positions = match &self.path {
+                Path::Buffers(_) => None,
+                Path::Texture(p) => Some(p.positions()),
+            };
+            let pass = CorrectionPass::new(
+                device,
+                &CorrectionTarget {
+                    out: (&self.target.buffer, start, size),
+                    out_word: word,
+                    stride_words: stride,
+                    vertex_layout: self.vertex_layout,
+                    positions,
+                    rest_rows: &self.rest_rows[..nl],
+                },
+            );
+            self.correction = Some(pass);
+        }
+        let c = self.correction.as_mut().expect("just made");
+        c.set(device, queue, k, self.max_binding)?;
+        c.set_forces(queue, &self.forces);
+        Ok(())
+    }
+
+    /// The rank of the correction carried ([`set_correction`](Self::set_correction)); 0 when
+    /// none.
+    pub fn correction_rank(&self) -> usize {
+        self.correction.as_ref().map_or(0, |c| c.rank())
+    }
+
+    /// Replaces the surface drawn and shaded: `triangles` as **mesh node** indices,
+    /// counter-clockwise seen from outside (as for [`new`](Self::new); e.g. a cut's opened
+    /// surface, [`touchfem_core::Mesh::open_surface`]). Makes a new
+    /// [`index_buffer`](Self::index_buffer) ([`index_count`](Self::index_count) follows) and
+    /// the normal pass's adjacency, so that new faces get their normals from the next
+    /// [`encode`](Self::encode)d pass. The vertices stay one per displayed row: every node of
+    /// `triangles` must be one (a cuttable region's nodes are, see the scene key `cuttable`).
+    ///
+    /// Errors (and then changes nothing): a node that is not a displayed row
+    /// ([`GpuError::BadInput`]), adjacency beyond the device's limits.
+    pub fn set_triangles(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        triangles: &[[u32; 3]],
+    ) -> Result<(), GpuError> {
+        let tris = rows_of_triangles(&self.row_of, triangles)?;
+        let (index_buffer, words) = index_buffer(device, &tris);
+        match &mut self.path {
+            Path::Buffers(p) => {
+                p.set_triangles(device, &tris, (&index_buffer, words), self.max_binding)?
+            }
+            Path::Texture(p) => p.set_triangles(device, queue, &tris)?,
+        }
+        self.index_buffer = index_buffer;
+        self.triangles = tris;
+        self.surface_generation += 1;
+        Ok(())
+    }
+
+    /// How many times [`set_triangles`](Self::set_triangles) replaced the surface (0 after
+    /// [`new`](Self::new)): what a renderer compares to know when to rebuild what it derived
+    /// from [`triangles`](Self::triangles) (e.g. its wireframe).
+    pub fn surface_generation(&self) -> u64 {
+        self.surface_generation
+    }
+
+    /// The vertex (row) index of mesh node `node`, if it is displayed.
+    pub fn row_of(&self, node: u32) -> Option<u32> {
+        self.row_of
+            .get(node as usize)
+            .copied()
+            .filter(|&r| r != u32::MAX)
     }
 
     /// Records the deformation and normal passes (one compute pass) into `encoder`. Draw from
@@ -319,8 +455,17 @@ impl Deformer {
             timestamp_writes: None,
         });
         match &self.path {
-            Path::Buffers(p) => p.record(&mut pass, self.n_rows, self.write_normals),
-            Path::Texture(p) => p.record(&mut pass, self.n_rows, self.write_normals),
+            Path::Buffers(p) => p.record_deform(&mut pass, self.n_rows),
+            Path::Texture(p) => p.record_deform(&mut pass, self.n_rows),
+        }
+        if let Some(c) = &self.correction {
+            c.record(&mut pass);
+        }
+        if self.write_normals {
+            match &self.path {
+                Path::Buffers(p) => p.record_normals(&mut pass, self.n_rows),
+                Path::Texture(p) => p.record_normals(&mut pass, self.n_rows),
+            }
         }
     }
 
@@ -426,6 +571,39 @@ impl Deformer {
             .map(|no| (0..n).map(|i| word(t.offset + i * t.stride + no)).collect());
         Ok((pos, nrm))
     }
+}
+
+/// `triangles` (mesh nodes) in row indices, through `row_of` (per node, its row or
+/// `u32::MAX`); an error names the first node that is not a displayed row.
+fn rows_of_triangles(row_of: &[u32], triangles: &[[u32; 3]]) -> Result<Vec<[u32; 3]>, GpuError> {
+    let mut tris = Vec::with_capacity(triangles.len());
+    for (t, tri) in triangles.iter().enumerate() {
+        let mut out = [0u32; 3];
+        for (k, &node) in tri.iter().enumerate() {
+            out[k] = row_of.get(node as usize).copied().unwrap_or(u32::MAX);
+            if out[k] == u32::MAX {
+                return Err(GpuError::BadInput(format!(
+                    "triangle {t} {tri:?} uses node {node}, which is not a displayed row"
+                )));
+            }
+        }
+        tris.push(out);
+    }
+    Ok(tris)
+}
+
+/// The triangles' index buffer (`STORAGE | INDEX`, padded to at least 4 words) and how many
+/// words of it to bind.
+fn index_buffer(device: &wgpu::Device, tris: &[[u32; 3]]) -> (wgpu::Buffer, u64) {
+    let mut words: Vec<u32> = tris.iter().flatten().copied().collect();
+    let n = words.len().max(1);
+    words.resize(n.max(4), 0);
+    let b = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("touchfem triangles"),
+        contents: bytemuck::cast_slice(&words),
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDEX,
+    });
+    (b, words.len() as u64)
 }
 
 /// Checks an output target; returns (binding start, binding size, word offset of vertex 0

@@ -18,6 +18,7 @@
 mod bind;
 mod buffer_path;
 mod context;
+mod correct;
 mod deform;
 mod input;
 pub mod options;
@@ -30,6 +31,7 @@ pub use wgpu;
 
 pub use buffer_path::{deform_f16_wgsl, pack_f16};
 pub use context::{read_buffer, AdapterSelection, Gpu, GpuError, ReadbackError};
+pub use correct::MAX_CORRECTION_RANK;
 pub use deform::Deformer;
 pub use input::{
     DeformerInput, DeformerOptions, LData, LStorage, OutputTarget, Vertex, MAX_ACTIVE,
@@ -71,6 +73,7 @@ mod tests {
             "active_immediate.wgsl",
             "output_words.wgsl",
             "output_vertex.wgsl",
+            "correct.wgsl",
         ];
         let mut n = 0;
         for entry in std::fs::read_dir(dir).expect("shaders/ exists") {
@@ -87,9 +90,16 @@ mod tests {
             validate(&name, &src, Capabilities::empty());
         }
         assert!(
-            n >= 7,
-            "expected deform.wgsl, render.wgsl and the texture layout's five parts, found {n}"
+            n >= 8,
+            "expected deform.wgsl, render.wgsl, correct.wgsl and the texture layout's five parts, found {n}"
         );
+        for positions in [false, true] {
+            validate(
+                &format!("correct (positions texture {positions})"),
+                &super::correct_source(positions),
+                Capabilities::empty(),
+            );
+        }
         for immediates in [false, true] {
             for vertex in [false, true] {
                 for half in [false, true] {
@@ -110,6 +120,13 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The correction pass's uniform weights hold exactly `MAX_CORRECTION_RANK` of them.
+    #[test]
+    fn correction_weights_match_max_rank() {
+        let decl = format!("array<vec4<f32>, {}>", super::MAX_CORRECTION_RANK / 4);
+        assert!(super::CORRECT_WGSL.contains(&decl), "{decl} not found");
     }
 
     /// The shaders' fixed-size active lists hold exactly `MAX_ACTIVE` entries.
@@ -142,6 +159,7 @@ mod tests {
             ("active_immediate.wgsl", super::ACTIVE_IMMEDIATE_WGSL),
             ("output_words.wgsl", super::OUTPUT_WORDS_WGSL),
             ("output_vertex.wgsl", super::OUTPUT_VERTEX_WGSL),
+            ("correct.wgsl", super::CORRECT_WGSL),
         ] {
             let path = format!("{}/../../shaders/{name}", env!("CARGO_MANIFEST_DIR"));
             assert_eq!(std::fs::read_to_string(path).unwrap(), embedded, "{name}");

@@ -50,6 +50,12 @@ pub(super) struct TexturePath {
     active: wgpu::Buffer,
     deform_group: wgpu::BindGroup,
     normals_group: wgpu::BindGroup,
+    /// What the normal pass's group is built from, kept to rebuild it when the triangles
+    /// change.
+    normals_layout: wgpu::BindGroupLayout,
+    out: (wgpu::Buffer, u64, u64),
+    pos_view: wgpu::TextureView,
+    n_rows: usize,
     /// The deformation pipeline; with immediates one per inline entry count
     /// (0..=[`INLINE_ACTIVE`]) and a last one for uploaded lists.
     deform: Vec<wgpu::ComputePipeline>,
@@ -129,6 +135,71 @@ fn fan_slots(nr: usize, tris: &[[u32; 3]]) -> Result<Vec<u32>, GpuError> {
     Ok(slots)
 }
 
+/// A 2D texture of `n` texels from `data` (texels of the format's size), zero-padded, `W`
+/// texels a row.
+fn texture_2d(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    what: &'static str,
+    format: wgpu::TextureFormat,
+    usage: wgpu::TextureUsages,
+    n: u64,
+    data: &[u8],
+) -> Result<wgpu::Texture, GpuError> {
+    let max_dim = u64::from(device.limits().max_texture_dimension_2d);
+    let (w, h) = extent_2d(n);
+    if u64::from(h) > max_dim {
+        return Err(GpuError::BufferTooLarge {
+            what,
+            bytes: 16 * n,
+            limit: 16 * W * max_dim,
+        });
+    }
+    let texel = format.block_copy_size(None).unwrap_or(16) as usize;
+    let mut bytes = data.to_vec();
+    bytes.resize(texel * w as usize * h as usize, 0);
+    Ok(device.create_texture_with_data(
+        queue,
+        &wgpu::TextureDescriptor {
+            label: Some(what),
+            size: wgpu::Extent3d {
+                width: w,
+                height: h,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
+        },
+        wgpu::util::TextureDataOrder::LayerMajor,
+        &bytes,
+    ))
+}
+
+/// The normal pass's bindings: the frame, the output, the deformed positions and the fans.
+fn normals_group(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    frame: &wgpu::Buffer,
+    out: (&wgpu::Buffer, u64, u64),
+    pos_view: &wgpu::TextureView,
+    fan_view: &wgpu::TextureView,
+) -> wgpu::BindGroup {
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("touchfem normals (texture)"),
+        layout,
+        entries: &[
+            buffer(0, frame, 0, 32),
+            buffer(2, out.0, out.1, out.2),
+            view(6, pos_view),
+            view(8, fan_view),
+        ],
+    })
+}
+
 impl TexturePath {
     pub(super) fn new(sh: &Shared<'_>) -> Result<TexturePath, GpuError> {
         let (device, queue, nr, nc) = (sh.device, sh.queue, sh.nr as u64, sh.nc as u64);
@@ -136,43 +207,8 @@ impl TexturePath {
         let max_dim = u64::from(limits.max_texture_dimension_2d);
         let tb = wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_DST;
 
-        // A 2D texture of `n` texels from `data` (texels of `texel` bytes), zero-padded.
-        let texture_2d = |what: &'static str,
-                          format: wgpu::TextureFormat,
-                          usage: wgpu::TextureUsages,
-                          n: u64,
-                          data: &[u8]|
-         -> Result<wgpu::Texture, GpuError> {
-            let (w, h) = extent_2d(n);
-            if u64::from(h) > max_dim {
-                return Err(GpuError::BufferTooLarge {
-                    what,
-                    bytes: 16 * n,
-                    limit: 16 * W * max_dim,
-                });
-            }
-            let texel = format.block_copy_size(None).unwrap_or(16) as usize;
-            let mut bytes = data.to_vec();
-            bytes.resize(texel * w as usize * h as usize, 0);
-            Ok(device.create_texture_with_data(
-                queue,
-                &wgpu::TextureDescriptor {
-                    label: Some(what),
-                    size: wgpu::Extent3d {
-                        width: w,
-                        height: h,
-                        depth_or_array_layers: 1,
-                    },
-                    mip_level_count: 1,
-                    sample_count: 1,
-                    dimension: wgpu::TextureDimension::D2,
-                    format,
-                    usage,
-                    view_formats: &[],
-                },
-                wgpu::util::TextureDataOrder::LayerMajor,
-                &bytes,
-            ))
+        let texture_2d = |what, format, usage, n, data: &[u8]| {
+            texture_2d(device, queue, what, format, usage, n, data)
         };
 
         // Rest pose and the deformed positions (written by `deform`, read by `normals`).
@@ -364,16 +400,14 @@ impl TexturePath {
                 view(5, &pos_view),
             ],
         });
-        let normals_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("touchfem normals (texture)"),
-            layout: &normals_layout,
-            entries: &[
-                buffer(0, &frame_buf, 0, 32),
-                buffer(2, out, out_start, out_size),
-                view(6, &pos_view),
-                view(8, &fan_view),
-            ],
-        });
+        let normals_group = normals_group(
+            device,
+            &normals_layout,
+            &frame_buf,
+            (out, out_start, out_size),
+            &pos_view,
+            &fan_view,
+        );
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("touchfem deform_texture.wgsl"),
             source: wgpu::ShaderSource::Wgsl(
@@ -410,6 +444,10 @@ impl TexturePath {
             normals: compute_pipeline(device, &module, "normals", &[&normals_layout], 0),
             deform_group,
             normals_group,
+            normals_layout,
+            out: (out.clone(), out_start, out_size),
+            pos_view,
+            n_rows: sh.nr,
             frame: frame_buf,
             scratch: Vec::with_capacity(MAX_ACTIVE),
             immediates: sh.immediates.then_some([0; IMMEDIATE_WORDS]),
@@ -462,8 +500,8 @@ impl TexturePath {
         self.immediates.is_some()
     }
 
-    /// Records the deformation dispatch, then the normal pass.
-    pub(super) fn record(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32, normals: bool) {
+    /// Records the deformation dispatch.
+    pub(super) fn record_deform(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32) {
         let groups = n_rows.div_ceil(WORKGROUP);
         // With immediates: the pipeline specialised for this many inline entries, or the last
         // one (uploaded list).
@@ -477,11 +515,49 @@ impl TexturePath {
             pass.set_immediates(0, bytemuck::cast_slice(imm));
         }
         pass.dispatch_workgroups(groups, 1, 1);
-        if normals {
-            pass.set_pipeline(&self.normals);
-            pass.set_bind_group(0, &self.normals_group, &[]);
-            pass.dispatch_workgroups(groups, 1, 1);
-        }
+    }
+
+    /// Records the normal pass.
+    pub(super) fn record_normals(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32) {
+        pass.set_pipeline(&self.normals);
+        pass.set_bind_group(0, &self.normals_group, &[]);
+        pass.dispatch_workgroups(n_rows.div_ceil(WORKGROUP), 1, 1);
+    }
+
+    /// The deformed positions the normal pass reads (the correction pass writes them too).
+    pub(super) fn positions(&self) -> &wgpu::TextureView {
+        &self.pos_view
+    }
+
+    /// Takes new triangles (row indices, checked): rebuilds the fan texture and the normal
+    /// pass's bindings.
+    pub(super) fn set_triangles(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        tris: &[[u32; 3]],
+    ) -> Result<(), GpuError> {
+        let fans = fan_slots(self.n_rows, tris)?;
+        let fan_tex = texture_2d(
+            device,
+            queue,
+            "touchfem vertex fans",
+            wgpu::TextureFormat::Rgba32Uint,
+            wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_DST,
+            fans.len() as u64 / 4,
+            bytemuck::cast_slice(&fans),
+        )?;
+        let fan_view = fan_tex.create_view(&Default::default());
+        let (b, start, size) = &self.out;
+        self.normals_group = normals_group(
+            device,
+            &self.normals_layout,
+            &self.frame,
+            (b, *start, *size),
+            &self.pos_view,
+            &fan_view,
+        );
+        Ok(())
     }
 
     pub(super) fn layer_count(&self) -> usize {

@@ -2,14 +2,23 @@
 //! is there and healthy, on the CPU (f64) otherwise. A GPU that hangs (a wait longer than the
 //! timeout) or is lost mid-run is dropped for the rest of the run with one warning; the visual
 //! loop goes on with the CPU product, and the haptic loop, on its own core, never notices.
+//!
+//! **Cuts.** Given the cutter's feed ([`Visual::follow_cuts`]), each update first takes every
+//! object's newest [`CutBody`] when the feed's generation moved: the GPU pass then carries its
+//! correction and draws its opened surface, the CPU product reads its compliance; a body whose
+//! `L` is not the one on the GPU (a cut folded into a new `L`) has its `L` uploaded again.
 
 use glam::DVec3;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::context::Gpu;
 use crate::deform::Deformer;
 use crate::input::DeformerOptions;
+use touchfem_core::compliance::Compliance;
 use touchfem_core::force::MAX_FINGERS;
+use touchfem_core::runtime::cutting::{CutBody, CutFeed};
 use touchfem_core::runtime::WorldSample;
 use touchfem_core::scene::World;
 
@@ -24,6 +33,13 @@ pub struct Visual<'a> {
     cpu: Vec<Vec<DVec3>>,
     failure: Option<String>,
     timeout: Duration,
+    options: DeformerOptions,
+    /// The cutter's feed, once followed, and its generation last read.
+    feed: Option<(Arc<CutFeed>, u64)>,
+    /// Each object's cut body in use (`None`: uncut).
+    cuts: Vec<Option<Arc<CutBody>>>,
+    /// Bumped whenever an object's drawn surface or deformer changes.
+    surface_generation: u64,
 }
 
 impl<'a> Visual<'a> {
@@ -41,6 +57,10 @@ impl<'a> Visual<'a> {
                 .collect(),
             failure: None,
             timeout: GPU_TIMEOUT,
+            options: DeformerOptions::default(),
+            feed: None,
+            cuts: vec![None; world.objects.len()],
+            surface_generation: 0,
         };
         if let Some(g) = gpu {
             let options = match crate::LStorage::from_env() {
@@ -53,6 +73,7 @@ impl<'a> Visual<'a> {
                     return v;
                 }
             };
+            v.options = options.clone();
             for o in &world.objects {
                 let s = &o.body;
                 match Deformer::new(
@@ -72,6 +93,92 @@ impl<'a> Visual<'a> {
             }
         }
         v
+    }
+
+    /// Follows the cutter's feed (e.g. [`LiveStatus::cuts`](touchfem_core::runtime::LiveStatus)):
+    /// from the next [`update`](Self::update), each object is drawn from its newest cut body.
+    pub fn follow_cuts(&mut self, feed: Arc<CutFeed>) {
+        self.feed = Some((feed, u64::MAX));
+    }
+
+    /// Object `o`'s cut body in use, if it was cut: its `triangles` are the surface to draw
+    /// with [`cpu_displacement`](Self::cpu_displacement) when the GPU is not in use.
+    pub fn cut_body(&self, o: usize) -> Option<&Arc<CutBody>> {
+        self.cuts.get(o)?.as_ref()
+    }
+
+    /// Bumped each time an object's drawn surface or deformer changes (a cut taken): what a
+    /// caller compares to rebuild what it derived from the deformers (wireframe edges).
+    pub fn surface_generation(&self) -> u64 {
+        self.surface_generation
+    }
+
+    /// The compliance object `o` is displaced with: its cut body's, or the scene's.
+    pub fn compliance(&self, o: usize) -> &Compliance {
+        match self.cuts.get(o).and_then(|c| c.as_ref()) {
+            Some(b) => &b.compliance,
+            None => &self.world.objects[o].body.compliance,
+        }
+    }
+
+    /// Takes the feed's newest cut bodies if its generation moved (a lock, only then).
+    fn take_cuts(&mut self) {
+        let Some((feed, seen)) = &mut self.feed else {
+            return;
+        };
+        let now = feed.generation.load(Ordering::Acquire);
+        if now == *seen {
+            return;
+        }
+        *seen = now;
+        let latest = feed.latest();
+        for (o, body) in latest {
+            if o >= self.cuts.len() {
+                log::warn!(
+                    "a cut body for object {o}, but the scene has {}",
+                    self.cuts.len()
+                );
+                continue;
+            }
+            if self.cuts[o].as_ref().is_some_and(|b| Arc::ptr_eq(b, &body)) {
+                continue;
+            }
+            if body.compliance.rows() != self.world.objects[o].body.compliance.rows() {
+                log::warn!(
+                    "a cut body of '{}' displays other rows than the scene; not drawn",
+                    self.world.objects[o].name
+                );
+                continue;
+            }
+            if self.gpu_ok() {
+                if let Err(why) = self.install_gpu(o, &body) {
+                    self.give_up(why);
+                }
+            }
+            self.cuts[o] = Some(body);
+            self.surface_generation += 1;
+        }
+    }
+
+    /// Puts object `o`'s cut body on its deformer ([`install_cut`]).
+    fn install_gpu(&mut self, o: usize, body: &CutBody) -> Result<(), String> {
+        let g = self.gpu.expect("checked");
+        let world = self.world;
+        let obj = &world.objects[o];
+        let uploaded = match self.cuts[o].as_ref() {
+            Some(b) => &b.compliance,
+            None => &obj.body.compliance,
+        };
+        install_cut(
+            &g.device,
+            &g.queue,
+            &mut self.deformers[o],
+            uploaded,
+            body,
+            &obj.body.mesh,
+            &self.options,
+        )
+        .map_err(|e| format!("cannot draw the cut of '{}': {e}", obj.name))
     }
 
     /// Sets how long one GPU update may take before the GPU is given up.
@@ -118,6 +225,7 @@ impl<'a> Visual<'a> {
     /// (submit to completion on the GPU).
     pub fn update(&mut self, sample: &WorldSample) -> f64 {
         let t = Instant::now();
+        self.take_cuts();
         if self.gpu_ok() {
             if let Err(why) = self.update_gpu(sample) {
                 self.give_up(why);
@@ -126,12 +234,15 @@ impl<'a> Visual<'a> {
             }
         }
         let t = Instant::now();
-        for (o, obj) in self.world.objects.iter().enumerate() {
-            // An object whose L stayed in its cache file keeps its last shape.
-            if obj.body.compliance.holds_l() {
-                obj.body
-                    .compliance
-                    .displace(sample.bc(o).entries(), &mut self.cpu[o]);
+        for o in 0..self.world.objects.len() {
+            // An object whose L stayed in its cache file keeps its last shape. A cut body's
+            // compliance carries its correction: `displace` adds it.
+            let c = match self.cuts[o].as_ref() {
+                Some(b) => &b.compliance,
+                None => &self.world.objects[o].body.compliance,
+            };
+            if c.holds_l() {
+                c.displace(sample.bc(o).entries(), &mut self.cpu[o]);
             }
         }
         t.elapsed().as_secs_f64() * 1e6
@@ -154,6 +265,49 @@ impl<'a> Visual<'a> {
             .map(|_| ())
             .map_err(|e| format!("waiting for the update: {e}"))
     }
+}
+
+/// Puts a cut body on `deformer`, which was built from `uploaded` for an object whose rest mesh
+/// is `mesh`: `L` again (a new [`Deformer`] with `options`) when the body's is not the one
+/// uploaded ([`Compliance::shares_l`]: a cut folded into a new `L`), then the body's correction
+/// and its opened surface. Triangles whose nodes are not displayed rows (a cut beyond the
+/// `cuttable` region's nodes) are left out with a warning. The caller rebuilds what it derived
+/// from the deformer's triangles (its wireframe). On an error the deformer may hold part of
+/// the body: draw from the CPU's `displace` then.
+pub fn install_cut(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    deformer: &mut Deformer,
+    uploaded: &Compliance,
+    body: &CutBody,
+    mesh: &touchfem_core::Mesh,
+    options: &DeformerOptions,
+) -> Result<(), crate::GpuError> {
+    if !body.compliance.shares_l(uploaded) {
+        log::info!("a cut body holds a new L; uploading it");
+        *deformer = Deformer::new(
+            device,
+            queue,
+            &body.compliance,
+            &mesh.nodes,
+            &mesh.surface,
+            options,
+        )?;
+    }
+    let (drawn, left_out): (Vec<[u32; 3]>, Vec<[u32; 3]>) = body
+        .triangles
+        .iter()
+        .partition(|t| t.iter().all(|&v| deformer.row_of(v).is_some()));
+    if !left_out.is_empty() {
+        log::warn!(
+            "{} of the cut surface's {} triangles use nodes that are not displayed rows; \
+             they are not drawn",
+            left_out.len(),
+            body.triangles.len()
+        );
+    }
+    deformer.set_triangles(device, queue, &drawn)?;
+    deformer.set_correction(device, queue, body.compliance.correction())
 }
 
 /// What a frame shows of a haptic sample besides the objects: each finger, its god-object and

@@ -325,13 +325,19 @@ pub(crate) fn run_scene(
     let status = LiveStatus::default();
     let phase = AtomicU8::new(0);
     let mut visual = Visual::new(world, gpu);
-    let edges: Vec<touchfem_gpu::render::Edges> = match (gpu, visual.deformers()) {
-        (Some(g), Some(ds)) => ds
-            .iter()
-            .map(|d| touchfem_gpu::render::Edges::new(&g.device, d))
-            .collect(),
-        _ => Vec::new(),
+    // The frames show each cut as the cutter's thread makes it.
+    visual.follow_cuts(status.cuts.clone());
+    let edges_of = |visual: &Visual<'_>| -> Vec<touchfem_gpu::render::Edges> {
+        match (gpu, visual.deformers()) {
+            (Some(g), Some(ds)) => ds
+                .iter()
+                .map(|d| touchfem_gpu::render::Edges::new(&g.device, d))
+                .collect(),
+            _ => Vec::new(),
+        }
     };
+    let mut edges = edges_of(&visual);
+    let mut edges_generation = visual.surface_generation();
     let scales = picture_scales(world, 400)?;
     let style = {
         let coloring = if opts.displacement_colors {
@@ -400,6 +406,11 @@ pub(crate) fn run_scene(
             while !status.done.load(Ordering::Acquire) {
                 let sample = *reader.read();
                 let us = visual.update(&sample);
+                if visual.surface_generation() != edges_generation {
+                    // A cut opened the surface: its wireframe too.
+                    edges = edges_of(&visual);
+                    edges_generation = visual.surface_generation();
+                }
                 let img = match (gpu, renderer) {
                     (Some(g), Some(r)) => draw(g, r, &edges, world, &visual, &sample, &style)?,
                     _ => None,

@@ -47,6 +47,10 @@ struct Gfx {
     legend: Overlay,
     deformers: Vec<Deformer>,
     edges: Vec<Edges>,
+    deformer_options: DeformerOptions,
+    /// Each object's cut body drawn (`None`: uncut), and the cutter feed's generation seen.
+    cuts: Vec<Option<Arc<touchfem_core::runtime::cutting::CutBody>>>,
+    cuts_seen: u64,
     /// The first error the device reported (validation, out of memory, lost).
     device_error: Arc<Mutex<Option<String>>>,
 }
@@ -415,8 +419,11 @@ impl<'a> App<'a> {
             renderer,
             overlay,
             legend,
+            cuts: vec![None; deformers.len()],
             deformers,
             edges,
+            deformer_options,
+            cuts_seen: 0,
             device_error,
         })
     }
@@ -496,6 +503,38 @@ impl<'a> App<'a> {
         };
         if let Some(e) = g.device_error.lock().ok().and_then(|mut s| s.take()) {
             return Err(ViewError::Device(e));
+        }
+        let cuts = self.status.cuts.generation.load(Ordering::Acquire);
+        if cuts != g.cuts_seen {
+            // The cutter's thread made new cut bodies: draw them.
+            g.cuts_seen = cuts;
+            for (o, body) in self.status.cuts.latest() {
+                let (Some(obj), Some(d)) = (self.world.objects.get(o), g.deformers.get_mut(o))
+                else {
+                    continue;
+                };
+                if g.cuts[o].as_ref().is_some_and(|b| Arc::ptr_eq(b, &body)) {
+                    continue;
+                }
+                let uploaded = g.cuts[o]
+                    .as_ref()
+                    .map_or(&obj.body.compliance, |b| &b.compliance);
+                match touchfem_gpu::visual::install_cut(
+                    &g.device,
+                    &g.queue,
+                    d,
+                    uploaded,
+                    &body,
+                    &obj.body.mesh,
+                    &g.deformer_options,
+                ) {
+                    Ok(()) => {
+                        g.edges[o] = Edges::new(&g.device, d);
+                        g.cuts[o] = Some(body);
+                    }
+                    Err(e) => log::warn!("cannot draw the cut of '{}': {e}", obj.name),
+                }
+            }
         }
         for (o, d) in g.deformers.iter_mut().enumerate() {
             let (f, n) = if o < sample.n_objects {
