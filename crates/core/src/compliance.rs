@@ -618,12 +618,6 @@ impl Compliance {
         Ok(c)
     }
 
-    /// Whether `self` and `other` share one `L` (the same allocation): after a fold they do
-    /// not, and a GPU copy of `L` must be uploaded again.
-    pub fn shares_l(&self, other: &Compliance) -> bool {
-        std::sync::Arc::ptr_eq(&self.l, &other.l)
-    }
-
     /// Compliance (m/N) given to clamped nodes when a contact triangle touches the clamp: one
     /// tenth of the smallest touchable diagonal compliance, so that forces stay finite.
     pub fn clamp_compliance(&self) -> f64 {
