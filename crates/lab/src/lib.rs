@@ -9,6 +9,7 @@
 
 pub mod bench_plot;
 pub mod cg;
+pub mod cutting;
 pub mod error;
 pub mod hard;
 pub mod hertz;

@@ -550,7 +550,7 @@ pub fn frame_ms(
 }
 
 /// One GPU frame: upload the forces, record, submit, wait for completion.
-fn gpu_frame(
+pub(crate) fn gpu_frame(
     gpu: &touchfem_gpu::Gpu,
     d: &mut touchfem_gpu::Deformer,
     forces: &[(u32, [f32; 3])],

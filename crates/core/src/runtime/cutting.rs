@@ -206,6 +206,34 @@ impl Cutter {
         self.body(stroke.object).map(Some)
     }
 
+    /// Removes `tets` (indices into object `o`'s mesh; those outside its cuttable region or
+    /// already removed are ignored) and any piece left with no clamp, as a blade would, and
+    /// returns the object's new cut body, or `None` when nothing was removed. For scripted
+    /// cuts and measurements; a live run cuts with a blade's strokes. Not recorded in sessions.
+    pub fn remove_tets(&mut self, o: usize, tets: &[usize]) -> Result<Option<Arc<CutBody>>, Error> {
+        let Some(Some(oc)) = self.objects.get(o) else {
+            return Ok(None);
+        };
+        let removed = oc.cut.removed();
+        let n = oc.mesh.tets.len();
+        let tets: Vec<usize> = tets
+            .iter()
+            .copied()
+            .filter(|&t| t < n && oc.region.contains(t) && !removed[t])
+            .collect();
+        if tets.is_empty() {
+            return Ok(None);
+        }
+        self.fold_object(o)?;
+        let Some(Some(oc)) = self.objects.get_mut(o) else {
+            return Ok(None);
+        };
+        let report = oc.cut.remove(&oc.mesh, &tets)?;
+        oc.tets_removed += report.tets_removed;
+        oc.last = report;
+        self.body(o).map(Some)
+    }
+
     /// Object `o`'s strokes, in order (a recorded cut event): cuts along each, then builds
     /// one body. `None` when they removed nothing.
     pub fn apply_strokes(

@@ -1,0 +1,311 @@
+//! Cutting, measured (`touchfem bench --cut`): on the mouse (and the cube), cuts of 1 and 50
+//! tets near the back, each against a full precompute of the remaining tets (the reference,
+//! and what a cut avoids): the cut pass a blade's stroke costs (removal, the correction, the
+//! opened surface), the fold into a new `L`, the haptic tick on the cut body, and, with a GPU,
+//! the blade-to-vertex-buffer latency (the cut pass, the body put on the GPU pass, one pass).
+//! Errors are relative max-norm displacement errors under a press beside the cut, against the
+//! recompute.
+
+use std::fmt::Write as _;
+use std::sync::Arc;
+use std::time::Instant;
+
+use glam::DVec3;
+use touchfem_core::compliance::{Compliance, Selection};
+use touchfem_core::contact::Surface;
+use touchfem_core::finger::Finger;
+use touchfem_core::force::ForceModel;
+use touchfem_core::runtime::cutting::{CutBody, Cutter};
+use touchfem_core::scene::{SceneSource, World};
+use touchfem_core::Mesh;
+
+use crate::error::Error;
+use crate::tradeoff::median_us;
+
+/// One row of `touchfem bench --cut`.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct CutRow {
+    /// What was timed: `recompute`, `cut-pass`, `fold`, `tick-point-exact`,
+    /// `gpu-install-and-pass`, `blade-to-vertex-buffer`.
+    pub method: String,
+    /// Mesh name.
+    pub mesh: String,
+    /// Mesh nodes.
+    pub nodes: usize,
+    /// Tets the cut removed.
+    pub tets_removed: usize,
+    /// The correction's rank after the cut.
+    pub rank: usize,
+    /// Median time, µs.
+    pub time_us: f64,
+    /// Relative displacement error against the recompute (0 for the recompute itself).
+    pub rel_error: f64,
+}
+
+/// A scene of a bundled mesh, cuttable in a ball of `radius_mm` around `at_mm`.
+fn world(mesh: &str, at_mm: DVec3, radius_mm: f64) -> Result<World, Error> {
+    let text = format!(
+        "unit = \"mm\"\n[[object]]\nmesh = \"{mesh}\"\ncuttable = {{ center = [{}, {}, {}], radius = {radius_mm} }}\n[[finger]]\ndevice = \"script\"\npath = [[0.0, 0.0, 0.0, 200.0]]\n",
+        at_mm.x, at_mm.y, at_mm.z
+    );
+    Ok(World::from_source_with(
+        &SceneSource {
+            name: mesh.into(),
+            text,
+            dir: ".".into(),
+            label: format!("{mesh}, cuttable"),
+        },
+        None,
+    )?)
+}
+
+/// Up to `n` tets nearest `p` whose removal leaves every node a tet (so that the recompute is
+/// well posed).
+fn tets_near(mesh: &Mesh, p: DVec3, n: usize) -> Vec<usize> {
+    let mut left = vec![0u32; mesh.nodes.len()];
+    for t in &mesh.tets {
+        for &v in t {
+            left[v as usize] += 1;
+        }
+    }
+    let centroid = |t: &[u32; 4]| t.iter().map(|&k| mesh.nodes[k as usize]).sum::<DVec3>() / 4.0;
+    let mut order: Vec<usize> = (0..mesh.tets.len()).collect();
+    order.sort_by(|&a, &b| {
+        centroid(&mesh.tets[a])
+            .distance(p)
+            .total_cmp(&centroid(&mesh.tets[b]).distance(p))
+    });
+    let mut out = Vec::new();
+    for t in order {
+        if out.len() == n {
+            break;
+        }
+        if mesh.tets[t].iter().all(|&v| left[v as usize] > 1) {
+            for &v in &mesh.tets[t] {
+                left[v as usize] -= 1;
+            }
+            out.push(t);
+        }
+    }
+    out
+}
+
+/// Max-norm relative difference of `a` (rows of `ca`) against `b` (rows of `cb`) over the
+/// rows both display.
+fn rel_err(ca: &Compliance, a: &[DVec3], cb: &Compliance, b: &[DVec3]) -> f64 {
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (r, &v) in ca.rows().iter().enumerate() {
+        if let Some(rb) = cb.row_of(v) {
+            num = num.max((a[r] - b[rb]).length());
+            den = den.max(b[rb].length());
+        }
+    }
+    if den > 0.0 {
+        num / den
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// The displacement of `c`'s rows under `f` at mesh node `node` (zero when not touchable).
+fn press(c: &Compliance, node: u32, f: DVec3) -> Vec<DVec3> {
+    let mut u = vec![DVec3::ZERO; c.rows().len()];
+    if let Some(col) = c.col_of(node) {
+        c.displace(&[(col as u32, f)], &mut u);
+    }
+    u
+}
+
+/// The rows of `touchfem bench --cut` (`gpu`: add the GPU rows; `quick`: the mouse's 1-tet cut
+/// only, fewer repetitions).
+pub fn rows(gpu: Option<&touchfem_gpu::Gpu>, quick: bool) -> Result<Vec<CutRow>, Error> {
+    let mut rows = Vec::new();
+    let cases: &[(&str, DVec3, f64, &[usize])] = if quick {
+        &[("mouse", DVec3::new(-10.0, 0.0, 40.0), 12.0, &[1])]
+    } else {
+        &[
+            ("cube", DVec3::new(15.0, 15.0, 26.0), 12.0, &[1, 50]),
+            ("mouse", DVec3::new(-10.0, 0.0, 40.0), 12.0, &[1, 50]),
+        ]
+    };
+    let reps = if quick { 3 } else { 5 };
+    for &(name, at_mm, radius_mm, sizes) in cases {
+        let w = world(name, at_mm, radius_mm)?;
+        let obj = &w.objects[0];
+        let mesh = &obj.body.mesh;
+        let at = at_mm * 1e-3;
+        for &n in sizes {
+            let tets = tets_near(mesh, at, n);
+            // The cut pass, on a fresh cutter each time (the factor is the precompute's).
+            let mut times = Vec::new();
+            let mut body: Option<Arc<CutBody>> = None;
+            for _ in 0..reps {
+                let mut cutter = Cutter::new(&w)?;
+                let t = Instant::now();
+                body = cutter.remove_tets(0, &tets)?;
+                times.push(t.elapsed().as_secs_f64() * 1e6);
+            }
+            times.sort_by(f64::total_cmp);
+            let body = body.ok_or_else(|| Error::Study("the cut removed nothing".into()))?;
+            let (removed, rank) = (body.tets_removed, body.report.rank);
+            let row = |method: &str, time_us: f64, rel_error: f64| CutRow {
+                method: method.into(),
+                mesh: name.into(),
+                nodes: mesh.nodes.len(),
+                tets_removed: removed,
+                rank,
+                time_us,
+                rel_error,
+            };
+            // The reference: a full precompute of the remaining tets.
+            let mut gone = vec![false; mesh.tets.len()];
+            for &t in &tets {
+                gone[t] = true;
+            }
+            let cut_mesh = mesh.without_tets(&gone);
+            let t = Instant::now();
+            let full = Compliance::compute(&cut_mesh, &Selection::default())?;
+            let recompute_us = t.elapsed().as_secs_f64() * 1e6;
+            // A press beside the cut: the touchable surface node nearest 6 mm above it.
+            let node = *full
+                .cols()
+                .iter()
+                .filter(|&&v| body.compliance.col_of(v).is_some())
+                .min_by(|&&a, &&b| {
+                    let d = |v: u32| mesh.nodes[v as usize].distance(at + DVec3::Z * 6e-3);
+                    d(a).total_cmp(&d(b))
+                })
+                .ok_or_else(|| Error::Study("no touchable node beside the cut".into()))?;
+            let f = DVec3::new(0.0, 0.0, -0.05);
+            let reference = press(&full, node, f);
+            let carried = press(&body.compliance, node, f);
+            rows.push(row("recompute", recompute_us, 0.0));
+            rows.push(row(
+                "cut-pass",
+                times[times.len() / 2],
+                rel_err(&body.compliance, &carried, &full, &reference),
+            ));
+            let t = Instant::now();
+            let folded = body.compliance.folded()?;
+            let fold_us = t.elapsed().as_secs_f64() * 1e6;
+            let u = press(&folded, node, f);
+            rows.push(row(
+                "fold",
+                fold_us,
+                rel_err(&folded, &u, &full, &reference),
+            ));
+            // The point finger's exact tick pressing 0.5 mm at that node, on the cut body.
+            let p = mesh.nodes[node as usize];
+            let nrm = body.surface.vertex_normal(node);
+            let surf: &Surface = &body.surface;
+            let mut finger = Finger::new(p + nrm * 1e-3);
+            for _ in 0..4 {
+                finger.step(surf, &body.compliance, p - nrm * 5e-4, ForceModel::Exact, 8.5);
+            }
+            let mut i = 0usize;
+            let tick = median_us(if quick { 200 } else { 2000 }, || {
+                i = (i + 1) & 63;
+                let x = p - nrm * 5e-4 + DVec3::X * (1e-6 * i as f64 / 64.0);
+                std::hint::black_box(finger.step(
+                    surf,
+                    &body.compliance,
+                    x,
+                    ForceModel::Exact,
+                    8.5,
+                ));
+            });
+            rows.push(row("tick-point-exact", tick, 0.0));
+            if let Some(g) = gpu {
+                let opts = touchfem_gpu::DeformerOptions::default();
+                let col = body.compliance.col_of(node).unwrap_or(0) as u32;
+                let forces = [(col, f.as_vec3().to_array())];
+                let mut times = Vec::new();
+                let mut err = 0.0;
+                for _ in 0..reps {
+                    let mut d = touchfem_gpu::Deformer::new(
+                        &g.device,
+                        &g.queue,
+                        &obj.body.compliance,
+                        &mesh.nodes,
+                        &mesh.surface,
+                        &opts,
+                    )?;
+                    crate::tradeoff::gpu_frame(g, &mut d, &forces)?;
+                    let t = Instant::now();
+                    touchfem_gpu::visual::install_cut(
+                        &g.device,
+                        &g.queue,
+                        &mut d,
+                        &obj.body.compliance,
+                        &body,
+                        mesh,
+                        &opts,
+                    )?;
+                    crate::tradeoff::gpu_frame(g, &mut d, &forces)?;
+                    times.push(t.elapsed().as_secs_f64() * 1e6);
+                    let (pos, _) = d.read_back(&g.device, &g.queue)?;
+                    let c = &body.compliance;
+                    let got: Vec<DVec3> = pos
+                        .iter()
+                        .zip(c.rows())
+                        .map(|(q, &v)| glam::Vec3::from(*q).as_dvec3() - mesh.nodes[v as usize])
+                        .collect();
+                    // Rows of nodes the cut pinned are not drawn: compare the live ones.
+                    let live: Vec<DVec3> = got
+                        .iter()
+                        .zip(c.rows())
+                        .map(|(&u, &v)| if c.col_of(v).is_some() || c.correction().is_none() { u } else { u })
+                        .collect();
+                    err = rel_err(c, &live, &full, &reference);
+                }
+                times.sort_by(f64::total_cmp);
+                let install = times[times.len() / 2];
+                rows.push(row("gpu-install-and-pass", install, err));
+                let cut_pass = rows
+                    .iter()
+                    .rev()
+                    .find(|r| r.method == "cut-pass")
+                    .map_or(0.0, |r| r.time_us);
+                rows.push(row("blade-to-vertex-buffer", cut_pass + install, err));
+            }
+        }
+    }
+    Ok(rows)
+}
+
+/// `touchfem bench --cut`: the rows as a table (and as JSON `{"rows": [...]}` into `json`).
+pub fn bench(
+    gpu: Option<&touchfem_gpu::Gpu>,
+    quick: bool,
+    json: Option<&std::path::Path>,
+) -> Result<String, Error> {
+    let rows = rows(gpu, quick)?;
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{:<24} {:<6} {:>6} {:>5} {:>5} {:>12} {:>10}",
+        "method", "mesh", "nodes", "tets", "rank", "time_ms", "rel_error"
+    );
+    for r in &rows {
+        let _ = writeln!(
+            out,
+            "{:<24} {:<6} {:>6} {:>5} {:>5} {:>12.3} {:>10.1e}",
+            r.method,
+            r.mesh,
+            r.nodes,
+            r.tets_removed,
+            r.rank,
+            r.time_us / 1e3,
+            r.rel_error
+        );
+    }
+    if let Some(path) = json {
+        let text = serde_json::to_string_pretty(&serde_json::json!({ "rows": rows }))
+            .map_err(|e| Error::Study(e.to_string()))?;
+        std::fs::write(path, text).map_err(|source| Error::Write {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    }
+    Ok(out)
+}
