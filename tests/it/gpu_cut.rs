@@ -605,3 +605,49 @@ fn the_visual_path_follows_a_feed_and_uploads_a_new_l() {
     assert_eq!(cpu.cpu_displacement(0), &want[..]);
     assert!(cpu.cut_body(0).is_some());
 }
+
+/// In the half-float layouts too (`U` stays f32): the cut cube's pass is within the layouts'
+/// own bound of the f64 `displace` with the correction (2·10⁻³ of max |u|, `tests/it/gpu_f16.rs`).
+#[test]
+fn the_half_float_layouts_carry_the_correction_too() {
+    let g = gpu();
+    let mesh = touchfem::mesh::cube();
+    let base = Compliance::compute(&mesh, &Selection::default()).unwrap();
+    let at = DVec3::new(0.015, 0.015, 0.026);
+    let mut cut = Cut::new(&mesh).unwrap();
+    cut.remove(&mesh, &tets_near(&mesh, at, 20)).unwrap();
+    let carried = base
+        .with_correction(Arc::new(cut.correction(&base).unwrap()))
+        .unwrap();
+    let forces = forces_near(&base, &mesh, at + DVec3::new(0.004, 0.004, 0.0));
+    let f64_forces: Vec<(u32, DVec3)> = forces.iter().map(|&(c, f)| (c, to_f64(f))).collect();
+    let mut u = vec![DVec3::ZERO; carried.rows().len()];
+    carried.displace(&f64_forces, &mut u);
+    let mut plain = vec![DVec3::ZERO; base.rows().len()];
+    base.displace(&f64_forces, &mut plain);
+    let max_u = u.iter().map(|v| v.length()).fold(0.0, f64::max);
+    let cut_shows = u
+        .iter()
+        .zip(&plain)
+        .map(|(a, b)| (*a - *b).length())
+        .fold(0.0, f64::max);
+    for storage in [LStorage::BuffersF16, LStorage::TextureF16] {
+        let mut d = deformer(&base, &mesh, storage);
+        d.set_correction(&g.device, &g.queue, carried.correction())
+            .unwrap();
+        d.set_forces(&g.queue, &forces).unwrap();
+        let (pos, _) = run(&d);
+        let err = pos
+            .iter()
+            .zip(carried.rows())
+            .zip(&u)
+            .map(|((p, &node), u)| (to_f64(*p) - mesh.nodes[node as usize] - *u).length())
+            .fold(0.0, f64::max)
+            / max_u;
+        eprintln!(
+            "{storage:?}: error {err:.1e} of max |u| {max_u:.2e} (the cut changes u by {cut_shows:.2e})"
+        );
+        assert!(err <= 2e-3, "{storage:?}: {err}");
+        assert!(cut_shows > 100.0 * err * max_u);
+    }
+}
