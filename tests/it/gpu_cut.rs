@@ -557,6 +557,7 @@ fn the_visual_path_follows_a_feed_and_uploads_a_new_l() {
         tets_removed: removed_tets.len(),
         generation: 1,
         strokes: Vec::new(),
+        folds: 0,
     });
     let mut sample = WorldSample {
         n_objects: 1,

@@ -133,6 +133,11 @@ pub struct BenchArgs {
     /// a point and as a 5 mm punch, errors against the extrapolated limit.
     #[arg(long)]
     pub ladder: bool,
+    /// Only cutting: cuts of 1 and 50 tets on the cube and the mouse against a full recompute
+    /// (the cut pass, the fold, the haptic tick on the cut body and, with a GPU, the
+    /// blade-to-vertex-buffer latency).
+    #[arg(long)]
+    pub cut: bool,
     /// Where the ladder's mouse meshes are (`mouse_hH.msh`, made by scripts/make_mouse.py).
     #[arg(long, default_value = "out/ladder")]
     pub ladder_dir: PathBuf,

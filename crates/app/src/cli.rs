@@ -87,6 +87,22 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
         );
         return Ok(());
     }
+    if a.cut {
+        lavapipe_inline();
+        let placement = touchfem_core::threads::VisualPlacement::split();
+        let gpu = match touchfem_gpu::Gpu::new_headless_placed(&placement) {
+            Ok(g) => Some(g),
+            Err(e) => {
+                eprintln!("warning: {e}; no GPU rows");
+                None
+            }
+        };
+        print!(
+            "{}",
+            touchfem_lab::cutting::bench(gpu.as_ref(), a.quick, a.json.as_deref())?
+        );
+        return Ok(());
+    }
     let (reps, active): (usize, &[usize]) = if a.quick {
         (20, &[9])
     } else {
