@@ -652,3 +652,18 @@ path = [[0.0, 15.0, 11.25, 40.0]]
         "{cut_open} against {plain_open}"
     );
 }
+
+#[test]
+fn bench_cut_rows_hold_the_cut_and_the_fold_to_a_full_recompute() {
+    // `touchfem bench --cut --quick`'s rows (CPU): the mouse cut by one tet, the carried
+    // body and its fold against a full precompute of the remaining tets.
+    let rows = touchfem_lab::cutting::rows(None, true).unwrap();
+    let get = |m: &str| rows.iter().find(|r| r.method == m).unwrap();
+    for m in ["cut-pass", "fold"] {
+        let r = get(m);
+        assert!(r.rel_error < 1e-9 && r.time_us > 0.0, "{r:?}");
+        assert_eq!((r.mesh.as_str(), r.tets_removed), ("mouse", 1));
+    }
+    assert_eq!(get("recompute").rel_error, 0.0);
+    assert!(get("tick-point-exact").time_us > 0.0);
+}

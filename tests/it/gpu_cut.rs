@@ -301,6 +301,8 @@ fn incision() -> &'static Incision {
             }
         };
         let mut cutter = Cutter::new(&world).unwrap();
+        // The correction carried whole (rank 357), not folded: what the GPU pass is tested on.
+        cutter.set_fold_rank(usize::MAX);
         let mut hw = HapticWorld::new(&world);
         let mut sample = WorldSample::default();
         let mut f = [DVec3::ZERO; 2];
