@@ -873,7 +873,11 @@ fn poke_cut(a: &PokeArgs, seg: (DVec3, DVec3), depth: f64) -> Result<(), Error> 
     let tets = touchfem_core::cut::blade_tets(&mesh, p1, p2, inward, depth * s);
     let mut cut = touchfem_core::cut::Cut::new(&mesh)?;
     let rep = cut.remove(&mesh, &tets)?;
-    // The finger: the god-object on the rest surface, pushed in `steps` ticks.
+    // The finger: the god-object on the opened rest surface (the cut's faces touchable too),
+    // pushed in `steps` ticks.
+    let mut open = mesh.clone();
+    open.surface = mesh.open_surface(cut.removed());
+    let surface = touchfem_core::contact::Surface::new(&open);
     let (at, push) = (a.at * s, a.push * s);
     let (tri, p0) = surface.closest_global(at);
     let mut god = touchfem_core::contact::GodObject::touching(tri);

@@ -438,7 +438,8 @@ impl Patch {
                 if !(sp.centre.is_finite() && sp.radius.is_finite() && sp.radius > 0.0) {
                     continue;
                 }
-                let g = ray_gap(self.rest[i], self.normal[i], sp.centre, sp.radius);
+                let held = self.p[i] > 0.0 && self.owner[i] as usize == s;
+                let g = ray_gap_held(self.rest[i], self.normal[i], sp.centre, sp.radius, held);
                 if g < best.0 {
                     best = (g, s as u8);
                 }
@@ -1123,6 +1124,18 @@ fn candidate_margin(max_u: f64, r: f64) -> f64 {
 /// sphere where the ray misses it or the sphere lies wholly behind the node.
 #[inline]
 pub(crate) fn ray_gap(x: DVec3, n: DVec3, c: DVec3, r: f64) -> f64 {
+    ray_gap_held(x, n, c, r, false)
+}
+
+/// [`ray_gap`] for a node that may be pressed already (`held`: it carried a contact force
+/// last tick). A held node whose normal line meets the sphere keeps the line's entry as its
+/// gap even when the sphere lies wholly behind it: a sphere pressed deeper than its radius
+/// has its centre under the rest surface, and the nodes it presses must stay under it (their
+/// gap continuous as the press deepens; the distance would release them at once). A node not
+/// held, with the sphere behind it (beside an edge the sphere passes), is not pressed there:
+/// its gap is its distance.
+#[inline]
+pub(crate) fn ray_gap_held(x: DVec3, n: DVec3, c: DVec3, r: f64, held: bool) -> f64 {
     let d = c - x;
     let a = d.dot(n);
     let rho2 = (d.length_squared() - a * a).max(0.0);
@@ -1130,12 +1143,7 @@ pub(crate) fn ray_gap(x: DVec3, n: DVec3, c: DVec3, r: f64) -> f64 {
         return d.length() - r;
     }
     let h = (r * r - rho2).sqrt();
-    // Wholly behind the node, and with its centre more than a radius behind: the sphere is
-    // on the far side of the body (a thin wall's other face), not pressing here. A sphere
-    // pressed deeper than its radius (its centre under the rest surface, but less than a
-    // radius under it) still presses the nodes over it: their gap stays the ray's entry,
-    // continuous as the press deepens.
-    if a + h < 0.0 && a < -r {
+    if a + h < 0.0 && !held {
         return d.length() - r;
     }
     a - h
