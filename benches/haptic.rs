@@ -342,17 +342,7 @@ fn cut(c: &mut Criterion) {
     g.sample_size(10);
     let mesh = touchfem::mesh::mouse();
     let at = DVec3::new(-0.01, 0.0, 0.04);
-    let mut order: Vec<(f64, usize)> = mesh
-        .tets
-        .iter()
-        .enumerate()
-        .map(|(i, t)| {
-            let c = t.iter().map(|&k| mesh.nodes[k as usize]).sum::<DVec3>() / 4.0;
-            (c.distance(at), i)
-        })
-        .collect();
-    order.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let near: Vec<usize> = order.iter().map(|x| x.1).take(50).collect();
+    let near = touchfem::cut::tets_near(&mesh, at, 50);
     for n in [1usize, 50] {
         g.bench_function(format!("remove_{n}_tets_mouse"), |b| {
             b.iter_batched(
@@ -392,16 +382,7 @@ fn cut_tick(c: &mut Criterion) {
     let mesh = touchfem::mesh::mouse();
     let base = Compliance::compute(&mesh, &Selection::default()).unwrap();
     let at = DVec3::new(-0.01, 0.0, 0.04);
-    let mut order: Vec<(f64, usize)> = mesh
-        .tets
-        .iter()
-        .enumerate()
-        .map(|(i, t)| {
-            let c = t.iter().map(|&k| mesh.nodes[k as usize]).sum::<DVec3>() / 4.0;
-            (c.distance(at), i)
-        })
-        .collect();
-    order.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let order = touchfem::cut::tets_near(&mesh, at, mesh.tets.len());
     let plain = Surface::new(&mesh);
     // A press on the back, 20 mm from the cut's centre (clear of the largest cut).
     let (_, p) = plain.closest_global(at + DVec3::new(0.02, 0.0, 0.02));
@@ -441,7 +422,7 @@ fn cut_tick(c: &mut Criterion) {
     let mut k = 0;
     for target in [120usize, 160, 360] {
         while cut.rank() < target && k < order.len() {
-            cut.remove(&mesh, &[order[k].1]).unwrap();
+            cut.remove(&mesh, &[order[k]]).unwrap();
             k += 1;
         }
         let rank = cut.rank();

@@ -74,3 +74,84 @@ pub fn world_from_text(toml: &str) -> Result<touchfem::scene::World, touchfem::E
     };
     touchfem::scene::World::from_source_with(&src, None)
 }
+
+/// The bundled `incision` scene run through the haptic path with a cutter applied in step (a
+/// pass every 20 ms, folding at `fold_rank`), as the demo runs it on the cutter's thread.
+pub struct IncisionRun {
+    /// The scene.
+    pub world: touchfem::scene::World,
+    /// The sample at t = 6 s (the fingertip pressing beside the open cut).
+    pub sample: touchfem::runtime::WorldSample,
+    /// The fingertip's force at the end of the press before the cut (t = 1.2 s) and at 6 s.
+    pub before: glam::DVec3,
+    /// See `before`.
+    pub after: glam::DVec3,
+    /// The final cut body.
+    pub body: std::sync::Arc<touchfem::runtime::cutting::CutBody>,
+    /// The tets it removed.
+    pub removed: Vec<bool>,
+}
+
+/// See [`IncisionRun`]; every force is checked finite and within the bound on the way.
+pub fn run_incision(fold_rank: usize) -> IncisionRun {
+    use glam::DVec3;
+    use touchfem::runtime::cutting::Cutter;
+    use touchfem::runtime::{HapticWorld, WorldSample};
+    use touchfem::scene::{DeviceSpec, World};
+    let world = World::load_with("incision", "script", None).expect("incision");
+    let keys: Vec<Vec<(f64, DVec3)>> = world
+        .fingers
+        .iter()
+        .map(|f| match &f.device {
+            DeviceSpec::Script(k) => k.clone(),
+            _ => panic!("scripted fingers"),
+        })
+        .collect();
+    let at = |k: &[(f64, DVec3)], t: f64| {
+        let i = k.iter().rposition(|k| k.0 <= t).unwrap_or(0);
+        match k.get(i + 1) {
+            None => k[i].1,
+            Some(n) => k[i]
+                .1
+                .lerp(n.1, ((t - k[i].0) / (n.0 - k[i].0)).clamp(0.0, 1.0)),
+        }
+    };
+    let mut cutter = Cutter::new(&world).unwrap();
+    cutter.set_fold_rank(fold_rank);
+    let bound = world.haptics.max_force_n;
+    let (sample, before, after, body) = {
+        let mut hw = HapticWorld::new(&world);
+        let mut sample = WorldSample::default();
+        let mut f = [DVec3::ZERO; 2];
+        let mut before = DVec3::ZERO;
+        let mut strokes = Vec::new();
+        for k in 0..=6000 {
+            let t = k as f64 / 1000.0;
+            hw.step(&[at(&keys[0], t), at(&keys[1], t)], &mut f, &mut sample);
+            assert!(f
+                .iter()
+                .all(|v| v.is_finite() && v.length() <= bound + 1e-12));
+            strokes.extend_from_slice(hw.strokes());
+            if k % 20 == 0 {
+                for (o, body) in cutter.apply_all(&strokes).unwrap() {
+                    hw.install_cut(o, body);
+                }
+                strokes.clear();
+            }
+            if k == 1200 {
+                before = f[0];
+            }
+        }
+        let body = hw.cut_body(0).expect("the blade cut").clone();
+        (sample, before, f[0], body)
+    };
+    let removed = cutter.removed(0).unwrap().to_vec();
+    IncisionRun {
+        world,
+        sample,
+        before,
+        after,
+        body,
+        removed,
+    }
+}

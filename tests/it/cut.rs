@@ -2,7 +2,7 @@
 //! remaining tets.
 
 use glam::DVec3;
-use touchfem::cut::Cut;
+use touchfem::cut::{tets_near, Cut};
 use touchfem::mesh::cube;
 use touchfem::Mesh;
 
@@ -54,21 +54,6 @@ fn rel_err(a: &[DVec3], b: &[DVec3]) -> f64 {
         .sum();
     let den: f64 = b.iter().map(|y| y.length_squared()).sum();
     (num / den).sqrt()
-}
-
-/// Tets whose centroid is nearest `p`, `n` of them.
-fn tets_near(mesh: &Mesh, p: DVec3, n: usize) -> Vec<usize> {
-    let mut v: Vec<(f64, usize)> = mesh
-        .tets
-        .iter()
-        .enumerate()
-        .map(|(i, t)| {
-            let c = t.iter().map(|&k| mesh.nodes[k as usize]).sum::<DVec3>() / 4.0;
-            (c.distance(p), i)
-        })
-        .collect();
-    v.sort_by(|a, b| a.0.total_cmp(&b.0));
-    v.into_iter().take(n).map(|x| x.1).collect()
 }
 
 #[test]

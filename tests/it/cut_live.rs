@@ -5,47 +5,8 @@ use std::sync::Arc;
 
 use glam::{DMat3, DVec3};
 use touchfem::compliance::{Compliance, Selection};
-use touchfem::cut::Cut;
+use touchfem::cut::{tets_near_keeping_nodes, Cut};
 use touchfem::Mesh;
-
-/// Tets whose centroid is nearest `p`, `n` of them.
-fn tets_near(mesh: &Mesh, p: DVec3, n: usize) -> Vec<usize> {
-    let mut v: Vec<(f64, usize)> = mesh
-        .tets
-        .iter()
-        .enumerate()
-        .map(|(i, t)| {
-            let c = t.iter().map(|&k| mesh.nodes[k as usize]).sum::<DVec3>() / 4.0;
-            (c.distance(p), i)
-        })
-        .collect();
-    v.sort_by(|a, b| a.0.total_cmp(&b.0));
-    v.into_iter().take(n).map(|x| x.1).collect()
-}
-
-/// Up to `n` tets near `p` whose removal leaves every node some tet (no node pinned, so that
-/// a full precompute of the remaining tets is well posed).
-fn tets_near_keeping_nodes(mesh: &Mesh, p: DVec3, n: usize) -> Vec<usize> {
-    let mut left = vec![0u32; mesh.nodes.len()];
-    for t in &mesh.tets {
-        for &v in t {
-            left[v as usize] += 1;
-        }
-    }
-    let mut out = Vec::new();
-    for t in tets_near(mesh, p, mesh.tets.len()) {
-        if out.len() == n {
-            break;
-        }
-        if mesh.tets[t].iter().all(|&v| left[v as usize] > 1) {
-            for &v in &mesh.tets[t] {
-                left[v as usize] -= 1;
-            }
-            out.push(t);
-        }
-    }
-    out
-}
 
 fn max_abs(m: DMat3) -> f64 {
     m.to_cols_array().iter().fold(0.0f64, |a, v| a.max(v.abs()))
@@ -415,56 +376,8 @@ fn incision_folding_at(
     DVec3,
     std::sync::Arc<touchfem::runtime::cutting::CutBody>,
 ) {
-    use touchfem::runtime::cutting::Cutter;
-    use touchfem::runtime::{HapticWorld, WorldSample};
-    use touchfem::scene::{DeviceSpec, World};
-    let w = World::load_with("incision", "script", None).expect("incision");
-    let keys: Vec<Vec<(f64, DVec3)>> = w
-        .fingers
-        .iter()
-        .map(|f| match &f.device {
-            DeviceSpec::Script(k) => k.clone(),
-            _ => panic!("scripted fingers"),
-        })
-        .collect();
-    let at = |k: &[(f64, DVec3)], t: f64| {
-        let i = k.iter().rposition(|k| k.0 <= t).unwrap_or(0);
-        match k.get(i + 1) {
-            None => k[i].1,
-            Some(n) => k[i]
-                .1
-                .lerp(n.1, ((t - k[i].0) / (n.0 - k[i].0)).clamp(0.0, 1.0)),
-        }
-    };
-    let mut cutter = Cutter::new(&w).unwrap();
-    cutter.set_fold_rank(fold_rank);
-    let mut hw = HapticWorld::new(&w);
-    let mut sample = WorldSample::default();
-    let mut f = [DVec3::ZERO; 2];
-    let bound = w.haptics.max_force_n;
-    let mut before = DVec3::ZERO;
-    let mut strokes = Vec::new();
-    for k in 0..=6000 {
-        let t = k as f64 / 1000.0;
-        let x = [at(&keys[0], t), at(&keys[1], t)];
-        hw.step(&x, &mut f, &mut sample);
-        assert!(f
-            .iter()
-            .all(|v| v.is_finite() && v.length() <= bound + 1e-12));
-        // A pass every 20 ms, as a busy cutter's thread would make them.
-        strokes.extend_from_slice(hw.strokes());
-        if k % 20 == 0 {
-            for (o, body) in cutter.apply_all(&strokes).unwrap() {
-                hw.install_cut(o, body);
-            }
-            strokes.clear();
-        }
-        if k == 1200 {
-            before = f[0];
-        }
-    }
-    let body = hw.cut_body(0).expect("the blade cut").clone();
-    (before, f[0], body)
+    let run = crate::common::run_incision(fold_rank);
+    (run.before, run.after, run.body)
 }
 
 #[test]

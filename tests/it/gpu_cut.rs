@@ -11,11 +11,11 @@ use std::sync::{Arc, OnceLock};
 
 use glam::DVec3;
 use touchfem::compliance::{Compliance, Selection};
-use touchfem::cut::Cut;
+use touchfem::cut::{tets_near, Cut};
 use touchfem::gpu::{Deformer, DeformerOptions, Gpu, GpuError, LStorage};
-use touchfem::runtime::cutting::{CutBody, CutFeed, Cutter};
-use touchfem::runtime::{HapticWorld, WorldSample};
-use touchfem::scene::{DeviceSpec, World};
+use touchfem::runtime::cutting::{CutBody, CutFeed};
+use touchfem::runtime::WorldSample;
+use touchfem::scene::World;
 use touchfem::Mesh;
 
 /// The layouts of `L` the correction is checked in (the half-float ones carry it in f32 too;
@@ -122,21 +122,6 @@ fn check_positions(
     }
     assert!(umax > 0.0);
     (worst, x)
-}
-
-/// Tets whose centroid is nearest `p`, `n` of them.
-fn tets_near(mesh: &Mesh, p: DVec3, n: usize) -> Vec<usize> {
-    let mut v: Vec<(f64, usize)> = mesh
-        .tets
-        .iter()
-        .enumerate()
-        .map(|(i, t)| {
-            let c = t.iter().map(|&k| mesh.nodes[k as usize]).sum::<DVec3>() / 4.0;
-            (c.distance(p), i)
-        })
-        .collect();
-    v.sort_by(|a, b| a.0.total_cmp(&b.0));
-    v.into_iter().take(n).map(|x| x.1).collect()
 }
 
 /// Forces on a few live columns near `at` (m): a push down and a shear.
@@ -282,49 +267,13 @@ struct Incision {
 fn incision() -> &'static Incision {
     static I: OnceLock<Incision> = OnceLock::new();
     I.get_or_init(|| {
-        let world = World::load_with("incision", "script", None).expect("incision");
-        let keys: Vec<Vec<(f64, DVec3)>> = world
-            .fingers
-            .iter()
-            .map(|f| match &f.device {
-                DeviceSpec::Script(k) => k.clone(),
-                _ => panic!("scripted fingers"),
-            })
-            .collect();
-        let at = |k: &[(f64, DVec3)], t: f64| {
-            let i = k.iter().rposition(|k| k.0 <= t).unwrap_or(0);
-            match k.get(i + 1) {
-                None => k[i].1,
-                Some(n) => k[i]
-                    .1
-                    .lerp(n.1, ((t - k[i].0) / (n.0 - k[i].0)).clamp(0.0, 1.0)),
-            }
-        };
-        let mut cutter = Cutter::new(&world).unwrap();
         // The correction carried whole (rank 357), not folded: what the GPU pass is tested on.
-        cutter.set_fold_rank(usize::MAX);
-        let mut hw = HapticWorld::new(&world);
-        let mut sample = WorldSample::default();
-        let mut f = [DVec3::ZERO; 2];
-        let mut strokes = Vec::new();
-        for k in 0..=6000 {
-            let t = k as f64 / 1000.0;
-            hw.step(&[at(&keys[0], t), at(&keys[1], t)], &mut f, &mut sample);
-            strokes.extend_from_slice(hw.strokes());
-            if k % 20 == 0 {
-                for (o, body) in cutter.apply_all(&strokes).unwrap() {
-                    hw.install_cut(o, body);
-                }
-                strokes.clear();
-            }
-        }
-        let body = hw.cut_body(0).expect("the blade cut").clone();
-        let removed = cutter.removed(0).unwrap().to_vec();
+        let run = crate::common::run_incision(usize::MAX);
         Incision {
-            world,
-            sample,
-            body,
-            removed,
+            world: run.world,
+            sample: run.sample,
+            body: run.body,
+            removed: run.removed,
         }
     })
 }

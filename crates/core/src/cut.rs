@@ -462,6 +462,44 @@ impl Cut {
     }
 }
 
+/// The `n` tets whose centroids are nearest `p` (m), nearest first: a scripted cut.
+pub fn tets_near(mesh: &Mesh, p: DVec3, n: usize) -> Vec<usize> {
+    let centroid = |t: &[u32; 4]| t.iter().map(|&k| mesh.nodes[k as usize]).sum::<DVec3>() / 4.0;
+    let mut v: Vec<(f64, usize)> = mesh
+        .tets
+        .iter()
+        .enumerate()
+        .map(|(i, t)| (centroid(t).distance(p), i))
+        .collect();
+    v.sort_by(|a, b| a.0.total_cmp(&b.0));
+    v.into_iter().take(n).map(|x| x.1).collect()
+}
+
+/// Up to `n` tets near `p` (m), nearest first, whose removal leaves every node some tet (so
+/// no node is pinned and a full precompute of the rest is well posed: what a comparison with
+/// a recompute needs).
+pub fn tets_near_keeping_nodes(mesh: &Mesh, p: DVec3, n: usize) -> Vec<usize> {
+    let mut left = vec![0u32; mesh.nodes.len()];
+    for t in &mesh.tets {
+        for &v in t {
+            left[v as usize] += 1;
+        }
+    }
+    let mut out = Vec::new();
+    for t in tets_near(mesh, p, mesh.tets.len()) {
+        if out.len() == n {
+            break;
+        }
+        if mesh.tets[t].iter().all(|&v| left[v as usize] > 1) {
+            for &v in &mesh.tets[t] {
+                left[v as usize] -= 1;
+            }
+            out.push(t);
+        }
+    }
+    out
+}
+
 /// The tets a blade sweeps: the blade is the segment from the surface point `p1` down to
 /// `depth` (m) below it along `inward` (the object's inward surface normal where it
 /// entered), drawn along the surface to `p2`; its swept surface is the quad `p1, p2,
