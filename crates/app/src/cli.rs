@@ -69,6 +69,26 @@ fn lavapipe_inline() {
     }
 }
 
+/// The GPU the benchmarks time (lavapipe inline, on the visual thread's placement, returned
+/// with it), or `None` with a warning saying which rows are left out.
+fn bench_gpu(
+    without: &str,
+) -> (
+    Option<touchfem_gpu::Gpu>,
+    touchfem_core::threads::VisualPlacement,
+) {
+    lavapipe_inline();
+    let placement = touchfem_core::threads::VisualPlacement::split();
+    let gpu = match touchfem_gpu::Gpu::new_headless_placed(&placement) {
+        Ok(g) => Some(g),
+        Err(e) => {
+            eprintln!("warning: {e}; {without}");
+            None
+        }
+    };
+    (gpu, placement)
+}
+
 fn bench(a: &BenchArgs) -> Result<(), Error> {
     use touchfem_lab::tradeoff::{bench_scenes, cpu_rows};
     if a.hard {
@@ -88,15 +108,7 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
         return Ok(());
     }
     if a.cut {
-        lavapipe_inline();
-        let placement = touchfem_core::threads::VisualPlacement::split();
-        let gpu = match touchfem_gpu::Gpu::new_headless_placed(&placement) {
-            Ok(g) => Some(g),
-            Err(e) => {
-                eprintln!("warning: {e}; no GPU rows");
-                None
-            }
-        };
+        let (gpu, _) = bench_gpu("no GPU rows");
         print!(
             "{}",
             touchfem_lab::cutting::bench(gpu.as_ref(), a.quick, a.json.as_deref())?
@@ -108,15 +120,7 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
     } else {
         (200, &[3, 9, 40, 90, 900])
     };
-    lavapipe_inline();
-    let placement = touchfem_core::threads::VisualPlacement::split();
-    let gpu = match touchfem_gpu::Gpu::new_headless_placed(&placement) {
-        Ok(g) => Some(g),
-        Err(e) => {
-            eprintln!("warning: {e}; no gpu-f32-* rows");
-            None
-        }
-    };
+    let (gpu, placement) = bench_gpu("no gpu-f32-* rows");
     let mut rows = Vec::new();
     let mut scene_table = Vec::new();
     let mut scenes = bench_scenes()?;
