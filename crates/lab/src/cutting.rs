@@ -200,7 +200,13 @@ pub fn rows(gpu: Option<&touchfem_gpu::Gpu>, quick: bool) -> Result<Vec<CutRow>,
             let surf: &Surface = &body.surface;
             let mut finger = Finger::new(p + nrm * 1e-3);
             for _ in 0..4 {
-                finger.step(surf, &body.compliance, p - nrm * 5e-4, ForceModel::Exact, 8.5);
+                finger.step(
+                    surf,
+                    &body.compliance,
+                    p - nrm * 5e-4,
+                    ForceModel::Exact,
+                    8.5,
+                );
             }
             let mut i = 0usize;
             let tick = median_us(if quick { 200 } else { 2000 }, || {
@@ -254,7 +260,13 @@ pub fn rows(gpu: Option<&touchfem_gpu::Gpu>, quick: bool) -> Result<Vec<CutRow>,
                     let live: Vec<DVec3> = got
                         .iter()
                         .zip(c.rows())
-                        .map(|(&u, &v)| if c.col_of(v).is_some() || c.correction().is_none() { u } else { u })
+                        .map(|(&u, &v)| {
+                            if c.col_of(v).is_some() || c.correction().is_none() {
+                                u
+                            } else {
+                                u
+                            }
+                        })
                         .collect();
                     err = rel_err(c, &live, &full, &reference);
                 }
