@@ -763,3 +763,192 @@ fn view_blade_mode_cuts_only_while_it_is_on() {
     assert_eq!((twin.pointer, twin.finger), (2, 3));
     assert!((twin.depth_m - 8e-3).abs() < 1e-15, "{}", twin.depth_m);
 }
+
+/// `B` in the real window (under Xvfb, real X events): on the phantom with a cuttable ball, a
+/// drag across the ball cuts nothing with the scene's point, and the same drag after `B` cuts
+/// (the window's log counts the tets removed; the summary line says `cut N tets`); the
+/// recorded session, whose text carries the blade twin, replays to the same forces.
+#[test]
+fn view_window_b_turns_the_pointer_into_a_blade() {
+    require_tools();
+    let dir = out_dir().join("blade");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("cut_me.toml");
+    std::fs::write(&scene, CUTTABLE_PHANTOM).unwrap();
+    let (mut xvfb, display) = start_xvfb();
+    let log = dir.join("view.log.jsonl");
+    let _ = std::fs::remove_file(&log);
+    let session = dir.join("view.tfsession");
+    let _ = std::fs::remove_file(&session);
+    let stdout_path = dir.join("view.stdout.txt");
+    let stdout = std::fs::File::create(&stdout_path).unwrap();
+    let stderr = std::fs::File::create(dir.join("view.stderr.txt")).unwrap();
+    let backend = std::env::var("WGPU_BACKEND").unwrap_or_else(|_| "vulkan".into());
+    let child = Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args([
+            "view",
+            scene.to_str().unwrap(),
+            "--size",
+            &format!("{}x{}", SIZE[0], SIZE[1]),
+            "--record",
+            session.to_str().unwrap(),
+        ])
+        .env("DISPLAY", &display)
+        .env("WGPU_BACKEND", backend)
+        .env("TOUCHFEM_VIEW_SECONDS", "90")
+        .env("TOUCHFEM_VIEW_LOG", &log)
+        .env("TOUCHFEM_CACHE_DIR", "")
+        .stdout(stdout)
+        .stderr(stderr)
+        .spawn()
+        .expect("start touchfem view");
+    let mut view = KillOnDrop(child);
+    let mut search = Command::new("xdotool")
+        .args(["search", "--sync", "--name", "touchfem"])
+        .env("DISPLAY", &display)
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("xdotool search");
+    let t0 = Instant::now();
+    let found = loop {
+        if let Some(st) = search.try_wait().unwrap() {
+            break st.success();
+        }
+        if let Ok(Some(st)) = view.0.try_wait() {
+            let _ = search.kill();
+            let err = std::fs::read_to_string(dir.join("view.stderr.txt")).unwrap_or_default();
+            panic!("touchfem view exited ({st}) before its window appeared:\n{err}");
+        }
+        if t0.elapsed() > Duration::from_secs(90) {
+            let _ = search.kill();
+            panic!("no window named touchfem after 90 s");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(found, "xdotool search failed");
+    let mut ids = String::new();
+    search
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut ids)
+        .unwrap();
+    let win = ids.lines().next().expect("a window id").trim().to_string();
+    wait_until(
+        "the first log line",
+        Duration::from_secs(30),
+        &mut view.0,
+        || !read_log(&log).is_empty(),
+    );
+
+    // Where the window's camera shows the line x = −25 … −5 mm, y = 0 on the top face.
+    let (lo, hi) = touchfem::mesh::phantom().bounds();
+    assert!(
+        ((hi - lo).x - 0.06).abs() < 1e-3,
+        "the phantom, 60 mm long: {lo} {hi}"
+    );
+    let camera =
+        touchfem::render::Orbit::framing(lo, hi, f64::from(SIZE[0]) / f64::from(SIZE[1])).camera();
+    let at = |x_mm: f64| {
+        let [px, py] = camera
+            .project(DVec3::new(x_mm * 1e-3, 0.0, hi.z), SIZE)
+            .expect("the top face is in view");
+        (px.round() as i64, py.round() as i64)
+    };
+    let drag = || {
+        let (x, y) = at(-25.0);
+        xdotool(
+            &display,
+            &[
+                "mousemove",
+                "--window",
+                &win,
+                &x.to_string(),
+                &y.to_string(),
+            ],
+        );
+        std::thread::sleep(Duration::from_millis(200));
+        xdotool(&display, &["mousedown", "1"]);
+        for step in 1..=20 {
+            std::thread::sleep(Duration::from_millis(60));
+            let (x, y) = at(-25.0 + f64::from(step));
+            xdotool(
+                &display,
+                &[
+                    "mousemove",
+                    "--window",
+                    &win,
+                    &x.to_string(),
+                    &y.to_string(),
+                ],
+            );
+        }
+        std::thread::sleep(Duration::from_millis(300));
+        xdotool(&display, &["mouseup", "1"]);
+    };
+    let tets = |lines: &[serde_json::Value]| {
+        lines
+            .iter()
+            .filter_map(|l| l["tets_removed"].as_u64())
+            .max()
+            .unwrap_or(0)
+    };
+
+    // The scene's point: a press, no cut.
+    drag();
+    let n = read_log(&log).len();
+    wait_until(
+        "two more log lines",
+        Duration::from_secs(20),
+        &mut view.0,
+        || read_log(&log).len() >= n + 2,
+    );
+    let lines = read_log(&log);
+    assert_eq!(tets(&lines), 0, "the point cut");
+    assert!(lines.iter().all(|l| l["blade"] == false));
+    let pressed = lines
+        .iter()
+        .filter_map(|l| l["force_n"].as_f64())
+        .fold(0.0, f64::max);
+    assert!(pressed > 0.01, "the point pressed with {pressed} N");
+
+    // `B`, the same drag: the blade cuts.
+    xdotool(&display, &["windowfocus", "--sync", &win]);
+    xdotool(&display, &["key", "b"]);
+    std::thread::sleep(Duration::from_millis(300));
+    drag();
+    wait_until(
+        "a log line with tets removed",
+        Duration::from_secs(30),
+        &mut view.0,
+        || tets(&read_log(&log)) > 0,
+    );
+    let lines = read_log(&log);
+    assert_eq!(lines.last().unwrap()["blade"], true);
+    let removed = tets(&lines);
+    let _ = capture(&display, &win, &dir.join("cut.png"));
+
+    xdotool(&display, &["windowfocus", "--sync", &win]);
+    xdotool(&display, &["key", "Escape"]);
+    wait_until(
+        "touchfem view to quit on Esc",
+        Duration::from_secs(30),
+        &mut xvfb.0,
+        || matches!(view.0.try_wait(), Ok(Some(_))),
+    );
+    let status = view.0.wait().unwrap();
+    assert!(status.success(), "touchfem view exited with {status}");
+    let out = std::fs::read_to_string(&stdout_path).unwrap();
+    eprintln!("{out}log: {removed} tets removed, the point pressed {pressed:.3} N");
+    let cut: usize = out
+        .split("cut ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no `cut N tets` in: {out}"));
+    assert!(cut as u64 >= removed && removed > 0, "{cut} vs {removed}");
+
+    let r = common::replay_json(&session);
+    eprintln!("replay: {r}");
+    assert_eq!(r["max_force_diff_n"].as_f64(), Some(0.0), "{r}");
+}

@@ -794,23 +794,27 @@ impl ApplicationHandler for App<'_> {
     fn window_event(&mut self, el: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
         match event {
             WindowEvent::CloseRequested | WindowEvent::Destroyed => self.quit(el),
-            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
-                match event.logical_key.as_ref() {
-                    Key::Named(NamedKey::Escape) => self.quit(el),
-                    Key::Character(c) if c.eq_ignore_ascii_case("b") => self.toggle_blade(),
-                    Key::Character(c) if c.eq_ignore_ascii_case("w") => {
-                        self.wireframe = !self.wireframe
-                    }
-                    Key::Character(c) if c.eq_ignore_ascii_case("c") => {
-                        self.colors = !self.colors;
-                        let img = self.legend_image();
-                        if let Some(g) = self.gfx.as_mut() {
-                            g.legend.set_image(&g.device, &g.queue, img.as_ref());
-                        }
-                    }
-                    _ => {}
+            // Not winit's synthetic presses of the keys held when the window gains focus (X11
+            // sends one with a key that comes with the focus): a toggle would flip twice.
+            WindowEvent::KeyboardInput {
+                event,
+                is_synthetic: false,
+                ..
+            } if event.state == ElementState::Pressed => match event.logical_key.as_ref() {
+                Key::Named(NamedKey::Escape) => self.quit(el),
+                Key::Character(c) if c.eq_ignore_ascii_case("b") => self.toggle_blade(),
+                Key::Character(c) if c.eq_ignore_ascii_case("w") => {
+                    self.wireframe = !self.wireframe
                 }
-            }
+                Key::Character(c) if c.eq_ignore_ascii_case("c") => {
+                    self.colors = !self.colors;
+                    let img = self.legend_image();
+                    if let Some(g) = self.gfx.as_mut() {
+                        g.legend.set_image(&g.device, &g.queue, img.as_ref());
+                    }
+                }
+                _ => {}
+            },
             WindowEvent::Resized(size) => {
                 if let Err(e) = self.resize(size) {
                     self.fail(el, e);
