@@ -598,3 +598,357 @@ fn serve_view_shows_a_udp_press_in_the_window() {
     assert_eq!(r["packets_dropped"].as_u64(), Some(0), "{r}");
     assert!(r["max_force_n"].as_f64().unwrap() > 0.05, "{r}");
 }
+
+/// The phantom with a cuttable ball under its top face and only the window's pointer: `view`
+/// gives the pointer a blade twin of the default depth (5 mm: a quarter of the 20 mm height).
+const CUTTABLE_PHANTOM: &str = r#"
+unit = "mm"
+
+[[object]]
+name = "tissue"
+mesh = "phantom"
+young = 3000.0
+poisson = 0.45
+touchable = "top"
+cuttable = { center = [-15.0, 0.0, 16.0], radius = 14.0 }
+
+[[finger]]
+device = "pointer"
+"#;
+
+/// What one pointer stroke across the phantom's cuttable ball did, through the real haptic
+/// loop ([`run_haptic`](touchfem::runtime::run_haptic), which starts the cutter's thread) and
+/// the devices `view` gives the scene's fingers.
+struct Stroke {
+    /// Tets the cutter removed (its own count, and the visual feed's).
+    tets_removed: usize,
+    feed_tets: usize,
+    /// The largest force sent to the finger the pointer drove, and to any finger, N.
+    pointer_force_n: f64,
+    max_force_n: f64,
+    ticks: u64,
+}
+
+/// Drives `route` as the window does in the mode it is in: the finger put 0.5 mm under the top
+/// face (z = 20 mm) at x = −25 mm, y = 0 and drawn 20 mm along x over about a second, then
+/// lifted.
+fn pointer_stroke(
+    w: &touchfem::scene::World,
+    route: &touchfem_app::window::PointerRoute,
+) -> Stroke {
+    use std::sync::atomic::Ordering;
+    use touchfem::runtime::{run_haptic, sample_channel, LiveStatus};
+    let mut devs = touchfem_app::window::cli::view_devices(w, route).unwrap();
+    let (mut writer, _reader) = sample_channel();
+    let status = LiveStatus::default();
+    let mm = |x: f64, y: f64, z: f64| DVec3::new(x, y, z) * 1e-3;
+    let (run, pointer_force_n) = std::thread::scope(|s| {
+        let haptic = s.spawn(|| run_haptic(w, &mut devs, None, &mut writer, &status, None));
+        let t0 = Instant::now();
+        while status.ticks.load(Ordering::Relaxed) < 50 {
+            assert!(
+                t0.elapsed() < Duration::from_secs(60),
+                "the haptic loop ticks"
+            );
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        let mut force: f64 = 0.0;
+        let steps = 1000;
+        for k in 0..=steps {
+            let x = -25.0 + 20.0 * k as f64 / steps as f64;
+            route.set_position(mm(x, 0.0, 19.5));
+            std::thread::sleep(Duration::from_millis(1));
+            force = force.max(route.force().length());
+        }
+        route.lift();
+        std::thread::sleep(Duration::from_millis(100));
+        status.stop.store(true, Ordering::SeqCst);
+        (haptic.join().unwrap(), force)
+    });
+    Stroke {
+        tets_removed: run.cuts.tets_removed,
+        feed_tets: status
+            .cuts
+            .latest()
+            .iter()
+            .map(|(_, b)| b.tets_removed)
+            .sum(),
+        pointer_force_n,
+        max_force_n: run.stats.max_force_n,
+        ticks: status.ticks.load(std::sync::atomic::Ordering::Relaxed),
+    }
+}
+
+/// `B` in `view` (the haptic side, no window): a scene with a cuttable object gets the
+/// pointer's blade twin in its text (default depth 5 mm here; the scene's own blade depth in
+/// `incision`), the cutter's thread starts, and the same pointer stroke across the cuttable
+/// ball removes tets with blade mode on (at zero force) and none with it off (the point
+/// presses); a scene with nothing cuttable gets no twin, and `B` says why and changes nothing.
+#[test]
+fn view_blade_mode_cuts_only_while_it_is_on() {
+    use touchfem::scene::{DeviceSpec, SceneSource, World};
+    use touchfem_app::window::blade::{blade_twin, DEFAULT_BLADE_M};
+    use touchfem_app::window::cli::load_with_pointer;
+    use touchfem_app::window::PointerRoute;
+
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("cut_me.toml");
+    std::fs::write(&scene, CUTTABLE_PHANTOM).unwrap();
+    let w = load_with_pointer(scene.to_str().unwrap(), None).unwrap();
+    assert_eq!(w.fingers.len(), 2, "the pointer and its blade twin");
+    let twin = blade_twin(&w).unwrap();
+    assert_eq!((twin.pointer, twin.finger), (0, 1));
+    assert_eq!(twin.depth_m, DEFAULT_BLADE_M);
+    assert!(matches!(w.fingers[1].device, DeviceSpec::Pointer));
+    assert!(w.source.contains("tool = { blade = 5.0 }"), "{}", w.source);
+    // The twin is in the text: a session's scene loads with the same fingers.
+    let again = World::from_source_with(
+        &SceneSource {
+            name: w.name.clone(),
+            text: w.source.clone(),
+            dir: w.dir.clone(),
+            label: "cut_me".into(),
+        },
+        None,
+    )
+    .unwrap();
+    assert_eq!(again.fingers, w.fingers);
+    assert!(w.objects[0].body.compliance.holds_l(), "the cutter needs L");
+
+    let off = pointer_stroke(&w, &PointerRoute::new(&w));
+    let mut route = PointerRoute::new(&w);
+    assert_eq!(route.toggle_blade(), Ok(true));
+    assert_eq!(route.blade_depth_m(), Some(DEFAULT_BLADE_M));
+    let on = pointer_stroke(&w, &route);
+    eprintln!(
+        "blade off: {} tets removed, pointer |F| {:.3} N, {} ticks; blade on: {} tets removed \
+         ({} in the feed), pointer |F| {:.3} N, max |F| {:.3} N, {} ticks",
+        off.tets_removed,
+        off.pointer_force_n,
+        off.ticks,
+        on.tets_removed,
+        on.feed_tets,
+        on.pointer_force_n,
+        on.max_force_n,
+        on.ticks
+    );
+    assert_eq!(off.tets_removed, 0);
+    assert_eq!(off.feed_tets, 0);
+    assert!(
+        off.pointer_force_n > 1e-3,
+        "the point presses: {}",
+        off.pointer_force_n
+    );
+    assert!(on.tets_removed > 0, "the blade cut nothing");
+    assert_eq!(on.feed_tets, on.tets_removed);
+    assert_eq!(on.pointer_force_n, 0.0, "a blade presses nothing");
+    assert_eq!(on.max_force_n, 0.0);
+    // Off again: the scene's tool, and the blade lifted.
+    assert_eq!(route.toggle_blade(), Ok(false));
+    assert_eq!(route.blade_depth_m(), None);
+    assert!(route.twin().unwrap().0.position().is_nan());
+
+    // Nothing cuttable: no twin, and `B` changes nothing.
+    let cube = load_with_pointer("cube", None).unwrap();
+    assert_eq!(cube.fingers.len(), 1);
+    let mut route = PointerRoute::new(&cube);
+    let why = route.toggle_blade().unwrap_err();
+    assert!(why.contains("cuttable"), "{why}");
+    assert!(!route.blade_on());
+
+    // The incision: its scripted blade's depth (8 mm) for the twin of the added pointer.
+    let inc = load_with_pointer("incision", None).unwrap();
+    assert_eq!(inc.fingers.len(), 4);
+    let twin = blade_twin(&inc).unwrap();
+    assert_eq!((twin.pointer, twin.finger), (2, 3));
+    assert!((twin.depth_m - 8e-3).abs() < 1e-15, "{}", twin.depth_m);
+}
+
+/// `B` in the real window (under Xvfb, real X events): on the phantom with a cuttable ball, a
+/// drag across the ball cuts nothing with the scene's point, and the same drag after `B` cuts
+/// (the window's log counts the tets removed; the summary line says `cut N tets`); the
+/// recorded session, whose text carries the blade twin, replays to the same forces.
+#[test]
+fn view_window_b_turns_the_pointer_into_a_blade() {
+    require_tools();
+    let dir = out_dir().join("blade");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("cut_me.toml");
+    std::fs::write(&scene, CUTTABLE_PHANTOM).unwrap();
+    let (mut xvfb, display) = start_xvfb();
+    let log = dir.join("view.log.jsonl");
+    let _ = std::fs::remove_file(&log);
+    let session = dir.join("view.tfsession");
+    let _ = std::fs::remove_file(&session);
+    let stdout_path = dir.join("view.stdout.txt");
+    let stdout = std::fs::File::create(&stdout_path).unwrap();
+    let stderr = std::fs::File::create(dir.join("view.stderr.txt")).unwrap();
+    let backend = std::env::var("WGPU_BACKEND").unwrap_or_else(|_| "vulkan".into());
+    let child = Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args([
+            "view",
+            scene.to_str().unwrap(),
+            "--size",
+            &format!("{}x{}", SIZE[0], SIZE[1]),
+            "--record",
+            session.to_str().unwrap(),
+        ])
+        .env("DISPLAY", &display)
+        .env("WGPU_BACKEND", backend)
+        .env("TOUCHFEM_VIEW_SECONDS", "90")
+        .env("TOUCHFEM_VIEW_LOG", &log)
+        .env("TOUCHFEM_CACHE_DIR", "")
+        .stdout(stdout)
+        .stderr(stderr)
+        .spawn()
+        .expect("start touchfem view");
+    let mut view = KillOnDrop(child);
+    let mut search = Command::new("xdotool")
+        .args(["search", "--sync", "--name", "touchfem"])
+        .env("DISPLAY", &display)
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("xdotool search");
+    let t0 = Instant::now();
+    let found = loop {
+        if let Some(st) = search.try_wait().unwrap() {
+            break st.success();
+        }
+        if let Ok(Some(st)) = view.0.try_wait() {
+            let _ = search.kill();
+            let err = std::fs::read_to_string(dir.join("view.stderr.txt")).unwrap_or_default();
+            panic!("touchfem view exited ({st}) before its window appeared:\n{err}");
+        }
+        if t0.elapsed() > Duration::from_secs(90) {
+            let _ = search.kill();
+            panic!("no window named touchfem after 90 s");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(found, "xdotool search failed");
+    let mut ids = String::new();
+    search
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut ids)
+        .unwrap();
+    let win = ids.lines().next().expect("a window id").trim().to_string();
+    wait_until(
+        "the first log line",
+        Duration::from_secs(30),
+        &mut view.0,
+        || !read_log(&log).is_empty(),
+    );
+
+    // Where the window's camera shows the line x = −25 … −5 mm, y = 0 on the top face.
+    let (lo, hi) = touchfem::mesh::phantom().bounds();
+    assert!(
+        ((hi - lo).x - 0.06).abs() < 1e-3,
+        "the phantom, 60 mm long: {lo} {hi}"
+    );
+    let camera =
+        touchfem::render::Orbit::framing(lo, hi, f64::from(SIZE[0]) / f64::from(SIZE[1])).camera();
+    let at = |x_mm: f64| {
+        let [px, py] = camera
+            .project(DVec3::new(x_mm * 1e-3, 0.0, hi.z), SIZE)
+            .expect("the top face is in view");
+        (px.round() as i64, py.round() as i64)
+    };
+    let drag = || {
+        let (x, y) = at(-25.0);
+        xdotool(
+            &display,
+            &[
+                "mousemove",
+                "--window",
+                &win,
+                &x.to_string(),
+                &y.to_string(),
+            ],
+        );
+        std::thread::sleep(Duration::from_millis(200));
+        xdotool(&display, &["mousedown", "1"]);
+        for step in 1..=20 {
+            std::thread::sleep(Duration::from_millis(60));
+            let (x, y) = at(-25.0 + f64::from(step));
+            xdotool(
+                &display,
+                &[
+                    "mousemove",
+                    "--window",
+                    &win,
+                    &x.to_string(),
+                    &y.to_string(),
+                ],
+            );
+        }
+        std::thread::sleep(Duration::from_millis(300));
+        xdotool(&display, &["mouseup", "1"]);
+    };
+    let tets = |lines: &[serde_json::Value]| {
+        lines
+            .iter()
+            .filter_map(|l| l["tets_removed"].as_u64())
+            .max()
+            .unwrap_or(0)
+    };
+
+    // The scene's point: a press, no cut.
+    drag();
+    let n = read_log(&log).len();
+    wait_until(
+        "two more log lines",
+        Duration::from_secs(20),
+        &mut view.0,
+        || read_log(&log).len() >= n + 2,
+    );
+    let lines = read_log(&log);
+    assert_eq!(tets(&lines), 0, "the point cut");
+    assert!(lines.iter().all(|l| l["blade"] == false));
+    let pressed = lines
+        .iter()
+        .filter_map(|l| l["force_n"].as_f64())
+        .fold(0.0, f64::max);
+    assert!(pressed > 0.01, "the point pressed with {pressed} N");
+
+    // `B`, the same drag: the blade cuts.
+    xdotool(&display, &["windowfocus", "--sync", &win]);
+    xdotool(&display, &["key", "b"]);
+    std::thread::sleep(Duration::from_millis(300));
+    drag();
+    wait_until(
+        "a log line with tets removed",
+        Duration::from_secs(30),
+        &mut view.0,
+        || tets(&read_log(&log)) > 0,
+    );
+    let lines = read_log(&log);
+    assert_eq!(lines.last().unwrap()["blade"], true);
+    let removed = tets(&lines);
+    let _ = capture(&display, &win, &dir.join("cut.png"));
+
+    xdotool(&display, &["windowfocus", "--sync", &win]);
+    xdotool(&display, &["key", "Escape"]);
+    wait_until(
+        "touchfem view to quit on Esc",
+        Duration::from_secs(30),
+        &mut xvfb.0,
+        || matches!(view.0.try_wait(), Ok(Some(_))),
+    );
+    let status = view.0.wait().unwrap();
+    assert!(status.success(), "touchfem view exited with {status}");
+    let out = std::fs::read_to_string(&stdout_path).unwrap();
+    eprintln!("{out}log: {removed} tets removed, the point pressed {pressed:.3} N");
+    let cut: usize = out
+        .split("cut ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no `cut N tets` in: {out}"));
+    assert!(cut as u64 >= removed && removed > 0, "{cut} vs {removed}");
+
+    let r = common::replay_json(&session);
+    eprintln!("replay: {r}");
+    assert_eq!(r["max_force_diff_n"].as_f64(), Some(0.0), "{r}");
+}

@@ -13,8 +13,8 @@ use winit::event_loop::{ActiveEventLoop, ControlFlow};
 use winit::keyboard::{Key, NamedKey};
 use winit::window::{Window, WindowId};
 
+use super::blade::PointerRoute;
 use super::{ViewError, WindowOptions, WindowSummary};
-use touchfem_core::devices::pointer::PointerShared;
 use touchfem_core::runtime::{LiveStatus, SampleReader};
 use touchfem_core::scene::World;
 use touchfem_gpu::render::{
@@ -31,6 +31,12 @@ const DEPTH_PER_PX_OF_DIAGONAL: f64 = 0.002;
 /// The colour map's full scale as a fraction of the scene's diagonal (rounded to a nice
 /// number): a 100-pixel drag on the cube presses 6 mm, its scale is 6 mm.
 const COLOR_SCALE_OF_DIAGONAL: f64 = 0.1;
+/// Least depth of a blade's top under the surface it was pressed on, m.
+const MIN_BLADE_SINK_M: f64 = 0.2e-3;
+/// A blade's top under the surface as a fraction of the scene's diagonal.
+const BLADE_SINK_OF_DIAGONAL: f64 = 0.005;
+/// How long a notice (`B` on a scene that cannot cut) stays on the status line.
+const NOTICE_FOR: Duration = Duration::from_secs(3);
 /// How often the status line is refreshed.
 const STATUS_EVERY: Duration = Duration::from_millis(250);
 
@@ -84,7 +90,7 @@ pub(super) struct App<'a> {
     world: &'a World,
     reader: SampleReader,
     status: &'a LiveStatus,
-    pointer: Option<Arc<PointerShared>>,
+    pointer: Option<PointerRoute>,
     opts: WindowOptions,
     gfx: Option<Gfx>,
     error: Option<ViewError>,
@@ -101,6 +107,10 @@ pub(super) struct App<'a> {
     /// The force arrow's scale, m per N, fixed for the session.
     arrow_m_per_n: f64,
     depth_per_px: f64,
+    /// How far under the surface a blade's top goes, m.
+    blade_sink: f64,
+    /// A message for the status line, and when it was given.
+    notice: Option<(String, Instant)>,
     scale: f64,
     stats: Stats,
     quit_after: Option<Duration>,
@@ -198,7 +208,7 @@ impl<'a> App<'a> {
         world: &'a World,
         reader: SampleReader,
         status: &'a LiveStatus,
-        pointer: Option<Arc<PointerShared>>,
+        pointer: Option<PointerRoute>,
         opts: &WindowOptions,
         hooks: &EnvHooks,
     ) -> App<'a> {
@@ -252,6 +262,8 @@ impl<'a> App<'a> {
             color_scale: touchfem_gpu::render::displacement_scale(COLOR_SCALE_OF_DIAGONAL * diag),
             arrow_m_per_n: arrow_m_per_n(world, diag),
             depth_per_px: MIN_DEPTH_PER_PX.max(DEPTH_PER_PX_OF_DIAGONAL * diag),
+            blade_sink: MIN_BLADE_SINK_M.max(BLADE_SINK_OF_DIAGONAL * diag),
+            notice: None,
             scale: diag,
             stats: Stats::default(),
             quit_after,
@@ -302,7 +314,7 @@ impl<'a> App<'a> {
     fn quit(&mut self, el: &ActiveEventLoop) {
         self.status.stop.store(true, Ordering::SeqCst);
         if let Some(p) = &self.pointer {
-            p.set_position(DVec3::NAN);
+            p.lift();
         }
         el.exit();
     }
@@ -491,11 +503,23 @@ impl<'a> App<'a> {
             } else {
                 0.0
             };
-            format!(
+            let mut text = format!(
                 "|F| {force:5.2} N  haptic {:4.0} Hz  frame {:5.1} ms ({fps:3.0} fps)",
                 self.status.rate_hz(),
                 self.stats.status_frame_ms,
-            )
+            );
+            if let Some(d) = self.pointer.as_ref().and_then(PointerRoute::blade_depth_m) {
+                text.push_str(&format!("  blade {:.1} mm", d * 1e3));
+            }
+            if let Some((msg, _)) = self
+                .notice
+                .as_ref()
+                .filter(|(_, t)| t.elapsed() < NOTICE_FOR)
+            {
+                text.push_str("  ");
+                text.push_str(msg);
+            }
+            text
         });
         let camera = self.orbit.camera();
         let Some(g) = self.gfx.as_mut() else {
@@ -636,6 +660,8 @@ impl<'a> App<'a> {
                 "haptic_hz": self.status.rate_hz(),
                 "haptic_missed": self.status.missed.load(Ordering::Relaxed),
                 "touching": touching,
+                "blade": self.pointer.as_ref().is_some_and(PointerRoute::blade_on),
+                "tets_removed": self.status.cuts.latest().iter().map(|(_, b)| b.tets_removed).sum::<usize>(),
             });
             if let Some(f) = &mut self.log {
                 let _ = writeln!(f, "{line}");
@@ -667,6 +693,31 @@ impl<'a> App<'a> {
         Ok(())
     }
 
+    /// `B`: the pointer becomes a blade, or its scene tool again; on a scene that cannot cut,
+    /// says why (status line and log) and changes nothing.
+    fn toggle_blade(&mut self) {
+        let Some(pointer) = &mut self.pointer else {
+            self.notify("blade: this window has no pointer finger".into());
+            return;
+        };
+        match pointer.toggle_blade() {
+            Ok(on) => {
+                // The finger that was driven was lifted: a drag starts again with a press.
+                self.press = None;
+                log::info!("blade mode {}", if on { "on" } else { "off" });
+                self.notice = None;
+            }
+            Err(why) => self.notify(why),
+        }
+        self.stats.last_status = None;
+    }
+
+    fn notify(&mut self, msg: String) {
+        log::warn!("{msg}");
+        self.notice = Some((msg, Instant::now()));
+        self.stats.last_status = None;
+    }
+
     fn left_press(&mut self) {
         let Some(pointer) = &self.pointer else {
             return;
@@ -684,7 +735,11 @@ impl<'a> App<'a> {
                 point: h.point,
                 normal: h.normal,
             });
-            pointer.set_position(h.point + h.normal * OUTSIDE_M);
+            if pointer.blade_on() {
+                pointer.set_position(h.point - h.normal * self.blade_sink);
+            } else {
+                pointer.set_position(h.point + h.normal * OUTSIDE_M);
+            }
         }
     }
 
@@ -692,6 +747,18 @@ impl<'a> App<'a> {
         let (Some(p), Some(pointer)) = (self.press, &self.pointer) else {
             return;
         };
+        if pointer.blade_on() {
+            // The blade slides under the pointer in the plane tangent at the press.
+            let (eye, dir) = self.orbit.camera().ray(self.cursor, self.size);
+            let along = dir.dot(p.normal);
+            if along.abs() > 1e-9 {
+                let t = (p.point - eye).dot(p.normal) / along;
+                if t.is_finite() && t > 0.0 {
+                    pointer.set_position(eye + dir * t - p.normal * self.blade_sink);
+                }
+            }
+            return;
+        }
         let px =
             ((self.cursor[0] - p.pixel[0]).powi(2) + (self.cursor[1] - p.pixel[1]).powi(2)).sqrt();
         if px > 0.0 {
@@ -702,7 +769,7 @@ impl<'a> App<'a> {
     fn release(&mut self) {
         if self.press.take().is_some() {
             if let Some(p) = &self.pointer {
-                p.set_position(DVec3::NAN);
+                p.lift();
             }
         }
     }
@@ -727,22 +794,27 @@ impl ApplicationHandler for App<'_> {
     fn window_event(&mut self, el: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
         match event {
             WindowEvent::CloseRequested | WindowEvent::Destroyed => self.quit(el),
-            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
-                match event.logical_key.as_ref() {
-                    Key::Named(NamedKey::Escape) => self.quit(el),
-                    Key::Character(c) if c.eq_ignore_ascii_case("w") => {
-                        self.wireframe = !self.wireframe
-                    }
-                    Key::Character(c) if c.eq_ignore_ascii_case("c") => {
-                        self.colors = !self.colors;
-                        let img = self.legend_image();
-                        if let Some(g) = self.gfx.as_mut() {
-                            g.legend.set_image(&g.device, &g.queue, img.as_ref());
-                        }
-                    }
-                    _ => {}
+            // Not winit's synthetic presses of the keys held when the window gains focus (X11
+            // sends one with a key that comes with the focus): a toggle would flip twice.
+            WindowEvent::KeyboardInput {
+                event,
+                is_synthetic: false,
+                ..
+            } if event.state == ElementState::Pressed => match event.logical_key.as_ref() {
+                Key::Named(NamedKey::Escape) => self.quit(el),
+                Key::Character(c) if c.eq_ignore_ascii_case("b") => self.toggle_blade(),
+                Key::Character(c) if c.eq_ignore_ascii_case("w") => {
+                    self.wireframe = !self.wireframe
                 }
-            }
+                Key::Character(c) if c.eq_ignore_ascii_case("c") => {
+                    self.colors = !self.colors;
+                    let img = self.legend_image();
+                    if let Some(g) = self.gfx.as_mut() {
+                        g.legend.set_image(&g.device, &g.queue, img.as_ref());
+                    }
+                }
+                _ => {}
+            },
             WindowEvent::Resized(size) => {
                 if let Err(e) = self.resize(size) {
                     self.fail(el, e);

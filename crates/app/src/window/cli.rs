@@ -2,11 +2,11 @@
 
 use std::path::Path;
 use std::sync::atomic::Ordering;
-use std::sync::Arc;
 
+use super::blade::PointerRoute;
 use super::WindowOptions;
 use crate::error::Error;
-use touchfem_core::devices::pointer::{PointerDevice, PointerShared};
+use touchfem_core::devices::pointer::PointerDevice;
 use touchfem_core::devices::{HapticDevice, KeyframePath};
 use touchfem_core::force::MAX_FINGERS;
 use touchfem_core::runtime::{
@@ -16,18 +16,24 @@ use touchfem_core::scene::file::{cache_dir, Hold};
 use touchfem_core::scene::{DeviceSpec, SceneSource, World};
 
 /// The devices of a scene's fingers in `view`: the first `pointer` finger is the window's
-/// pointer, scripted fingers follow their paths; other devices are refused.
-fn devices(
+/// pointer, the pointer's blade twin ([`super::blade::blade_twin`]) is the pointer in blade
+/// mode, scripted fingers follow their paths; other devices are refused.
+pub fn view_devices(
     world: &World,
-    pointer: &Arc<PointerShared>,
+    route: &PointerRoute,
 ) -> Result<Vec<Box<dyn HapticDevice>>, Error> {
+    let twin = route.twin();
     let mut out: Vec<Box<dyn HapticDevice>> = Vec::new();
     let mut pointers = 0;
     for (i, f) in world.fingers.iter().enumerate() {
         match &f.device {
+            DeviceSpec::Pointer if twin.is_some_and(|(_, t)| t.finger == i) => {
+                let (shared, _) = twin.expect("checked");
+                out.push(Box::new(PointerDevice(shared.clone())));
+            }
             DeviceSpec::Pointer if pointers == 0 => {
                 pointers += 1;
-                out.push(Box::new(PointerDevice(pointer.clone())));
+                out.push(Box::new(PointerDevice(route.finger().clone())));
             }
             DeviceSpec::Script(keys) => out.push(Box::new(
                 KeyframePath::new(keys.clone())
@@ -35,7 +41,7 @@ fn devices(
             )),
             other => {
                 return Err(Error::Body(format!(
-                    "scene '{}': finger {} uses device {other:?}, which `view` cannot drive (one pointer finger, and scripted ones)",
+                    "scene '{}': finger {} uses device {other:?}, which `view` cannot drive (one pointer finger, its blade twin, and scripted ones)",
                     world.name,
                     i + 1
                 )))
@@ -58,6 +64,11 @@ pub fn load_with_pointer(spec: &str, cache: Option<&Path>) -> Result<World, Erro
 /// [`load_with_pointer`], the added pointer finger a sphere of radius `sphere` (the scene's
 /// unit; millimetres for a bundled mesh) when given: `view --sphere R`. A scene that already
 /// has a pointer keeps its own tool.
+///
+/// A scene with a cuttable object whose pointer is not a blade also gets the pointer's blade
+/// twin (`B` in the window; [`super::blade`]): one more finger, `[[finger]] device = "pointer"`
+/// with `tool = { blade = DEPTH }` ([`super::blade::twin_depth_m`], in the scene's unit),
+/// appended to the text when there is room for it (at most [`MAX_FINGERS`] fingers).
 pub fn load_with_pointer_as(
     spec: &str,
     cache: Option<&Path>,
@@ -70,22 +81,46 @@ pub fn load_with_pointer_as(
     let mut src =
         SceneSource::find(spec)?.unwrap_or_else(|| SceneSource::for_mesh(spec, "pointer"));
     let world = World::from_source_holding(&src, cache, Hold::Live)?;
-    let has_pointer = world
+    let pointer = world
         .fingers
         .iter()
-        .any(|f| matches!(f.device, DeviceSpec::Pointer));
-    if has_pointer || world.fingers.len() >= MAX_FINGERS {
+        .find(|f| matches!(f.device, DeviceSpec::Pointer));
+    let mut fingers = world.fingers.len();
+    let mut extra = String::new();
+    if pointer.is_none() {
+        if fingers >= MAX_FINGERS {
+            return Ok(world);
+        }
+        extra.push_str("\n[[finger]]\ndevice = \"pointer\"\n");
+        if let Some(r) = sphere {
+            extra.push_str(&format!("tool = {{ sphere = {r:?} }}\n"));
+        }
+        fingers += 1;
+    }
+    let pointer_is_blade = pointer.is_some_and(|f| f.tool.blade_depth().is_some());
+    let has_twin = pointer.is_some() && super::blade::blade_twin(&world).is_ok();
+    if let Some(depth_m) = super::blade::twin_depth_m(&world)
+        .filter(|_| !pointer_is_blade && !has_twin && fingers < MAX_FINGERS)
+    {
+        let depth = depth_m / world.unit.to_metres();
+        extra.push_str(&format!(
+            "\n[[finger]]  # the pointer's blade twin (`B` in `touchfem view`)\n\
+             device = \"pointer\"\ntool = {{ blade = {depth:?} }}\n"
+        ));
+    }
+    if extra.is_empty() {
         return Ok(world);
     }
     // The compliance does not depend on the fingers: the second load reads the cache the first
     // wrote (or, with the cache off, computes it again). A text that cannot take one more
     // `[[finger]]` table (an inline `finger = [...]` array) is shown as it is.
-    src.text.push_str("\n[[finger]]\ndevice = \"pointer\"\n");
-    if let Some(r) = sphere {
-        src.text.push_str(&format!("tool = {{ sphere = {r:?} }}\n"));
-        // A bad radius for this scene (a sphere larger than the object) is an error.
-        return World::from_source_holding(&src, cache, Hold::Live)
-            .map_err(|e| Error::Input(format!("--sphere {r}: {e}")));
+    src.text.push_str(&extra);
+    if pointer.is_none() {
+        if let Some(r) = sphere {
+            // A bad radius for this scene (a sphere larger than the object) is an error.
+            return World::from_source_holding(&src, cache, Hold::Live)
+                .map_err(|e| Error::Input(format!("--sphere {r}: {e}")));
+        }
     }
     Ok(World::from_source_holding(&src, cache, Hold::Live).unwrap_or(world))
 }
@@ -101,8 +136,8 @@ pub(crate) fn view_command(args: &crate::args::ViewArgs) -> Result<(), Error> {
         std::env::set_var("LP_NUM_THREADS", "0");
     }
     let world = load_with_pointer_as(&args.scene, cache_dir().as_deref(), args.sphere)?;
-    let pointer = Arc::new(PointerShared::default());
-    let mut devs = devices(&world, &pointer)?;
+    let route = PointerRoute::new(&world);
+    let mut devs = view_devices(&world, &route)?;
     let has_pointer = world
         .fingers
         .iter()
@@ -134,13 +169,7 @@ pub(crate) fn view_command(args: &crate::args::ViewArgs) -> Result<(), Error> {
             run
         });
         placement.enter_visual();
-        let r = super::run(
-            &world,
-            reader,
-            &status,
-            has_pointer.then(|| pointer.clone()),
-            &opts,
-        );
+        let r = super::run(&world, reader, &status, has_pointer.then_some(route), &opts);
         status.stop.store(true, Ordering::SeqCst);
         let joined = join_haptic(haptic);
         placement.leave();
@@ -158,8 +187,13 @@ pub(crate) fn view_command(args: &crate::args::ViewArgs) -> Result<(), Error> {
             args.record.as_ref().expect("recording").display()
         );
     }
+    let cuts = if run.cuts.bodies > 0 {
+        format!(", cut {} tets", run.cuts.tets_removed)
+    } else {
+        String::new()
+    };
     println!(
-        "touchfem view: {} frames in {:.1} s, median frame {:.2} ms, haptic {:.0} Hz ({} missed), max |F| {:.3} N",
+        "touchfem view: {} frames in {:.1} s, median frame {:.2} ms, haptic {:.0} Hz ({} missed), max |F| {:.3} N{cuts}",
         summary.frames,
         summary.seconds,
         summary.frame_ms_median,

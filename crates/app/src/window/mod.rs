@@ -3,7 +3,8 @@
 //!
 //! [`run`] is independent of how the haptic side is spawned: it reads the latest
 //! [`WorldSample`](touchfem_core::runtime::WorldSample) from a [`SampleReader`], shows the haptic
-//! loop's [`LiveStatus`] and writes the pointer finger's position into a [`PointerShared`].
+//! loop's [`LiveStatus`] and writes the pointer finger's position into a
+//! [`PointerShared`](touchfem_core::devices::pointer::PointerShared) through a [`PointerRoute`].
 //!
 //! * **Left drag** (starting over an object) presses a finger into it from the point first
 //!   touched `p0`, along the inward normal `−n` there: the finger is at `p0 − n·depth` with
@@ -16,7 +17,15 @@
 //!   nearest surface point). Releasing lifts the finger (a NaN position).
 //! * **Right drag** orbits ([`Orbit`](touchfem_gpu::render::Orbit)), the **wheel** zooms, **W** toggles
 //!   the wireframe (on at start while the surface has fewer edges than one per 24 pixels,
-//!   [`wireframe_by_default`](touchfem_gpu::render::wireframe_by_default)), **Esc** or closing the window quits (and sets [`LiveStatus::stop`]).
+//!   [`wireframe_by_default`](touchfem_gpu::render::wireframe_by_default)), **C** toggles the
+//!   colours by displacement, **Esc** or closing the window quits (and sets [`LiveStatus::stop`]).
+//! * **B** turns the pointer into a blade and back ([`blade`]): on a scene with a cuttable
+//!   object the pointer then drives its blade twin. A left press on an object puts the blade's
+//!   top just under the surface there (`max(0.2 mm, 0.5 % of the scene diagonal)`), and dragging
+//!   slides it in the plane tangent to the surface at that point, following the pointer: the
+//!   blade, hanging its depth below, cuts what it sweeps in the cuttable region (no force).
+//!   Without a cuttable object the status line says so for 3 s (and a warning is logged) and
+//!   nothing changes. The status line shows `blade D mm` while it is on.
 //! * The status line (an overlay and the window title, which always contains `touchfem`): the
 //!   pointer finger's |F| in N, the haptic rate, the frame time. Updated 4 times a second.
 //!
@@ -28,7 +37,8 @@
 //!   naming the variable);
 //! * `TOUCHFEM_VIEW_LOG=FILE`: append one JSON line per second, `{"t", "frames", "fps",
 //!   "frame_ms_median", "draw_ms_median", "force_n", "haptic_hz", "haptic_missed",
-//!   "touching"}` (`frames`, `haptic_missed`: so far; `frame_ms_median`: median time between
+//!   "touching", "blade", "tets_removed"}` (`frames`, `haptic_missed`: so far; `blade`: blade
+//!   mode on; `tets_removed`: tets the cuts removed so far, every object; `frame_ms_median`: median time between
 //!   presented frames over that second;
 //!   `force_n`: the largest |F| of the pointer finger over that second), and a final line with
 //!   `"summary": true`;
@@ -39,14 +49,15 @@
 //! [`Gpu::new`](touchfem_gpu::Gpu::new), among adapters that can present to the window.
 
 mod app;
+pub mod blade;
 pub mod cli;
+
+pub use blade::PointerRoute;
 
 pub(crate) use cli::view_command;
 
-use std::sync::Arc;
 use thiserror::Error;
 
-use touchfem_core::devices::pointer::PointerShared;
 use touchfem_core::runtime::{LiveStatus, SampleReader};
 use touchfem_core::scene::World;
 use touchfem_gpu::render::RenderError;
@@ -123,13 +134,14 @@ pub(crate) fn check_env() -> Result<(), ViewError> {
 /// Opens the window on `world` and runs it until Esc, closing, `TOUCHFEM_VIEW_SECONDS` or the
 /// end of the haptic loop ([`LiveStatus::done`]; a panic there is
 /// [`ViewError::HapticPanicked`]). Sets [`LiveStatus::stop`] on the way out and lifts the
-/// pointer finger. Must run on the main thread (winit). `pointer`: the finger the mouse drives,
-/// if the scene has one; without it the window only shows.
+/// pointer finger (and its blade twin). Must run on the main thread (winit). `pointer`: the
+/// finger the mouse drives (and its blade twin), if the scene has one; without it the window
+/// only shows.
 pub fn run(
     world: &World,
     reader: SampleReader,
     status: &LiveStatus,
-    pointer: Option<Arc<PointerShared>>,
+    pointer: Option<PointerRoute>,
     opts: &WindowOptions,
 ) -> Result<WindowSummary, ViewError> {
     let n = world.objects.len();
@@ -145,7 +157,7 @@ pub fn run(
     let ran = event_loop.run_app(&mut app);
     status.stop.store(true, std::sync::atomic::Ordering::SeqCst);
     if let Some(p) = &pointer {
-        p.set_position(glam::DVec3::NAN);
+        p.lift();
     }
     ran?;
     app.finish()

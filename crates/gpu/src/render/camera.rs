@@ -197,7 +197,7 @@ impl Camera {
     /// The ray through window position `pixel` (x right, y down, in pixels, `(0, 0)` the
     /// top-left corner of the top-left pixel) of a `size` (width, height) image: the eye and the
     /// unit direction. The inverse of [`project`](Self::project).
-    pub(crate) fn ray(&self, pixel: [f64; 2], size: [u32; 2]) -> (DVec3, DVec3) {
+    pub fn ray(&self, pixel: [f64; 2], size: [u32; 2]) -> (DVec3, DVec3) {
         let (w, h) = (f64::from(size[0].max(1)), f64::from(size[1].max(1)));
         let aspect = w / h;
         let f = self.forward();
