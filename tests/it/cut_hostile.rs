@@ -149,6 +149,10 @@ fn a_thousand_fuzzed_blade_paths_on_the_cube_and_the_mouse_stay_finite_and_bound
         // The fuzz did cut: strokes became bodies, and the bodies removed tets.
         assert!(t.strokes > n / 10, "{t:?}");
         assert!(t.bodies > n / 20 && t.tets_removed > 0, "{t:?}");
+        if mesh == "cube" {
+            // Random cuts through a small cube cut pieces off: each reported and removed.
+            assert!(t.pieces > 0, "{t:?}");
+        }
     }
 }
 

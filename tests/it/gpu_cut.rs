@@ -506,6 +506,7 @@ fn the_visual_path_follows_a_feed_and_uploads_a_new_l() {
         triangles: open.surface.clone(),
         report: rep,
         tets_removed: removed_tets.len(),
+        pieces_removed: 0,
         generation: 1,
         strokes: Vec::new(),
         folds: 0,

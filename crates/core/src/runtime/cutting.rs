@@ -50,8 +50,10 @@ pub struct CutBody {
     pub triangles: Vec<[u32; 3]>,
     /// What the whole cut so far did.
     pub report: CutReport,
-    /// Tets removed so far (every pass).
+    /// Tets removed so far (every pass), the pieces' included.
     pub tets_removed: usize,
+    /// Pieces cut off so far (left with no clamp: removed, their nodes pinned still).
+    pub pieces_removed: usize,
     /// 1 for the first cut body of the object, then one more a body.
     pub generation: u64,
     /// The strokes (chords) that made it from the object's previous body, in order: what a
@@ -69,6 +71,7 @@ struct ObjectCut {
     region: CutRegion,
     generation: u64,
     tets_removed: usize,
+    pieces_removed: usize,
     last: CutReport,
     since: Vec<Stroke>,
     folds: u32,
@@ -138,6 +141,7 @@ impl Cutter {
                     region,
                     generation: 0,
                     tets_removed: 0,
+                    pieces_removed: 0,
                     last: CutReport::default(),
                     since: Vec::new(),
                     folds: 0,
@@ -230,6 +234,14 @@ impl Cutter {
         };
         let report = oc.cut.remove(&oc.mesh, &tets)?;
         oc.tets_removed += report.tets_removed;
+        oc.pieces_removed += report.pieces_removed;
+        if report.pieces_removed > 0 {
+            log::info!(
+                "a cut took {} piece(s) off object {} (no clamp held them): removed",
+                report.pieces_removed,
+                o
+            );
+        }
         oc.last = report;
         self.body(o).map(Some)
     }
@@ -278,6 +290,14 @@ impl Cutter {
         };
         let report = oc.cut.remove(&oc.mesh, &tets)?;
         oc.tets_removed += report.tets_removed;
+        oc.pieces_removed += report.pieces_removed;
+        if report.pieces_removed > 0 {
+            log::info!(
+                "a cut took {} piece(s) off object {} (no clamp held them): removed",
+                report.pieces_removed,
+                stroke.object
+            );
+        }
         oc.last = report;
         oc.since.push(*stroke);
         Ok(true)
@@ -303,6 +323,7 @@ impl Cutter {
             triangles: open.surface,
             report: oc.last.clone(),
             tets_removed: oc.tets_removed,
+            pieces_removed: oc.pieces_removed,
             generation: oc.generation,
             strokes: std::mem::take(&mut oc.since),
             folds: oc.folds,
@@ -416,6 +437,8 @@ pub struct CutStats {
     pub bodies: u64,
     /// Tets removed.
     pub tets_removed: usize,
+    /// Pieces cut off (every object).
+    pub pieces_removed: usize,
     /// The longest pass (strokes to cut body), s.
     pub max_pass_s: f64,
     /// Folds of a correction into a new `L`.
@@ -447,6 +470,7 @@ impl CutThread {
                 crate::threads::become_background_worker(&haptic_cpus);
                 let mut cutter = Cutter::from_plan(plan)?;
                 let mut stats = CutStats::default();
+                let mut pieces: Vec<usize> = Vec::new();
                 let mut pending = Vec::with_capacity(1 << 14);
                 loop {
                     let stopping = stop2.load(std::sync::atomic::Ordering::Acquire);
@@ -460,6 +484,11 @@ impl CutThread {
                         for (o, body) in cutter.apply_all(&pending)? {
                             stats.bodies += 1;
                             stats.tets_removed = body.tets_removed;
+                            if pieces.len() <= o {
+                                pieces.resize(o + 1, 0);
+                            }
+                            pieces[o] = body.pieces_removed;
+                            stats.pieces_removed = pieces.iter().sum();
                             feed.publish(o, body.clone());
                             // The haptic thread takes what fits; it never waits.
                             let _ = bp.push((o, body));
