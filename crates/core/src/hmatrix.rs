@@ -833,9 +833,11 @@ mod tests {
         let h = HMatrix::from_compliance(c, m, &HOptions::new(1e-3)).expect("H");
         let ratio = h.stored_values() as f64 / h.dense_values() as f64;
         assert_eq!(h.dense_values(), c.l_f64().len());
-        assert!(ratio < 1.0, "storage ratio {ratio}");
+        // Measured: 0.333 (1029 × 1029 nodes, 666 low-rank blocks of mean rank 7.4).
+        assert!(ratio < 0.36, "storage ratio {ratio}");
         let e = h.load_errors(c);
         let (med, max) = (median(&e.l2), worst(&e.l2));
+        // Measured: median 4.3e-4, worst 3.9e-3 (the targets: 2e-3 and 1e-2).
         assert!(med <= 2e-3 && max <= 1e-2, "median {med:e}, worst {max:e}");
     }
 
