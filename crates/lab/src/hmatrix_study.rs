@@ -202,6 +202,9 @@ mod tests {
             .expect("mouse at 1e-3");
         // Measured: 0.333 of the dense values; one finger's matvec 33 µs against 47 µs dense.
         assert!(mouse3.ratio < 0.36, "{mouse3:?}");
-        assert!(mouse3.l2_median <= 2e-3 && mouse3.l2_worst <= 1e-2, "{mouse3:?}");
+        assert!(
+            mouse3.l2_median <= 2e-3 && mouse3.l2_worst <= 1e-2,
+            "{mouse3:?}"
+        );
     }
 }
