@@ -257,6 +257,8 @@ pub struct HMatrix {
     out_rows: usize,
     row_perm: Vec<u32>,
     col_perm: Vec<u32>,
+    /// Each row's position.
+    row_pos: Vec<u32>,
     /// Each column's position.
     col_pos: Vec<u32>,
     blocks: Vec<Block>,
@@ -317,6 +319,7 @@ impl HMatrix {
             opts: *opts,
             out_rows,
             row_perm: rt.perm.clone(),
+            row_pos: vec![0; row_points.len()],
             col_pos: vec![0; col_points.len()],
             col_perm: ct.perm.clone(),
             blocks: Vec::with_capacity(pairs.len()),
@@ -327,6 +330,9 @@ impl HMatrix {
             norm_sq: 0.0,
             discarded_sq: 0.0,
         };
+        for (p, &r) in rt.perm.iter().enumerate() {
+            h.row_pos[r as usize] = p as u32;
+        }
         for (p, &c) in ct.perm.iter().enumerate() {
             h.col_pos[c as usize] = p as u32;
         }
@@ -558,7 +564,7 @@ impl HMatrix {
     /// The 3×3 block L_H(row r, column c), m/N, and whether it is exact (it lies in a dense
     /// block: the near field the haptic path reads); `None` for an index out of range.
     pub fn block(&self, r: usize, c: usize) -> Option<(DMat3, bool)> {
-        let pr = self.row_perm.iter().position(|&x| x as usize == r)? as u32;
+        let pr = *self.row_pos.get(r)?;
         let pc = *self.col_pos.get(c)?;
         let leaf = self.col_leaf[pc as usize] as usize;
         let bs =
@@ -628,7 +634,7 @@ impl HMatrix {
     }
     /// Bytes of the index (permutations, block table, column index), beside the values.
     pub fn index_bytes(&self) -> usize {
-        4 * (self.row_perm.len()
+        4 * (2 * self.row_perm.len()
             + 2 * self.col_perm.len()
             + self.col_leaf.len()
             + self.leaf_start.len()
