@@ -14,6 +14,9 @@ pub enum Error {
     /// Reading or writing the compliance cache.
     #[error(transparent)]
     Cache(#[from] crate::cache::CacheError),
+    /// A hierarchical compliance cannot be built.
+    #[error(transparent)]
+    HMatrix(#[from] crate::hmatrix::HError),
     /// The UDP bridge cannot start (address, socket, key).
     #[error(transparent)]
     Udp(#[from] crate::devices::udp::UdpError),
@@ -66,6 +69,7 @@ macro_rules! from_domain_errors {
             $crate::fem::FemError,
             $crate::cache::CacheError,
             $crate::contact::ContactError,
+            $crate::hmatrix::HError,
             $crate::devices::udp::UdpError);
     };
     (@each $err:ident $variant:ident $($t:ty),*) => {$(

@@ -30,6 +30,7 @@ pub mod finger;
 pub mod force;
 pub mod frontal;
 pub mod gram;
+pub mod hmatrix;
 pub mod mesh;
 pub mod near;
 pub mod options;

@@ -13,6 +13,7 @@ pub mod cutting;
 pub mod error;
 pub mod hard;
 pub mod hertz;
+pub mod hmatrix_study;
 pub mod ladder;
 pub mod locking_free;
 pub mod report;

@@ -1,0 +1,1047 @@
+//! A hierarchical compliance: `L` stored as a block partition whose far blocks are low-rank
+//! factors truncated to a chosen tolerance and whose near blocks are dense (issue 29, first step).
+//!
+//! # Construction
+//! * **Cluster trees** over the row nodes and the column nodes, a node's 3 DOFs together: the
+//!   bounding box of a cluster's nodes is bisected at its midpoint along its longest axis until
+//!   a cluster holds at most [`HOptions::leaf_size`] nodes. A cluster is a contiguous range of
+//!   its tree's permutation.
+//! * **Block partition** by the standard admissibility `min(diam τ, diam σ) ≤ η·dist(τ, σ)`
+//!   (bounding boxes; `dist > 0`): an admissible (far) pair is one block; an inadmissible pair
+//!   is split (both clusters, or the one that is not a leaf) until both are leaves, when it is a
+//!   near block, stored dense.
+//! * **Compression** of a far block `B` (3|τ| × 3|σ|) by its truncated SVD (faer's thin SVD):
+//!   rank `k` is the smallest with `Σ_{i>k} σᵢ² ≤ ε²·Σᵢ σᵢ²`, stored as `U = U_k·diag(σ_k)` and
+//!   `V = V_k`. A block whose factors would take more room than the block itself stays dense.
+//!
+//! The SVD rather than ACA: the block is in hand (here from `L`; later from the factor's
+//! solves, which give whole columns exactly), and the SVD gives the optimal rank for the
+//! tolerance with a guarantee, where ACA's stopping test is a heuristic estimate that would
+//! need the SVD's recompression anyway.
+//!
+//! # Guarantee
+//! * Per far block: `‖B − UVᵀ‖_F ≤ ε‖B‖_F` (the Eckart–Young tail, exact up to rounding).
+//! * Globally: the blocks partition `L` and near blocks are exact, so
+//!   `‖L − L_H‖_F² = Σ_far ‖B − UVᵀ‖_F² ≤ ε² Σ_far ‖B‖_F² ≤ ε²‖L‖_F²`, i.e.
+//!   `‖L − L_H‖_F ≤ ε‖L‖_F`. The exact left-hand side is [`HMatrix::truncation_error`].
+//! * Per point load `f` at one column: `‖Δu‖₂ ≤ ‖L − L_H‖₂·|f| ≤ ε‖L‖_F·|f|` (relative to `‖L‖_F`,
+//!   not to `‖u‖`: the relative error of one load is measured, not bounded).
+//!
+//! Factors are held in f64; [`HMatrix::bytes_f32`] is what an f32 copy (the GPU's) would take.
+//!
+//! # Block source
+//! [`HMatrix::build`] asks a closure for each block as a dense matrix, in block-column order
+//! (blocks grouped by column cluster, column clusters in permutation order), so that a source
+//! that solves for columns can serve a block column from one panel of solves.
+//! [`HMatrix::from_compliance`] reads the blocks from a dense [`Compliance`].
+
+use std::ops::Range;
+
+use glam::{DMat3, DVec3};
+use nalgebra::DMatrix;
+
+use crate::compliance::Compliance;
+use crate::mesh::Mesh;
+
+/// Why a hierarchical compliance cannot be built.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum HError {
+    /// The tolerance is not a number in (0, 1).
+    #[error("the tolerance must be in (0, 1), got {0}")]
+    Tolerance(f64),
+    /// The admissibility parameter is not a finite positive number.
+    #[error("the admissibility η must be finite and positive, got {0}")]
+    Eta(f64),
+    /// A leaf size of zero.
+    #[error("the cluster leaf size must be at least 1")]
+    LeafSize,
+    /// No row or no column.
+    #[error("nothing to compress: {rows} rows × {cols} columns")]
+    Empty {
+        /// Row nodes.
+        rows: usize,
+        /// Column nodes.
+        cols: usize,
+    },
+    /// A node position that is not finite.
+    #[error("{which} point {index} is not finite")]
+    Point {
+        /// `row` or `column`.
+        which: &'static str,
+        /// Its index.
+        index: usize,
+    },
+    /// Fewer output rows than row nodes.
+    #[error("{out_rows} output rows cannot hold {rows} row nodes")]
+    OutRows {
+        /// Output rows asked for.
+        out_rows: usize,
+        /// Row nodes.
+        rows: usize,
+    },
+    /// The compliance does not hold `L` on the host.
+    #[error("the compliance does not hold L on the host (a lean compliance)")]
+    NotHeld,
+    /// The compliance carries a cut's correction.
+    #[error("the compliance carries a cut's correction: fold it first")]
+    Correction,
+    /// A compliance node is not a node of the mesh given.
+    #[error("node {node} is not in the mesh ({nodes} nodes)")]
+    Node {
+        /// The node index.
+        node: u32,
+        /// The mesh's node count.
+        nodes: usize,
+    },
+    /// The block source gave a matrix of the wrong shape.
+    #[error("the block source gave a {got:?} matrix for a {want:?} block")]
+    BlockShape {
+        /// Rows × columns expected.
+        want: (usize, usize),
+        /// Rows × columns given.
+        got: (usize, usize),
+    },
+    /// The block source gave a non-finite entry.
+    #[error("the block source gave a non-finite entry")]
+    NonFinite,
+    /// The SVD of a block did not converge.
+    #[error("the SVD of a {0}×{1} block did not converge")]
+    Svd(usize, usize),
+}
+
+/// How to build an [`HMatrix`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HOptions {
+    /// Relative Frobenius tolerance ε of each far block, in (0, 1).
+    pub tolerance: f64,
+    /// Admissibility η: a pair is far when `min(diam) ≤ η·dist`.
+    pub eta: f64,
+    /// Most nodes in a leaf cluster.
+    pub leaf_size: usize,
+}
+
+impl HOptions {
+    /// Tolerance `tolerance`, η = 2, leaves of 32 nodes.
+    pub fn new(tolerance: f64) -> HOptions {
+        HOptions {
+            tolerance,
+            eta: 2.0,
+            leaf_size: 32,
+        }
+    }
+
+    fn check(&self) -> Result<(), HError> {
+        if !(self.tolerance > 0.0 && self.tolerance < 1.0) {
+            return Err(HError::Tolerance(self.tolerance));
+        }
+        if !(self.eta.is_finite() && self.eta > 0.0) {
+            return Err(HError::Eta(self.eta));
+        }
+        if self.leaf_size == 0 {
+            return Err(HError::LeafSize);
+        }
+        Ok(())
+    }
+}
+
+/// One cluster: a range of its tree's permutation and the bounding box of its nodes.
+#[derive(Clone, Debug)]
+struct Cluster {
+    range: Range<u32>,
+    lo: DVec3,
+    hi: DVec3,
+    children: Option<[u32; 2]>,
+}
+
+impl Cluster {
+    fn diam(&self) -> f64 {
+        (self.hi - self.lo).length()
+    }
+    fn dist(&self, o: &Cluster) -> f64 {
+        let gap = (o.lo - self.hi).max(self.lo - o.hi).max(DVec3::ZERO);
+        gap.length()
+    }
+}
+
+/// A cluster tree: node 0 is the root; `perm[position]` is the point at that position.
+#[derive(Clone, Debug)]
+struct ClusterTree {
+    nodes: Vec<Cluster>,
+    perm: Vec<u32>,
+}
+
+impl ClusterTree {
+    fn new(points: &[DVec3], leaf: usize) -> ClusterTree {
+        let mut t = ClusterTree {
+            nodes: Vec::new(),
+            perm: (0..points.len() as u32).collect(),
+        };
+        t.split(points, 0..points.len(), leaf);
+        t
+    }
+
+    /// Adds the cluster of positions `r` (and its subtree); returns its index.
+    fn split(&mut self, points: &[DVec3], r: Range<usize>, leaf: usize) -> u32 {
+        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        for &i in &self.perm[r.clone()] {
+            lo = lo.min(points[i as usize]);
+            hi = hi.max(points[i as usize]);
+        }
+        let me = self.nodes.len() as u32;
+        self.nodes.push(Cluster {
+            range: r.start as u32..r.end as u32,
+            lo,
+            hi,
+            children: None,
+        });
+        if r.len() <= leaf {
+            return me;
+        }
+        let ext = hi - lo;
+        let axis = if ext.x >= ext.y && ext.x >= ext.z {
+            0
+        } else if ext.y >= ext.z {
+            1
+        } else {
+            2
+        };
+        let mid = 0.5 * (lo[axis] + hi[axis]);
+        // Partition in place: points below the midpoint first.
+        let s = &mut self.perm[r.clone()];
+        let mut k = 0;
+        for i in 0..s.len() {
+            if points[s[i] as usize][axis] < mid {
+                s.swap(i, k);
+                k += 1;
+            }
+        }
+        if k == 0 || k == s.len() {
+            // All points coincide along the longest axis, hence everywhere: a leaf.
+            return me;
+        }
+        let a = self.split(points, r.start..r.start + k, leaf);
+        let b = self.split(points, r.start + k..r.end, leaf);
+        self.nodes[me as usize].children = Some([a, b]);
+        me
+    }
+}
+
+/// One block of the partition, as [`HMatrix::blocks`] describes it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct BlockInfo {
+    /// Row-node positions (in [`HMatrix::row_perm`]).
+    pub rows: Range<usize>,
+    /// Column-node positions (in [`HMatrix::col_perm`]).
+    pub cols: Range<usize>,
+    /// The rank of a low-rank block; `None` for a dense one.
+    pub rank: Option<usize>,
+    /// Whether the pair is admissible (far); a far block may still be stored dense.
+    pub far: bool,
+}
+
+#[derive(Clone, Debug)]
+struct Block {
+    rows: Range<u32>,
+    cols: Range<u32>,
+    /// `None`: dense, 3m × 3n column-major at `offset`. `Some(k)`: `U` (3m × k, column-major)
+    /// at `offset`, then `V` (3n × k, row-major: one DOF's k weights contiguous).
+    rank: Option<u32>,
+    far: bool,
+    offset: usize,
+}
+
+/// `L` as a hierarchical matrix: dense near blocks and low-rank far blocks (module docs).
+#[derive(Clone, Debug)]
+pub struct HMatrix {
+    opts: HOptions,
+    out_rows: usize,
+    row_perm: Vec<u32>,
+    col_perm: Vec<u32>,
+    /// Each row's position.
+    row_pos: Vec<u32>,
+    /// Each column's position.
+    col_pos: Vec<u32>,
+    blocks: Vec<Block>,
+    data: Vec<f64>,
+    /// Each column position's leaf (index into `leaf_start`).
+    col_leaf: Vec<u32>,
+    /// The blocks covering each column leaf: `leaf_blocks[leaf_start[l]..leaf_start[l + 1]]`.
+    leaf_start: Vec<u32>,
+    leaf_blocks: Vec<u32>,
+    norm_sq: f64,
+    discarded_sq: f64,
+}
+
+impl HMatrix {
+    /// Builds from a block source. `row_points` and `col_points` are the row and column nodes'
+    /// positions (row `i` is output entry `i`; `out_rows ≥ row_points.len()` entries are
+    /// written by [`HMatrix::displace`], the rest zero). `block(rows, cols)` gives the dense
+    /// block for those row and column indices: `3|rows| × 3|cols|`, entry `(3i + a, 3j + b)`
+    /// coupling row `rows[i]` axis `a` to column `cols[j]` axis `b`. It is called once per block,
+    /// in block-column order.
+    pub fn build(
+        row_points: &[DVec3],
+        col_points: &[DVec3],
+        out_rows: usize,
+        opts: &HOptions,
+        mut block: impl FnMut(&[u32], &[u32]) -> DMatrix<f64>,
+    ) -> Result<HMatrix, HError> {
+        opts.check()?;
+        if row_points.is_empty() || col_points.is_empty() {
+            return Err(HError::Empty {
+                rows: row_points.len(),
+                cols: col_points.len(),
+            });
+        }
+        if out_rows < row_points.len() {
+            return Err(HError::OutRows {
+                out_rows,
+                rows: row_points.len(),
+            });
+        }
+        for (which, pts) in [("row", row_points), ("column", col_points)] {
+            if let Some(index) = pts.iter().position(|p| !p.is_finite()) {
+                return Err(HError::Point { which, index });
+            }
+        }
+        let rt = ClusterTree::new(row_points, opts.leaf_size);
+        let ct = ClusterTree::new(col_points, opts.leaf_size);
+
+        // The partition, then block-column order.
+        let mut pairs = Vec::new();
+        partition(&rt, &ct, 0, 0, opts.eta, &mut pairs);
+        pairs.sort_by_key(|&(t, s, _)| {
+            let (t, s) = (&rt.nodes[t as usize], &ct.nodes[s as usize]);
+            (s.range.start, s.range.end, t.range.start)
+        });
+
+        let mut h = HMatrix {
+            opts: *opts,
+            out_rows,
+            row_perm: rt.perm.clone(),
+            row_pos: vec![0; row_points.len()],
+            col_pos: vec![0; col_points.len()],
+            col_perm: ct.perm.clone(),
+            blocks: Vec::with_capacity(pairs.len()),
+            data: Vec::new(),
+            col_leaf: vec![0; col_points.len()],
+            leaf_start: Vec::new(),
+            leaf_blocks: Vec::new(),
+            norm_sq: 0.0,
+            discarded_sq: 0.0,
+        };
+        for (p, &r) in rt.perm.iter().enumerate() {
+            h.row_pos[r as usize] = p as u32;
+        }
+        for (p, &c) in ct.perm.iter().enumerate() {
+            h.col_pos[c as usize] = p as u32;
+        }
+        for (t, s, far) in pairs {
+            let (t, s) = (&rt.nodes[t as usize], &ct.nodes[s as usize]);
+            let ri = &rt.perm[t.range.start as usize..t.range.end as usize];
+            let ci = &ct.perm[s.range.start as usize..s.range.end as usize];
+            let b = block(ri, ci);
+            let want = (3 * ri.len(), 3 * ci.len());
+            if b.shape() != want {
+                return Err(HError::BlockShape {
+                    want,
+                    got: b.shape(),
+                });
+            }
+            if b.iter().any(|v| !v.is_finite()) {
+                return Err(HError::NonFinite);
+            }
+            h.push_block(t.range.clone(), s.range.clone(), far, b)?;
+        }
+        h.index_columns(&ct);
+        Ok(h)
+    }
+
+    /// Builds from a dense compliance (without a cut's correction): rows are its free
+    /// displayed rows ([`Compliance::l_rows`]), columns its touchable ones, positions from
+    /// `mesh`. Its clamped rows read zero, as in [`Compliance::displace`].
+    pub fn from_compliance(
+        c: &Compliance,
+        mesh: &Mesh,
+        opts: &HOptions,
+    ) -> Result<HMatrix, HError> {
+        opts.check()?;
+        if !c.holds_l() {
+            return Err(HError::NotHeld);
+        }
+        if c.correction().is_some() {
+            return Err(HError::Correction);
+        }
+        let pos = |n: u32| {
+            mesh.nodes.get(n as usize).copied().ok_or(HError::Node {
+                node: n,
+                nodes: mesh.nodes.len(),
+            })
+        };
+        let nr = c.l_rows();
+        let rp = c.rows()[..nr]
+            .iter()
+            .map(|&n| pos(n))
+            .collect::<Result<Vec<_>, _>>()?;
+        let cp = c
+            .cols()
+            .iter()
+            .map(|&n| pos(n))
+            .collect::<Result<Vec<_>, _>>()?;
+        let l = c.l_f64();
+        let nr3 = 3 * nr;
+        if l.len() != nr3 * 3 * cp.len() {
+            return Err(HError::BlockShape {
+                want: (nr3, 3 * cp.len()),
+                got: (nr3, l.len() / nr3.max(1)),
+            });
+        }
+        HMatrix::build(&rp, &cp, c.rows().len(), opts, |ri, ci| {
+            DMatrix::from_fn(3 * ri.len(), 3 * ci.len(), |i, j| {
+                let (r, a) = (ri[i / 3] as usize, i % 3);
+                let (col, b) = (ci[j / 3] as usize, j % 3);
+                l[(3 * col + b) * nr3 + 3 * r + a]
+            })
+        })
+    }
+
+    fn push_block(
+        &mut self,
+        rows: Range<u32>,
+        cols: Range<u32>,
+        far: bool,
+        b: DMatrix<f64>,
+    ) -> Result<(), HError> {
+        let (m, n) = b.shape();
+        let offset = self.data.len();
+        let norm_sq = b.norm_squared();
+        self.norm_sq += norm_sq;
+        let mut rank = None;
+        if far {
+            let svd = faer::MatRef::from_column_major_slice(b.as_slice(), m, n)
+                .thin_svd()
+                .map_err(|_| HError::Svd(m, n))?;
+            let s = svd.S().column_vector();
+            let nk = s.nrows();
+            // Smallest k with the tail Σ_{i≥k} σᵢ² ≤ ε²‖B‖².
+            let budget = self.opts.tolerance * self.opts.tolerance * norm_sq;
+            let (mut k, mut tail) = (nk, 0.0);
+            while k > 0 && tail + s[k - 1] * s[k - 1] <= budget {
+                tail += s[k - 1] * s[k - 1];
+                k -= 1;
+            }
+            if k * (m + n) < m * n {
+                let (u, v) = (svd.U(), svd.V());
+                self.data.reserve(k * (m + n));
+                for l in 0..k {
+                    self.data.extend((0..m).map(|i| u[(i, l)] * s[l]));
+                }
+                for j in 0..n {
+                    self.data.extend((0..k).map(|l| v[(j, l)]));
+                }
+                self.discarded_sq += tail;
+                rank = Some(k as u32);
+            }
+        }
+        if rank.is_none() {
+            self.data.extend_from_slice(b.as_slice());
+        }
+        self.blocks.push(Block {
+            rows,
+            cols,
+            rank,
+            far,
+            offset,
+        });
+        Ok(())
+    }
+
+    /// For each column leaf, the blocks whose column range covers it (a block's column range
+    /// is a cluster: a run of whole leaves).
+    fn index_columns(&mut self, ct: &ClusterTree) {
+        let mut leaves: Vec<Range<u32>> = ct
+            .nodes
+            .iter()
+            .filter(|c| c.children.is_none())
+            .map(|c| c.range.clone())
+            .collect();
+        leaves.sort_by_key(|r| r.start);
+        for (li, r) in leaves.iter().enumerate() {
+            for p in r.clone() {
+                self.col_leaf[p as usize] = li as u32;
+            }
+        }
+        let covered = |b: &Block| {
+            self.col_leaf[b.cols.start as usize] as usize
+                ..=self.col_leaf[b.cols.end as usize - 1] as usize
+        };
+        let mut count = vec![0u32; leaves.len() + 1];
+        for b in &self.blocks {
+            for l in covered(b) {
+                count[l + 1] += 1;
+            }
+        }
+        for l in 0..leaves.len() {
+            count[l + 1] += count[l];
+        }
+        let mut next = count.clone();
+        let mut lb = vec![0u32; count[leaves.len()] as usize];
+        for (bi, b) in self.blocks.iter().enumerate() {
+            for l in covered(b) {
+                lb[next[l] as usize] = bi as u32;
+                next[l] += 1;
+            }
+        }
+        self.leaf_start = count;
+        self.leaf_blocks = lb;
+    }
+
+    /// u = L_H·F over the active columns, with [`Compliance::displace`]'s meaning: `forces` are
+    /// (column index, force in N), `out` gets one entry per output row (metres). The cost is
+    /// that of the blocks in the active columns' block columns; a far block shared by several
+    /// active columns applies its `U` once. Columns out of range are ignored.
+    pub fn displace(&self, forces: &[(u32, DVec3)], out: &mut [DVec3]) {
+        out[..self.out_rows].fill(DVec3::ZERO);
+        let mut hits: Vec<(u32, u32, DVec3)> = Vec::new();
+        for &(c, f) in forces {
+            let Some(&p) = self.col_pos.get(c as usize) else {
+                continue;
+            };
+            let leaf = self.col_leaf[p as usize] as usize;
+            let bs = &self.leaf_blocks
+                [self.leaf_start[leaf] as usize..self.leaf_start[leaf + 1] as usize];
+            for &b in bs {
+                hits.push((b, p - self.blocks[b as usize].cols.start, f));
+            }
+        }
+        hits.sort_unstable_by_key(|h| h.0);
+        let mut z = Vec::new();
+        for group in hits.chunk_by(|a, b| a.0 == b.0) {
+            let b = &self.blocks[group[0].0 as usize];
+            let rows = &self.row_perm[b.rows.start as usize..b.rows.end as usize];
+            let m = 3 * rows.len();
+            match b.rank {
+                None => {
+                    for &(_, j, f) in group {
+                        for (ax, fb) in f.to_array().into_iter().enumerate() {
+                            if fb == 0.0 {
+                                continue;
+                            }
+                            let col = &self.data[b.offset + (3 * j as usize + ax) * m..][..m];
+                            for (&r, e) in rows.iter().zip(col.chunks_exact(3)) {
+                                out[r as usize] += DVec3::new(e[0], e[1], e[2]) * fb;
+                            }
+                        }
+                    }
+                }
+                Some(k) => {
+                    let k = k as usize;
+                    if k == 0 {
+                        continue;
+                    }
+                    z.clear();
+                    z.resize(k, 0.0);
+                    let v = &self.data[b.offset + k * m..];
+                    for &(_, j, f) in group {
+                        for (ax, fb) in f.to_array().into_iter().enumerate() {
+                            let w = &v[(3 * j as usize + ax) * k..][..k];
+                            for (zl, wl) in z.iter_mut().zip(w) {
+                                *zl += wl * fb;
+                            }
+                        }
+                    }
+                    for (l, &zl) in z.iter().enumerate() {
+                        let u = &self.data[b.offset + l * m..][..m];
+                        for (&r, e) in rows.iter().zip(u.chunks_exact(3)) {
+                            out[r as usize] += DVec3::new(e[0], e[1], e[2]) * zl;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// The 3×3 block L_H(row r, column c), m/N, and whether it is exact (it lies in a dense
+    /// block: the near field the haptic path reads); `None` for an index out of range.
+    pub fn block(&self, r: usize, c: usize) -> Option<(DMat3, bool)> {
+        let pr = *self.row_pos.get(r)?;
+        let pc = *self.col_pos.get(c)?;
+        let leaf = self.col_leaf[pc as usize] as usize;
+        let bs =
+            &self.leaf_blocks[self.leaf_start[leaf] as usize..self.leaf_start[leaf + 1] as usize];
+        let b = bs
+            .iter()
+            .map(|&b| &self.blocks[b as usize])
+            .find(|b| b.rows.contains(&pr))?;
+        let (i, j) = ((pr - b.rows.start) as usize, (pc - b.cols.start) as usize);
+        let m = 3 * b.rows.len();
+        let entry = |a: usize, e: usize| -> f64 {
+            match b.rank {
+                None => self.data[b.offset + (3 * j + e) * m + 3 * i + a],
+                Some(k) => {
+                    let k = k as usize;
+                    let v = &self.data[b.offset + k * m + (3 * j + e) * k..][..k];
+                    (0..k)
+                        .map(|l| self.data[b.offset + l * m + 3 * i + a] * v[l])
+                        .sum()
+                }
+            }
+        };
+        let col = |e: usize| DVec3::new(entry(0, e), entry(1, e), entry(2, e));
+        Some((DMat3::from_cols(col(0), col(1), col(2)), b.rank.is_none()))
+    }
+
+    /// The options it was built with.
+    pub fn options(&self) -> &HOptions {
+        &self.opts
+    }
+    /// Row nodes (the output rows that hold `L`).
+    pub fn rows(&self) -> usize {
+        self.row_perm.len()
+    }
+    /// Column nodes.
+    pub fn cols(&self) -> usize {
+        self.col_perm.len()
+    }
+    /// Row index at each position of the row cluster tree.
+    pub fn row_perm(&self) -> &[u32] {
+        &self.row_perm
+    }
+    /// Column index at each position of the column cluster tree.
+    pub fn col_perm(&self) -> &[u32] {
+        &self.col_perm
+    }
+    /// The blocks, in block-column order.
+    pub fn blocks(&self) -> impl Iterator<Item = BlockInfo> + '_ {
+        self.blocks.iter().map(|b| BlockInfo {
+            rows: b.rows.start as usize..b.rows.end as usize,
+            cols: b.cols.start as usize..b.cols.end as usize,
+            rank: b.rank.map(|k| k as usize),
+            far: b.far,
+        })
+    }
+    /// Values stored (dense entries and factor entries).
+    pub fn stored_values(&self) -> usize {
+        self.data.len()
+    }
+    /// Bytes of the stored values in f64.
+    pub fn bytes_f64(&self) -> usize {
+        8 * self.data.len()
+    }
+    /// Bytes of the stored values in f32 (a GPU copy).
+    pub fn bytes_f32(&self) -> usize {
+        4 * self.data.len()
+    }
+    /// Bytes of the index (permutations, block table, column index), beside the values.
+    pub fn index_bytes(&self) -> usize {
+        4 * (2 * self.row_perm.len()
+            + 2 * self.col_perm.len()
+            + self.col_leaf.len()
+            + self.leaf_start.len()
+            + self.leaf_blocks.len())
+            + self.blocks.len() * std::mem::size_of::<Block>()
+    }
+    /// Values the dense `L` over the same rows and columns holds (`3·rows × 3·cols`).
+    pub fn dense_values(&self) -> usize {
+        9 * self.row_perm.len() * self.col_perm.len()
+    }
+    /// `‖L‖_F` of the blocks it was built from.
+    pub fn norm(&self) -> f64 {
+        self.norm_sq.sqrt()
+    }
+    /// `‖L − L_H‖_F` as the truncations discarded it (exact up to rounding); at most
+    /// `tolerance·‖L‖_F`.
+    pub fn truncation_error(&self) -> f64 {
+        self.discarded_sq.sqrt()
+    }
+    /// `L_H` expanded into [`Compliance`]'s dense layout (`(3c + b)·3·rows + 3r + a`), for
+    /// checks: as large as the dense `L`.
+    pub fn to_dense(&self) -> Vec<f64> {
+        let nr3 = 3 * self.row_perm.len();
+        let mut l = vec![0.0; nr3 * 3 * self.col_perm.len()];
+        for b in &self.blocks {
+            let rows = &self.row_perm[b.rows.start as usize..b.rows.end as usize];
+            let cols = &self.col_perm[b.cols.start as usize..b.cols.end as usize];
+            let (m, n) = (3 * rows.len(), 3 * cols.len());
+            let entry = |i: usize, j: usize| -> f64 {
+                match b.rank {
+                    None => self.data[b.offset + j * m + i],
+                    Some(k) => {
+                        let k = k as usize;
+                        let v = &self.data[b.offset + k * m + j * k..][..k];
+                        (0..k).map(|l| self.data[b.offset + l * m + i] * v[l]).sum()
+                    }
+                }
+            };
+            for j in 0..n {
+                let cj = 3 * cols[j / 3] as usize + j % 3;
+                for i in 0..m {
+                    l[cj * nr3 + 3 * rows[i / 3] as usize + i % 3] = entry(i, j);
+                }
+            }
+        }
+        l
+    }
+}
+
+/// The errors of unit point loads, `L_H` against the dense compliance it was built from: for
+/// each column `c` and axis `b` (index `3c + b`), the relative L2 error `‖Δu‖₂/‖u‖₂` and the
+/// relative max-norm error `max|Δu_r|/max|u_r|` over the rows.
+#[derive(Clone, Debug, Default)]
+pub struct LoadErrors {
+    /// Relative L2 errors, one per (column, axis).
+    pub l2: Vec<f64>,
+    /// Relative max-norm errors, one per (column, axis).
+    pub max: Vec<f64>,
+}
+
+impl HMatrix {
+    /// Unit point loads at every column and axis, against `c` (the compliance it was built
+    /// from, [`HMatrix::from_compliance`]).
+    pub fn load_errors(&self, c: &Compliance) -> LoadErrors {
+        let nr = c.rows().len();
+        let (mut u, mut uh) = (
+            vec![DVec3::ZERO; nr],
+            vec![DVec3::ZERO; self.out_rows.max(nr)],
+        );
+        let mut e = LoadErrors::default();
+        for col in 0..c.cols().len().min(self.cols()) {
+            for b in 0..3 {
+                let f = [(col as u32, DVec3::AXES[b])];
+                c.displace(&f, &mut u);
+                self.displace(&f, &mut uh);
+                let (mut d2, mut n2, mut dm, mut nm) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+                for (a, h) in u.iter().zip(&uh) {
+                    let d = *h - *a;
+                    d2 += d.length_squared();
+                    n2 += a.length_squared();
+                    dm = dm.max(d.length());
+                    nm = nm.max(a.length());
+                }
+                e.l2.push(if n2 > 0.0 { (d2 / n2).sqrt() } else { 0.0 });
+                e.max.push(if nm > 0.0 { dm / nm } else { 0.0 });
+            }
+        }
+        e
+    }
+}
+
+/// The block partition below the pair (t, s): (row cluster, column cluster, admissible).
+fn partition(
+    rt: &ClusterTree,
+    ct: &ClusterTree,
+    t: u32,
+    s: u32,
+    eta: f64,
+    out: &mut Vec<(u32, u32, bool)>,
+) {
+    let (tc, sc) = (&rt.nodes[t as usize], &ct.nodes[s as usize]);
+    let dist = tc.dist(sc);
+    if dist > 0.0 && tc.diam().min(sc.diam()) <= eta * dist {
+        out.push((t, s, true));
+        return;
+    }
+    match (tc.children, sc.children) {
+        (None, None) => out.push((t, s, false)),
+        (Some(tk), None) => tk.iter().for_each(|&a| partition(rt, ct, a, s, eta, out)),
+        (None, Some(sk)) => sk.iter().for_each(|&b| partition(rt, ct, t, b, eta, out)),
+        (Some(tk), Some(sk)) => {
+            for &a in &tk {
+                for &b in &sk {
+                    partition(rt, ct, a, b, eta, out);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::compliance::Selection;
+    use std::sync::OnceLock;
+
+    fn mouse() -> &'static (Mesh, Compliance) {
+        static M: OnceLock<(Mesh, Compliance)> = OnceLock::new();
+        M.get_or_init(|| {
+            let m = crate::mesh::mouse();
+            let c = Compliance::compute(&m, &Selection::default()).expect("mouse L");
+            (m, c)
+        })
+    }
+
+    fn cube() -> (Mesh, Compliance) {
+        let m = crate::mesh::cube();
+        let c = Compliance::compute(&m, &Selection::default()).expect("cube L");
+        (m, c)
+    }
+
+    /// ‖L − L_H‖_F, measured against the dense `L`, and ‖L‖_F.
+    fn frobenius(h: &HMatrix, c: &Compliance) -> (f64, f64) {
+        let lh = h.to_dense();
+        let l = c.l_f64();
+        assert_eq!(lh.len(), l.len());
+        let d: f64 = l.iter().zip(&lh).map(|(a, b)| (a - b) * (a - b)).sum();
+        let n: f64 = l.iter().map(|a| a * a).sum();
+        (d.sqrt(), n.sqrt())
+    }
+
+    fn median(v: &[f64]) -> f64 {
+        let mut v = v.to_vec();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    }
+
+    fn worst(v: &[f64]) -> f64 {
+        v.iter().fold(0.0, |m, &x| m.max(x))
+    }
+
+    /// Every (row, column) pair lies in exactly one block, and every block is a 3-DOF tile.
+    fn check_partition(h: &HMatrix) {
+        let mut hit = vec![0u8; h.rows() * h.cols()];
+        for b in h.blocks() {
+            for r in b.rows.clone() {
+                for c in b.cols.clone() {
+                    hit[r * h.cols() + c] += 1;
+                }
+            }
+        }
+        assert!(hit.iter().all(|&k| k == 1), "the blocks do not partition L");
+    }
+
+    fn global_bound(m: &Mesh, c: &Compliance, leaf: usize) {
+        for eps in [1e-2, 1e-4, 1e-6] {
+            let opts = HOptions {
+                leaf_size: leaf,
+                ..HOptions::new(eps)
+            };
+            let h = HMatrix::from_compliance(c, m, &opts).expect("H");
+            check_partition(&h);
+            let (err, norm) = frobenius(&h, c);
+            assert!((h.norm() - norm).abs() <= 1e-12 * norm);
+            assert!(
+                err <= eps * norm,
+                "ε {eps}: ‖L − L_H‖ {err:e} > ε‖L‖ {:e}",
+                eps * norm
+            );
+            // The discarded tails account for the error (up to rounding).
+            assert!((err - h.truncation_error()).abs() <= 1e-3 * err + 1e-12 * norm);
+            // Displacements agree with the reconstruction.
+            let e = h.load_errors(c);
+            assert_eq!(e.l2.len(), 3 * c.cols().len());
+            assert!(
+                median(&e.l2) <= 10.0 * eps,
+                "ε {eps}: median {:e}",
+                median(&e.l2)
+            );
+        }
+    }
+
+    #[test]
+    fn cube_meets_the_global_bound() {
+        let (m, c) = cube();
+        // The cube's 98 surface nodes in leaves of 8, so that it has far blocks at all.
+        global_bound(&m, &c, 8);
+        let h = HMatrix::from_compliance(
+            &c,
+            &m,
+            &HOptions {
+                leaf_size: 8,
+                ..HOptions::new(1e-2)
+            },
+        )
+        .expect("H");
+        assert!(
+            h.blocks().any(|b| b.rank.is_some()),
+            "no low-rank block on the cube"
+        );
+    }
+
+    #[test]
+    fn mouse_meets_the_global_bound() {
+        let (m, c) = mouse();
+        global_bound(m, c, 32);
+    }
+
+    #[test]
+    fn mouse_point_loads_and_storage() {
+        let (m, c) = mouse();
+        let h = HMatrix::from_compliance(c, m, &HOptions::new(1e-3)).expect("H");
+        let ratio = h.stored_values() as f64 / h.dense_values() as f64;
+        assert_eq!(h.dense_values(), c.l_f64().len());
+        // Measured: 0.333 (1029 × 1029 nodes, 666 low-rank blocks of mean rank 7.4).
+        assert!(ratio < 0.36, "storage ratio {ratio}");
+        let e = h.load_errors(c);
+        let (med, max) = (median(&e.l2), worst(&e.l2));
+        // Measured: median 4.3e-4, worst 3.9e-3 (the issue's targets: 2e-3 and 1e-2).
+        assert!(med <= 2e-3 && max <= 1e-2, "median {med:e}, worst {max:e}");
+    }
+
+    #[test]
+    fn matvec_matches_the_reconstruction_for_several_columns() {
+        let (m, c) = cube();
+        let h = HMatrix::from_compliance(
+            &c,
+            &m,
+            &HOptions {
+                leaf_size: 8,
+                ..HOptions::new(1e-4)
+            },
+        )
+        .expect("H");
+        let lh = h.to_dense();
+        let nr3 = 3 * c.l_rows();
+        let forces: Vec<(u32, DVec3)> = (0..c.cols().len() as u32)
+            .step_by(7)
+            .map(|k| (k, DVec3::new(1.0, -2.0, 0.5) * (k as f64 + 1.0)))
+            .collect();
+        let mut out = vec![DVec3::splat(9.0); c.rows().len()];
+        h.displace(&forces, &mut out);
+        for (r, o) in out.iter().enumerate() {
+            let mut want = DVec3::ZERO;
+            if r < c.l_rows() {
+                for &(k, f) in &forces {
+                    for b in 0..3 {
+                        let col = &lh[(3 * k as usize + b) * nr3 + 3 * r..][..3];
+                        want += DVec3::new(col[0], col[1], col[2]) * f[b];
+                    }
+                }
+            }
+            assert!(
+                (*o - want).length() <= 1e-12 * want.length().max(1e-30),
+                "row {r}"
+            );
+        }
+    }
+
+    /// Every touchable column's diagonal block, and the blocks to its 8 nearest columns,
+    /// are in the dense near field: exact, as the haptic path needs them.
+    #[test]
+    fn the_near_field_is_exact() {
+        let (m, c) = mouse();
+        let h = HMatrix::from_compliance(c, m, &HOptions::new(1e-2)).expect("H");
+        let cols = c.cols();
+        let mut inexact = 0;
+        for i in 0..cols.len() {
+            let p = m.nodes[cols[i] as usize];
+            let mut near: Vec<usize> = (0..cols.len()).collect();
+            near.sort_by(|&a, &b| {
+                let d = |k: usize| m.nodes[cols[k] as usize].distance_squared(p);
+                d(a).total_cmp(&d(b))
+            });
+            for &j in &near[..9] {
+                let r = c.col_row(i);
+                let (got, exact) = h.block(r, j).expect("in range");
+                if exact {
+                    assert_eq!(got, c.touch_block(i, j), "({i}, {j})");
+                } else {
+                    assert_ne!(j, i, "a diagonal block is not exact");
+                    inexact += 1;
+                }
+            }
+        }
+        // Measured: none of the 9261 neighbour pairs lies in a far block (a far pair is at
+        // least half the smaller cluster's diameter apart; neighbours are an edge apart).
+        assert_eq!(inexact, 0, "neighbour pairs in far blocks");
+        assert!(h.block(c.l_rows(), 0).is_none() && h.block(0, cols.len()).is_none());
+    }
+
+    #[test]
+    fn bad_input_is_a_typed_error() {
+        let (m, c) = cube();
+        for eps in [0.0, -1e-3, f64::NAN, 1.0, f64::INFINITY] {
+            assert!(matches!(
+                HMatrix::from_compliance(&c, &m, &HOptions::new(eps)),
+                Err(HError::Tolerance(_))
+            ));
+        }
+        let bad = |o: HOptions| HMatrix::from_compliance(&c, &m, &o).unwrap_err();
+        assert!(matches!(
+            bad(HOptions {
+                eta: f64::NAN,
+                ..HOptions::new(1e-3)
+            }),
+            HError::Eta(_)
+        ));
+        assert!(matches!(
+            bad(HOptions {
+                eta: 0.0,
+                ..HOptions::new(1e-3)
+            }),
+            HError::Eta(_)
+        ));
+        assert_eq!(
+            bad(HOptions {
+                leaf_size: 0,
+                ..HOptions::new(1e-3)
+            }),
+            HError::LeafSize
+        );
+        let o = HOptions::new(1e-3);
+        let p = [DVec3::ZERO];
+        let blk = |_: &[u32], _: &[u32]| DMatrix::zeros(3, 3);
+        assert!(matches!(
+            HMatrix::build(&[], &p, 0, &o, blk),
+            Err(HError::Empty { .. })
+        ));
+        assert!(matches!(
+            HMatrix::build(&p, &[], 1, &o, blk),
+            Err(HError::Empty { .. })
+        ));
+        assert!(matches!(
+            HMatrix::build(&p, &p, 0, &o, blk),
+            Err(HError::OutRows { .. })
+        ));
+        let nan = [DVec3::new(0.0, f64::NAN, 0.0)];
+        assert!(matches!(
+            HMatrix::build(&nan, &p, 1, &o, blk),
+            Err(HError::Point { .. })
+        ));
+        assert!(matches!(
+            HMatrix::build(&p, &p, 1, &o, |_, _| DMatrix::zeros(2, 3)),
+            Err(HError::BlockShape { .. })
+        ));
+        assert_eq!(
+            HMatrix::build(&p, &p, 1, &o, |_, _| DMatrix::from_element(3, 3, f64::NAN))
+                .unwrap_err(),
+            HError::NonFinite
+        );
+        // A mesh without the compliance's nodes.
+        let mut few = m.clone();
+        few.nodes.truncate(3);
+        assert!(matches!(
+            HMatrix::from_compliance(&c, &few, &o),
+            Err(HError::Node { .. })
+        ));
+    }
+
+    #[test]
+    fn coincident_points_and_a_zero_matrix_build() {
+        // All points in one place: one leaf that cannot split, one dense block.
+        let p = vec![DVec3::ONE; 100];
+        let h = HMatrix::build(&p, &p, 100, &HOptions::new(1e-3), |r, c| {
+            DMatrix::zeros(3 * r.len(), 3 * c.len())
+        })
+        .expect("H");
+        assert_eq!(h.blocks().count(), 1);
+        let mut out = vec![DVec3::ONE; 100];
+        h.displace(&[(3, DVec3::X), (1000, DVec3::Y)], &mut out);
+        assert!(out.iter().all(|v| *v == DVec3::ZERO));
+        // Two far clouds of a zero matrix: rank-0 far blocks.
+        let q: Vec<DVec3> = (0..64)
+            .map(|i| {
+                DVec3::new(
+                    if i < 32 { 0.0 } else { 100.0 },
+                    (i % 32) as f64 * 0.01,
+                    0.0,
+                )
+            })
+            .collect();
+        let h = HMatrix::build(&q, &q, 64, &HOptions::new(1e-3), |r, c| {
+            DMatrix::zeros(3 * r.len(), 3 * c.len())
+        })
+        .expect("H");
+        assert!(h.blocks().any(|b| b.rank == Some(0)));
+        assert_eq!(h.truncation_error(), 0.0);
+    }
+}
