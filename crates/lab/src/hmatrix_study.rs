@@ -190,7 +190,8 @@ mod tests {
     /// `--nocapture` (a test, not the library, prints).
     #[test]
     fn hmatrix_rows_hold_their_bounds() {
-        let rows = hmatrix_rows(&[1e-2, 1e-3, 1e-4, 1e-6], 50).expect("rows");
+        // (One tolerance: the core module's tests hold the bound at 1e-2, 1e-4 and 1e-6.)
+        let rows = hmatrix_rows(&[1e-3], 5).expect("rows");
         for r in &rows {
             println!("{}", serde_json::to_string(r).expect("json"));
             assert!(r.frobenius_rel <= r.tolerance, "{r:?}");
