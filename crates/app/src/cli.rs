@@ -142,8 +142,22 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
         scene_table = t;
         scenes.extend(s);
     }
+    let tolerances: &[f64] = if a.quick {
+        &[1e-3]
+    } else {
+        &[1e-2, 1e-3, 1e-4, 1e-6]
+    };
     for (name, scene) in scenes {
         rows.extend(cpu_rows(&name, &scene, active, reps)?);
+        // The hierarchical L where it has far blocks (more than two leaves of nodes).
+        if scene.compliance.rows().len() > 500 {
+            rows.extend(touchfem_lab::hmatrix_study::tradeoff_rows(
+                &name,
+                &scene,
+                tolerances,
+                reps.min(50),
+            )?);
+        }
         if let Some(g) = &gpu {
             // Submit from the core the driver's threads started on (as the demo does).
             placement.enter_visual();
@@ -153,12 +167,12 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
         }
     }
     println!(
-        "{:<14} {:<6} {:>6} {:>7} {:>12} {:>11}",
+        "{:<18} {:<6} {:>6} {:>7} {:>12} {:>11}",
         "method", "mesh", "nodes", "active", "time_us", "rel_error"
     );
     for r in &rows {
         println!(
-            "{:<14} {:<6} {:>6} {:>7} {:>12.3} {:>11.2e}",
+            "{:<18} {:<6} {:>6} {:>7} {:>12.3} {:>11.2e}",
             r.method, r.mesh, r.nodes, r.active_columns, r.time_us, r.rel_error
         );
     }

@@ -182,6 +182,33 @@ pub fn measure(
     })
 }
 
+/// `touchfem bench`'s rows for the hierarchical `L` of `body` at each of `tolerances`
+/// (methods `hmatrix-f64-EPS`, one finger's 9 neighbouring columns and 9 spread-out ones):
+/// the product's median time and, as its error, the worst relative L2 error of a point load
+/// over every column (against the dense f64 product).
+pub fn tradeoff_rows(
+    name: &str,
+    body: &touchfem_core::scene::Body,
+    tolerances: &[f64],
+    reps: usize,
+) -> Result<Vec<crate::tradeoff::Row>, Error> {
+    let mut rows = Vec::new();
+    for &eps in tolerances {
+        let r = measure(name, &body.mesh, &body.compliance, eps, reps)?;
+        for (active, t) in [(9usize, r.finger_us), (9, r.spread_us)] {
+            rows.push(crate::tradeoff::Row {
+                method: format!("hmatrix-f64-{eps:.0e}"),
+                mesh: name.into(),
+                nodes: body.mesh.nodes.len(),
+                active_columns: active,
+                time_us: t,
+                rel_error: r.l2_worst,
+            });
+        }
+    }
+    Ok(rows)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
