@@ -252,7 +252,9 @@ fn bench_json_has_the_contract_keys_and_sane_errors() {
     }
     assert_eq!(find("cpu-f64", "mouse")["nodes"], 1699);
     // The hierarchical L at 1e-3: a point load's worst error a few ε (3.9e-3 measured).
-    let h = find("hmatrix-f64-1e-3", "mouse")["rel_error"].as_f64().unwrap();
+    let h = find("hmatrix-f64-1e-3", "mouse")["rel_error"]
+        .as_f64()
+        .unwrap();
     assert!(h > 1e-4 && h < 1e-2, "{h}");
 }
 

@@ -155,3 +155,17 @@ pub fn run_incision(fold_rank: usize) -> IncisionRun {
         removed,
     }
 }
+
+/// Area-weighted unit normals of `tris` (row indices) at positions `x`: what the GPU's normal
+/// pass computes.
+pub fn cpu_normals(x: &[glam::DVec3], tris: &[[u32; 3]]) -> Vec<glam::DVec3> {
+    let mut n = vec![glam::DVec3::ZERO; x.len()];
+    for t in tris {
+        let [a, b, c] = t.map(|i| x[i as usize]);
+        let f = (b - a).cross(c - a);
+        for &i in t {
+            n[i as usize] += f;
+        }
+    }
+    n.iter().map(|v| v.normalize_or_zero()).collect()
+}

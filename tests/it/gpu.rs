@@ -7,6 +7,7 @@
 
 use std::sync::OnceLock;
 
+use crate::common::cpu_normals;
 use glam::DVec3;
 use touchfem::compliance::{Compliance, Selection};
 use touchfem::gpu::{
@@ -78,19 +79,6 @@ fn run(d: &Deformer) -> (Vec<[f32; 3]>, Option<Vec<[f32; 3]>>) {
     d.encode(&mut enc);
     g.queue.submit([enc.finish()]);
     d.read_back(&g.device, &g.queue).expect("readback")
-}
-
-/// Area-weighted unit normals of the surface (triangles in row indices) at positions `x`.
-fn cpu_normals(x: &[DVec3], tris: &[[u32; 3]]) -> Vec<DVec3> {
-    let mut n = vec![DVec3::ZERO; x.len()];
-    for t in tris {
-        let [a, b, c] = t.map(|i| x[i as usize]);
-        let f = (b - a).cross(c - a);
-        for &i in t {
-            n[i as usize] += f;
-        }
-    }
-    n.iter().map(|v| v.normalize_or_zero()).collect()
 }
 
 /// Checks the GPU vertices against `rest + Compliance::displace(forces)`; returns max|u|.

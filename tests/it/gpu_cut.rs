@@ -9,6 +9,7 @@
 
 use std::sync::{Arc, OnceLock};
 
+use crate::common::cpu_normals;
 use glam::DVec3;
 use touchfem::compliance::{Compliance, Selection};
 use touchfem::cut::{tets_near, Cut};
@@ -73,19 +74,6 @@ fn frame_us(d: &mut Deformer, forces: &[(u32, [f32; 3])]) -> f64 {
 
 fn to_f64(v: [f32; 3]) -> DVec3 {
     DVec3::from(v.map(f64::from))
-}
-
-/// Area-weighted unit normals of `tris` (row indices) at positions `x`.
-fn cpu_normals(x: &[DVec3], tris: &[[u32; 3]]) -> Vec<DVec3> {
-    let mut n = vec![DVec3::ZERO; x.len()];
-    for t in tris {
-        let [a, b, c] = t.map(|i| x[i as usize]);
-        let f = (b - a).cross(c - a);
-        for &i in t {
-            n[i as usize] += f;
-        }
-    }
-    n.iter().map(|v| v.normalize_or_zero()).collect()
 }
 
 /// Compares the GPU's positions with `rest + c.displace(forces)` (f64, with `c`'s correction),

@@ -185,43 +185,43 @@ fn wait_until(what: &str, timeout: Duration, child: &mut Child, mut ok: impl FnM
     }
 }
 
-#[test]
-fn view_window_presses_the_cube_with_the_pointer() {
-    require_tools();
-    let dir = out_dir();
-    let (mut xvfb, display) = start_xvfb();
-
-    let log = dir.join("view.log.jsonl");
-    let _ = std::fs::remove_file(&log);
-    let stdout = std::fs::File::create(dir.join("view.stdout.txt")).unwrap();
+/// Starts `touchfem view SCENE` on `display` recording to `session` and logging to `log` (its
+/// stderr in `dir`), for at most `seconds`; waits for its window and its first log line.
+/// Returns the process and the window's id.
+fn start_view(
+    scene: &str,
+    dir: &Path,
+    display: &str,
+    session: &Path,
+    log: &Path,
+    stdout: std::fs::File,
+    seconds: u64,
+) -> (KillOnDrop, String) {
     let stderr = std::fs::File::create(dir.join("view.stderr.txt")).unwrap();
     let backend = std::env::var("WGPU_BACKEND").unwrap_or_else(|_| "vulkan".into());
-    let session = dir.join("view.tfsession");
-    let _ = std::fs::remove_file(&session);
     let child = Command::new(env!("CARGO_BIN_EXE_touchfem"))
         .args([
             "view",
-            "cube",
+            scene,
             "--size",
             &format!("{}x{}", SIZE[0], SIZE[1]),
             "--record",
             session.to_str().unwrap(),
         ])
-        .env("DISPLAY", &display)
+        .env("DISPLAY", display)
         .env("WGPU_BACKEND", backend)
-        .env("TOUCHFEM_VIEW_SECONDS", "60")
-        .env("TOUCHFEM_VIEW_LOG", &log)
+        .env("TOUCHFEM_VIEW_SECONDS", seconds.to_string())
+        .env("TOUCHFEM_VIEW_LOG", log)
         .env("TOUCHFEM_CACHE_DIR", "")
         .stdout(stdout)
         .stderr(stderr)
         .spawn()
         .expect("start touchfem view");
     let mut view = KillOnDrop(child);
-
     // The window, and a first log line (the window has presented frames for a second).
     let mut search = Command::new("xdotool")
         .args(["search", "--sync", "--name", "touchfem"])
-        .env("DISPLAY", &display)
+        .env("DISPLAY", display)
         .stdout(Stdio::piped())
         .spawn()
         .expect("xdotool search");
@@ -235,9 +235,9 @@ fn view_window_presses_the_cube_with_the_pointer() {
             let err = std::fs::read_to_string(dir.join("view.stderr.txt")).unwrap_or_default();
             panic!("touchfem view exited ({st}) before its window appeared:\n{err}");
         }
-        if t0.elapsed() > Duration::from_secs(60) {
+        if t0.elapsed() > Duration::from_secs(seconds) {
             let _ = search.kill();
-            panic!("no window named touchfem after 60 s");
+            panic!("no window named touchfem after {seconds} s");
         }
         std::thread::sleep(Duration::from_millis(50));
     };
@@ -254,8 +254,23 @@ fn view_window_presses_the_cube_with_the_pointer() {
         "the first log line",
         Duration::from_secs(30),
         &mut view.0,
-        || !read_log(&log).is_empty(),
+        || !read_log(log).is_empty(),
     );
+    (view, win)
+}
+
+#[test]
+fn view_window_presses_the_cube_with_the_pointer() {
+    require_tools();
+    let dir = out_dir();
+    let (mut xvfb, display) = start_xvfb();
+
+    let log = dir.join("view.log.jsonl");
+    let _ = std::fs::remove_file(&log);
+    let session = dir.join("view.tfsession");
+    let _ = std::fs::remove_file(&session);
+    let stdout = std::fs::File::create(dir.join("view.stdout.txt")).unwrap();
+    let (mut view, win) = start_view("cube", &dir, &display, &session, &log, stdout, 60);
 
     let before = capture(&display, &win, &dir.join("before.png"));
     assert_eq!(before.dimensions(), (SIZE[0], SIZE[1]), "window size");
@@ -782,63 +797,14 @@ fn view_window_b_turns_the_pointer_into_a_blade() {
     let _ = std::fs::remove_file(&session);
     let stdout_path = dir.join("view.stdout.txt");
     let stdout = std::fs::File::create(&stdout_path).unwrap();
-    let stderr = std::fs::File::create(dir.join("view.stderr.txt")).unwrap();
-    let backend = std::env::var("WGPU_BACKEND").unwrap_or_else(|_| "vulkan".into());
-    let child = Command::new(env!("CARGO_BIN_EXE_touchfem"))
-        .args([
-            "view",
-            scene.to_str().unwrap(),
-            "--size",
-            &format!("{}x{}", SIZE[0], SIZE[1]),
-            "--record",
-            session.to_str().unwrap(),
-        ])
-        .env("DISPLAY", &display)
-        .env("WGPU_BACKEND", backend)
-        .env("TOUCHFEM_VIEW_SECONDS", "90")
-        .env("TOUCHFEM_VIEW_LOG", &log)
-        .env("TOUCHFEM_CACHE_DIR", "")
-        .stdout(stdout)
-        .stderr(stderr)
-        .spawn()
-        .expect("start touchfem view");
-    let mut view = KillOnDrop(child);
-    let mut search = Command::new("xdotool")
-        .args(["search", "--sync", "--name", "touchfem"])
-        .env("DISPLAY", &display)
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("xdotool search");
-    let t0 = Instant::now();
-    let found = loop {
-        if let Some(st) = search.try_wait().unwrap() {
-            break st.success();
-        }
-        if let Ok(Some(st)) = view.0.try_wait() {
-            let _ = search.kill();
-            let err = std::fs::read_to_string(dir.join("view.stderr.txt")).unwrap_or_default();
-            panic!("touchfem view exited ({st}) before its window appeared:\n{err}");
-        }
-        if t0.elapsed() > Duration::from_secs(90) {
-            let _ = search.kill();
-            panic!("no window named touchfem after 90 s");
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    };
-    assert!(found, "xdotool search failed");
-    let mut ids = String::new();
-    search
-        .stdout
-        .take()
-        .unwrap()
-        .read_to_string(&mut ids)
-        .unwrap();
-    let win = ids.lines().next().expect("a window id").trim().to_string();
-    wait_until(
-        "the first log line",
-        Duration::from_secs(30),
-        &mut view.0,
-        || !read_log(&log).is_empty(),
+    let (mut view, win) = start_view(
+        scene.to_str().unwrap(),
+        &dir,
+        &display,
+        &session,
+        &log,
+        stdout,
+        90,
     );
 
     // Where the window's camera shows the line x = −25 … −5 mm, y = 0 on the top face.

@@ -77,6 +77,23 @@ struct ObjectCut {
     folds: u32,
 }
 
+impl ObjectCut {
+    /// Removes `tets` from object `o` (and any piece left with no clamp) and counts them.
+    fn remove(&mut self, o: usize, tets: &[usize]) -> Result<(), Error> {
+        let report = self.cut.remove(&self.mesh, tets)?;
+        self.tets_removed += report.tets_removed;
+        self.pieces_removed += report.pieces_removed;
+        if report.pieces_removed > 0 {
+            log::info!(
+                "a cut took {} piece(s) off object {o} (no clamp held them): removed",
+                report.pieces_removed
+            );
+        }
+        self.last = report;
+        Ok(())
+    }
+}
+
 /// What a [`Cutter`] is made from: each cuttable object's mesh, compliance and region.
 pub struct CutPlan {
     objects: Vec<Option<(crate::Mesh, Compliance, CutRegion)>>,
@@ -232,17 +249,7 @@ impl Cutter {
         let Some(Some(oc)) = self.objects.get_mut(o) else {
             return Ok(None);
         };
-        let report = oc.cut.remove(&oc.mesh, &tets)?;
-        oc.tets_removed += report.tets_removed;
-        oc.pieces_removed += report.pieces_removed;
-        if report.pieces_removed > 0 {
-            log::info!(
-                "a cut took {} piece(s) off object {} (no clamp held them): removed",
-                report.pieces_removed,
-                o
-            );
-        }
-        oc.last = report;
+        oc.remove(o, &tets)?;
         self.body(o).map(Some)
     }
 
@@ -288,17 +295,7 @@ impl Cutter {
         let Some(Some(oc)) = self.objects.get_mut(stroke.object) else {
             return Ok(false);
         };
-        let report = oc.cut.remove(&oc.mesh, &tets)?;
-        oc.tets_removed += report.tets_removed;
-        oc.pieces_removed += report.pieces_removed;
-        if report.pieces_removed > 0 {
-            log::info!(
-                "a cut took {} piece(s) off object {} (no clamp held them): removed",
-                report.pieces_removed,
-                stroke.object
-            );
-        }
-        oc.last = report;
+        oc.remove(stroke.object, &tets)?;
         oc.since.push(*stroke);
         Ok(true)
     }
