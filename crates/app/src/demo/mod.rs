@@ -153,23 +153,34 @@ pub(crate) fn picture_scales(world: &World, samples: usize) -> Result<PictureSca
 /// The camera a scene's frames share: its objects' rest surfaces, and its fingers' keyframes
 /// within 15 % of the scene's size of them, fill the image left of a legend `legend_px` wide
 /// (see [`touchfem_gpu::render::Camera::fit`]).
+///
+/// A scene that cuts (a blade finger and a cuttable object) is framed on its cuttable tets and
+/// its fingers' keyframes instead, so that the cut is large enough to see.
 pub fn scene_camera(
     world: &World,
     size: [u32; 2],
     legend_px: Option<[u32; 2]>,
 ) -> touchfem_gpu::render::Camera {
-    let mut pts: Vec<DVec3> = world
-        .objects
-        .iter()
-        .flat_map(|o| {
-            o.body
-                .mesh
-                .surface
-                .iter()
-                .flatten()
-                .map(move |&i| o.body.mesh.nodes[i as usize] + o.offset)
-        })
-        .collect();
+    let cuts = world.fingers.iter().any(|f| f.tool.blade_depth().is_some());
+    let mut pts: Vec<DVec3> = Vec::new();
+    for o in &world.objects {
+        let mesh = &o.body.mesh;
+        match (&o.cuttable, cuts) {
+            (Some(region), true) => pts.extend(
+                mesh.tets
+                    .iter()
+                    .enumerate()
+                    .filter(|&(t, _)| region.contains(t))
+                    .flat_map(|(_, tet)| tet.iter().map(|&i| mesh.nodes[i as usize] + o.offset)),
+            ),
+            _ => pts.extend(
+                mesh.surface
+                    .iter()
+                    .flatten()
+                    .map(|&i| mesh.nodes[i as usize] + o.offset),
+            ),
+        }
+    }
     let (lo, hi) = world.bounds();
     let pad = DVec3::splat(0.15 * (hi - lo).length());
     for f in &world.fingers {
