@@ -574,22 +574,7 @@ impl World {
                         NodeSet::Nodes(nodes)
                     }
                     TouchableToml::Ball(b) => {
-                        if !(coordinates_ok(&b.center) && coordinates_ok(&[b.radius])) {
-                            return Err(at(
-                                t.span(),
-                                "touchable",
-                                format!("the ball's center and radius must be finite and at most {MAX_COORDINATE:e} in magnitude"),
-                            ));
-                        }
-                        let c = DVec3::from_array(b.center) * s - offset;
-                        let r = b.radius * s;
-                        if !(c.is_finite() && r.is_finite() && r > 0.0) {
-                            return Err(at(
-                                t.span(),
-                                "touchable",
-                                "a ball needs a finite center and a positive radius".into(),
-                            ));
-                        }
+                        let (c, r) = ball(b, s, offset, || t.span(), "touchable", &at)?;
                         let nodes: Vec<u32> = free
                             .iter()
                             .copied()
@@ -875,6 +860,35 @@ pub struct PlannedObject {
     pub key: u64,
 }
 
+/// A `{ center, radius }` ball of the scene (units `s` to metres, the object at `offset`) in
+/// the object's frame: its centre and radius, m. Errors name `key`.
+fn ball(
+    b: &BallToml,
+    s: f64,
+    offset: DVec3,
+    span: impl Fn() -> std::ops::Range<usize>,
+    key: &str,
+    at: &dyn Fn(std::ops::Range<usize>, &str, String) -> Error,
+) -> Result<(DVec3, f64), Error> {
+    if !(coordinates_ok(&b.center) && coordinates_ok(&[b.radius])) {
+        return Err(at(
+            span(),
+            key,
+            format!("the ball's center and radius must be finite and at most {MAX_COORDINATE:e} in magnitude"),
+        ));
+    }
+    let c = DVec3::from_array(b.center) * s - offset;
+    let r = b.radius * s;
+    if !(c.is_finite() && r.is_finite() && r > 0.0) {
+        return Err(at(
+            span(),
+            key,
+            "a ball needs a finite center and a positive radius".into(),
+        ));
+    }
+    Ok((c, r))
+}
+
 /// The tets of `mesh` a `cuttable` key names: `"all"`, a physical volume group (its tets) or a
 /// node group (the tets with every node in it), or a ball `{ center, radius }` (scene units;
 /// the tets whose centroid is in it). Errors name the key.
@@ -921,22 +935,7 @@ fn cut_region(
             }
         }
         TouchableToml::Ball(b) => {
-            if !(coordinates_ok(&b.center) && coordinates_ok(&[b.radius])) {
-                return Err(at(
-                    t.span(),
-                    "cuttable",
-                    format!("the ball's center and radius must be finite and at most {MAX_COORDINATE:e} in magnitude"),
-                ));
-            }
-            let c = DVec3::from_array(b.center) * s - offset;
-            let r = b.radius * s;
-            if !(c.is_finite() && r.is_finite() && r > 0.0) {
-                return Err(at(
-                    t.span(),
-                    "cuttable",
-                    "a ball needs a finite center and a positive radius".into(),
-                ));
-            }
+            let (c, r) = ball(b, s, offset, || t.span(), "cuttable", at)?;
             for (k, tet) in mesh.tets.iter().enumerate() {
                 let g = tet.iter().map(|&v| mesh.nodes[v as usize]).sum::<DVec3>() / 4.0;
                 tets[k] = g.distance(c) <= r;
