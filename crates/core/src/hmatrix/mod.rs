@@ -38,10 +38,13 @@
 use std::ops::Range;
 
 use glam::{DMat3, DVec3};
-use nalgebra::DMatrix;
 
 use crate::compliance::Compliance;
 use crate::mesh::Mesh;
+use tree::ClusterTree;
+
+mod compress;
+mod tree;
 
 /// Why a hierarchical compliance cannot be built.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -52,8 +55,8 @@ pub enum HError {
     /// The admissibility parameter is not a finite positive number.
     #[error("the admissibility η must be finite and positive, got {0}")]
     Eta(f64),
-    /// A leaf size of zero.
-    #[error("the cluster leaf size must be at least 1")]
+    /// A leaf size of zero, or panels smaller than leaves.
+    #[error("the cluster leaf size must be at least 1 and at most the panel size")]
     LeafSize,
     /// No row or no column.
     #[error("nothing to compress: {rows} rows × {cols} columns")]
@@ -104,6 +107,20 @@ pub enum HError {
     /// The block source gave a non-finite entry.
     #[error("the block source gave a non-finite entry")]
     NonFinite,
+    /// A panel index out of range.
+    #[error("panel {0} of {1}")]
+    Panel(usize, usize),
+    /// Not every panel of the plan, exactly once.
+    #[error("{got} panels for a plan of {want}")]
+    Panels {
+        /// Panels of the plan.
+        want: usize,
+        /// Panels given.
+        got: usize,
+    },
+    /// A panel's ranks or values do not fit its blocks.
+    #[error("panel {0}'s blocks do not match the plan")]
+    PanelData(usize),
     /// The SVD of a block did not converge.
     #[error("the SVD of a {0}×{1} block did not converge")]
     Svd(usize, usize),
@@ -118,15 +135,19 @@ pub struct HOptions {
     pub eta: f64,
     /// Most nodes in a leaf cluster.
     pub leaf_size: usize,
+    /// Most column nodes of a panel: the columns solved and compressed together, and the
+    /// widest far block (at least `leaf_size`).
+    pub panel_size: usize,
 }
 
 impl HOptions {
-    /// Tolerance `tolerance`, η = 2, leaves of 32 nodes.
+    /// Tolerance `tolerance`, η = 2, leaves of 32 nodes, panels of up to 512.
     pub fn new(tolerance: f64) -> HOptions {
         HOptions {
             tolerance,
             eta: 2.0,
             leaf_size: 32,
+            panel_size: 512,
         }
     }
 
@@ -137,92 +158,10 @@ impl HOptions {
         if !(self.eta.is_finite() && self.eta > 0.0) {
             return Err(HError::Eta(self.eta));
         }
-        if self.leaf_size == 0 {
+        if self.leaf_size == 0 || self.panel_size < self.leaf_size {
             return Err(HError::LeafSize);
         }
         Ok(())
-    }
-}
-
-/// One cluster: a range of its tree's permutation and the bounding box of its nodes.
-#[derive(Clone, Debug)]
-struct Cluster {
-    range: Range<u32>,
-    lo: DVec3,
-    hi: DVec3,
-    children: Option<[u32; 2]>,
-}
-
-impl Cluster {
-    fn diam(&self) -> f64 {
-        (self.hi - self.lo).length()
-    }
-    fn dist(&self, o: &Cluster) -> f64 {
-        let gap = (o.lo - self.hi).max(self.lo - o.hi).max(DVec3::ZERO);
-        gap.length()
-    }
-}
-
-/// A cluster tree: node 0 is the root; `perm[position]` is the point at that position.
-#[derive(Clone, Debug)]
-struct ClusterTree {
-    nodes: Vec<Cluster>,
-    perm: Vec<u32>,
-}
-
-impl ClusterTree {
-    fn new(points: &[DVec3], leaf: usize) -> ClusterTree {
-        let mut t = ClusterTree {
-            nodes: Vec::new(),
-            perm: (0..points.len() as u32).collect(),
-        };
-        t.split(points, 0..points.len(), leaf);
-        t
-    }
-
-    /// Adds the cluster of positions `r` (and its subtree); returns its index.
-    fn split(&mut self, points: &[DVec3], r: Range<usize>, leaf: usize) -> u32 {
-        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-        for &i in &self.perm[r.clone()] {
-            lo = lo.min(points[i as usize]);
-            hi = hi.max(points[i as usize]);
-        }
-        let me = self.nodes.len() as u32;
-        self.nodes.push(Cluster {
-            range: r.start as u32..r.end as u32,
-            lo,
-            hi,
-            children: None,
-        });
-        if r.len() <= leaf {
-            return me;
-        }
-        let ext = hi - lo;
-        let axis = if ext.x >= ext.y && ext.x >= ext.z {
-            0
-        } else if ext.y >= ext.z {
-            1
-        } else {
-            2
-        };
-        let mid = 0.5 * (lo[axis] + hi[axis]);
-        // Partition in place: points below the midpoint first.
-        let s = &mut self.perm[r.clone()];
-        let mut k = 0;
-        for i in 0..s.len() {
-            if points[s[i] as usize][axis] < mid {
-                s.swap(i, k);
-                k += 1;
-            }
-        }
-        if k == 0 || k == s.len() {
-            // All points coincide along the longest axis, hence everywhere: a leaf.
-            return me;
-        }
-        let a = self.split(points, r.start..r.start + k, leaf);
-        let b = self.split(points, r.start + k..r.end, leaf);
-        self.nodes[me as usize].children = Some([a, b]);
-        me
     }
 }
 
@@ -237,6 +176,11 @@ pub struct BlockInfo {
     pub rank: Option<usize>,
     /// Whether the pair is admissible (far); a far block may still be stored dense.
     pub far: bool,
+    /// Where its values start in [`HMatrix::values`]: a dense block `3|rows| × 3|cols|`
+    /// column-major; a rank-k block `U` (`3|rows| × k`, column-major, singular values folded
+    /// in) then `V` (`3|cols| × k`, row-major: one column DOF's k weights together), so that
+    /// the block is `U·Vᵀ`.
+    pub offset: usize,
 }
 
 #[derive(Clone, Debug)]
@@ -272,20 +216,57 @@ pub struct HMatrix {
     discarded_sq: f64,
 }
 
-impl HMatrix {
-    /// Builds from a block source. `row_points` and `col_points` are the row and column nodes'
-    /// positions (row `i` is output entry `i`; `out_rows ≥ row_points.len()` entries are
-    /// written by [`HMatrix::displace`], the rest zero). `block(rows, cols)` gives the dense
-    /// block for those row and column indices: `3|rows| × 3|cols|`, entry `(3i + a, 3j + b)`
-    /// coupling row `rows[i]` axis `a` to column `cols[j]` axis `b`. It is called once per block,
-    /// in block-column order.
-    pub fn build(
+/// The layout of an [`HMatrix`] before its values: the cluster trees, the block partition in
+/// block-column order, and the panels (the column clusters solved and compressed together).
+/// It depends only on the points and the options, so a loader or a shard rebuilds the same.
+#[derive(Clone, Debug)]
+pub struct HPlan {
+    opts: HOptions,
+    out_rows: usize,
+    row_perm: Vec<u32>,
+    col_perm: Vec<u32>,
+    col_leaves: Vec<Range<u32>>,
+    /// Blocks in block-column order: row positions, column positions, far.
+    pairs: Vec<(Range<u32>, Range<u32>, bool)>,
+    /// Column-position ranges of the panels, in order.
+    panels: Vec<Range<u32>>,
+    /// Each panel's run of `pairs`.
+    panel_pairs: Vec<Range<usize>>,
+}
+
+/// One panel's blocks, compressed ([`HPlan::compress_panel`]): a shard's unit of work, joined
+/// by [`HMatrix::from_panels`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct Panel {
+    pub(crate) index: usize,
+    /// Each block's rank (`None`: dense), in the plan's order.
+    pub(crate) ranks: Vec<Option<u32>>,
+    pub(crate) data: Vec<f64>,
+    pub(crate) norm_sq: f64,
+    pub(crate) discarded_sq: f64,
+}
+
+impl Panel {
+    /// Its index in the plan.
+    pub fn index(&self) -> usize {
+        self.index
+    }
+    /// Values stored.
+    pub fn values(&self) -> usize {
+        self.data.len()
+    }
+}
+
+impl HPlan {
+    /// The plan for rows at `row_points` and columns at `col_points` (row `i` is output entry
+    /// `i`; `out_rows ≥ row_points.len()` entries are written by [`HMatrix::displace`], the
+    /// rest zero).
+    pub fn new(
         row_points: &[DVec3],
         col_points: &[DVec3],
         out_rows: usize,
         opts: &HOptions,
-        mut block: impl FnMut(&[u32], &[u32]) -> DMatrix<f64>,
-    ) -> Result<HMatrix, HError> {
+    ) -> Result<HPlan, HError> {
         opts.check()?;
         if row_points.is_empty() || col_points.is_empty() {
             return Err(HError::Empty {
@@ -306,55 +287,158 @@ impl HMatrix {
         }
         let rt = ClusterTree::new(row_points, opts.leaf_size);
         let ct = ClusterTree::new(col_points, opts.leaf_size);
-
-        // The partition, then block-column order.
-        let mut pairs = Vec::new();
-        partition(&rt, &ct, 0, 0, opts.eta, &mut pairs);
-        pairs.sort_by_key(|&(t, s, _)| {
-            let (t, s) = (&rt.nodes[t as usize], &ct.nodes[s as usize]);
-            (s.range.start, s.range.end, t.range.start)
-        });
-
-        let mut h = HMatrix {
+        let mut raw = Vec::new();
+        tree::partition(&rt, &ct, 0, 0, opts.eta, opts.panel_size, &mut raw);
+        let mut pairs: Vec<(Range<u32>, Range<u32>, bool)> = raw
+            .into_iter()
+            .map(|(t, s, far)| {
+                let (t, s) = (&rt.nodes[t as usize], &ct.nodes[s as usize]);
+                (t.range.clone(), s.range.clone(), far)
+            })
+            .collect();
+        pairs.sort_by_key(|(t, s, _)| (s.start, s.end, t.start));
+        let mut panels = Vec::new();
+        tree::panels(&ct, 0, opts.panel_size, &mut panels);
+        let mut panel_pairs = Vec::with_capacity(panels.len());
+        let mut next = 0;
+        for p in &panels {
+            let start = next;
+            while next < pairs.len() && pairs[next].1.start < p.end {
+                next += 1;
+            }
+            panel_pairs.push(start..next);
+        }
+        Ok(HPlan {
             opts: *opts,
             out_rows,
-            row_perm: rt.perm.clone(),
-            row_pos: vec![0; row_points.len()],
-            col_pos: vec![0; col_points.len()],
+            row_perm: rt.perm,
             col_perm: ct.perm.clone(),
-            blocks: Vec::with_capacity(pairs.len()),
+            col_leaves: tree::leaves(&ct),
+            pairs,
+            panels,
+            panel_pairs,
+        })
+    }
+
+    /// The options.
+    pub fn options(&self) -> &HOptions {
+        &self.opts
+    }
+    /// Row nodes.
+    pub fn rows(&self) -> usize {
+        self.row_perm.len()
+    }
+    /// Column nodes.
+    pub fn cols(&self) -> usize {
+        self.col_perm.len()
+    }
+    /// Output rows of [`HMatrix::displace`].
+    pub fn out_rows(&self) -> usize {
+        self.out_rows
+    }
+    /// Number of panels.
+    pub fn panels(&self) -> usize {
+        self.panels.len()
+    }
+    /// Blocks in the partition.
+    pub fn blocks(&self) -> usize {
+        self.pairs.len()
+    }
+    /// The column indices of panel `p`, in the order [`HPlan::compress_panel`] wants them.
+    pub fn panel_cols(&self, p: usize) -> &[u32] {
+        let r = &self.panels[p];
+        &self.col_perm[r.start as usize..r.end as usize]
+    }
+    /// Values of the dense `L` over the same rows and columns (`3·rows × 3·cols`).
+    pub fn dense_values(&self) -> usize {
+        9 * self.row_perm.len() * self.col_perm.len()
+    }
+
+    /// Compresses panel `p` from its columns of `L`: `data` is `3·rows × 3·|panel_cols(p)|`,
+    /// column-major, entry `(3r + a, 3j + b)` coupling row `r` (an index, not a position) axis
+    /// `a` to column `panel_cols(p)[j]` axis `b`. The blocks are compressed on up to `threads`
+    /// threads; the result does not depend on how many.
+    pub fn compress_panel(&self, p: usize, data: &[f64], threads: usize) -> Result<Panel, HError> {
+        let Some(pr) = self.panels.get(p) else {
+            return Err(HError::Panel(p, self.panels.len()));
+        };
+        let ld = 3 * self.rows();
+        let width = 3 * pr.len();
+        if data.len() != ld * width {
+            return Err(HError::BlockShape {
+                want: (ld, width),
+                got: (ld, data.len() / ld.max(1)),
+            });
+        }
+        if data.iter().any(|v| !v.is_finite()) {
+            return Err(HError::NonFinite);
+        }
+        let pairs = &self.pairs[self.panel_pairs[p].clone()];
+        let tol = self.opts.tolerance;
+        let one = |(rows, cols, far): &(Range<u32>, Range<u32>, bool)| {
+            let ri = &self.row_perm[rows.start as usize..rows.end as usize];
+            let (m, n) = (3 * ri.len(), 3 * cols.len());
+            let c0 = 3 * (cols.start - pr.start) as usize;
+            let mut b = Vec::with_capacity(m * n);
+            for j in 0..n {
+                let col = &data[(c0 + j) * ld..][..ld];
+                for &r in ri {
+                    b.extend_from_slice(&col[3 * r as usize..3 * r as usize + 3]);
+                }
+            }
+            let seed = (rows.start as u64) << 32 ^ (cols.start as u64) ^ (rows.end as u64) << 48;
+            compress::compress(&b, m, n, *far, tol, seed)
+        };
+        let out = par_map(pairs.len(), threads, |i| one(&pairs[i]));
+        let mut panel = Panel {
+            index: p,
+            ranks: Vec::with_capacity(pairs.len()),
             data: Vec::new(),
-            col_leaf: vec![0; col_points.len()],
-            leaf_start: Vec::new(),
-            leaf_blocks: Vec::new(),
             norm_sq: 0.0,
             discarded_sq: 0.0,
         };
-        for (p, &r) in rt.perm.iter().enumerate() {
-            h.row_pos[r as usize] = p as u32;
+        for c in out {
+            let c = c?;
+            panel.ranks.push(c.rank);
+            panel.data.extend_from_slice(&c.data);
+            panel.norm_sq += c.norm_sq;
+            panel.discarded_sq += c.discarded_sq;
         }
-        for (p, &c) in ct.perm.iter().enumerate() {
-            h.col_pos[c as usize] = p as u32;
+        Ok(panel)
+    }
+
+    /// Values block `i` (rank `rank`) holds.
+    fn block_values(&self, i: usize, rank: Option<u32>) -> usize {
+        let (r, c, _) = &self.pairs[i];
+        let (m, n) = (3 * r.len(), 3 * c.len());
+        match rank {
+            None => m * n,
+            Some(k) => k as usize * (m + n),
         }
-        for (t, s, far) in pairs {
-            let (t, s) = (&rt.nodes[t as usize], &ct.nodes[s as usize]);
-            let ri = &rt.perm[t.range.start as usize..t.range.end as usize];
-            let ci = &ct.perm[s.range.start as usize..s.range.end as usize];
-            let b = block(ri, ci);
-            let want = (3 * ri.len(), 3 * ci.len());
-            if b.shape() != want {
-                return Err(HError::BlockShape {
-                    want,
-                    got: b.shape(),
-                });
-            }
-            if b.iter().any(|v| !v.is_finite()) {
-                return Err(HError::NonFinite);
-            }
-            h.push_block(t.range.clone(), s.range.clone(), far, b)?;
+    }
+}
+
+impl HMatrix {
+    /// Builds from a column source: `solve(cols)` gives `L`'s columns for those column indices
+    /// as [`HPlan::compress_panel`] wants them. Panels are solved and compressed one at a
+    /// time, so at most one panel of dense columns is held.
+    pub fn build<E: From<HError>>(
+        row_points: &[DVec3],
+        col_points: &[DVec3],
+        out_rows: usize,
+        opts: &HOptions,
+        mut solve: impl FnMut(&[u32]) -> Result<Vec<f64>, E>,
+    ) -> Result<HMatrix, E> {
+        let plan = HPlan::new(row_points, col_points, out_rows, opts)?;
+        let threads = std::thread::available_parallelism()
+            .map_or(1, |n| n.get())
+            .min(16);
+        let mut panels = Vec::with_capacity(plan.panels());
+        for p in 0..plan.panels() {
+            let data = solve(plan.panel_cols(p))?;
+            panels.push(plan.compress_panel(p, &data, threads)?);
         }
-        h.index_columns(&ct);
-        Ok(h)
+        Ok(HMatrix::from_panels(plan, panels)?)
     }
 
     /// Builds from a dense compliance (without a cut's correction): rows are its free
@@ -396,76 +480,96 @@ impl HMatrix {
                 got: (nr3, l.len() / nr3.max(1)),
             });
         }
-        HMatrix::build(&rp, &cp, c.rows().len(), opts, |ri, ci| {
-            DMatrix::from_fn(3 * ri.len(), 3 * ci.len(), |i, j| {
-                let (r, a) = (ri[i / 3] as usize, i % 3);
-                let (col, b) = (ci[j / 3] as usize, j % 3);
-                l[(3 * col + b) * nr3 + 3 * r + a]
-            })
+        HMatrix::build(&rp, &cp, c.rows().len(), opts, |ci| {
+            let mut out = Vec::with_capacity(3 * nr3 * ci.len());
+            for &col in ci {
+                out.extend_from_slice(&l[3 * col as usize * nr3..][..3 * nr3]);
+            }
+            Ok::<_, HError>(out)
         })
     }
 
-    fn push_block(
-        &mut self,
-        rows: Range<u32>,
-        cols: Range<u32>,
-        far: bool,
-        b: DMatrix<f64>,
-    ) -> Result<(), HError> {
-        let (m, n) = b.shape();
-        let offset = self.data.len();
-        let norm_sq = b.norm_squared();
-        self.norm_sq += norm_sq;
-        let mut rank = None;
-        if far {
-            let svd = faer::MatRef::from_column_major_slice(b.as_slice(), m, n)
-                .thin_svd()
-                .map_err(|_| HError::Svd(m, n))?;
-            let s = svd.S().column_vector();
-            let nk = s.nrows();
-            // Smallest k with the tail Σ_{i≥k} σᵢ² ≤ ε²‖B‖².
-            let budget = self.opts.tolerance * self.opts.tolerance * norm_sq;
-            let (mut k, mut tail) = (nk, 0.0);
-            while k > 0 && tail + s[k - 1] * s[k - 1] <= budget {
-                tail += s[k - 1] * s[k - 1];
-                k -= 1;
-            }
-            if k * (m + n) < m * n {
-                let (u, v) = (svd.U(), svd.V());
-                self.data.reserve(k * (m + n));
-                for l in 0..k {
-                    self.data.extend((0..m).map(|i| u[(i, l)] * s[l]));
-                }
-                for j in 0..n {
-                    self.data.extend((0..k).map(|l| v[(j, l)]));
-                }
-                self.discarded_sq += tail;
-                rank = Some(k as u32);
-            }
+    /// Joins the compressed panels of `plan` (each once, in any order), checking each block's
+    /// size against the plan.
+    pub fn from_panels(plan: HPlan, mut panels: Vec<Panel>) -> Result<HMatrix, HError> {
+        panels.sort_by_key(|p| p.index);
+        if panels.len() != plan.panels() || panels.iter().enumerate().any(|(i, p)| p.index != i) {
+            return Err(HError::Panels {
+                want: plan.panels(),
+                got: panels.len(),
+            });
         }
-        if rank.is_none() {
-            self.data.extend_from_slice(b.as_slice());
+        let total: usize = panels.iter().map(|p| p.data.len()).sum();
+        let mut h = HMatrix {
+            opts: plan.opts,
+            out_rows: plan.out_rows,
+            row_pos: vec![0; plan.row_perm.len()],
+            col_pos: vec![0; plan.col_perm.len()],
+            blocks: Vec::with_capacity(plan.pairs.len()),
+            data: Vec::with_capacity(total),
+            col_leaf: vec![0; plan.col_perm.len()],
+            leaf_start: Vec::new(),
+            leaf_blocks: Vec::new(),
+            norm_sq: 0.0,
+            discarded_sq: 0.0,
+            row_perm: Vec::new(),
+            col_perm: Vec::new(),
+        };
+        for (p, panel) in panels.into_iter().enumerate() {
+            let run = plan.panel_pairs[p].clone();
+            if panel.ranks.len() != run.len() {
+                return Err(HError::PanelData(p));
+            }
+            let mut want = 0usize;
+            for (i, &rank) in run.clone().zip(&panel.ranks) {
+                let (r, c, far) = &plan.pairs[i];
+                let min = 3 * r.len().min(c.len());
+                if rank.is_some_and(|k| !far || k as usize > min) {
+                    return Err(HError::PanelData(p));
+                }
+                want += plan.block_values(i, rank);
+            }
+            if want != panel.data.len()
+                || !(panel.norm_sq.is_finite() && panel.discarded_sq.is_finite())
+                || panel.norm_sq < 0.0
+                || panel.discarded_sq < 0.0
+            {
+                return Err(HError::PanelData(p));
+            }
+            if panel.data.iter().any(|v| !v.is_finite()) {
+                return Err(HError::NonFinite);
+            }
+            let (base, mut local) = (h.data.len(), 0);
+            for (i, &rank) in run.zip(&panel.ranks) {
+                let (rows, cols, far) = plan.pairs[i].clone();
+                h.blocks.push(Block {
+                    rows,
+                    cols,
+                    rank,
+                    far,
+                    offset: base + local,
+                });
+                local += plan.block_values(i, rank);
+            }
+            h.data.extend_from_slice(&panel.data);
+            h.norm_sq += panel.norm_sq;
+            h.discarded_sq += panel.discarded_sq;
         }
-        self.blocks.push(Block {
-            rows,
-            cols,
-            rank,
-            far,
-            offset,
-        });
-        Ok(())
+        for (p, &r) in plan.row_perm.iter().enumerate() {
+            h.row_pos[r as usize] = p as u32;
+        }
+        for (p, &c) in plan.col_perm.iter().enumerate() {
+            h.col_pos[c as usize] = p as u32;
+        }
+        h.row_perm = plan.row_perm;
+        h.col_perm = plan.col_perm;
+        h.index_columns(&plan.col_leaves);
+        Ok(h)
     }
 
     /// For each column leaf, the blocks whose column range covers it (a block's column range
     /// is a cluster: a run of whole leaves).
-    fn index_columns(&mut self, ct: &ClusterTree) {
-        let mut leaves: Vec<Range<u32>> = ct
-            .nodes
-            .iter()
-            .filter(|c| c.children.is_none())
-            .map(|c| c.range.clone())
-            .collect();
-        leaves.sort_by_key(|r| r.start);
+    fn index_columns(&mut self, leaves: &[Range<u32>]) {
         for (li, r) in leaves.iter().enumerate() {
             for p in r.clone() {
                 self.col_leaf[p as usize] = li as u32;
@@ -491,6 +595,12 @@ impl HMatrix {
                 lb[next[l] as usize] = bi as u32;
                 next[l] += 1;
             }
+        }
+        // By row start: a leaf's blocks partition the rows, so a row's block is found by
+        // bisection.
+        for l in 0..leaves.len() {
+            lb[count[l] as usize..count[l + 1] as usize]
+                .sort_unstable_by_key(|&b| self.blocks[b as usize].rows.start);
         }
         self.leaf_start = count;
         self.leaf_blocks = lb;
@@ -569,10 +679,12 @@ impl HMatrix {
         let leaf = self.col_leaf[pc as usize] as usize;
         let bs =
             &self.leaf_blocks[self.leaf_start[leaf] as usize..self.leaf_start[leaf + 1] as usize];
-        let b = bs
-            .iter()
-            .map(|&b| &self.blocks[b as usize])
-            .find(|b| b.rows.contains(&pr))?;
+        // The last block starting at or before the row (a leaf's blocks partition the rows).
+        let k = bs.partition_point(|&b| self.blocks[b as usize].rows.start <= pr);
+        let b = &self.blocks[bs[k.checked_sub(1)?] as usize];
+        if !b.rows.contains(&pr) {
+            return None;
+        }
         let (i, j) = ((pr - b.rows.start) as usize, (pc - b.cols.start) as usize);
         let m = 3 * b.rows.len();
         let entry = |a: usize, e: usize| -> f64 {
@@ -618,7 +730,37 @@ impl HMatrix {
             cols: b.cols.start as usize..b.cols.end as usize,
             rank: b.rank.map(|k| k as usize),
             far: b.far,
+            offset: b.offset,
         })
+    }
+    /// Every stored value, blocks in [`HMatrix::blocks`] order (see [`BlockInfo::offset`]).
+    pub fn values(&self) -> &[f64] {
+        &self.data
+    }
+    /// Position of row index `r` in [`HMatrix::row_perm`].
+    pub fn row_pos(&self, r: usize) -> Option<usize> {
+        self.row_pos.get(r).map(|&p| p as usize)
+    }
+    /// Position of column index `c` in [`HMatrix::col_perm`].
+    pub fn col_pos(&self, c: usize) -> Option<usize> {
+        self.col_pos.get(c).map(|&p| p as usize)
+    }
+    /// Number of column leaves (clusters that are not split).
+    pub fn col_leaves(&self) -> usize {
+        self.leaf_start.len().saturating_sub(1)
+    }
+    /// The leaf of column position `p`.
+    pub fn leaf_of(&self, p: usize) -> usize {
+        self.col_leaf[p] as usize
+    }
+    /// The blocks (indices into [`HMatrix::blocks`]) whose columns cover column leaf `leaf`:
+    /// their row ranges partition the row positions, in increasing order of row start.
+    pub fn leaf_blocks(&self, leaf: usize) -> &[u32] {
+        &self.leaf_blocks[self.leaf_start[leaf] as usize..self.leaf_start[leaf + 1] as usize]
+    }
+    /// Output rows of [`HMatrix::displace`] (the row nodes, then rows that stay at rest).
+    pub fn out_rows(&self) -> usize {
+        self.out_rows
     }
     /// Values stored (dense entries and factor entries).
     pub fn stored_values(&self) -> usize {
@@ -684,6 +826,35 @@ impl HMatrix {
     }
 }
 
+/// `f(0), …, f(n − 1)` on up to `threads` threads, in order.
+fn par_map<T: Send>(n: usize, threads: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
+    use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
+    let next = AtomicUsize::new(0);
+    let work = || {
+        let mut got = Vec::new();
+        loop {
+            let i = next.fetch_add(1, Relaxed);
+            if i >= n {
+                return got;
+            }
+            got.push((i, f(i)));
+        }
+    };
+    let mut all: Vec<(usize, T)> = std::thread::scope(|s| {
+        let hs: Vec<_> = (1..threads.clamp(1, n.max(1)))
+            .map(|_| s.spawn(work))
+            .collect();
+        let mut all = work();
+        for h in hs {
+            // A worker only panics if `f` does: pass it on.
+            all.extend(h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)));
+        }
+        all
+    });
+    all.sort_unstable_by_key(|x| x.0);
+    all.into_iter().map(|x| x.1).collect()
+}
+
 /// The errors of unit point loads, `L_H` against the dense compliance it was built from: for
 /// each column `c` and axis `b` (index `3c + b`), the relative L2 error `‖Δu‖₂/‖u‖₂` and the
 /// relative max-norm error `max|Δu_r|/max|u_r|` over the rows.
@@ -723,35 +894,6 @@ impl HMatrix {
             }
         }
         e
-    }
-}
-
-/// The block partition below the pair (t, s): (row cluster, column cluster, admissible).
-fn partition(
-    rt: &ClusterTree,
-    ct: &ClusterTree,
-    t: u32,
-    s: u32,
-    eta: f64,
-    out: &mut Vec<(u32, u32, bool)>,
-) {
-    let (tc, sc) = (&rt.nodes[t as usize], &ct.nodes[s as usize]);
-    let dist = tc.dist(sc);
-    if dist > 0.0 && tc.diam().min(sc.diam()) <= eta * dist {
-        out.push((t, s, true));
-        return;
-    }
-    match (tc.children, sc.children) {
-        (None, None) => out.push((t, s, false)),
-        (Some(tk), None) => tk.iter().for_each(|&a| partition(rt, ct, a, s, eta, out)),
-        (None, Some(sk)) => sk.iter().for_each(|&b| partition(rt, ct, t, b, eta, out)),
-        (Some(tk), Some(sk)) => {
-            for &a in &tk {
-                for &b in &sk {
-                    partition(rt, ct, a, b, eta, out);
-                }
-            }
-        }
     }
 }
 
@@ -979,7 +1121,7 @@ mod tests {
         );
         let o = HOptions::new(1e-3);
         let p = [DVec3::ZERO];
-        let blk = |_: &[u32], _: &[u32]| DMatrix::zeros(3, 3);
+        let blk = |c: &[u32]| Ok::<_, HError>(vec![0.0; 9 * c.len()]);
         assert!(matches!(
             HMatrix::build(&[], &p, 0, &o, blk),
             Err(HError::Empty { .. })
@@ -998,12 +1140,11 @@ mod tests {
             Err(HError::Point { .. })
         ));
         assert!(matches!(
-            HMatrix::build(&p, &p, 1, &o, |_, _| DMatrix::zeros(2, 3)),
+            HMatrix::build(&p, &p, 1, &o, |_| Ok::<_, HError>(vec![0.0; 6])),
             Err(HError::BlockShape { .. })
         ));
         assert_eq!(
-            HMatrix::build(&p, &p, 1, &o, |_, _| DMatrix::from_element(3, 3, f64::NAN))
-                .unwrap_err(),
+            HMatrix::build(&p, &p, 1, &o, |_| Ok::<_, HError>(vec![f64::NAN; 9])).unwrap_err(),
             HError::NonFinite
         );
         // A mesh without the compliance's nodes.
@@ -1019,8 +1160,8 @@ mod tests {
     fn coincident_points_and_a_zero_matrix_build() {
         // All points in one place: one leaf that cannot split, one dense block.
         let p = vec![DVec3::ONE; 100];
-        let h = HMatrix::build(&p, &p, 100, &HOptions::new(1e-3), |r, c| {
-            DMatrix::zeros(3 * r.len(), 3 * c.len())
+        let h = HMatrix::build(&p, &p, 100, &HOptions::new(1e-3), |c| {
+            Ok::<_, HError>(vec![0.0; 900 * c.len()])
         })
         .expect("H");
         assert_eq!(h.blocks().count(), 1);
@@ -1037,8 +1178,8 @@ mod tests {
                 )
             })
             .collect();
-        let h = HMatrix::build(&q, &q, 64, &HOptions::new(1e-3), |r, c| {
-            DMatrix::zeros(3 * r.len(), 3 * c.len())
+        let h = HMatrix::build(&q, &q, 64, &HOptions::new(1e-3), |c| {
+            Ok::<_, HError>(vec![0.0; 576 * c.len()])
         })
         .expect("H");
         assert!(h.blocks().any(|b| b.rank == Some(0)));
