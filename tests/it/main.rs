@@ -19,6 +19,7 @@ mod gpu_f16;
 mod gram;
 mod haptics;
 mod hard_cases;
+mod hier;
 mod ladder;
 mod locking_free;
 mod mesh_io;

@@ -14,6 +14,7 @@
 //! f16 copy has the same layout, rounded while uploading: the host holds only the f64.
 
 use crate::correction::Correction;
+use crate::hmatrix::{HError, HMatrix, HOptions, LoadErrors};
 use crate::near::NearBlocks;
 use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::Mat;
@@ -143,6 +144,8 @@ pub enum StoredL<'a> {
     Host(&'a [f64]),
     /// Outside memory (its cache file).
     File(&'a dyn LSource),
+    /// Hierarchical: dense near blocks and low-rank far blocks ([`HMatrix`]).
+    Hier(&'a HMatrix),
 }
 
 /// `L` kept outside memory (a checked cache file, `cache::FileL`), read back in ranges of
@@ -180,6 +183,8 @@ pub struct Compliance {
     correction: Option<std::sync::Arc<Correction>>,
     /// Instead of `l`: the haptic path's blocks, with `L` left in its cache file.
     lean: Option<std::sync::Arc<Lean>>,
+    /// Instead of `l`: `L` stored hierarchically to a tolerance.
+    hier: Option<std::sync::Arc<HMatrix>>,
     diag_inv: Vec<DMat3>,
     clamp_compliance: f64,
     /// Precompute cost and accuracy.
@@ -326,7 +331,7 @@ impl Compliance {
                 rows.len()
             )));
         }
-        let mut c = Compliance::with_blocks(rows, l_rows, cols, n_nodes, l, None)?;
+        let mut c = Compliance::with_blocks(rows, l_rows, cols, n_nodes, l, None, None)?;
         c.stats.symmetry = c.symmetry_error();
         c.stats.bytes = c.l.len() * 8 + c.diag_inv.len() * 72;
         Ok(c)
@@ -352,9 +357,53 @@ impl Compliance {
             )));
         }
         let lean = Some(std::sync::Arc::new(Lean { near, file }));
-        let mut c = Compliance::with_blocks(rows, l_rows, cols, n_nodes, Vec::new(), lean)?;
+        let mut c = Compliance::with_blocks(rows, l_rows, cols, n_nodes, Vec::new(), lean, None)?;
         let (asym, bytes) = c.near().map_or((0.0, 0), |n| (n.asymmetry(), n.bytes()));
         c.stats.symmetry = if max_abs > 0.0 { asym / max_abs } else { 0.0 };
+        c.stats.bytes = bytes + c.diag_inv.len() * 72;
+        Ok(c)
+    }
+
+    /// A compliance whose `L` is the hierarchical `h`, built over the first `l_rows` of `rows`
+    /// (its row `i` is `rows[i]`) and `cols` (its column `j` is `cols[j]`); `rows[l_rows..]`
+    /// are clamped. Every column's node must be among the held rows. The diagonal blocks, and
+    /// every block between near nodes, are exact.
+    pub fn from_hier(
+        rows: Vec<u32>,
+        l_rows: usize,
+        cols: Vec<u32>,
+        h: HMatrix,
+        n_nodes: usize,
+    ) -> Result<Compliance, FemError> {
+        if h.rows() != l_rows || h.cols() != cols.len() || h.out_rows() != rows.len() {
+            return Err(FemError::BadSelection(format!(
+                "a hierarchical L of {} × {} nodes ({} output rows) does not fit {l_rows} held \
+                 rows of {} and {} columns",
+                h.rows(),
+                h.cols(),
+                h.out_rows(),
+                rows.len(),
+                cols.len()
+            )));
+        }
+        let bytes = h.bytes_f64() + h.index_bytes();
+        let hier = Some(std::sync::Arc::new(h));
+        let mut c = Compliance::with_blocks(rows, l_rows, cols, n_nodes, Vec::new(), None, hier)?;
+        // The diagonal blocks' symmetry (exact blocks; far pairs are within the tolerance).
+        let mut asym = 0.0f64;
+        let mut maxd = 0.0f64;
+        for i in 0..c.cols.len() {
+            let d = c.touch_block(i, i);
+            asym = asym.max(
+                (d - d.transpose())
+                    .abs()
+                    .to_cols_array()
+                    .iter()
+                    .fold(0.0, |m, v| m.max(*v)),
+            );
+            maxd = maxd.max(d.abs().to_cols_array().iter().fold(0.0, |m, v| m.max(*v)));
+        }
+        c.stats.symmetry = if maxd > 0.0 { asym / maxd } else { 0.0 };
         c.stats.bytes = bytes + c.diag_inv.len() * 72;
         Ok(c)
     }
@@ -367,6 +416,7 @@ impl Compliance {
         n_nodes: usize,
         l: Vec<f64>,
         lean: Option<std::sync::Arc<Lean>>,
+        hier: Option<std::sync::Arc<HMatrix>>,
     ) -> Result<Compliance, FemError> {
         let (row_of_node, col_of_node, col_row) = index_maps(&rows, &cols, n_nodes)?;
         if let Some(i) = col_row.iter().position(|&r| r as usize >= l_rows) {
@@ -386,6 +436,7 @@ impl Compliance {
             l: std::sync::Arc::new(l),
             correction: None,
             lean,
+            hier,
             diag_inv: Vec::with_capacity(nc),
             clamp_compliance: 0.0,
             stats: PrecomputeStats::default(),
@@ -465,7 +516,11 @@ impl Compliance {
     /// Whether `L` is held on the host (otherwise only the haptic path's near blocks are, and
     /// `L` is read from its cache file when the GPU copy is built).
     pub fn holds_l(&self) -> bool {
-        self.lean.is_none()
+        self.lean.is_none() && self.hier.is_none()
+    }
+    /// The hierarchical `L`, when it is stored so ([`Compliance::from_hier`]).
+    pub fn hier(&self) -> Option<&HMatrix> {
+        self.hier.as_deref()
     }
     /// The near blocks, when `L` is not held on the host.
     pub fn near(&self) -> Option<&NearBlocks> {
@@ -473,18 +528,27 @@ impl Compliance {
     }
     /// Where `L`'s values are: on the host, or in the cache file they stayed in.
     pub fn stored_l(&self) -> StoredL<'_> {
+        if let Some(h) = self.hier() {
+            return StoredL::Hier(h);
+        }
         match self.lean.as_deref() {
             Some(l) => StoredL::File(l.file.as_ref()),
             None => StoredL::Host(&self.l),
         }
     }
     /// `max |L|` rounded to f32 (what [`f16_scale`] of the GPU's f32 copy sees).
+    /// For a hierarchical `L`, the largest stored value instead (dense entries and factors).
     pub fn max_abs_f32(&self) -> f32 {
-        self.l.iter().fold(0.0f32, |m, &v| m.max((v as f32).abs()))
+        let l = self.hier().map_or(&self.l[..], |h| h.values());
+        l.iter().fold(0.0f32, |m, &v| m.max((v as f32).abs()))
     }
     /// The 3×3 block L(row r, column c), m/N.
     #[inline]
     pub fn block(&self, r: usize, c: usize) -> DMat3 {
+        if let Some(h) = self.hier() {
+            // Exact where the pair is near (a dense block), within the tolerance elsewhere.
+            return h.block(r, c).map_or(DMat3::ZERO, |b| b.0);
+        }
         if let Some(near) = self.near() {
             // Only rows of touchable nodes near column c are held.
             let i = self
@@ -554,7 +618,8 @@ impl Compliance {
         let (nr, nc, r) = (self.l_rows, self.cols.len(), correction.rank);
         if !self.holds_l() {
             return Err(FemError::BadSelection(
-                "a correction needs L on the host (not a lean compliance)".into(),
+                "a correction needs a dense L on the host (not a lean or hierarchical compliance)"
+                    .into(),
             ));
         }
         let k = &correction;
@@ -587,7 +652,7 @@ impl Compliance {
         };
         if !self.holds_l() {
             return Err(FemError::BadSelection(
-                "folding a correction needs L on the host (not a lean compliance)".into(),
+                "folding a correction needs a dense L on the host (not a lean or hierarchical compliance)".into(),
             ));
         }
         let (nr3, nc3) = (3 * self.l_rows, 3 * self.cols.len());
@@ -618,6 +683,81 @@ impl Compliance {
         Ok(c)
     }
 
+    /// This dense compliance (without a cut's correction) stored hierarchically: rows are its
+    /// free displayed rows ([`Compliance::l_rows`]), columns its touchable ones, positions
+    /// from `mesh`. Its clamped rows read zero, as in [`Compliance::displace`].
+    pub fn compress(&self, mesh: &Mesh, opts: &HOptions) -> Result<HMatrix, HError> {
+        let c = self;
+        opts.check()?;
+        if !c.holds_l() {
+            return Err(HError::NotHeld);
+        }
+        if c.correction().is_some() {
+            return Err(HError::Correction);
+        }
+        let pos = |n: u32| {
+            mesh.nodes.get(n as usize).copied().ok_or(HError::Node {
+                node: n,
+                nodes: mesh.nodes.len(),
+            })
+        };
+        let nr = c.l_rows();
+        let rp = c.rows()[..nr]
+            .iter()
+            .map(|&n| pos(n))
+            .collect::<Result<Vec<_>, _>>()?;
+        let cp = c
+            .cols()
+            .iter()
+            .map(|&n| pos(n))
+            .collect::<Result<Vec<_>, _>>()?;
+        let l = c.l_f64();
+        let nr3 = 3 * nr;
+        if l.len() != nr3 * 3 * cp.len() {
+            return Err(HError::BlockShape {
+                want: (nr3, 3 * cp.len()),
+                got: (nr3, l.len() / nr3.max(1)),
+            });
+        }
+        HMatrix::build(&rp, &cp, c.rows().len(), opts, |ci| {
+            let mut out = Vec::with_capacity(3 * nr3 * ci.len());
+            for &col in ci {
+                out.extend_from_slice(&l[3 * col as usize * nr3..][..3 * nr3]);
+            }
+            Ok::<_, HError>(out)
+        })
+    }
+
+    /// Unit point loads at every column and axis, `h` against this compliance (the one it was
+    /// built from, [`Compliance::compress`]).
+    pub fn load_errors(&self, h: &HMatrix) -> LoadErrors {
+        let c = self;
+        let nr = c.rows().len();
+        let (mut u, mut uh) = (
+            vec![DVec3::ZERO; nr],
+            vec![DVec3::ZERO; h.out_rows().max(nr)],
+        );
+        let mut e = LoadErrors::default();
+        for col in 0..c.cols().len().min(h.cols()) {
+            for b in 0..3 {
+                let f = [(col as u32, DVec3::AXES[b])];
+                c.displace(&f, &mut u);
+                h.displace(&f, &mut uh);
+                let (mut d2, mut n2, mut dm, mut nm) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+                for (a, h) in u.iter().zip(&uh) {
+                    let d = *h - *a;
+                    d2 += d.length_squared();
+                    n2 += a.length_squared();
+                    dm = dm.max(d.length());
+                    nm = nm.max(a.length());
+                }
+                e.l2.push(if n2 > 0.0 { (d2 / n2).sqrt() } else { 0.0 });
+                e.max.push(if nm > 0.0 { dm / nm } else { 0.0 });
+            }
+        }
+        e
+    }
+
     /// Compliance (m/N) given to clamped nodes when a contact triangle touches the clamp: one
     /// tenth of the smallest touchable diagonal compliance, so that forces stay finite.
     pub fn clamp_compliance(&self) -> f64 {
@@ -627,6 +767,10 @@ impl Compliance {
     /// u = L·F over the active columns (eq. 8), f64, into `out` (one entry per row, metres).
     /// Zero when `L` is not held on the host ([`Compliance::holds_l`]).
     pub fn displace(&self, forces: &[(u32, DVec3)], out: &mut [DVec3]) {
+        if let Some(h) = self.hier() {
+            h.displace(forces, out);
+            return;
+        }
         out[..self.rows.len()].fill(DVec3::ZERO);
         if !self.holds_l() {
             return;
@@ -672,6 +816,15 @@ impl Compliance {
         round: impl Fn(f32) -> f32,
     ) {
         out[..self.rows.len()].fill(Vec3::ZERO);
+        if self.hier().is_some() {
+            // The f64 product, rounded once (the hierarchical GPU pass has its own checks).
+            let mut u = vec![DVec3::ZERO; self.rows.len()];
+            self.displace(forces, &mut u);
+            for (o, v) in out.iter_mut().zip(&u) {
+                *o = v.as_vec3();
+            }
+            return;
+        }
         if !self.holds_l() {
             return;
         }

@@ -93,6 +93,8 @@ pub enum LData<'a> {
     F64(&'a [f64]),
     /// In a checked cache file, read and rounded on upload.
     File(&'a dyn touchfem_core::compliance::LSource),
+    /// Hierarchical (dense near blocks, low-rank far blocks).
+    Hier(&'a touchfem_core::hmatrix::HMatrix),
 }
 
 impl<'a> From<touchfem_core::compliance::StoredL<'a>> for LData<'a> {
@@ -100,6 +102,7 @@ impl<'a> From<touchfem_core::compliance::StoredL<'a>> for LData<'a> {
         match l {
             touchfem_core::compliance::StoredL::Host(l) => LData::F64(l),
             touchfem_core::compliance::StoredL::File(f) => LData::File(f),
+            touchfem_core::compliance::StoredL::Hier(h) => LData::Hier(h),
         }
     }
 }
@@ -117,6 +120,7 @@ impl<'a> LData<'a> {
             LData::F32(l) => l.len(),
             LData::F64(l) => l.len(),
             LData::File(f) => f.len(),
+            LData::Hier(h) => h.dense_values(),
         }
     }
 
@@ -142,6 +146,9 @@ impl<'a> LData<'a> {
                 .read_f32(range)
                 .map(Into::into)
                 .map_err(|e| GpuError::BadInput(e.to_string())),
+            LData::Hier(_) => Err(GpuError::BadInput(
+                "a hierarchical L has no dense entries to upload".into(),
+            )),
         }
     }
 
@@ -151,6 +158,10 @@ impl<'a> LData<'a> {
             LData::F32(l) => l.iter().fold(0.0f32, |m, v| m.max(v.abs())),
             LData::F64(l) => l.iter().fold(0.0f32, |m, &v| m.max((v as f32).abs())),
             LData::File(f) => f.max_abs_f32(),
+            LData::Hier(h) => h
+                .values()
+                .iter()
+                .fold(0.0f32, |m, &v| m.max((v as f32).abs())),
         };
         touchfem_core::compliance::f16_scale_of_max(max)
     }

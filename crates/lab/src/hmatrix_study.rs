@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use glam::DVec3;
 use touchfem_core::compliance::{Compliance, Selection};
-use touchfem_core::hmatrix::{HMatrix, HOptions};
+use touchfem_core::hmatrix::HOptions;
 use touchfem_core::Mesh;
 
 use crate::error::Error;
@@ -97,10 +97,10 @@ pub fn measure(
     reps: usize,
 ) -> Result<HRow, Error> {
     let t = Instant::now();
-    let h = HMatrix::from_compliance(c, mesh, &HOptions::new(eps))?;
+    let h = c.compress(mesh, &HOptions::new(eps))?;
     let build_s = t.elapsed().as_secs_f64();
     let ranks: Vec<usize> = h.blocks().filter_map(|b| b.rank).collect();
-    let e = h.load_errors(c);
+    let e = c.load_errors(&h);
     let (l2, mx) = (sorted(&e.l2), sorted(&e.max));
     let pick = |v: &[f64], q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
 
