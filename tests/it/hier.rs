@@ -230,3 +230,111 @@ fn bad_input_is_a_typed_error() {
     few.nodes.truncate(3);
     assert!(matches!(c.compress(&few, &o), Err(HError::Node { .. })));
 }
+
+/// ‖L − L_H‖_F and ‖L‖_F with `L_H` expanded.
+fn frobenius_of(lh: &[f64], l: &[f64]) -> (f64, f64) {
+    assert_eq!(lh.len(), l.len());
+    let d: f64 = l.iter().zip(lh).map(|(a, b)| (a - b) * (a - b)).sum();
+    let n: f64 = l.iter().map(|a| a * a).sum();
+    (d.sqrt(), n.sqrt())
+}
+
+/// Built panel by panel from the factor's solves (every method, shards joined), never from
+/// the dense `L`, and checked against the dense `L` computed by the batch precompute: the
+/// global bound holds and the shards' panels equal the whole run's.
+#[test]
+fn built_from_solves_meets_the_bound_for_every_method() {
+    use touchfem::compliance::{hier_plan, Method};
+    use touchfem::fem::FactorStore;
+    let (m, c) = mouse();
+    let eps = 1e-3;
+    let opts = HOptions {
+        panel_size: 128,
+        ..HOptions::new(eps)
+    };
+    let sel = Selection::default();
+    for how in [Method::Gram, Method::Columns, Method::Full] {
+        let parts = Compliance::compute_hier_parts(
+            m,
+            &sel,
+            how,
+            &FactorStore::Heap,
+            &opts,
+            (1, 1),
+            &mut |_, _| {},
+        )
+        .expect("parts");
+        assert!(
+            parts.plan.panels() >= 8,
+            "{how:?}: {} panels",
+            parts.plan.panels()
+        );
+        // The same rows and columns as the dense compliance, maybe in another order.
+        let mut a = parts.cols.clone();
+        let mut b = c.cols().to_vec();
+        a.sort_unstable();
+        b.sort_unstable();
+        assert_eq!(a, b);
+        let hc = Compliance::from_hier_parts(parts.clone(), m.nodes.len()).expect("compliance");
+        let h = hc.hier().expect("hierarchical");
+        // Compare block by block through the node maps (orders may differ between methods).
+        let lh = h.to_dense();
+        let nr3 = 3 * hc.l_rows();
+        let mut l = vec![0.0; lh.len()];
+        for (j, &cn) in hc.cols().iter().enumerate() {
+            let cj = c.col_of(cn).expect("column");
+            for (i, &rn) in hc.rows()[..hc.l_rows()].iter().enumerate() {
+                let ri = c.row_of(rn).expect("row");
+                let blk = c.block(ri, cj);
+                for bb in 0..3 {
+                    for aa in 0..3 {
+                        l[(3 * j + bb) * nr3 + 3 * i + aa] = blk.col(bb)[aa];
+                    }
+                }
+            }
+        }
+        let (err, norm) = frobenius_of(&lh, &l);
+        assert!(
+            err <= eps * norm,
+            "{how:?}: ‖L − L_H‖ {err:e} > ε‖L‖ {:e}",
+            eps * norm
+        );
+        assert!((h.norm() - norm).abs() <= 1e-9 * norm, "{how:?}: norms");
+        assert!((err - h.truncation_error()).abs() <= 1e-3 * err + 1e-12 * norm);
+        // Diagonal blocks are exact: L_ii⁻¹ equals the dense compliance's.
+        for j in (0..hc.cols().len()).step_by(97) {
+            let cj = c.col_of(hc.cols()[j]).expect("column");
+            let d = (hc.diag_inv(j) - c.diag_inv(cj)).abs().to_cols_array();
+            let s = c.diag_inv(cj).abs().to_cols_array();
+            let (dm, sm) = (
+                d.iter().fold(0.0f64, |x, v| x.max(*v)),
+                s.iter().fold(0.0f64, |x, v| x.max(*v)),
+            );
+            assert!(
+                dm <= 1e-9 * sm,
+                "{how:?}: L_ii⁻¹ differs by {dm:e} of {sm:e}"
+            );
+        }
+        // Three shards' panels are the whole run's, value for value.
+        let mut shards = Vec::new();
+        for k in 1..=3 {
+            let p = Compliance::compute_hier_parts(
+                m,
+                &sel,
+                how,
+                &FactorStore::Heap,
+                &opts,
+                (k, 3),
+                &mut |_, _| {},
+            )
+            .expect("shard");
+            shards.extend(p.panels);
+        }
+        assert_eq!(
+            shards, parts.panels,
+            "{how:?}: shards differ from the whole"
+        );
+        let again = hier_plan(m, &parts.rows, parts.l_rows, &parts.cols, &opts).expect("plan");
+        assert_eq!(again.blocks(), parts.plan.blocks());
+    }
+}

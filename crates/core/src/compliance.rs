@@ -14,7 +14,7 @@
 //! f16 copy has the same layout, rounded while uploading: the host holds only the f64.
 
 use crate::correction::Correction;
-use crate::hmatrix::{HError, HMatrix, HOptions, LoadErrors};
+use crate::hmatrix::{HError, HMatrix, HOptions, HPlan, LoadErrors, Panel};
 use crate::near::NearBlocks;
 use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::Mat;
@@ -919,6 +919,142 @@ pub(crate) fn index_maps(
     Ok((row_of_node, col_of_node, col_row))
 }
 
+/// A hierarchical precompute's result ([`Compliance::compute_hier_parts`]): the whole `L` or
+/// one shard's panels, with what [`Compliance::from_hier_parts`] needs to finish it.
+#[derive(Clone, Debug)]
+pub struct HierParts {
+    /// Displayed nodes, the free ones (which hold `L`) first.
+    pub rows: Vec<u32>,
+    /// The rows that hold `L`.
+    pub l_rows: usize,
+    /// Touchable nodes.
+    pub cols: Vec<u32>,
+    /// The plan (from the rows' and columns' positions and the options).
+    pub plan: HPlan,
+    /// The panels computed (all of them, or a shard's).
+    pub panels: Vec<Panel>,
+    /// Cost and accuracy of the precompute.
+    pub stats: PrecomputeStats,
+}
+
+/// The plan of a hierarchical `L` over `rows[..l_rows]` × `cols`, positions from `mesh`.
+pub fn hier_plan(
+    mesh: &Mesh,
+    rows: &[u32],
+    l_rows: usize,
+    cols: &[u32],
+    opts: &HOptions,
+) -> Result<HPlan, HError> {
+    let pos = |n: &u32| {
+        mesh.nodes.get(*n as usize).copied().ok_or(HError::Node {
+            node: *n,
+            nodes: mesh.nodes.len(),
+        })
+    };
+    let rp = rows
+        .get(..l_rows)
+        .ok_or(HError::OutRows {
+            out_rows: rows.len(),
+            rows: l_rows,
+        })?
+        .iter()
+        .map(pos)
+        .collect::<Result<Vec<_>, _>>()?;
+    let cp = cols.iter().map(pos).collect::<Result<Vec<_>, _>>()?;
+    HPlan::new(&rp, &cp, rows.len(), opts)
+}
+
+/// The panels of shard `index` of `count` (1-based): a contiguous run, so that shards in
+/// order hold every panel once.
+pub fn shard_panels(panels: usize, index: usize, count: usize) -> std::ops::Range<usize> {
+    let count = count.max(1);
+    let i = index.clamp(1, count) - 1;
+    (panels * i / count)..(panels * (i + 1) / count)
+}
+
+impl Compliance {
+    /// As [`Compliance::compute`] with `L` stored hierarchically to `opts.tolerance`, built
+    /// panel by panel from the factor's solves: the dense `L` is never held.
+    pub fn compute_hier(
+        mesh: &Mesh,
+        sel: &Selection,
+        opts: &HOptions,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<Compliance, FemError> {
+        let parts =
+            Self::compute_hier_parts(mesh, sel, method(), &factor_store(), opts, (1, 1), progress)?;
+        Self::from_hier_parts(parts, mesh.nodes.len())
+    }
+
+    /// The panels of shard `shard = (index, count)` (1-based; `(1, 1)` for all) of a
+    /// hierarchical `L`, with the precompute method `how` and the factor where `store` says.
+    /// `progress(columns done, columns total)` after each panel.
+    pub fn compute_hier_parts(
+        mesh: &Mesh,
+        sel: &Selection,
+        how: Method,
+        store: &crate::fem::FactorStore,
+        opts: &HOptions,
+        shard: (usize, usize),
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<HierParts, FemError> {
+        let t0 = Instant::now();
+        opts.check()?;
+        let plan = ColumnPlan::with_method_in(mesh, sel, how, store)?;
+        let hp = hier_plan(mesh, &plan.rows, plan.l_rows, &plan.cols, opts)?;
+        let which = shard_panels(hp.panels(), shard.0, shard.1);
+        let total: usize = which.clone().map(|p| hp.panel_cols(p).len()).sum();
+        let threads = solver_threads();
+        let mut phases = plan.phases.clone();
+        let (mut residual, mut done, mut compress_s) = (0.0f64, 0, 0.0);
+        let mut panels = Vec::with_capacity(which.len());
+        for p in which {
+            let cols = hp.panel_cols(p);
+            let (data, r, t) = plan.solve_cols(cols)?;
+            residual = residual.max(r);
+            phases.solve_s += t[0];
+            phases.check_s += t[1];
+            phases.scatter_s += t[2];
+            let tc = Instant::now();
+            panels.push(hp.compress_panel(p, &data, threads)?);
+            compress_s += tc.elapsed().as_secs_f64();
+            done += cols.len();
+            progress(done, total);
+        }
+        phases.finish_s = compress_s;
+        phases.method = format!("{}+hier", phases.method);
+        let stats = PrecomputeStats {
+            free_dofs: plan.stiff.dofs.n_free,
+            k_nonzeros: plan.stiff.k.compute_nnz(),
+            seconds: t0.elapsed().as_secs_f64(),
+            residual,
+            phases,
+            ..PrecomputeStats::default()
+        };
+        Ok(HierParts {
+            rows: plan.rows.clone(),
+            l_rows: plan.l_rows,
+            cols: plan.cols.clone(),
+            plan: hp,
+            panels,
+            stats,
+        })
+    }
+
+    /// The compliance of complete parts (every panel, from one run or merged shards).
+    pub fn from_hier_parts(parts: HierParts, n_nodes: usize) -> Result<Compliance, FemError> {
+        let h = HMatrix::from_panels(parts.plan, parts.panels)?;
+        let mut c = Compliance::from_hier(parts.rows, parts.l_rows, parts.cols, h, n_nodes)?;
+        let (symmetry, bytes) = (c.stats.symmetry, c.stats.bytes);
+        c.stats = PrecomputeStats {
+            symmetry,
+            bytes,
+            ..parts.stats
+        };
+        Ok(c)
+    }
+}
+
 /// Columns per solve batch. Batches sit on a fixed grid of column indices (batch `b` holds
 /// columns `64b .. 64b + 64`), so a column's values never depend on how the work is split
 /// over threads or shards: merged shards equal the unsharded result bit for bit.
@@ -1465,6 +1601,131 @@ impl ColumnPlan {
             }
         };
         run_workers(workers, &work, progress)
+    }
+
+    /// The columns `want` (column indices, any order) of `L` for the hierarchical build, on
+    /// all cores: `3R' × 3|want|` column-major (R' = [`ColumnPlan::l_rows`], rows by index),
+    /// column `3q + b` for `want[q]` axis `b`. The first column is checked against a direct
+    /// solve. Returns the columns, the check's residual and the seconds solving, checking and
+    /// scattering (summed over workers).
+    pub(crate) fn solve_cols(&self, want: &[u32]) -> Result<(Vec<f64>, f64, [f64; 3]), FemError> {
+        use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
+        let nr = self.l_rows;
+        let ld = 3 * nr;
+        if want.iter().any(|&c| c as usize >= self.cols.len()) {
+            return Err(FemError::BadSelection(
+                "a column index is out of range".into(),
+            ));
+        }
+        // Groups of columns solved together; the Gram tiles want ascending indices.
+        let mut order: Vec<usize> = (0..want.len()).collect();
+        let per = if self.gram.is_some() {
+            order.sort_by_key(|&q| want[q]);
+            BATCH_COLS
+        } else {
+            SOLVE_COLS
+        };
+        let groups: Vec<&[usize]> = order.chunks(per).collect();
+        let next = AtomicUsize::new(0);
+        let work = || -> Result<(Vec<(usize, Vec<f64>)>, [f64; 3]), FemError> {
+            let mut got = Vec::new();
+            let mut t = [0.0f64; 3];
+            loop {
+                let gi = next.fetch_add(1, Relaxed);
+                let Some(g) = groups.get(gi) else {
+                    return Ok((got, t));
+                };
+                let cols: Vec<usize> = g.iter().map(|&q| want[q] as usize).collect();
+                let mut out = vec![0.0f64; ld * 3 * cols.len()];
+                let ts = Instant::now();
+                if let Some((gp, w, row_of)) = &self.gram {
+                    let m = 3 * gp.nodes().len();
+                    let mut tile = vec![0.0f64; m * 3 * cols.len()];
+                    gp.tile_cols(w, &cols, &mut tile, m);
+                    t[0] += ts.elapsed().as_secs_f64();
+                    let tsc = Instant::now();
+                    for j in 0..3 * cols.len() {
+                        let (src, dst) = (&tile[j * m..][..m], &mut out[j * ld..][..ld]);
+                        for (gi, &ri) in row_of.iter().enumerate() {
+                            for a in 0..3 {
+                                let v = src[3 * gi + a];
+                                if !v.is_finite() {
+                                    return Err(FemError::Singular {
+                                        node: gp.nodes()[gi],
+                                        dof: a,
+                                    });
+                                }
+                                dst[3 * ri as usize + a] = v;
+                            }
+                        }
+                    }
+                    t[2] += tsc.elapsed().as_secs_f64();
+                } else {
+                    let nf = self.stiff.n();
+                    let mut dofs = Vec::with_capacity(3 * cols.len());
+                    for &ci in &cols {
+                        let d = self.first_dof(self.cols[ci])?;
+                        dofs.extend([d, d + 1, d + 2]);
+                    }
+                    let mut x = Mat::<f64>::zeros(nf, dofs.len());
+                    match &self.units {
+                        Some(u) => u.solve(&self.factor, &dofs, x.as_mut()),
+                        None => {
+                            for (j, &d) in dofs.iter().enumerate() {
+                                x[(d, j)] = 1.0;
+                            }
+                            self.factor.solve_in_place(&mut x);
+                        }
+                    }
+                    t[0] += ts.elapsed().as_secs_f64();
+                    let tsc = Instant::now();
+                    for j in 0..dofs.len() {
+                        let xc = x.col(j);
+                        let dst = &mut out[j * ld..][..ld];
+                        match &self.units {
+                            Some(u) => self.scatter_rows(|d| xc[u.row(d)], dst)?,
+                            None => self.scatter_rows(|d| xc[d], dst)?,
+                        }
+                    }
+                    t[2] += tsc.elapsed().as_secs_f64();
+                }
+                got.push((gi, out));
+            }
+        };
+        let workers = solver_threads().min(groups.len()).max(1);
+        let results: Vec<_> = std::thread::scope(|sc| {
+            let hs: Vec<_> = (1..workers).map(|_| sc.spawn(work)).collect();
+            let mut r = vec![work()];
+            for h in hs {
+                r.push(h.join().unwrap_or_else(|_| {
+                    Err(FemError::Factorisation("a solver thread panicked".into()))
+                }));
+            }
+            r
+        });
+        let mut out = vec![0.0f64; ld * 3 * want.len()];
+        let mut times = [0.0f64; 3];
+        for r in results {
+            let (got, t) = r?;
+            for (a, v) in times.iter_mut().zip(t) {
+                *a += v;
+            }
+            for (gi, data) in got {
+                for (k, &q) in groups[gi].iter().enumerate() {
+                    out[3 * q * ld..][..3 * ld].copy_from_slice(&data[3 * k * ld..][..3 * ld]);
+                }
+            }
+        }
+        let mut residual = 0.0;
+        if let Some(&c0) = want.first() {
+            let tc = Instant::now();
+            let node = self.cols[c0 as usize];
+            let (xs, r) = self.check_solve(node)?;
+            self.agrees(&out, &xs, 0..0, node)?;
+            residual = r;
+            times[1] += tc.elapsed().as_secs_f64();
+        }
+        Ok((out, residual, times))
     }
 
     /// Solves one batch: its slice of L, the residual of its checked column and the seconds

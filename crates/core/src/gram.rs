@@ -368,6 +368,59 @@ impl GramPlan {
         self.t_pos.len() == self.nodes.len()
     }
 
+    /// As [`GramPlan::tile`] for the touchable columns `js` (ascending, any gaps), every row:
+    /// `out` (`3·nodes × 3·js.len()`, column stride `ld`, zero on entry) receives
+    /// `(K⁻¹)[S, T_js]`, column `3q + axis` for `js[q]`.
+    pub fn tile_cols(&self, w: &[f64], js: &[usize], out: &mut [f64], ld: usize) {
+        let m = 3 * self.nodes.len();
+        let nt = 3 * js.len();
+        assert!(ld >= m && out.len() >= ld * nt.saturating_sub(1) + m);
+        assert!(js.windows(2).all(|p| p[0] < p[1]));
+        let mut out = MatMut::from_column_major_slice_with_stride_mut(out, m, nt, ld);
+        let mut gather = Vec::new();
+        for s in 0..self.begin.len() - 1 {
+            let (tlo, thi) = self.t_range[s];
+            // The wanted columns this supernode's block reaches: one run of `js`.
+            let (q0, q1) = (
+                js.partition_point(|&j| j < tlo),
+                js.partition_point(|&j| j < thi),
+            );
+            if q0 >= q1 {
+                continue;
+            }
+            let (lo, hi) = self.range[s];
+            let md = 3 * (hi - lo);
+            let ns = self.begin[s + 1] - self.begin[s];
+            let ws = MatRef::from_column_major_slice(&w[self.off[s]..self.off[s + 1]], md, ns);
+            let k = 3 * (q1 - q0);
+            gather.clear();
+            gather.resize(k * ns, 0.0f64);
+            let negative = self.negative.get(self.begin[s]..self.begin[s + 1]);
+            for i in 0..ns {
+                let col = &w[self.off[s] + i * md..][..md];
+                let sign = match negative {
+                    Some(n) if n[i] => -1.0,
+                    _ => 1.0,
+                };
+                for (t, &j) in js[q0..q1].iter().enumerate() {
+                    let g = self.t_pos[j];
+                    for ax in 0..3 {
+                        gather[i * k + 3 * t + ax] = sign * col[3 * (g - lo) + ax];
+                    }
+                }
+            }
+            let bm = MatRef::from_column_major_slice(&gather, k, ns);
+            faer::linalg::matmul::matmul(
+                out.rb_mut().submatrix_mut(3 * lo, 3 * q0, md, k),
+                Accum::Add,
+                ws,
+                bm.transpose(),
+                1.0,
+                Par::Seq,
+            );
+        }
+    }
+
     /// Columns `j0..j1` of the touchable list: `out` (`3·nodes × 3·(j1 − j0)`, column-major
     /// with column stride `ld` ≥ 3·nodes, rows in Gram order) receives `(K⁻¹)[S, T_j0..j1]`
     /// except on the node rows `skip` (left as they are); it must be zero on entry.

@@ -53,4 +53,7 @@ pub enum FemError {
     /// A touchable node is clamped, or a node index is out of range.
     #[error("bad node selection: {0}")]
     BadSelection(String),
+    /// The hierarchical compliance could not be built.
+    #[error("hierarchical compliance: {0}")]
+    Hier(#[from] crate::hmatrix::HError),
 }
