@@ -1168,6 +1168,9 @@ pub(crate) struct ColumnPlan {
     pool: std::sync::Mutex<Vec<Vec<f64>>>,
 }
 
+/// A worker's groups of [`ColumnPlan::solve_cols`] (group, columns) and its seconds.
+type GroupsSolved = (Vec<(usize, Vec<f64>)>, [f64; 3]);
+
 /// The largest residual and the seconds solving, checking and scattering.
 type SolveSummary = (f64, [f64; 3]);
 
@@ -1627,7 +1630,7 @@ impl ColumnPlan {
         };
         let groups: Vec<&[usize]> = order.chunks(per).collect();
         let next = AtomicUsize::new(0);
-        let work = || -> Result<(Vec<(usize, Vec<f64>)>, [f64; 3]), FemError> {
+        let work = || -> Result<GroupsSolved, FemError> {
             let mut got = Vec::new();
             let mut t = [0.0f64; 3];
             loop {
