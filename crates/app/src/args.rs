@@ -35,6 +35,10 @@ pub enum Command {
         /// Print one JSON object.
         #[arg(long)]
         json: bool,
+        /// Estimate the size of `L` stored hierarchically to this tolerance (0 < EPS < 1)
+        /// from its block layout, without computing it.
+        #[arg(long, value_name = "EPS", value_parser = parse_tolerance)]
+        tolerance: Option<f64>,
     },
     /// Touch the surface at the point nearest --at, push by --push, print the force fed back.
     Poke(PokeArgs),
@@ -145,6 +149,10 @@ pub struct BenchArgs {
     /// (time, memory, peak RSS; the JSON's `scene` array) and the displacement methods.
     #[arg(long)]
     pub scene: Option<String>,
+    /// The hierarchical `L`'s rows at this tolerance only (0 < EPS < 1) instead of 10⁻²,
+    /// 10⁻³, 10⁻⁴ and 10⁻⁶.
+    #[arg(long, value_name = "EPS", value_parser = parse_tolerance)]
+    pub tolerance: Option<f64>,
 }
 
 /// `touchfem serve` flags.
@@ -397,6 +405,10 @@ pub struct PokeArgs {
     /// The blade's depth (mesh units, > 0) for `--cut`.
     #[arg(long, value_name = "D", value_parser = parse_depth, allow_hyphen_values = true, requires = "cut")]
     pub depth: Option<f64>,
+    /// Store `L` hierarchically to this tolerance (0 < EPS < 1): far blocks low-rank, near
+    /// blocks exact.
+    #[arg(long, value_name = "EPS", value_parser = parse_tolerance, conflicts_with = "cut")]
+    pub tolerance: Option<f64>,
 }
 
 /// The finger's tool flags of `info` (checked as `poke` checks them, echoed in `--json`).
@@ -572,6 +584,20 @@ pub fn parse_depth(s: &str) -> Result<f64, String> {
         return Err(format!("'{s}' must be a positive, finite depth"));
     }
     Ok(d)
+}
+
+/// Parses a compression tolerance: a number strictly between 0 and 1.
+pub fn parse_tolerance(s: &str) -> Result<f64, String> {
+    let e: f64 = s
+        .trim()
+        .parse()
+        .map_err(|e| format!("'{s}' is not a number: {e}"))?;
+    if !(e.is_finite() && e > 0.0 && e < 1.0) {
+        return Err(format!(
+            "'{s}' must be a tolerance between 0 and 1 (e.g. 1e-3)"
+        ));
+    }
+    Ok(e)
 }
 
 /// Parses "x,y,z" into a finite vector, each component at most [`MAX_COORDINATE`] in

@@ -25,7 +25,8 @@ pub fn run(cli: Cli) -> Result<(), Error> {
             load,
             tool,
             json,
-        } => info(&mesh, &load, &tool, json),
+            tolerance,
+        } => info(&mesh, &load, &tool, json, tolerance),
         Command::Poke(args) => poke(&args),
         Command::Demo(args) => demo(&args),
         Command::Replay(args) => replay(&args),
@@ -494,8 +495,18 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
     Ok(())
 }
 
-fn info(spec: &str, load: &LoadArgs, tool: &ToolArgs, json: bool) -> Result<(), Error> {
+fn info(
+    spec: &str,
+    load: &LoadArgs,
+    tool: &ToolArgs,
+    json: bool,
+    tolerance: Option<f64>,
+) -> Result<(), Error> {
     let (mesh, unit) = load.load(spec)?;
+    let estimate = match tolerance {
+        Some(eps) => Some(hier_estimate(&mesh, eps)?),
+        None => None,
+    };
     let sphere_m = match tool.sphere {
         Some(r) => Some(check_sphere_fits(r, &mesh, unit)?),
         None => None,
@@ -537,6 +548,9 @@ fn info(spec: &str, load: &LoadArgs, tool: &ToolArgs, json: bool) -> Result<(), 
         if let Some(fr) = tool.friction {
             v["friction"] = serde_json::json!([fr.static_mu, fr.dynamic_mu]);
         }
+        if let Some(e) = &estimate {
+            v["compression"] = serde_json::to_value(e).expect("serialisable");
+        }
         println!("{v}");
     } else {
         println!("mesh                 {spec} (coordinates in {unit})");
@@ -575,9 +589,56 @@ fn info(spec: &str, load: &LoadArgs, tool: &ToolArgs, json: bool) -> Result<(), 
                 fr.static_mu, fr.dynamic_mu
             );
         }
+        if let Some(e) = &estimate {
+            println!(
+                "hierarchical L       ~{:.1} MB on the GPU at tolerance {:e} (dense f32 {:.1} MB, \
+                 {:.1}× smaller; estimated from {} blocks at mean rank {:.0})",
+                e.gpu_bytes as f64 * 1e-6,
+                e.tolerance,
+                e.dense_gpu_bytes as f64 * 1e-6,
+                e.dense_gpu_bytes as f64 / e.gpu_bytes.max(1) as f64,
+                e.blocks,
+                e.mean_rank
+            );
+        }
         report_changes(&mesh);
     }
     Ok(())
+}
+
+/// `info --tolerance`'s estimate of the hierarchical `L` (default selection: surface rows,
+/// free-surface columns).
+#[derive(serde::Serialize)]
+struct HierEstimate {
+    tolerance: f64,
+    rows: usize,
+    cols: usize,
+    blocks: usize,
+    mean_rank: f64,
+    values: usize,
+    gpu_bytes: usize,
+    dense_gpu_bytes: usize,
+    estimated: bool,
+}
+
+fn hier_estimate(mesh: &touchfem_core::Mesh, eps: f64) -> Result<HierEstimate, Error> {
+    let opts = touchfem_core::hmatrix::HOptions::new(eps);
+    let plan = touchfem_core::compliance::selection_plan(mesh, &Selection::default(), &opts)
+        .map_err(touchfem_core::fem::FemError::from)?;
+    let rank = touchfem_core::hmatrix::mean_rank_estimate(eps);
+    let values = plan.estimate_values(rank);
+    Ok(HierEstimate {
+        tolerance: eps,
+        rows: plan.rows(),
+        cols: plan.cols(),
+        blocks: plan.blocks(),
+        mean_rank: rank,
+        values,
+        // f32 values and a 32-byte entry per block (the GPU's tables are about that).
+        gpu_bytes: 4 * values + 32 * plan.blocks(),
+        dense_gpu_bytes: 4 * plan.dense_values(),
+        estimated: true,
+    })
 }
 
 fn report_changes(mesh: &touchfem_core::Mesh) {

@@ -964,6 +964,19 @@ pub fn hier_plan(
     HPlan::new(&rp, &cp, rows.len(), opts)
 }
 
+/// The plan a hierarchical precompute of `sel` on `mesh` builds (its blocks' shapes; the row
+/// and column orders may differ from the precompute's), without factorising anything: what
+/// `touchfem info --tolerance` estimates from.
+pub fn selection_plan(mesh: &Mesh, sel: &Selection, opts: &HOptions) -> Result<HPlan, HError> {
+    let cols = sel.cols.resolve(mesh);
+    let mut rows = sel.rows.resolve(mesh);
+    let shown: std::collections::HashSet<u32> = rows.iter().copied().collect();
+    rows.extend(cols.iter().filter(|c| !shown.contains(c)));
+    rows.retain(|&r| !mesh.fixed.get(r as usize).copied().unwrap_or(true));
+    let n = rows.len();
+    hier_plan(mesh, &rows, n, &cols, opts)
+}
+
 /// The panels of shard `index` of `count` (1-based): a contiguous run, so that shards in
 /// order hold every panel once.
 pub fn shard_panels(panels: usize, index: usize, count: usize) -> std::ops::Range<usize> {
