@@ -338,3 +338,89 @@ fn built_from_solves_meets_the_bound_for_every_method() {
         assert_eq!(again.blocks(), parts.plan.blocks());
     }
 }
+
+/// The haptic path reads only the exact near blocks: a point finger's and a sphere's forces
+/// on the hierarchical mouse equal the dense mouse's, and the displacement `u = L·F` of those
+/// forces is within the tolerance's bound (`‖Δu‖ ≤ ε‖L‖_F‖F‖`).
+#[test]
+fn haptic_forces_equal_the_dense_path() {
+    use touchfem::force::ForceModel;
+    use touchfem::scene::Body;
+    let (m, c) = mouse();
+    let eps = 1e-3;
+    let hc = Compliance::compute_hier(
+        m,
+        &Selection::default(),
+        &HOptions::new(eps),
+        &mut |_, _| {},
+    )
+    .expect("hierarchical");
+    let h_norm = hc.hier().expect("hier").norm();
+    let dense = Body::with_compliance(m.clone(), c.clone());
+    let hier = Body::with_compliance(m.clone(), hc);
+    // Three touchable nodes, pressed 4 mm along their inward area-weighted normals.
+    let s = 1.0;
+    let cases: Vec<(DVec3, DVec3)> = [100usize, 500, 900]
+        .iter()
+        .map(|&k| {
+            let n = c.cols()[k];
+            let mut normal = DVec3::ZERO;
+            for t in m.surface.iter().filter(|t| t.contains(&n)) {
+                let [a, b, d] = t.map(|i| m.nodes[i as usize]);
+                normal += (b - a).cross(d - a);
+            }
+            let normal = normal.normalize();
+            (m.nodes[n as usize] + 1e-3 * normal, -4e-3 * normal)
+        })
+        .collect();
+    for (at, push) in cases {
+        for model in [ForceModel::Paper, ForceModel::Exact] {
+            let a = dense.poke(at * s, push * s, model, 20).expect("dense poke");
+            let b = hier.poke(at * s, push * s, model, 20).expect("hier poke");
+            assert!(a.feedback.length() > 1e-4, "{at}: no contact");
+            let d = (a.feedback - b.feedback).length();
+            assert!(
+                d <= 1e-12 * a.feedback.length(),
+                "{at} {model:?}: |ΔF| {d:e}"
+            );
+        }
+        let a = dense
+            .poke_sphere(at * s, push * s, 0.012, None, None)
+            .expect("dense sphere");
+        let b = hier
+            .poke_sphere(at * s, push * s, 0.012, None, None)
+            .expect("hier sphere");
+        assert!(
+            a.contact_nodes.len() >= 3,
+            "{at}: sphere touches {}",
+            a.contact_nodes.len()
+        );
+        let d = (a.feedback - b.feedback).length();
+        assert!(d <= 1e-12 * a.feedback.length(), "{at} sphere: |ΔF| {d:e}");
+        // The visible deformation of those forces: within the global bound.
+        let (mut ua, mut ub) = (
+            vec![DVec3::ZERO; c.rows().len()],
+            vec![DVec3::ZERO; c.rows().len()],
+        );
+        dense.compliance.displace(&a.forces, &mut ua);
+        hier.compliance.displace(&b.forces, &mut ub);
+        let fsum: f64 = a
+            .forces
+            .iter()
+            .map(|f| f.1.length_squared())
+            .sum::<f64>()
+            .sqrt();
+        // Rows are the same nodes in both (map through the node index).
+        let mut du2 = 0.0;
+        for (i, &n) in dense.compliance.rows().iter().enumerate() {
+            let j = hier.compliance.row_of(n).expect("row");
+            du2 += (ua[i] - ub[j]).length_squared();
+        }
+        let bound = eps * h_norm * fsum * (a.forces.len() as f64).sqrt();
+        assert!(
+            du2.sqrt() <= bound,
+            "{at}: ‖Δu‖ {:e} > {bound:e}",
+            du2.sqrt()
+        );
+    }
+}

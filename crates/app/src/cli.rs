@@ -700,7 +700,7 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
             }
             c
         }
-        None => precompute_with_bar(&mesh, &sel)?,
+        None => precompute_with_bar(&mesh, &sel, a.tolerance)?,
     };
     let scene = Body::with_compliance(mesh, compliance);
     let st = &scene.compliance.stats;
@@ -853,6 +853,7 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
                 "symmetry": st.symmetry,
                 "rows": scene.compliance.rows().len(),
                 "cols": scene.compliance.cols().len(),
+                "tolerance": scene.compliance.hier().map(|h| h.options().tolerance),
             },
             "units": {"force": "N", "max_displacement": "m", "positions": "m", "trace": ["m", "N", "N", "N"]},
         });
@@ -1086,9 +1087,12 @@ fn poke_png(
 }
 
 /// Precomputes the compliance with a progress bar on a terminal for large meshes.
+/// The compliance, dense or (with a tolerance) hierarchical, with a progress bar on a
+/// terminal.
 fn precompute_with_bar(
     mesh: &touchfem_core::Mesh,
     sel: &Selection,
+    tolerance: Option<f64>,
 ) -> Result<touchfem_core::compliance::Compliance, Error> {
     use std::io::IsTerminal;
     let bar = if std::io::stderr().is_terminal() && mesh.nodes.len() > 5000 {
@@ -1100,14 +1104,20 @@ fn precompute_with_bar(
         indicatif::ProgressStyle::with_template("precompute {bar:40} {pos}/{len} columns {eta}")
             .expect("valid template"),
     );
-    let c = touchfem_core::compliance::Compliance::compute_with_progress(
-        mesh,
-        sel,
-        &mut |done, total| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
-        },
-    )?;
+    let mut progress = |done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    use touchfem_core::compliance::Compliance;
+    let c = match tolerance {
+        Some(eps) => Compliance::compute_hier(
+            mesh,
+            sel,
+            &touchfem_core::hmatrix::HOptions::new(eps),
+            &mut progress,
+        )?,
+        None => Compliance::compute_with_progress(mesh, sel, &mut progress)?,
+    };
     bar.finish_and_clear();
     Ok(c)
 }
