@@ -37,6 +37,7 @@ fn objects(args: &PrecomputeArgs, spec: &str) -> Result<Vec<PlannedObject>, Erro
         name,
         mesh,
         selection,
+        compression: None,
         key,
     }])
 }

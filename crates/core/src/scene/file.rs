@@ -19,6 +19,7 @@ use super::{load_mesh, Body, LoadOptions};
 use crate::compliance::{Compliance, NodeSet, Selection};
 use crate::devices::limits::DeviceLimits;
 use crate::force::{ForceModel, MAX_FINGERS};
+use crate::hmatrix::HOptions;
 use crate::runtime::MAX_OBJECTS;
 use crate::units::LengthUnit;
 use crate::Error;
@@ -60,8 +61,16 @@ struct ObjectToml {
     offset: Option<Spanned<[f64; 3]>>,
     friction: Option<Spanned<FrictionToml>>,
     cuttable: Option<Spanned<TouchableToml>>,
+    compression: Option<Spanned<CompressionToml>>,
     #[serde(default)]
     region: Vec<Spanned<RegionToml>>,
+}
+
+/// `compression = { tolerance = 1e-3 }`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CompressionToml {
+    tolerance: f64,
 }
 
 /// `friction = { static = 0.6, dynamic = 0.4 }`.
@@ -296,14 +305,15 @@ impl World {
         cache: Option<&Path>,
         hold: Hold,
     ) -> Result<World, Error> {
-        World::build(src, &mut |name, mesh, sel, key, fingers| {
+        World::build(src, &mut |name, mesh, sel, compression, key, fingers| {
             let near_from = match hold {
-                _ if fingers > 1 => None,
+                // A hierarchical L is small: held whole.
+                _ if fingers > 1 || compression.is_some() => None,
                 Hold::Dense => None,
                 Hold::Live => Some(NEAR_ONLY_BYTES),
                 Hold::Near => Some(0),
             };
-            compute_cached(cache, name, mesh, sel, key, near_from).map(Some)
+            compute_cached(cache, name, mesh, sel, compression, key, near_from).map(Some)
         })
     }
 
@@ -311,11 +321,12 @@ impl World {
     /// (scene units applied), selection and cache key (see `touchfem precompute`).
     pub fn plan(src: &SceneSource) -> Result<Vec<PlannedObject>, Error> {
         let mut out = Vec::new();
-        World::build(src, &mut |name, mesh, sel, key, _| {
+        World::build(src, &mut |name, mesh, sel, compression, key, _| {
             out.push(PlannedObject {
                 name: name.to_string(),
                 mesh: mesh.clone(),
                 selection: sel.clone(),
+                compression: compression.copied(),
                 key,
             });
             Ok(None)
@@ -326,7 +337,7 @@ impl World {
     /// The hash a load of `src` gives ([`World::hash`]: its text and each object's cache key),
     /// without precomputing anything (the meshes are read).
     pub(crate) fn hash_of(src: &SceneSource) -> Result<u64, Error> {
-        Ok(World::build(src, &mut |_, _, _, _, _| Ok(None))?.hash)
+        Ok(World::build(src, &mut |_, _, _, _, _, _| Ok(None))?.hash)
     }
 
     /// Parses and validates a scene; `compute` gives each object's compliance (`None`: leave the
@@ -598,6 +609,24 @@ impl World {
                 None => None,
                 Some(t) => Some(cut_region(&mesh, t, s, offset, &at)?),
             };
+            let compression = match &o.compression {
+                None => None,
+                Some(c) => {
+                    let opts = HOptions::new(c.get_ref().tolerance);
+                    opts.check()
+                        .map_err(|e| at(c.span(), "compression", e.to_string()))?;
+                    if o.cuttable.is_some() {
+                        return Err(at(
+                            c.span(),
+                            "compression",
+                            "a cuttable object needs a dense L (a cut updates L exactly by low \
+                             rank): remove `compression` or `cuttable`"
+                                .into(),
+                        ));
+                    }
+                    Some(opts)
+                }
+            };
             // A cuttable region's free nodes are touchable too: a cut exposes them, and their
             // columns come from the same correction as the rest.
             let cols = match &cuttable {
@@ -617,14 +646,25 @@ impl World {
                 rows: NodeSet::Surface,
                 cols,
             };
-            let key = crate::cache::key(&mesh, &sel);
+            let key = match &compression {
+                None => crate::cache::key(&mesh, &sel),
+                Some(o) => crate::cache::key_hier(&mesh, &sel, o),
+            };
             hasher.update(&key.to_le_bytes());
             let name = o.name.clone().unwrap_or_else(|| {
                 Path::new(mesh_spec)
                     .file_stem()
                     .map_or(mesh_spec.clone(), |s| s.to_string_lossy().into_owned())
             });
-            let Some(compliance) = compute(&name, &mesh, &sel, key, file.finger.len())? else {
+            let Some(compliance) = compute(
+                &name,
+                &mesh,
+                &sel,
+                compression.as_ref(),
+                key,
+                file.finger.len(),
+            )?
+            else {
                 continue;
             };
             objects.push(Object {
@@ -824,8 +864,15 @@ impl World {
 
 /// Gives an object's compliance during [`World::build`]: (name, mesh, selection, cache key,
 /// the scene's finger count).
-type Compute<'a> =
-    dyn FnMut(&str, &crate::Mesh, &Selection, u64, usize) -> Result<Option<Compliance>, Error> + 'a;
+type Compute<'a> = dyn FnMut(
+        &str,
+        &crate::Mesh,
+        &Selection,
+        Option<&HOptions>,
+        u64,
+        usize,
+    ) -> Result<Option<Compliance>, Error>
+    + 'a;
 
 /// How much of each object's `L` a loaded scene keeps on the host.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -856,7 +903,9 @@ pub struct PlannedObject {
     pub mesh: crate::Mesh,
     /// Rows and columns to precompute.
     pub selection: Selection,
-    /// The cache key ([`crate::cache::key`]).
+    /// `L` stored hierarchically with these options (the scene's `compression`), or dense.
+    pub compression: Option<HOptions>,
+    /// The cache key ([`crate::cache::key`], or [`crate::cache::key_hier`] when compressed).
     pub key: u64,
 }
 
@@ -969,11 +1018,15 @@ fn compute_cached(
     name: &str,
     mesh: &crate::Mesh,
     sel: &Selection,
+    compression: Option<&HOptions>,
     key: u64,
     near_from: Option<u64>,
 ) -> Result<Compliance, Error> {
     let Some(dir) = cache else {
-        return Ok(Compliance::compute(mesh, sel)?);
+        return Ok(match compression {
+            Some(o) => Compliance::compute_hier(mesh, sel, o, &mut |_, _| {})?,
+            None => Compliance::compute(mesh, sel)?,
+        });
     };
     let path = cache_file(dir, name, key);
     let min_bytes = match crate::options::var("TOUCHFEM_HOST_L")
@@ -994,7 +1047,7 @@ fn compute_cached(
             }
         }
     }
-    let (c, outcome) = crate::cache::load_or_compute(&path, mesh, sel)?;
+    let (c, outcome) = crate::cache::load_or_compute_with(&path, mesh, sel, compression)?;
     match outcome {
         crate::cache::CacheOutcome::NotSaved(..) => {
             if let Some(m) = outcome.message() {
