@@ -41,7 +41,7 @@ pub enum Command {
         tolerance: Option<f64>,
     },
     /// Touch the surface at the point nearest --at, push by --push, print the force fed back.
-    Poke(PokeArgs),
+    Poke(Box<PokeArgs>),
     /// The main job: scenes headless (the bundled ones by default) with the 1 kHz haptic loop
     /// and the visual loop; frames, GIF, force traces, the session and the paper's Table 2.
     Demo(DemoArgs),
