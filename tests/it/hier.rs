@@ -424,3 +424,35 @@ fn haptic_forces_equal_the_dense_path() {
         );
     }
 }
+
+/// Error control on the mouse and the phantom (its stiff nodule a region ten times stiffer),
+/// built from solves and checked against an independent precompute of a sample of columns:
+/// at every bench tolerance the global bound and the per-load bound hold, and the measured
+/// errors fall as the tolerance falls.
+#[test]
+fn the_error_falls_with_the_tolerance_and_stays_within_the_bound() {
+    use touchfem::scene::World;
+    use touchfem_lab::hmatrix_study::sampled_row;
+    let phantom = World::load_with("palpate", "script", None).expect("palpate");
+    let meshes = [
+        ("mouse", touchfem::mesh::mouse()),
+        ("phantom", phantom.objects[0].body.mesh.clone()),
+    ];
+    for (name, mesh) in &meshes {
+        let mut last = f64::INFINITY;
+        for eps in [1e-2, 1e-3, 1e-4, 1e-6] {
+            let (r, _) = sampled_row(name, mesh, eps, 60).expect("row");
+            println!("{}", serde_json::to_string(&r).expect("json"));
+            assert!(r.frobenius_rel <= eps, "{name} {eps}: {r:?}");
+            assert!(r.bound_used <= 1.0, "{name} {eps}: per-load bound {r:?}");
+            assert!(
+                r.l2_median < last,
+                "{name} {eps}: median did not fall {r:?}"
+            );
+            last = r.l2_median;
+            if eps == 1e-3 {
+                assert!(r.l2_median <= 2e-3 && r.l2_worst <= 1e-2, "{name}: {r:?}");
+            }
+        }
+    }
+}

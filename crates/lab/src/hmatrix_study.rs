@@ -236,3 +236,145 @@ mod tests {
         );
     }
 }
+
+/// A hierarchical precompute from the factor's solves on a mesh too large for the dense `L`
+/// to be compared whole, checked against an independent dense precompute of a sample of its
+/// columns (`Selection { rows: surface, cols: the sample }`, a separate factorisation and
+/// solves): the study behind `touchfem bench --scene MESH --tolerance EPS`.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SampledRow {
+    /// Mesh name.
+    pub mesh: String,
+    /// Mesh nodes.
+    pub nodes: usize,
+    /// Row nodes holding `L`.
+    pub rows: usize,
+    /// Column nodes.
+    pub cols: usize,
+    /// Tolerance ε.
+    pub tolerance: f64,
+    /// Seconds of the hierarchical precompute (assembly, factorisation, solves, compression).
+    pub precompute_s: f64,
+    /// Of which compressing the panels.
+    pub compress_s: f64,
+    /// Values stored in f32, bytes.
+    pub bytes_f32: usize,
+    /// The dense `L` in f32, bytes.
+    pub dense_bytes_f32: usize,
+    /// Mean rank of the low-rank blocks.
+    pub mean_rank: f64,
+    /// Sampled columns (each loaded along its three axes).
+    pub sampled: usize,
+    /// Relative L2 point-load error: median and worst over the sample.
+    pub l2_median: f64,
+    /// The same, worst.
+    pub l2_worst: f64,
+    /// Worst over the sampled columns nearest a clamped node (a tenth of the sample).
+    pub l2_worst_near_clamps: f64,
+    /// `‖L − L_H‖_F / ‖L‖_F` as the truncations measured it (at most ε).
+    pub frobenius_rel: f64,
+    /// The worst point load's `‖Δu‖₂ / (ε‖L‖_F)`: the per-load guarantee holds when ≤ 1.
+    pub bound_used: f64,
+}
+
+/// [`SampledRow`] for `mesh` at `eps` with `sample` columns: evenly spread over the touchable
+/// nodes, plus the `sample / 10` nearest a clamped node.
+pub fn sampled_row(
+    name: &str,
+    mesh: &Mesh,
+    eps: f64,
+    sample: usize,
+) -> Result<(SampledRow, Compliance), Error> {
+    let sel = Selection::default();
+    let t = Instant::now();
+    let hc = Compliance::compute_hier(mesh, &sel, &HOptions::new(eps), &mut |_, _| {})?;
+    let precompute_s = t.elapsed().as_secs_f64();
+    let h = hc
+        .hier()
+        .ok_or_else(|| Error::Study("no hierarchical L".into()))?;
+    let cols = hc.cols();
+    // The sample: evenly spread, then the nearest the clamps.
+    let mut pick: Vec<usize> = (0..sample.min(cols.len()))
+        .map(|i| i * cols.len() / sample.min(cols.len()))
+        .collect();
+    let clamped: Vec<DVec3> = (0..mesh.nodes.len())
+        .filter(|&n| mesh.fixed[n])
+        .map(|n| mesh.nodes[n])
+        .collect();
+    let mut near: Vec<(f64, usize)> = cols
+        .iter()
+        .enumerate()
+        .map(|(k, &n)| {
+            let p = mesh.nodes[n as usize];
+            let d = clamped
+                .iter()
+                .map(|q| q.distance_squared(p))
+                .fold(f64::INFINITY, f64::min);
+            (d, k)
+        })
+        .collect();
+    near.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let n_near = (sample / 10).max(1).min(near.len());
+    let near_set: Vec<usize> = near[..n_near].iter().map(|x| x.1).collect();
+    pick.extend(near_set.iter().copied());
+    pick.sort_unstable();
+    pick.dedup();
+    let nodes: Vec<u32> = pick.iter().map(|&k| cols[k]).collect();
+    let reference = Compliance::compute(
+        mesh,
+        &Selection {
+            rows: touchfem_core::compliance::NodeSet::Surface,
+            cols: touchfem_core::compliance::NodeSet::Nodes(nodes.clone()),
+        },
+    )?;
+    let (mut u, mut uh) = (
+        vec![DVec3::ZERO; reference.rows().len()],
+        vec![DVec3::ZERO; hc.rows().len()],
+    );
+    let (mut all, mut worst_near, mut worst_abs) = (Vec::new(), 0.0f64, 0.0f64);
+    for (&k, &node) in pick.iter().zip(&nodes) {
+        let rc = reference
+            .col_of(node)
+            .ok_or_else(|| Error::Study("sample column".into()))?;
+        for b in 0..3 {
+            reference.displace(&[(rc as u32, DVec3::AXES[b])], &mut u);
+            hc.displace(&[(k as u32, DVec3::AXES[b])], &mut uh);
+            let (mut d2, mut n2) = (0.0, 0.0);
+            for (i, &rn) in reference.rows().iter().enumerate() {
+                let Some(j) = hc.row_of(rn) else { continue };
+                d2 += (uh[j] - u[i]).length_squared();
+                n2 += u[i].length_squared();
+            }
+            let e = if n2 > 0.0 { (d2 / n2).sqrt() } else { 0.0 };
+            worst_abs = worst_abs.max(d2.sqrt());
+            all.push(e);
+            if near_set.contains(&k) {
+                worst_near = worst_near.max(e);
+            }
+        }
+    }
+    let all = sorted(&all);
+    let ranks: Vec<usize> = h.blocks().filter_map(|b| b.rank).collect();
+    let compress_s = hc.stats.phases.finish_s;
+    Ok((
+        SampledRow {
+            mesh: name.into(),
+            nodes: mesh.nodes.len(),
+            rows: h.rows(),
+            cols: h.cols(),
+            tolerance: eps,
+            precompute_s,
+            compress_s,
+            bytes_f32: h.bytes_f32(),
+            dense_bytes_f32: 4 * h.dense_values(),
+            mean_rank: ranks.iter().sum::<usize>() as f64 / ranks.len().max(1) as f64,
+            sampled: pick.len(),
+            l2_median: all[all.len() / 2],
+            l2_worst: all[all.len() - 1],
+            l2_worst_near_clamps: worst_near,
+            frobenius_rel: h.truncation_error() / h.norm().max(f64::MIN_POSITIVE),
+            bound_used: worst_abs / (eps * h.norm()).max(f64::MIN_POSITIVE),
+        },
+        hc,
+    ))
+}
