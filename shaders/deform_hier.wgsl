@@ -79,7 +79,13 @@ alias Word = f32;
 @group(1) @binding(3) var<storage, read> v3: array<Word>;
 @group(1) @binding(4) var<storage, read> v4: array<Word>;
 
+// Value buffers in use (1..=5): with one, loads skip the switch.
+override VALUE_BUFFERS: u32 = 5u;
+
 fn word(b: u32, i: u32) -> Word {
+    if VALUE_BUFFERS == 1u {
+        return v0[i];
+    }
     switch b {
         case 0u: {
             return v0[i];

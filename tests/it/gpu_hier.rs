@@ -350,3 +350,48 @@ fn hier_bad_cases_are_typed_errors() {
         );
     }
 }
+
+/// A measurement, not a check (`cargo test --features app --test it gpu_hier::frame_time --
+/// --ignored --nocapture`): µs per frame (set_forces, encode, submit, wait) of each layout on
+/// the mouse, median of 30.
+#[test]
+#[ignore]
+fn frame_time() {
+    let (g, m) = (gpu(), mouse());
+    let time = |c: &Compliance, storage: LStorage, f: &[(u32, [f32; 3])]| {
+        let opts = DeformerOptions {
+            storage,
+            ..Default::default()
+        };
+        let mut d = deformer(c, &opts).expect("deformer");
+        let mut t = Vec::new();
+        for _ in 0..31 {
+            let t0 = std::time::Instant::now();
+            d.set_forces(&g.queue, f).expect("forces");
+            let mut enc = g.device.create_command_encoder(&Default::default());
+            d.encode(&mut enc);
+            let i = g.queue.submit([enc.finish()]);
+            g.device
+                .poll(wgpu::PollType::Wait {
+                    submission_index: Some(i),
+                    timeout: None,
+                })
+                .expect("poll");
+            t.push(t0.elapsed().as_secs_f64() * 1e6);
+        }
+        t.sort_by(f64::total_cmp);
+        t[15]
+    };
+    for (case, cols) in cases(&m.h3) {
+        let f = forces_on(&cols);
+        let row = [
+            ("dense buffers", &m.dense, LStorage::Buffers),
+            ("dense texture", &m.dense, LStorage::Texture),
+            ("hier 1e-3", &m.h3, LStorage::Hier),
+            ("hier 1e-3 f16", &m.h3, LStorage::HierF16),
+            ("hier 1e-6", &m.h6, LStorage::Hier),
+        ]
+        .map(|(n, c, s)| format!("{n} {:.0} µs", time(c, s, &f)));
+        println!("{case} ({} columns): {}", cols.len(), row.join(", "));
+    }
+}

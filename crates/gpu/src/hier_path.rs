@@ -438,11 +438,13 @@ impl HierPath {
             label: Some("touchfem deform.wgsl (normals)"),
             source: wgpu::ShaderSource::Wgsl(DEFORM_WGSL.into()),
         });
-        let constants: &[(&str, f64)] = if sh.vertex_layout {
-            // The deformer's own `Vertex`es carry |u| in position.w (word 3).
-            &[("DISPLACEMENT_WORD", 3.0)]
+        let buffers = ("VALUE_BUFFERS", values.len() as f64);
+        // The deformer's own `Vertex`es carry |u| in position.w (word 3).
+        let with_word = [buffers, ("DISPLACEMENT_WORD", 3.0)];
+        let constants = if sh.vertex_layout {
+            &with_word[..]
         } else {
-            &[]
+            &with_word[..1]
         };
         Ok(HierPath {
             half: sh.half,
@@ -464,7 +466,14 @@ impl HierPath {
             group0,
             values_group,
             normals_group,
-            reduce: compute_pipeline(device, &module, "reduce", &[&layout0, &layout1], 0),
+            reduce: specialised_pipeline(
+                device,
+                &module,
+                "reduce",
+                &[&layout0, &layout1],
+                0,
+                &with_word[..1],
+            ),
             deform: specialised_pipeline(
                 device,
                 &module,
