@@ -395,3 +395,65 @@ fn frame_time() {
         println!("{case} ({} columns): {}", cols.len(), row.join(", "));
     }
 }
+
+/// The visual path draws a hierarchical compliance: on the GPU (the hierarchical layout) and,
+/// without one, on the CPU (its compressed product).
+#[test]
+fn visual_path_draws_a_hierarchical_compliance() {
+    use touchfem::runtime::WorldSample;
+    use touchfem::visual::Visual;
+    let g = gpu();
+    let mut w = crate::common::world_from_text(
+        "unit = \"mm\"\n[[object]]\nmesh = \"cube\"\n[[finger]]\ndevice = \"pointer\"\n",
+    )
+    .expect("cube scene");
+    let body = &mut w.objects[0].body;
+    let c = &body.compliance;
+    let h = c.compress(&body.mesh, &HOptions::new(1e-3)).expect("H");
+    body.compliance = Compliance::from_hier(
+        c.rows().to_vec(),
+        c.l_rows(),
+        c.cols().to_vec(),
+        h,
+        body.mesh.nodes.len(),
+    )
+    .expect("hierarchical compliance");
+    let (mesh, c) = (&w.objects[0].body.mesh, &w.objects[0].body.compliance);
+    let mut sample = WorldSample {
+        n_objects: 1,
+        ..Default::default()
+    };
+    let nc = c.cols().len() as u32;
+    for col in [0, nc / 2, nc - 1] {
+        sample.bcs[0].add(col, DVec3::new(0.1, -0.2, -1.0));
+    }
+    let mut want = vec![DVec3::ZERO; c.rows().len()];
+    c.displace(sample.bc(0).entries(), &mut want);
+    let umax = want
+        .iter()
+        .fold(0.0f64, |a, v| a.max(v.abs().max_element()));
+    assert!(umax > 1e-6, "{umax}");
+
+    let mut visual = Visual::new(&w, Some(g));
+    visual.update(&sample);
+    assert_eq!(visual.backend(), "gpu", "{:?}", visual.failure());
+    let d = &visual.deformers().expect("gpu")[0];
+    assert_eq!(d.storage(), LStorage::Hier);
+    let pos = d.read_back(&g.device, &g.queue).expect("read back").0;
+    let err = c
+        .rows()
+        .iter()
+        .zip(&pos)
+        .zip(&want)
+        .fold(0.0f64, |a, ((&n, p), u)| {
+            let x = mesh.nodes[n as usize] + *u;
+            a.max((DVec3::from(p.map(f64::from)) - x).abs().max_element())
+        });
+    println!("visual, GPU: max error {:.2e}·max|u|", err / umax);
+    assert!(err <= f32_tol(umax, 0.05), "{err:e}");
+
+    let mut cpu = Visual::new(&w, None);
+    cpu.update(&sample);
+    assert_eq!(cpu.backend(), "cpu-f64");
+    assert_eq!(cpu.cpu_displacement(0), &want[..]);
+}
