@@ -23,7 +23,8 @@ enum Path {
 /// Evaluates the deformation `x = x_rest + Σ_active L[:, c]·F_c` and the vertex normals of the
 /// deformed surface on the GPU, writing straight into a vertex buffer.
 ///
-/// `L` is uploaded once (f32) in the [`LStorage`] layout. Per frame,
+/// `L` is uploaded once (f32, or half floats) in the [`LStorage`] layout; a hierarchical `L`
+/// ([`LData::Hier`]) in its compressed form ([`LStorage::Hier`]). Per frame,
 /// [`set_forces`](Self::set_forces) writes only the active columns and forces (16 bytes each,
 /// plus a 16-byte record per `L` buffer, or the 4-byte count for the texture layout — nothing
 /// at all for a short list passed as immediates, see [`uses_immediates`](Self::uses_immediates));
