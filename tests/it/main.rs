@@ -16,6 +16,7 @@ mod golden;
 mod gpu;
 mod gpu_cut;
 mod gpu_f16;
+mod gpu_hier;
 mod gram;
 mod haptics;
 mod hard_cases;

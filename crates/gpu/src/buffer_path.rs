@@ -65,7 +65,7 @@ struct ChunkGpu {
 
 struct Chunk {
     /// Holds this chunk's L columns (kept alive by the bind group too).
-    _l: wgpu::Buffer,
+    l: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
     /// Active entries this frame.
     count: u32,
@@ -216,7 +216,7 @@ impl BufferPath {
                 ],
             });
             chunks.push(Chunk {
-                _l: l,
+                l,
                 bind_group,
                 count: 0,
             });
@@ -373,10 +373,15 @@ impl BufferPath {
     pub(super) fn cols_per_chunk(&self) -> usize {
         self.cols_per_chunk
     }
+
+    /// Bytes of the `L` buffers.
+    pub(super) fn l_bytes(&self) -> u64 {
+        self.chunks.iter().map(|c| c.l.size()).sum()
+    }
 }
 
 /// The normal pass's adjacency: offsets[0..=nr] followed by the triangle ids, in one list.
-fn adjacency(nr: usize, tris: &[[u32; 3]]) -> Vec<u32> {
+pub(crate) fn adjacency(nr: usize, tris: &[[u32; 3]]) -> Vec<u32> {
     let (mut adj, list) = touchfem_core::mesh::vertex_triangles(nr, tris);
     adj.extend_from_slice(&list);
     adj

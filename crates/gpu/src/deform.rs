@@ -6,9 +6,10 @@ use wgpu::util::DeviceExt;
 use crate::buffer_path::BufferPath;
 use crate::context::GpuError;
 use crate::correct::{CorrectionPass, CorrectionTarget};
+use crate::hier_path::HierPath;
 use crate::input::{
-    DeformerInput, DeformerOptions, FrameGpu, LStorage, OutputTarget, Shared, Vertex, MAX_ACTIVE,
-    NO_NORMALS, VERTEX_STRIDE, WORKGROUP,
+    DeformerInput, DeformerOptions, FrameGpu, LData, LStorage, OutputTarget, Shared, Vertex,
+    MAX_ACTIVE, NO_NORMALS, VERTEX_STRIDE, WORKGROUP,
 };
 use crate::texture_path::TexturePath;
 use touchfem_core::correction::Correction;
@@ -16,12 +17,14 @@ use touchfem_core::correction::Correction;
 enum Path {
     Buffers(BufferPath),
     Texture(TexturePath),
+    Hier(HierPath),
 }
 
 /// Evaluates the deformation `x = x_rest + Σ_active L[:, c]·F_c` and the vertex normals of the
 /// deformed surface on the GPU, writing straight into a vertex buffer.
 ///
-/// `L` is uploaded once (f32) in the [`LStorage`] layout. Per frame,
+/// `L` is uploaded once (f32, or half floats) in the [`LStorage`] layout; a hierarchical `L`
+/// ([`LData::Hier`]) in its compressed form ([`LStorage::Hier`]). Per frame,
 /// [`set_forces`](Self::set_forces) writes only the active columns and forces (16 bytes each,
 /// plus a 16-byte record per `L` buffer, or the 4-byte count for the texture layout — nothing
 /// at all for a short list passed as immediates, see [`uses_immediates`](Self::uses_immediates));
@@ -192,7 +195,7 @@ impl Deformer {
         let shared = Shared {
             half: matches!(
                 options.storage,
-                LStorage::BuffersF16 | LStorage::TextureF16 | LStorage::AutoF16
+                LStorage::BuffersF16 | LStorage::TextureF16 | LStorage::AutoF16 | LStorage::HierF16
             ),
             device,
             queue,
@@ -221,9 +224,21 @@ impl Deformer {
                 && limits.max_immediate_size >= crate::shaders::IMMEDIATE_BYTES,
         };
         shared.check("output binding", out_size)?;
+        let hier = match input.l {
+            LData::Hier(h) => Some(h),
+            _ => None,
+        };
         // The texture passes bind three storage textures each.
         let textures_ok = limits.max_storage_textures_per_shader_stage >= 3;
         let texture = match options.storage {
+            _ if hier.is_some() => false,
+            LStorage::Hier | LStorage::HierF16 => {
+                return Err(GpuError::Unsupported(
+                    "LStorage::Hier for a dense L: only a hierarchical L (LData::Hier) has \
+                     the compressed layout"
+                        .into(),
+                ))
+            }
             LStorage::Texture | LStorage::TextureF16 if !textures_ok => {
                 return Err(GpuError::Unsupported(format!(
                     "LStorage::Texture: it needs 3 storage textures per shader stage, the \
@@ -238,7 +253,9 @@ impl Deformer {
             }
         };
         let auto = matches!(options.storage, LStorage::Auto | LStorage::AutoF16);
-        let path = if texture {
+        let path = if let Some(h) = hier {
+            Path::Hier(HierPath::new(&shared, h)?)
+        } else if texture {
             // A texture too large for the device's memory (the f32 texture of a 45k-node
             // organ's whole surface, 3.8 GB, on lavapipe): `Auto` falls back to the buffers,
             // which need a quarter less (no pad); an asked-for texture is an error that says so.
@@ -323,6 +340,7 @@ impl Deformer {
         match &mut self.path {
             Path::Buffers(p) => p.set_forces(queue, forces),
             Path::Texture(p) => p.set_forces(queue, forces),
+            Path::Hier(p) => p.set_forces(queue, forces),
         }
         if let Some(c) = &mut self.correction {
             c.set_forces(queue, forces);
@@ -357,6 +375,13 @@ impl Deformer {
             }
             return Ok(());
         };
+        if matches!(self.path, Path::Hier(_)) {
+            return Err(GpuError::Unsupported(
+                "a cut's correction on a hierarchical L (a hierarchical compliance cannot be \
+                 cut)"
+                    .into(),
+            ));
+        }
         let (nl, nc, r) = (self.l_rows, self.n_cols, k.rank);
         if k.rows.len() != 3 * nl * r
             || k.v_cols.len() != 3 * nc * r
@@ -374,7 +399,7 @@ impl Deformer {
         if self.correction.is_none() {
             let (start, size, word, stride) = self.out_binding;
             let positions = match &self.path {
-                Path::Buffers(_) => None,
+                Path::Buffers(_) | Path::Hier(_) => None,
                 Path::Texture(p) => Some(p.positions()),
             };
             let pass = CorrectionPass::new(
@@ -425,6 +450,9 @@ impl Deformer {
                 p.set_triangles(device, &tris, (&index_buffer, words), self.max_binding)?
             }
             Path::Texture(p) => p.set_triangles(device, queue, &tris)?,
+            Path::Hier(p) => {
+                p.set_triangles(device, &tris, (&index_buffer, words), self.max_binding)?
+            }
         }
         self.index_buffer = index_buffer;
         self.triangles = tris;
@@ -457,6 +485,7 @@ impl Deformer {
         match &self.path {
             Path::Buffers(p) => p.record_deform(&mut pass, self.n_rows),
             Path::Texture(p) => p.record_deform(&mut pass, self.n_rows),
+            Path::Hier(p) => p.record_deform(&mut pass, self.n_rows),
         }
         if let Some(c) = &self.correction {
             c.record(&mut pass);
@@ -465,6 +494,7 @@ impl Deformer {
             match &self.path {
                 Path::Buffers(p) => p.record_normals(&mut pass, self.n_rows),
                 Path::Texture(p) => p.record_normals(&mut pass, self.n_rows),
+                Path::Hier(p) => p.record_normals(&mut pass, self.n_rows),
             }
         }
     }
@@ -508,6 +538,8 @@ impl Deformer {
             Path::Buffers(_) => LStorage::Buffers,
             Path::Texture(ref t) if t.half() => LStorage::TextureF16,
             Path::Texture(_) => LStorage::Texture,
+            Path::Hier(ref h) if h.half() => LStorage::HierF16,
+            Path::Hier(_) => LStorage::Hier,
         }
     }
 
@@ -519,26 +551,38 @@ impl Deformer {
     /// [`encode`](Self::encode).
     pub fn uses_immediates(&self) -> bool {
         match &self.path {
-            Path::Buffers(_) => false,
+            Path::Buffers(_) | Path::Hier(_) => false,
             Path::Texture(p) => p.uses_immediates(),
         }
     }
 
-    /// Number of storage buffers ([`LStorage::Buffers`]) or texture array layers
-    /// ([`LStorage::Texture`]) `L` is split into.
+    /// Number of storage buffers ([`LStorage::Buffers`], or the values of [`LStorage::Hier`])
+    /// or texture array layers ([`LStorage::Texture`]) `L` is split into.
     pub fn chunk_count(&self) -> usize {
         match &self.path {
             Path::Buffers(p) => p.chunk_count(),
             Path::Texture(p) => p.layer_count(),
+            Path::Hier(p) => p.value_buffers(),
+        }
+    }
+
+    /// Bytes the GPU holds for `L`: the storage buffers or the texture, and for
+    /// [`LStorage::Hier`] its values, tables and per-frame work buffer (what
+    /// [`hier_gpu_bytes`](crate::hier_gpu_bytes) estimates without a GPU).
+    pub fn l_bytes(&self) -> u64 {
+        match &self.path {
+            Path::Buffers(p) => p.l_bytes(),
+            Path::Texture(p) => p.l_bytes(),
+            Path::Hier(p) => p.l_bytes(),
         }
     }
 
     /// Column nodes per storage buffer ([`LStorage::Buffers`]); `None` for the texture layout,
-    /// which splits `L` by texel rows instead.
+    /// which splits `L` by texel rows instead, and for the hierarchical one (by blocks).
     pub fn columns_per_chunk(&self) -> Option<usize> {
         match &self.path {
             Path::Buffers(p) => Some(p.cols_per_chunk()),
-            Path::Texture(_) => None,
+            Path::Texture(_) | Path::Hier(_) => None,
         }
     }
 

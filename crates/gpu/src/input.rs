@@ -185,8 +185,9 @@ pub struct OutputTarget {
     pub normal_offset: Option<u64>,
 }
 
-/// How `L` is stored on the device. Both layouts compute the same `u = L·F` (to f32 rounding)
-/// and write the same vertices.
+/// How `L` is stored on the device. The dense layouts compute the same `u = L·F` (to f32
+/// rounding) and write the same vertices; the hierarchical one computes `u = L_H·F` of the
+/// compressed `L`, as [`HMatrix::displace`](touchfem_core::hmatrix::HMatrix::displace) does.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum LStorage {
     /// [`Texture`](Self::Texture) on CPU adapters (software rasterisers such as lavapipe) that
@@ -213,6 +214,17 @@ pub enum LStorage {
     /// [`Auto`](Self::Auto)'s layout in half floats: [`TextureF16`](Self::TextureF16) or
     /// [`BuffersF16`](Self::BuffersF16).
     AutoF16,
+    /// A hierarchical `L` ([`LData::Hier`]) in its compressed form: dense near blocks and
+    /// low-rank factors in f32 storage buffers (whole blocks each, up to
+    /// [`HIER_VALUE_BINDINGS`](crate::HIER_VALUE_BINDINGS)) and its block tables; per frame
+    /// `z = Vᵀf` for the far blocks the active columns hit, then `u` per row
+    /// (`shaders/deform_hier.wgsl`). A hierarchical `L` always gets this layout (or
+    /// [`HierF16`](Self::HierF16) when the option asks for half floats); asking for it with a
+    /// dense `L` is [`GpuError::Unsupported`].
+    Hier,
+    /// [`Hier`](Self::Hier) with the values in half floats (the dense blocks and `U` scaled
+    /// like [`BuffersF16`](Self::BuffersF16), `V` as is).
+    HierF16,
 }
 
 impl LStorage {

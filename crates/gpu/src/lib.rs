@@ -20,6 +20,7 @@ mod buffer_path;
 mod context;
 mod correct;
 mod deform;
+mod hier_path;
 mod input;
 pub mod options;
 pub mod render;
@@ -33,6 +34,7 @@ pub use buffer_path::{deform_f16_wgsl, pack_f16};
 pub use context::{read_buffer, AdapterSelection, Gpu, GpuError, ReadbackError};
 pub use correct::MAX_CORRECTION_RANK;
 pub use deform::Deformer;
+pub use hier_path::{hier_gpu_bytes, HIER_VALUE_BINDINGS};
 pub use input::{
     DeformerInput, DeformerOptions, LData, LStorage, OutputTarget, Vertex, MAX_ACTIVE,
     VERTEX_STRIDE,
@@ -59,6 +61,18 @@ mod tests {
         );
         let w = super::pack_f16(&[1.0, -2.0, 0.5]);
         assert_eq!(w, [0x3c00 | (0xc000 << 16), 0x3800]);
+    }
+
+    /// The half-float variant of `deform_hier.wgsl` validates.
+    #[test]
+    fn hier_f16_shader_validates() {
+        let src = super::hier_path::deform_hier_f16_wgsl();
+        assert!(src.contains("alias Word = u32;") && src.contains("unpack2x16float"));
+        validate(
+            "deform_hier.wgsl (f16)",
+            &src,
+            naga::valid::Capabilities::SHADER_FLOAT16_IN_FLOAT32,
+        );
     }
 
     /// Every shader in `shaders/` parses and validates with naga (no GPU needed): the
@@ -133,9 +147,15 @@ mod tests {
     #[test]
     fn shaders_active_lists_match_max_active() {
         let decl = format!("array<Active, {}>", super::MAX_ACTIVE);
-        for src in [super::DEFORM_WGSL, super::DEFORM_TEXTURE_WGSL] {
+        for src in [
+            super::DEFORM_WGSL,
+            super::DEFORM_TEXTURE_WGSL,
+            super::DEFORM_HIER_WGSL,
+        ] {
             assert!(src.contains(&decl), "{decl} not found");
         }
+        let leaves = format!("array<vec4<u32>, {}>", super::MAX_ACTIVE);
+        assert!(super::DEFORM_HIER_WGSL.contains(&leaves));
         let inline = super::INLINE_ACTIVE;
         assert_eq!(16 + 16 * inline as u32, super::IMMEDIATE_BYTES);
         for decl in [
@@ -155,6 +175,7 @@ mod tests {
         for (name, embedded) in [
             ("deform.wgsl", super::DEFORM_WGSL),
             ("deform_texture.wgsl", super::DEFORM_TEXTURE_WGSL),
+            ("deform_hier.wgsl", super::DEFORM_HIER_WGSL),
             ("active_uniform.wgsl", super::ACTIVE_UNIFORM_WGSL),
             ("active_immediate.wgsl", super::ACTIVE_IMMEDIATE_WGSL),
             ("output_words.wgsl", super::OUTPUT_WORDS_WGSL),

@@ -5,6 +5,10 @@
 /// (`shaders/deform.wgsl`).
 pub(crate) const DEFORM_WGSL: &str = include_str!("../../../shaders/deform.wgsl");
 
+/// The WGSL source of the deformation pass from a hierarchical `L`
+/// (`shaders/deform_hier.wgsl`).
+pub(crate) const DEFORM_HIER_WGSL: &str = include_str!("../../../shaders/deform_hier.wgsl");
+
 /// The WGSL body of the deformation and normal passes, texture layout
 /// (`shaders/deform_texture.wgsl`); complete it with [`deform_texture_source`].
 pub(crate) const DEFORM_TEXTURE_WGSL: &str = include_str!("../../../shaders/deform_texture.wgsl");

@@ -47,6 +47,8 @@ const N_ACTIVE_OFFSET: u64 = 20;
 /// `L` and the pose in textures, and the passes that read them.
 pub(super) struct TexturePath {
     layers: u32,
+    /// Bytes of the `L` texture.
+    l_bytes: u64,
     active: wgpu::Buffer,
     deform_group: wgpu::BindGroup,
     normals_group: wgpu::BindGroup,
@@ -417,6 +419,7 @@ impl TexturePath {
         let imm_bytes = if sh.immediates { IMMEDIATE_BYTES } else { 0 };
         Ok(TexturePath {
             layers: layers as u32,
+            l_bytes: texel_bytes * width * height * layers,
             active,
             deform: if sh.immediates {
                 // ACTIVE_INLINE = 0..=INLINE_ACTIVE (inline), then INLINE_ACTIVE + 1 (uploaded).
@@ -562,6 +565,11 @@ impl TexturePath {
 
     pub(super) fn layer_count(&self) -> usize {
         self.layers as usize
+    }
+
+    /// Bytes of the `L` texture.
+    pub(super) fn l_bytes(&self) -> u64 {
+        self.l_bytes
     }
 }
 

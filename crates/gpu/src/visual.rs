@@ -236,12 +236,13 @@ impl<'a> Visual<'a> {
         let t = Instant::now();
         for o in 0..self.world.objects.len() {
             // An object whose L stayed in its cache file keeps its last shape. A cut body's
-            // compliance carries its correction: `displace` adds it.
+            // compliance carries its correction: `displace` adds it; a hierarchical one's
+            // `displace` is its compressed product.
             let c = match self.cuts[o].as_ref() {
                 Some(b) => &b.compliance,
                 None => &self.world.objects[o].body.compliance,
             };
-            if c.holds_l() {
+            if c.holds_l() || c.hier().is_some() {
                 c.displace(sample.bc(o).entries(), &mut self.cpu[o]);
             }
         }

@@ -1,0 +1,642 @@
+//! The hierarchical layout of `L` (`shaders/deform_hier.wgsl`, issue 29): an [`HMatrix`]'s
+//! compressed form on the GPU — its values (dense near blocks, low-rank factors of far blocks)
+//! in f32 or half floats, split over up to [`HIER_VALUE_BINDINGS`] storage buffers with whole
+//! blocks in each, and its tables (row permutation, block table, per column leaf its blocks by
+//! row start). Per frame the host sorts the active columns by position and lists the active
+//! column leaves and the low-rank blocks they hit (no read-back); two dispatches compute
+//! `z_b = V_bᵀ·f` for the hit blocks, then `u` per row (dense blocks and `U_b·z_b`), and
+//! deform.wgsl's normal pass follows.
+
+use bytemuck::{Pod, Zeroable};
+use wgpu::util::DeviceExt;
+
+use crate::bind::{buffer, compute_pipeline, specialised_pipeline, storage_entry, uniform_entry};
+use crate::buffer_path::{adjacency, pack_f16};
+use crate::context::GpuError;
+use crate::input::{FrameGpu, Shared, MAX_ACTIVE, WORKGROUP};
+use crate::shaders::{DEFORM_HIER_WGSL, DEFORM_WGSL};
+use touchfem_core::hmatrix::{BlockInfo, HMatrix};
+
+/// Storage bindings the values may be split over (`deform_hier.wgsl`'s `v0` … `v4`): with
+/// the block table, the output and the work buffer, eight storage buffers a stage — WebGPU's
+/// default limit.
+pub const HIER_VALUE_BINDINGS: usize = 5;
+
+/// A block's rank in the GPU table when it is stored dense.
+const DENSE: u32 = u32::MAX;
+/// Words of one block in the table.
+const BLOCK_WORDS: usize = 8;
+/// Words of one entry of the leaf lists (the block's row start, the block).
+const LEAF_ENTRY_WORDS: usize = 2;
+/// Bytes of `Params` before its `leaves` (the header and the active list).
+const LEAVES_AT: u64 = 16 + 16 * MAX_ACTIVE as u64;
+/// Bytes of `Params`.
+const PARAMS_BYTES: u64 = LEAVES_AT + 16 * MAX_ACTIVE as u64;
+/// Largest value buffer, bytes: element indices stay below 2³¹ (u32 arithmetic in WGSL).
+const MAX_VALUE_BUFFER: u64 = 1 << 31;
+
+/// `shaders/deform_hier.wgsl` with the values read as half floats, two per `u32` word.
+pub(crate) fn deform_hier_f16_wgsl() -> String {
+    const F32_WORD: &str = "alias Word = f32;";
+    const F32_VAL: &str = "    return word(b, i);\n";
+    assert!(DEFORM_HIER_WGSL.contains(F32_WORD) && DEFORM_HIER_WGSL.contains(F32_VAL));
+    DEFORM_HIER_WGSL
+        .replace(F32_WORD, "alias Word = u32;")
+        .replace(
+            F32_VAL,
+            "    let w = unpack2x16float(word(b, i >> 1u));\n    \
+             return select(w.x, w.y, (i & 1u) == 1u);\n",
+        )
+}
+
+/// Values a block holds: `9mn` dense, `3(m + n)k` low-rank.
+fn block_len(b: &BlockInfo) -> usize {
+    let (m, n) = (3 * b.rows.len(), 3 * b.cols.len());
+    match b.rank {
+        None => m * n,
+        Some(k) => (m + n) * k,
+    }
+}
+
+/// Words of the tables (row permutation, block table, leaf lists) and of the work buffer (4
+/// a low-rank block for the hit list, then one per rank for z).
+fn table_and_work_words(h: &HMatrix) -> (usize, usize) {
+    let (mut lr, mut ranks) = (0, 0);
+    for b in h.blocks() {
+        if let Some(k) = b.rank.filter(|&k| k > 0) {
+            lr += 1;
+            ranks += k;
+        }
+    }
+    let entries: usize = (0..h.col_leaves()).map(|l| h.leaf_blocks(l).len()).sum();
+    let tables = h.rows() + BLOCK_WORDS * h.blocks().count() + LEAF_ENTRY_WORDS * entries;
+    (tables, (4 * lr + ranks).max(4))
+}
+
+/// Bytes the GPU holds for a hierarchical `L` in one value buffer (the layout
+/// [`Deformer::new`](crate::Deformer::new) makes for [`LData::Hier`](crate::LData::Hier)):
+/// the values in f32 (or half floats, `f16`), the tables (row permutation, 32 bytes a block,
+/// 8 bytes an entry of the column leaves' block lists) and the per-frame work buffer (16
+/// bytes a low-rank block, 4 a rank). A split over several buffers adds at most 16 bytes a
+/// buffer; [`Deformer::l_bytes`](crate::Deformer::l_bytes) is the exact figure. No GPU needed.
+pub fn hier_gpu_bytes(h: &HMatrix, f16: bool) -> u64 {
+    let n = h.stored_values() as u64;
+    let values = if f16 { (2 * n).div_ceil(4) * 4 } else { 4 * n };
+    let (tables, work) = table_and_work_words(h);
+    values.max(16) + 4 * (tables + work) as u64
+}
+
+/// Per block its (value buffer, first element); per buffer its elements.
+type Placement = (Vec<(u32, u32)>, Vec<usize>);
+
+/// Where each block's values go: `(buffer, first element)` per block, and the elements of
+/// each buffer. Greedy in block order; an error if a block exceeds `max_bytes` or the blocks
+/// need more than [`HIER_VALUE_BINDINGS`] buffers.
+fn place_blocks(h: &HMatrix, half: bool, max_bytes: u64) -> Result<Placement, GpuError> {
+    let max_bytes = max_bytes.min(MAX_VALUE_BUFFER);
+    // Half floats: whole words.
+    let cap = if half {
+        max_bytes / 4 * 2
+    } else {
+        max_bytes / 4
+    } as usize;
+    let bytes = |n: usize| if half { 2 * n as u64 } else { 4 * n as u64 };
+    let mut place = Vec::with_capacity(h.blocks().count());
+    let mut lens = vec![0usize];
+    for b in h.blocks() {
+        let n = block_len(&b);
+        if n > cap {
+            return Err(GpuError::BufferTooLarge {
+                what: "one block of the hierarchical L",
+                bytes: bytes(n),
+                limit: max_bytes,
+            });
+        }
+        if lens.last().is_some_and(|&l| l + n > cap) {
+            lens.push(0);
+        }
+        let k = lens.len() - 1;
+        place.push((k as u32, lens[k] as u32));
+        lens[k] += n;
+    }
+    if lens.len() > HIER_VALUE_BINDINGS {
+        return Err(GpuError::BufferTooLarge {
+            what: "the hierarchical L's values (5 storage bindings)",
+            bytes: bytes(h.stored_values()),
+            limit: HIER_VALUE_BINDINGS as u64 * max_bytes,
+        });
+    }
+    Ok((place, lens))
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct HierFrameGpu {
+    base: FrameGpu,
+    perm_off: u32,
+    blocks_off: u32,
+    lb_off: u32,
+    z_off: u32,
+}
+
+/// What the host keeps of a block to list the hits.
+#[derive(Clone, Copy, Debug)]
+struct HostBlock {
+    col_start: u32,
+    col_end: u32,
+    /// [`DENSE`] or k.
+    rank: u32,
+}
+
+/// A hierarchical `L` on the GPU, and the passes that read it.
+pub(super) struct HierPath {
+    half: bool,
+    /// Forces are multiplied by this before upload; the dense blocks and `U` are stored
+    /// divided by it (`V` as is): a power of two near their max |·| for half floats, 1 for f32.
+    force_scale: f32,
+    /// Per column index, its position; per position, its leaf.
+    col_pos: Vec<u32>,
+    col_leaf: Vec<u32>,
+    /// Each leaf's run of `leaf_list` (`leaf_start[l]..leaf_start[l + 1]`).
+    leaf_start: Vec<u32>,
+    leaf_list: Vec<u32>,
+    blocks: Vec<HostBlock>,
+    /// Value buffers (kept alive by the bind group too) and their bytes.
+    values: Vec<wgpu::Buffer>,
+    l_bytes: u64,
+    params: wgpu::Buffer,
+    work: wgpu::Buffer,
+    frame_buf: wgpu::Buffer,
+    out: (wgpu::Buffer, u64, u64),
+    n_rows: usize,
+    group0: wgpu::BindGroup,
+    values_group: wgpu::BindGroup,
+    normals_layout: wgpu::BindGroupLayout,
+    normals_group: wgpu::BindGroup,
+    reduce: wgpu::ComputePipeline,
+    deform: wgpu::ComputePipeline,
+    normals: wgpu::ComputePipeline,
+    max_groups: u32,
+    /// This frame's active entries by column position (position, scaled force).
+    active: Vec<(u32, [f32; 3])>,
+    /// Upload scratch: the `Params` header and active list, the leaves, the hits.
+    head: Vec<[u32; 4]>,
+    leaves: Vec<[u32; 4]>,
+    hits: Vec<[u32; 4]>,
+    n_hits: u32,
+}
+
+impl HierPath {
+    pub(super) fn new(sh: &Shared<'_>, h: &HMatrix) -> Result<HierPath, GpuError> {
+        let (device, queue, nr) = (sh.device, sh.queue, sh.nr);
+        if h.rows() != sh.nl || h.cols() != sh.nc || h.out_rows() > nr {
+            return Err(GpuError::BadInput(format!(
+                "a hierarchical L of {} × {} nodes ({} output rows) for {} rows that hold L of \
+                 {nr} and {} columns",
+                h.rows(),
+                h.cols(),
+                h.out_rows(),
+                sh.nl,
+                sh.nc
+            )));
+        }
+        let limits = device.limits();
+        if limits.max_storage_buffers_per_shader_stage < 3 + HIER_VALUE_BINDINGS as u32 {
+            return Err(GpuError::Unsupported(format!(
+                "a hierarchical L: it needs {} storage buffers per shader stage, the device \
+                 allows {}",
+                3 + HIER_VALUE_BINDINGS,
+                limits.max_storage_buffers_per_shader_stage
+            )));
+        }
+        if limits.max_uniform_buffer_binding_size < PARAMS_BYTES {
+            return Err(GpuError::BufferTooLarge {
+                what: "the hierarchical pass's active lists (one uniform binding)",
+                bytes: PARAMS_BYTES,
+                limit: limits.max_uniform_buffer_binding_size,
+            });
+        }
+        let adj = adjacency(nr, sh.tris);
+        sh.check("triangle list", 4 * sh.index_words)?;
+        sh.check("vertex-triangle adjacency", 4 * adj.len() as u64)?;
+
+        let info: Vec<BlockInfo> = h.blocks().collect();
+        let (place, lens) = place_blocks(h, sh.half, sh.max_chunk)?;
+
+        // Tables: rest positions, row_perm, blocks, leaf lists.
+        let mut z = 0u32;
+        let mut idx: Vec<u32> = Vec::with_capacity(4 * nr + table_and_work_words(h).0);
+        idx.extend(sh.rest_rows.iter().flatten().map(|v| v.to_bits()));
+        let perm_off = idx.len() as u32;
+        idx.extend_from_slice(h.row_perm());
+        let blocks_off = idx.len() as u32;
+        let mut blocks = Vec::with_capacity(info.len());
+        let mut n_lr = 0u32;
+        for (b, &(buf, off)) in info.iter().zip(&place) {
+            let rank = b.rank.map_or(DENSE, |k| k as u32);
+            idx.extend_from_slice(&[
+                b.rows.start as u32,
+                b.rows.len() as u32,
+                b.cols.start as u32,
+                b.cols.len() as u32,
+                rank,
+                buf,
+                off,
+                z,
+            ]);
+            if let Some(k) = b.rank.filter(|&k| k > 0) {
+                z += k as u32;
+                n_lr += 1;
+            }
+            blocks.push(HostBlock {
+                col_start: b.cols.start as u32,
+                col_end: b.cols.end as u32,
+                rank,
+            });
+        }
+        let lb_off = idx.len() as u32;
+        let mut leaf_start = Vec::with_capacity(h.col_leaves() + 1);
+        let mut leaf_list = Vec::new();
+        leaf_start.push(0u32);
+        for l in 0..h.col_leaves() {
+            for &b in h.leaf_blocks(l) {
+                idx.extend_from_slice(&[info[b as usize].rows.start as u32, b]);
+                leaf_list.push(b);
+            }
+            leaf_start.push(leaf_list.len() as u32);
+        }
+        sh.check("the hierarchical L's tables", 4 * idx.len() as u64)?;
+        let idx_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("touchfem hierarchical tables"),
+            contents: bytemuck::cast_slice(&idx),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let work_words = (4 * n_lr + z).max(4) as u64;
+        sh.check("the hierarchical pass's work buffer", 4 * work_words)?;
+        let work = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("touchfem hierarchical hits and z"),
+            size: 4 * work_words,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+
+        // Values, one buffer at a time (the host holds one buffer's f32 copy).
+        let force_scale = if sh.half {
+            let mut max = 0.0f32;
+            for (b, v) in info.iter().map(|b| (b, &h.values()[b.offset..])) {
+                // The dense entries and U, not V (unit columns).
+                let n = match b.rank {
+                    None => block_len(b),
+                    Some(k) => 3 * b.rows.len() * k,
+                };
+                max = v[..n].iter().fold(max, |m, &x| m.max((x as f32).abs()));
+            }
+            touchfem_core::compliance::f16_scale_of_max(max)
+        } else {
+            1.0
+        };
+        let mut values = Vec::with_capacity(lens.len());
+        let mut l_bytes = 4 * (idx.len() as u64 - 4 * nr as u64) + 4 * work_words;
+        let mut staging: Vec<f32> = Vec::new();
+        let mut next = 0;
+        for (k, &len) in lens.iter().enumerate() {
+            staging.clear();
+            staging.reserve(len);
+            while next < info.len() && place[next].0 == k as u32 {
+                let b = &info[next];
+                let v = &h.values()[b.offset..][..block_len(b)];
+                let scaled = match b.rank {
+                    None => v.len(),
+                    Some(k) => 3 * b.rows.len() * k,
+                };
+                let s = f64::from(force_scale);
+                staging.extend(v[..scaled].iter().map(|&x| (x / s) as f32));
+                staging.extend(v[scaled..].iter().map(|&x| x as f32));
+                next += 1;
+            }
+            debug_assert_eq!(staging.len(), len);
+            let packed;
+            let bytes: &[u8] = if sh.half {
+                packed = pack_f16(&staging);
+                bytemuck::cast_slice(&packed)
+            } else {
+                bytemuck::cast_slice(&staging)
+            };
+            let size = (bytes.len() as u64).max(16);
+            let b = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("touchfem hierarchical values"),
+                size,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            if !bytes.is_empty() {
+                queue.write_buffer(&b, 0, bytes);
+                // Flush each buffer's staging copy so that peak memory stays near one buffer.
+                queue.submit([]);
+            }
+            l_bytes += size;
+            values.push(b);
+        }
+        let dummy = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("touchfem unused value binding"),
+            size: 16,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+
+        let frame = HierFrameGpu {
+            base: sh.frame,
+            perm_off,
+            blocks_off,
+            lb_off,
+            z_off: 4 * n_lr,
+        };
+        let frame_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("touchfem hierarchical frame"),
+            contents: bytemuck::bytes_of(&frame),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let params = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("touchfem hierarchical active lists"),
+            size: PARAMS_BYTES,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+
+        let layout0 = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("touchfem hierarchical group 0"),
+            entries: &[
+                uniform_entry(0),
+                uniform_entry(1),
+                storage_entry(2, true),
+                storage_entry(3, false),
+                storage_entry(4, false),
+            ],
+        });
+        let value_entries: Vec<_> = (0..HIER_VALUE_BINDINGS as u32)
+            .map(|b| storage_entry(b, true))
+            .collect();
+        let layout1 = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("touchfem hierarchical values"),
+            entries: &value_entries,
+        });
+        // deform.wgsl's normal pass reads its frame (the first 32 bytes of ours), the output,
+        // the triangles and their adjacency.
+        let normals_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("touchfem hierarchical normals"),
+            entries: &[
+                uniform_entry(0),
+                storage_entry(3, false),
+                storage_entry(4, true),
+                storage_entry(5, true),
+            ],
+        });
+        let (out, out_start, out_size) = sh.out;
+        let out = (out.clone(), out_start, out_size);
+        let frame_bytes = std::mem::size_of::<HierFrameGpu>() as u64;
+        let group0 = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("touchfem hierarchical group 0"),
+            layout: &layout0,
+            entries: &[
+                buffer(0, &frame_buf, 0, frame_bytes),
+                buffer(1, &params, 0, PARAMS_BYTES),
+                buffer(2, &idx_buf, 0, 4 * idx.len() as u64),
+                buffer(3, &out.0, out.1, out.2),
+                buffer(4, &work, 0, 4 * work_words),
+            ],
+        });
+        let value_bindings: Vec<_> = (0..HIER_VALUE_BINDINGS)
+            .map(|k| {
+                let b = values.get(k).unwrap_or(&dummy);
+                buffer(k as u32, b, 0, b.size())
+            })
+            .collect();
+        let values_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("touchfem hierarchical values"),
+            layout: &layout1,
+            entries: &value_bindings,
+        });
+        let normals_group = normals_group(
+            device,
+            &normals_layout,
+            &frame_buf,
+            &out,
+            (sh.index_buffer, sh.index_words),
+            &adj,
+        );
+
+        let source = if sh.half {
+            deform_hier_f16_wgsl().into()
+        } else {
+            DEFORM_HIER_WGSL.into()
+        };
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("touchfem deform_hier.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(source),
+        });
+        let normals_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("touchfem deform.wgsl (normals)"),
+            source: wgpu::ShaderSource::Wgsl(DEFORM_WGSL.into()),
+        });
+        let buffers = ("VALUE_BUFFERS", values.len() as f64);
+        // The deformer's own `Vertex`es carry |u| in position.w (word 3).
+        let with_word = [buffers, ("DISPLACEMENT_WORD", 3.0)];
+        let constants = if sh.vertex_layout {
+            &with_word[..]
+        } else {
+            &with_word[..1]
+        };
+        Ok(HierPath {
+            half: sh.half,
+            force_scale,
+            col_pos: (0..h.cols())
+                .map(|c| h.col_pos(c).expect("a column") as u32)
+                .collect(),
+            col_leaf: (0..h.cols()).map(|p| h.leaf_of(p) as u32).collect(),
+            leaf_start,
+            leaf_list,
+            blocks,
+            values,
+            l_bytes,
+            params,
+            work,
+            frame_buf,
+            out,
+            n_rows: nr,
+            group0,
+            values_group,
+            normals_group,
+            reduce: specialised_pipeline(
+                device,
+                &module,
+                "reduce",
+                &[&layout0, &layout1],
+                0,
+                &with_word[..1],
+            ),
+            deform: specialised_pipeline(
+                device,
+                &module,
+                "deform",
+                &[&layout0, &layout1],
+                0,
+                constants,
+            ),
+            normals: compute_pipeline(device, &normals_module, "normals", &[&normals_layout], 0),
+            normals_layout,
+            max_groups: limits.max_compute_workgroups_per_dimension,
+            active: Vec::with_capacity(MAX_ACTIVE),
+            head: Vec::with_capacity(MAX_ACTIVE + 1),
+            leaves: Vec::with_capacity(MAX_ACTIVE),
+            hits: Vec::with_capacity(n_lr as usize),
+            n_hits: 0,
+        })
+    }
+
+    /// Sorts the active entries by column position, lists the active leaves and the hit
+    /// low-rank blocks (each once, with its run of active entries) and uploads them. `forces`
+    /// is already validated (at most [`MAX_ACTIVE`], columns in range). Allocates nothing.
+    pub(super) fn set_forces(&mut self, queue: &wgpu::Queue, forces: &[(u32, [f32; 3])]) {
+        let s = self.force_scale;
+        self.active.clear();
+        self.active.extend(
+            forces
+                .iter()
+                .map(|&(c, f)| (self.col_pos[c as usize], f.map(|v| v * s))),
+        );
+        self.active.sort_unstable_by_key(|a| a.0);
+        self.leaves.clear();
+        self.hits.clear();
+        let act = &self.active;
+        let mut a = 0;
+        while a < act.len() {
+            let leaf = self.col_leaf[act[a].0 as usize] as usize;
+            let mut e = a + 1;
+            while e < act.len() && self.col_leaf[act[e].0 as usize] as usize == leaf {
+                e += 1;
+            }
+            let (l0, l1) = (self.leaf_start[leaf], self.leaf_start[leaf + 1]);
+            self.leaves.push([l0, l1, a as u32, e as u32]);
+            for &bi in &self.leaf_list[l0 as usize..l1 as usize] {
+                let b = self.blocks[bi as usize];
+                if b.rank == DENSE || b.rank == 0 {
+                    continue;
+                }
+                // Once, at the block's first active leaf (the entries are sorted).
+                if a == 0 || act[a - 1].0 < b.col_start {
+                    let end = a + act[a..].partition_point(|x| x.0 < b.col_end);
+                    self.hits.push([bi, a as u32, end as u32, 0]);
+                }
+            }
+            a = e;
+        }
+        self.n_hits = self.hits.len() as u32;
+        self.head.clear();
+        self.head
+            .push([self.leaves.len() as u32, self.n_hits, 0, 0]);
+        self.head.extend(
+            self.active
+                .iter()
+                .map(|&(p, f)| [f[0].to_bits(), f[1].to_bits(), f[2].to_bits(), p]),
+        );
+        queue.write_buffer(&self.params, 0, bytemuck::cast_slice(&self.head));
+        if !self.leaves.is_empty() {
+            queue.write_buffer(&self.params, LEAVES_AT, bytemuck::cast_slice(&self.leaves));
+        }
+        if !self.hits.is_empty() {
+            queue.write_buffer(&self.work, 0, bytemuck::cast_slice(&self.hits));
+        }
+    }
+
+    /// Records the reduction over the hit blocks (when there are any) and the row pass.
+    pub(super) fn record_deform(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32) {
+        pass.set_bind_group(0, &self.group0, &[]);
+        pass.set_bind_group(1, &self.values_group, &[]);
+        if self.n_hits > 0 {
+            pass.set_pipeline(&self.reduce);
+            pass.dispatch_workgroups(self.n_hits.min(self.max_groups), 1, 1);
+        }
+        pass.set_pipeline(&self.deform);
+        pass.dispatch_workgroups(n_rows.div_ceil(WORKGROUP), 1, 1);
+    }
+
+    /// Records the normal pass.
+    pub(super) fn record_normals(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32) {
+        pass.set_pipeline(&self.normals);
+        pass.set_bind_group(0, &self.normals_group, &[]);
+        pass.dispatch_workgroups(n_rows.div_ceil(WORKGROUP), 1, 1);
+    }
+
+    /// Takes new triangles (row indices, checked): rebuilds the normal pass's adjacency.
+    pub(super) fn set_triangles(
+        &mut self,
+        device: &wgpu::Device,
+        tris: &[[u32; 3]],
+        index: (&wgpu::Buffer, u64),
+        max_binding: u64,
+    ) -> Result<(), GpuError> {
+        let adj = adjacency(self.n_rows, tris);
+        for (what, bytes) in [
+            ("triangle list", 4 * index.1),
+            ("vertex-triangle adjacency", 4 * adj.len() as u64),
+        ] {
+            if bytes > max_binding {
+                return Err(GpuError::BufferTooLarge {
+                    what,
+                    bytes,
+                    limit: max_binding,
+                });
+            }
+        }
+        self.normals_group = normals_group(
+            device,
+            &self.normals_layout,
+            &self.frame_buf,
+            &self.out,
+            index,
+            &adj,
+        );
+        Ok(())
+    }
+
+    /// Whether the values are half floats.
+    pub(super) fn half(&self) -> bool {
+        self.half
+    }
+
+    /// Storage buffers holding the values.
+    pub(super) fn value_buffers(&self) -> usize {
+        self.values.len()
+    }
+
+    /// Bytes the GPU holds for `L`: values, tables, work buffer.
+    pub(super) fn l_bytes(&self) -> u64 {
+        self.l_bytes
+    }
+}
+
+/// The normal pass's group: frame, output, triangles and their adjacency (uploaded here).
+fn normals_group(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    frame: &wgpu::Buffer,
+    out: &(wgpu::Buffer, u64, u64),
+    index: (&wgpu::Buffer, u64),
+    adj: &[u32],
+) -> wgpu::BindGroup {
+    let adj_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("touchfem vertex-triangle CSR"),
+        contents: bytemuck::cast_slice(adj),
+        usage: wgpu::BufferUsages::STORAGE,
+    });
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("touchfem hierarchical normals"),
+        layout,
+        entries: &[
+            buffer(0, frame, 0, frame.size()),
+            buffer(3, &out.0, out.1, out.2),
+            buffer(4, index.0, 0, 4 * index.1),
+            buffer(5, &adj_buf, 0, 4 * adj.len() as u64),
+        ],
+    })
+}
