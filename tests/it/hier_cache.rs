@@ -628,3 +628,102 @@ fn hostile_files_are_typed_errors() {
     // The good file still loads (nothing above touched it).
     assert!(cache::load(&f.path, f.key, f.nodes).is_ok());
 }
+
+fn run(args: &[String]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args(args)
+        .output()
+        .expect("runs")
+}
+
+fn ok_json(o: &std::process::Output) -> serde_json::Value {
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&o.stdout).expect("one JSON object")
+}
+
+/// `touchfem precompute --tolerance EPS`: the JSON's `tolerance` (null when dense), a file the
+/// library loads under `key_hier`, and `--shard`/`--merge` byte-equal to the unsharded file;
+/// bad tolerances are clear errors.
+#[test]
+fn cli_precompute_with_a_tolerance() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |n: &str| dir.path().join(n).to_string_lossy().into_owned();
+    let args = |extra: &[&str]| -> Vec<String> {
+        ["precompute", "mouse", "--tolerance", "1e-3", "--json"]
+            .iter()
+            .chain(extra)
+            .map(|s| s.to_string())
+            .collect()
+    };
+    // The unsharded file and both shards at once (separate processes).
+    let runs = [
+        args(&["--out", &d("full.tfc")]),
+        args(&["--shard", "1/2", "--out", &d("p1.tfc")]),
+        args(&["--shard", "2/2", "--out", &d("p2.tfc")]),
+    ];
+    let outs: Vec<_> = std::thread::scope(|s| {
+        let hs: Vec<_> = runs.iter().map(|a| s.spawn(move || run(a))).collect();
+        hs.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    let v = ok_json(&outs[0]);
+    assert_eq!(v["tolerance"].as_f64(), Some(1e-3));
+    assert_eq!(v["objects"][0]["tolerance"].as_f64(), Some(1e-3));
+    let full = Path::new(&d("full.tfc")).to_path_buf();
+    let len = std::fs::metadata(&full).unwrap().len();
+    assert_eq!(v["bytes"].as_u64(), Some(len));
+    let panels = v["objects"][0]["panels"][2].as_u64().unwrap();
+    assert!(panels >= 2, "{panels} panels");
+    for (i, o) in outs[1..].iter().enumerate() {
+        let v = ok_json(o);
+        assert_eq!(v["shard"], serde_json::json!([i + 1, 2]));
+        assert_eq!(v["tolerance"].as_f64(), Some(1e-3));
+    }
+    // The library reads it under the hierarchical key of the default options.
+    let m = touchfem::mesh::mouse();
+    let sel = Selection::default();
+    let k = cache::key_hier(&m, &sel, &HOptions::new(1e-3));
+    let c = cache::load(&full, k, m.nodes.len()).expect("loads");
+    assert!(c.hier().is_some());
+    assert_eq!(v["rows"].as_u64(), Some(c.rows().len() as u64));
+    assert_eq!(v["cols"].as_u64(), Some(c.cols().len() as u64));
+    // Merged (parts in any order): byte for byte the unsharded file.
+    let o = run(&[
+        "precompute".into(),
+        "--merge".into(),
+        d("p2.tfc"),
+        d("p1.tfc"),
+        "--out".into(),
+        d("merged.tfc"),
+        "--json".into(),
+    ]);
+    let v = ok_json(&o);
+    assert_eq!(v["tolerance"].as_f64(), Some(1e-3));
+    assert_eq!(v["bytes"].as_u64(), Some(len));
+    same_bytes(Path::new(&d("merged.tfc")), &full);
+    // Dense: `tolerance` is null.
+    let o = run(&[
+        "precompute".into(),
+        "cube".into(),
+        "--out".into(),
+        d("cube.tfc"),
+        "--json".into(),
+    ]);
+    let v = ok_json(&o);
+    assert!(v["tolerance"].is_null(), "{v}");
+    assert!(v["objects"][0]["tolerance"].is_null(), "{v}");
+    // Bad tolerances: exit 2, the flag named, no panic.
+    for bad in ["0", "1", "-1e-3", "nan", "abc", "1e400"] {
+        let o = run(&[
+            "precompute".into(),
+            "cube".into(),
+            "--tolerance".into(),
+            bad.into(),
+            "--out".into(),
+            d("x.tfc"),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{bad}: {err}");
+        assert!(err.contains("--tolerance"), "{bad}: {err}");
+        assert!(!err.contains("panicked"), "{bad}: {err}");
+    }
+}
