@@ -174,10 +174,8 @@ impl Header {
                 "panels {}..{} of {}",
                 self.panel_begin, self.panel_end, self.panels
             ))
-        } else if let Err(e) = check_opts(&self.opts) {
-            Some(e)
         } else {
-            None
+            check_opts(&self.opts).err()
         }
     }
 
