@@ -21,6 +21,7 @@ mod gram;
 mod haptics;
 mod hard_cases;
 mod hier;
+mod hier_cache;
 mod ladder;
 mod locking_free;
 mod mesh_io;

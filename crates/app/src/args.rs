@@ -79,9 +79,23 @@ pub struct PrecomputeArgs {
     /// Join these shard files into --out (equal to the unsharded file).
     #[arg(long, num_args = 1.., conflicts_with_all = ["scene", "shard"], requires = "out")]
     pub merge: Vec<PathBuf>,
-    /// Print one JSON object (`seconds`, `rows`, `cols`, `bytes`, ...).
+    /// Store L compressed (hierarchical) to this relative tolerance, 0 < EPS < 1, in the
+    /// compressed cache format; shards are runs of panels. Without it L stays dense.
+    #[arg(long, value_name = "EPS", value_parser = parse_tolerance, allow_hyphen_values = true, conflicts_with = "merge")]
+    pub tolerance: Option<f64>,
+    /// Print one JSON object (`seconds`, `rows`, `cols`, `bytes`, `tolerance`, ...).
     #[arg(long)]
     pub json: bool,
+}
+
+/// Parses a compression tolerance: a number in (0, 1).
+pub fn parse_tolerance(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v > 0.0 && v < 1.0 => Ok(v),
+        _ => Err(format!(
+            "expected a tolerance between 0 and 1 (exclusive), e.g. 1e-3, got '{s}'"
+        )),
+    }
 }
 
 /// Parses "I/N" (1 ≤ I ≤ N ≤ 65536) into a shard index and count.

@@ -1,5 +1,6 @@
 //! `touchfem precompute`: a scene's or mesh's compliance into cache files, with a progress bar,
-//! shards and merging; Ctrl-C keeps the finished batches for a resume.
+//! shards and merging; Ctrl-C keeps the finished batches for a resume (dense only: a compressed
+//! precompute, `--tolerance`, is not resumable and Ctrl-C ends it).
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -8,7 +9,8 @@ use std::time::Instant;
 use crate::error::Error;
 use touchfem_core::cache;
 use touchfem_core::compliance::Selection;
-use touchfem_core::precompute::precompute_to_file;
+use touchfem_core::hmatrix::HOptions;
+use touchfem_core::precompute::precompute_to_file_with;
 use touchfem_core::scene::file::{cache_dir, cache_file, PlannedObject};
 use touchfem_core::scene::{SceneSource, World};
 
@@ -46,11 +48,16 @@ fn objects(args: &PrecomputeArgs, spec: &str) -> Result<Vec<PlannedObject>, Erro
 /// the same command again resumes from them.
 pub fn command(args: &PrecomputeArgs) -> Result<(), Error> {
     let t0 = Instant::now();
-    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
-    unsafe {
-        let h = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
-        libc::signal(libc::SIGINT, h);
-        libc::signal(libc::SIGTERM, h);
+    let compression = args.tolerance.map(HOptions::new);
+    // A compressed precompute is not resumable: Ctrl-C ends it as usual (its file is written
+    // atomically, so nothing half-written is left under the name).
+    if compression.is_none() {
+        // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+        unsafe {
+            let h = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
+            libc::signal(libc::SIGINT, h);
+            libc::signal(libc::SIGTERM, h);
+        }
     }
     if !args.merge.is_empty() {
         let out = args
@@ -64,7 +71,7 @@ pub fn command(args: &PrecomputeArgs) -> Result<(), Error> {
                 "{}",
                 serde_json::json!({
                     "seconds": seconds, "rows": m.rows, "cols": m.cols, "bytes": m.bytes,
-                    "parts": args.merge.len(), "file": out,
+                    "tolerance": m.tolerance, "parts": args.merge.len(), "file": out,
                 })
             );
         } else {
@@ -95,22 +102,28 @@ pub fn command(args: &PrecomputeArgs) -> Result<(), Error> {
     };
     let mut reports = Vec::new();
     for o in &objs {
+        // A compressed file has its own key (and so its own cache file name).
+        let key = match &compression {
+            Some(opts) => cache::key_hier(&o.mesh, &o.selection, opts),
+            None => o.key,
+        };
         let out = match (&args.out, objs.len()) {
             (Some(f), 1) => f.clone(),
-            (Some(dir), _) => suffix(cache_file(dir, &o.name, o.key)),
+            (Some(dir), _) => suffix(cache_file(dir, &o.name, key)),
             (None, _) => {
                 let dir = cache_dir().ok_or_else(|| {
                     Error::Input(
                         "caching is off (TOUCHFEM_CACHE_DIR is empty): give --out FILE".into(),
                     )
                 })?;
-                suffix(cache_file(&dir, &o.name, o.key))
+                suffix(cache_file(&dir, &o.name, key))
             }
         };
         let bar = progress_bar(o.mesh.nodes.len());
-        let r = precompute_to_file(
+        let r = precompute_to_file_with(
             &o.mesh,
             &o.selection,
+            compression.as_ref(),
             &out,
             shard,
             &mut |done, total| {
@@ -120,7 +133,17 @@ pub fn command(args: &PrecomputeArgs) -> Result<(), Error> {
             &INTERRUPTED,
         )?;
         bar.finish_and_clear();
-        if !args.json {
+        if let (false, Some([p0, p1, np]), Some(eps)) = (args.json, r.panels, r.tolerance) {
+            println!(
+                "{}: {} rows × {} columns compressed to {eps:e}, panels {p0}..{p1} of {np}, in {:.2} s ({:.1} MB) -> {}",
+                o.name,
+                r.rows,
+                r.cols,
+                r.seconds,
+                r.bytes as f64 / 1e6,
+                r.file.display()
+            );
+        } else if !args.json {
             println!(
                 "{}: {} rows × columns {}..{} of {} in {:.2} s ({:.0} MB) -> {}",
                 o.name,
@@ -141,6 +164,7 @@ pub fn command(args: &PrecomputeArgs) -> Result<(), Error> {
             "rows": reports.iter().map(|r| r.rows).sum::<usize>(),
             "cols": reports.iter().map(|r| r.cols).sum::<usize>(),
             "bytes": reports.iter().map(|r| r.bytes).sum::<u64>(),
+            "tolerance": args.tolerance,
             "shard": [shard.0, shard.1],
             "objects": reports,
             "units": {"seconds": "s", "bytes": "B"},

@@ -22,6 +22,10 @@
 //! batch sums   one u64 per batch of the range: xxh3 of that batch's L bytes
 //! checksum     u64      xxh3 of header + lists + batch sums
 //! ```
+//! A hierarchical compliance (`L` compressed to a tolerance) is stored in format version 4 with
+//! the same magic ([`hier`]); [`load`], [`save`], [`load_near`] and [`merge`] dispatch on the
+//! version. Version 3 is unchanged: with no tolerance `L` stays dense, bit for bit.
+//!
 //! Every file is self-describing (the key names the mesh, material and selection), so a merge of
 //! parts made for different meshes, materials or selections is refused ([`CacheError::Mismatch`]).
 //! A missing, stale (other key), truncated or corrupt (bad checksum) file is reported as a
@@ -29,85 +33,30 @@
 //! Files are written to a unique temporary name, synced, renamed, and the directory synced.
 
 use std::path::{Path, PathBuf};
-use thiserror::Error;
 use xxhash_rust::xxh3::{xxh3_64, Xxh3};
 
+mod atomic;
+mod error;
+pub mod hier;
+
+pub use atomic::write_atomic;
+pub(crate) use atomic::AtomicFile;
+use atomic::{sync_dir, unique_tmp};
+pub use error::CacheError;
+
 use crate::compliance::{Compliance, Selection, BATCH_COLS};
+use crate::hmatrix::HOptions;
 use crate::mesh::Mesh;
 use crate::near::NearBlocks;
 
-const MAGIC: &[u8; 8] = b"TFEMCMP\0";
-/// The cache format version this build reads and writes.
+const MAGIC: &[u8; 8] = hier::MAGIC;
+/// The dense cache format's version (the compressed one is [`hier::FORMAT_VERSION`]).
 pub(crate) const FORMAT_VERSION: u32 = 3;
 const HEADER: usize = 72;
 /// Version of what [`key`] hashes (not of the file layout, which the header's version names):
 /// scene hashes and recorded sessions include the key, so it changes only when the hashed
 /// content does.
 const KEY_VERSION: u32 = 1;
-
-/// Why a cache file was not used.
-#[derive(Debug, Error)]
-pub enum CacheError {
-    /// No file, or it cannot be read or written.
-    #[error("cache {path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The OS error.
-        source: std::io::Error,
-    },
-    /// Not a touchfem cache, or another format version or precision.
-    #[error("cache {path}: {msg}")]
-    Format {
-        /// The file.
-        path: PathBuf,
-        /// What is wrong.
-        msg: String,
-    },
-    /// Made for another mesh, material, clamp set or selection.
-    #[error("cache {path} is stale (made for another mesh, material or selection)")]
-    Stale {
-        /// The file.
-        path: PathBuf,
-    },
-    /// Shorter than its header says.
-    #[error("cache {path} is truncated ({len} bytes, expected {expected})")]
-    Truncated {
-        /// The file.
-        path: PathBuf,
-        /// Its length.
-        len: usize,
-        /// The length the header implies.
-        expected: usize,
-    },
-    /// The checksum does not match, or the header's sizes contradict each other.
-    #[error("cache {path} is corrupt ({why})")]
-    Corrupt {
-        /// The file.
-        path: PathBuf,
-        /// What is wrong ("checksum mismatch", or the header's inconsistency).
-        why: String,
-    },
-    /// A shard (part of the columns) where a complete file is needed.
-    #[error("{path} is part {index} of {count} of a sharded precompute: merge the parts first (touchfem precompute --merge)")]
-    Partial {
-        /// The file.
-        path: PathBuf,
-        /// Its shard index (1-based).
-        index: u32,
-        /// The shard count.
-        count: u32,
-    },
-    /// Parts that do not belong together (another mesh, material or selection; a missing,
-    /// repeated or overlapping part).
-    #[error("cannot merge {path}: {msg}")]
-    Mismatch {
-        /// The offending part.
-        path: PathBuf,
-        /// What does not match.
-        msg: String,
-    },
-}
 
 /// What happened when loading through the cache.
 #[derive(Debug)]
@@ -132,103 +81,6 @@ impl CacheOutcome {
             )),
         }
     }
-}
-
-/// A temporary file name next to `path`, unique to this process, thread and call.
-fn unique_tmp(path: &Path) -> std::path::PathBuf {
-    use std::sync::atomic::{AtomicU64, Ordering};
-    static N: AtomicU64 = AtomicU64::new(0);
-    let n = N.fetch_add(1, Ordering::Relaxed);
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.subsec_nanos());
-    let mut name = path.file_name().unwrap_or_default().to_os_string();
-    name.push(format!(".{}.{n}.{nanos:08x}.tmp", std::process::id()));
-    path.with_file_name(name)
-}
-
-/// A file written under a temporary name next to its final one and renamed over it only when
-/// complete ([`AtomicFile::commit`]), so that nothing truncates or half-writes the file it
-/// replaces; dropped without a commit, the temporary is removed and the old file is untouched.
-/// A target that exists and is not a regular file (a device such as `/dev/null`, a pipe) is
-/// written in place; a symbolic link's target is replaced, the link kept.
-pub(crate) struct AtomicFile {
-    path: PathBuf,
-    tmp: Option<PathBuf>,
-    file: std::fs::File,
-    committed: bool,
-}
-
-impl AtomicFile {
-    /// Starts writing `path` (its directory must exist).
-    pub fn create(path: &Path) -> std::io::Result<AtomicFile> {
-        let (path, in_place) = match std::fs::metadata(path) {
-            Ok(m) if !m.is_file() => (path.to_path_buf(), true),
-            // Replace what a link points to, not the link.
-            Ok(_) => (
-                std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf()),
-                false,
-            ),
-            Err(_) => (path.to_path_buf(), false),
-        };
-        if in_place {
-            let file = std::fs::OpenOptions::new().write(true).open(&path)?;
-            return Ok(AtomicFile {
-                path,
-                tmp: None,
-                file,
-                committed: false,
-            });
-        }
-        let tmp = unique_tmp(&path);
-        let file = std::fs::File::create_new(&tmp)?;
-        Ok(AtomicFile {
-            path,
-            tmp: Some(tmp),
-            file,
-            committed: false,
-        })
-    }
-
-    /// Syncs the file and renames it to its final name (then syncs the directory).
-    pub fn commit(mut self) -> std::io::Result<()> {
-        use std::io::Write;
-        self.file.flush()?;
-        if let Some(tmp) = &self.tmp {
-            self.file.sync_all()?;
-            std::fs::rename(tmp, &self.path)?;
-            self.committed = true;
-            sync_dir(&self.path)?;
-        }
-        self.committed = true;
-        Ok(())
-    }
-}
-
-impl std::io::Write for AtomicFile {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        self.file.write(buf)
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        self.file.flush()
-    }
-}
-
-impl Drop for AtomicFile {
-    fn drop(&mut self) {
-        if let (false, Some(tmp)) = (self.committed, &self.tmp) {
-            let _ = std::fs::remove_file(tmp);
-        }
-    }
-}
-
-/// Writes `bytes` to `path` through an `AtomicFile`: `path` holds either its old content or
-/// all of `bytes`, never a part.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    use std::io::Write;
-    let mut f = AtomicFile::create(path)?;
-    f.write_all(bytes)?;
-    f.commit()
 }
 
 /// The hash that a cache file must match: mesh geometry and topology, material, regions (each
@@ -283,6 +135,20 @@ pub fn key(mesh: &Mesh, sel: &Selection) -> u64 {
             h.update(&n.to_le_bytes());
         }
     }
+    h.digest()
+}
+
+/// The key of a compressed (hierarchical) cache file: [`key`]'s content, a tag that keeps it
+/// from ever equalling the dense key, and every compression option (tolerance, admissibility,
+/// leaf and panel sizes), so that a file made with other options is stale.
+pub fn key_hier(mesh: &Mesh, sel: &Selection, opts: &HOptions) -> u64 {
+    let mut h = Xxh3::new();
+    h.update(b"touchfem hierarchical compliance|");
+    h.update(&key(mesh, sel).to_le_bytes());
+    h.update(&opts.tolerance.to_bits().to_le_bytes());
+    h.update(&opts.eta.to_bits().to_le_bytes());
+    h.update(&(opts.leaf_size as u64).to_le_bytes());
+    h.update(&(opts.panel_size as u64).to_le_bytes());
     h.digest()
 }
 
@@ -421,14 +287,6 @@ pub(crate) struct Writer {
     lists: Vec<u8>,
     sums: std::sync::Mutex<Vec<Option<u64>>>,
     done: bool,
-}
-
-fn sync_dir(path: &Path) -> std::io::Result<()> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    std::fs::File::open(dir)?.sync_all()
 }
 
 /// Asks the kernel to start writing `len` bytes at `off` to disk now, without waiting, so
@@ -723,8 +581,12 @@ impl Drop for Writer {
 }
 
 /// Writes a complete compliance to `path` (atomically: a unique temporary file, synced, then a
-/// rename and a sync of the directory).
+/// rename and a sync of the directory): a dense one as version 3, a hierarchical one
+/// ([`Compliance::hier`]) as version 4 ([`hier`]).
 pub fn save(path: &Path, c: &Compliance, key: u64, n_nodes: usize) -> Result<(), CacheError> {
+    if c.hier().is_some() {
+        return hier::save(path, c, key, n_nodes).map(|_| ());
+    }
     let nr = c.l_rows();
     let nc = c.cols().len();
     let head = Header {
@@ -808,7 +670,7 @@ impl Part {
         if version != FORMAT_VERSION {
             return Err(CacheError::Format {
                 path: p(),
-                msg: format!("format version {version}, this build reads {FORMAT_VERSION}"),
+                msg: format!("format version {version}, expected {FORMAT_VERSION} (dense)"),
             });
         }
         if u32_at(&hb, 12) != 8 {
@@ -998,12 +860,16 @@ impl crate::compliance::LSource for FileL {
 /// batch is read, checked and dropped, keeping only the blocks of the near pairs of
 /// `triangles` ([`NearBlocks::pairs`]) for the haptic path; the deformer reads `L` from the
 /// file again ([`Compliance::stored_l`]).
+/// A compressed (version 4) file is loaded whole ([`hier::load`]): it is small.
 pub fn load_near(
     path: &Path,
     expected_key: u64,
     n_nodes: usize,
     triangles: &[[u32; 3]],
 ) -> Result<Compliance, CacheError> {
+    if hier::is_compressed(path) {
+        return hier::load(path, expected_key, n_nodes);
+    }
     load_near_part(Part::open(path)?, expected_key, n_nodes, triangles)
 }
 
@@ -1091,8 +957,12 @@ fn check_complete(part: &Part, expected_key: u64, n_nodes: usize) -> Result<(), 
 
 /// Reads a complete compliance from `path`, checking magic, version, precision, key, length,
 /// checksums and that it is not a shard. Streams L into memory batch by batch (no second copy
-/// of the file).
+/// of the file). A compressed (version 4) file gives a hierarchical compliance
+/// ([`hier::load`]).
 pub fn load(path: &Path, expected_key: u64, n_nodes: usize) -> Result<Compliance, CacheError> {
+    if hier::is_compressed(path) {
+        return hier::load(path, expected_key, n_nodes);
+    }
     let part = Part::open(path)?;
     check_complete(&part, expected_key, n_nodes)?;
     let h = &part.head;
@@ -1128,13 +998,24 @@ pub struct MergeInfo {
     pub cols: usize,
     /// Bytes of the merged file.
     pub bytes: u64,
+    /// The compression tolerance of compressed (version 4) parts; `None` for dense ones.
+    pub tolerance: Option<f64>,
 }
 
 /// Joins the shards `parts` (any order) into one complete file at `out`, equal byte for byte to
 /// the unsharded precompute. Refuses parts made for another mesh, material or selection, and a
 /// missing, repeated or overlapping part ([`CacheError::Mismatch`]); checks every batch's
-/// checksum while copying.
+/// checksum while copying. Compressed (version 4) parts are merged by [`hier::merge`].
 pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeInfo, CacheError> {
+    if parts.first().is_some_and(|p| hier::is_compressed(p)) {
+        let (h, bytes) = hier::merge(parts, out)?;
+        return Ok(MergeInfo {
+            rows: h.rows as usize,
+            cols: h.cols as usize,
+            bytes,
+            tolerance: Some(h.opts.tolerance),
+        });
+    }
     let mut opened = parts
         .iter()
         .map(|p| Part::open(p))
@@ -1240,6 +1121,7 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeInfo, CacheError> {
         rows: rows0.len(),
         cols: cols0.len(),
         bytes,
+        tolerance: None,
     })
 }
 
@@ -1257,6 +1139,31 @@ pub fn load_or_compute(
     mesh: &Mesh,
     sel: &Selection,
 ) -> Result<(Compliance, CacheOutcome), crate::Error> {
+    load_or_compute_with(path, mesh, sel, None)
+}
+
+/// As [`load_or_compute`]; with `compression`, `L` is stored hierarchically to its tolerance:
+/// a compressed (version 4) file with [`key_hier`]'s key is loaded, or the compliance is
+/// computed with [`Compliance::compute_hier`] and saved as one. `None`: the dense cache.
+pub fn load_or_compute_with(
+    path: &Path,
+    mesh: &Mesh,
+    sel: &Selection,
+    compression: Option<&HOptions>,
+) -> Result<(Compliance, CacheOutcome), crate::Error> {
+    if let Some(opts) = compression {
+        let k = key_hier(mesh, sel, opts);
+        return match load(path, k, mesh.nodes.len()) {
+            Ok(c) => Ok((c, CacheOutcome::Hit)),
+            Err(why) => {
+                let c = Compliance::compute_hier(mesh, sel, opts, &mut |_, _| {})?;
+                match save(path, &c, k, mesh.nodes.len()) {
+                    Ok(()) => Ok((c, CacheOutcome::Recomputed(why))),
+                    Err(e) => Ok((c, CacheOutcome::NotSaved(why, e))),
+                }
+            }
+        };
+    }
     let k = key(mesh, sel);
     match load(path, k, mesh.nodes.len()) {
         Ok(c) => Ok((c, CacheOutcome::Hit)),

@@ -1,13 +1,16 @@
 //! `touchfem precompute`: the compliance a scene needs, streamed batch by batch into a cache
 //! file (never the whole L in memory), optionally one shard of the columns at a time so that
-//! several machines share the work, and the merge of the shards.
+//! several machines share the work, and the merge of the shards. With a compression tolerance
+//! ([`precompute_to_file_with`]) `L` is built hierarchically panel by panel and written in the
+//! compressed format (version 4, [`cache::hier`]); a shard is a run of panels.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use crate::cache::{self, CacheError, Header, Writer};
-use crate::compliance::{ColumnPlan, PhaseTimes, Selection, BATCH_COLS};
+use crate::compliance::{ColumnPlan, Compliance, PhaseTimes, Selection, BATCH_COLS};
+use crate::hmatrix::HOptions;
 use crate::{Error, Mesh};
 
 /// What one precompute wrote.
@@ -21,10 +24,15 @@ pub struct Report {
     pub rows: usize,
     /// Touchable nodes C (all of them; a shard holds `col_end − col_begin`).
     pub cols: usize,
-    /// First column held.
+    /// First column held (compressed: 0).
     pub col_begin: usize,
-    /// One past the last column held.
+    /// One past the last column held (compressed: the number of columns its panels hold,
+    /// which are not a contiguous run of column indices).
     pub col_end: usize,
+    /// The compression tolerance ε; `None` (JSON `null`) for a dense file.
+    pub tolerance: Option<f64>,
+    /// Compressed: the panels held, `[begin, end, total]`; `None` for a dense file.
+    pub panels: Option<[usize; 3]>,
     /// Bytes of the file.
     pub bytes: u64,
     /// max |K·x − e| over the checked columns.
@@ -53,8 +61,65 @@ pub fn precompute_to_file(
     progress: &mut dyn FnMut(usize, usize),
     stop: &AtomicBool,
 ) -> Result<Report, Error> {
-    precompute_until(mesh, sel, out, shard, progress, &|_| {
-        stop.load(Ordering::Relaxed)
+    precompute_to_file_with(mesh, sel, None, out, shard, progress, stop)
+}
+
+/// As [`precompute_to_file`]; with `compression`, `L` is built hierarchically to its tolerance
+/// ([`Compliance::compute_hier_parts`]) and written as a compressed (version 4) file whose key
+/// is [`cache::key_hier`]: shard `(I, N)` holds the panels [`crate::compliance::shard_panels`]
+/// gives it, and [`cache::merge`] joins the shards into a file equal byte for byte to the
+/// unsharded one. A compressed precompute is not resumable: `stop` is not consulted (the
+/// caller may simply end the process; the file is written atomically, so nothing half-written
+/// is left under its name).
+pub fn precompute_to_file_with(
+    mesh: &Mesh,
+    sel: &Selection,
+    compression: Option<&HOptions>,
+    out: &Path,
+    shard: (usize, usize),
+    progress: &mut dyn FnMut(usize, usize),
+    stop: &AtomicBool,
+) -> Result<Report, Error> {
+    let Some(opts) = compression else {
+        return precompute_until(mesh, sel, out, shard, progress, &|_| {
+            stop.load(Ordering::Relaxed)
+        });
+    };
+    let t0 = Instant::now();
+    if shard.0 == 0 || shard.0 > shard.1 {
+        return Err(Error::Input(format!(
+            "shard {} of {}: expected 1 <= I <= N",
+            shard.0, shard.1
+        )));
+    }
+    let parts = Compliance::compute_hier_parts(
+        mesh,
+        sel,
+        crate::compliance::method(),
+        &crate::compliance::factor_store(),
+        opts,
+        shard,
+        progress,
+    )?;
+    let key = cache::key_hier(mesh, sel, opts);
+    let ts = Instant::now();
+    let bytes = cache::hier::write_parts(out, &parts, key, mesh.nodes.len(), shard)?;
+    let mut phases = parts.stats.phases.clone();
+    phases.sync_s = ts.elapsed().as_secs_f64();
+    let range = crate::compliance::shard_panels(parts.plan.panels(), shard.0, shard.1);
+    let held: usize = range.clone().map(|p| parts.plan.panel_cols(p).len()).sum();
+    Ok(Report {
+        file: out.to_path_buf(),
+        seconds: t0.elapsed().as_secs_f64(),
+        rows: parts.rows.len(),
+        cols: parts.cols.len(),
+        col_begin: 0,
+        col_end: held,
+        tolerance: Some(opts.tolerance),
+        panels: Some([range.start, range.end, parts.plan.panels()]),
+        bytes,
+        residual: parts.stats.residual,
+        phases,
     })
 }
 
@@ -198,6 +263,8 @@ pub fn precompute_until(
         cols: nc,
         col_begin,
         col_end,
+        tolerance: None,
+        panels: None,
         bytes,
         residual,
         phases,

@@ -213,6 +213,12 @@ pub struct HMatrix {
     leaf_blocks: Vec<u32>,
     norm_sq: f64,
     discarded_sq: f64,
+    /// The points it was planned from (rows, then columns), so that it can be saved.
+    row_points: Vec<DVec3>,
+    col_points: Vec<DVec3>,
+    /// Each panel's run of `blocks` and its `(norm_sq, discarded_sq)`.
+    panel_runs: Vec<Range<u32>>,
+    panel_norms: Vec<(f64, f64)>,
 }
 
 /// The layout of an [`HMatrix`] before its values: the cluster trees, the block partition in
@@ -231,6 +237,8 @@ pub struct HPlan {
     panels: Vec<Range<u32>>,
     /// Each panel's run of `pairs`.
     panel_pairs: Vec<Range<usize>>,
+    row_points: Vec<DVec3>,
+    col_points: Vec<DVec3>,
 }
 
 /// One panel's blocks, compressed ([`HPlan::compress_panel`]): a shard's unit of work, joined
@@ -316,7 +324,22 @@ impl HPlan {
             pairs,
             panels,
             panel_pairs,
+            row_points: row_points.to_vec(),
+            col_points: col_points.to_vec(),
         })
+    }
+
+    /// The row points it was planned from.
+    pub fn row_points(&self) -> &[DVec3] {
+        &self.row_points
+    }
+    /// The column points it was planned from.
+    pub fn col_points(&self) -> &[DVec3] {
+        &self.col_points
+    }
+    /// Blocks of panel `p` (`None` out of range).
+    pub fn panel_blocks(&self, p: usize) -> Option<usize> {
+        self.panel_pairs.get(p).map(|r| r.len())
     }
 
     /// The options.
@@ -489,6 +512,10 @@ impl HMatrix {
             discarded_sq: 0.0,
             row_perm: Vec::new(),
             col_perm: Vec::new(),
+            row_points: Vec::new(),
+            col_points: Vec::new(),
+            panel_runs: Vec::with_capacity(panels.len()),
+            panel_norms: Vec::with_capacity(panels.len()),
         };
         for (p, panel) in panels.into_iter().enumerate() {
             let run = plan.panel_pairs[p].clone();
@@ -515,6 +542,9 @@ impl HMatrix {
                 return Err(HError::NonFinite);
             }
             let (base, mut local) = (h.data.len(), 0);
+            h.panel_runs
+                .push(h.blocks.len() as u32..(h.blocks.len() + run.len()) as u32);
+            h.panel_norms.push((panel.norm_sq, panel.discarded_sq));
             for (i, &rank) in run.zip(&panel.ranks) {
                 let (rows, cols, far) = plan.pairs[i].clone();
                 h.blocks.push(Block {
@@ -538,6 +568,8 @@ impl HMatrix {
         }
         h.row_perm = plan.row_perm;
         h.col_perm = plan.col_perm;
+        h.row_points = plan.row_points;
+        h.col_points = plan.col_points;
         h.index_columns(&plan.col_leaves);
         Ok(h)
     }
@@ -681,6 +713,38 @@ impl HMatrix {
     /// The options it was built with.
     pub fn options(&self) -> &HOptions {
         &self.opts
+    }
+    /// The row points it was planned from ([`HPlan::new`]).
+    pub fn row_points(&self) -> &[DVec3] {
+        &self.row_points
+    }
+    /// The column points it was planned from ([`HPlan::new`]).
+    pub fn col_points(&self) -> &[DVec3] {
+        &self.col_points
+    }
+    /// Number of panels it was joined from.
+    pub fn panels(&self) -> usize {
+        self.panel_runs.len()
+    }
+    /// Panel `p` as [`HMatrix::from_panels`] took it (a copy of its values), so that a plan
+    /// rebuilt from the same points and options joins the panels into an equal matrix;
+    /// `None` out of range.
+    pub fn panel(&self, p: usize) -> Option<Panel> {
+        let run = self.panel_runs.get(p)?;
+        let blocks = &self.blocks[run.start as usize..run.end as usize];
+        let (start, end) = match (blocks.first(), self.blocks.get(run.end as usize)) {
+            (None, _) => (0, 0),
+            (Some(b), Some(next)) => (b.offset, next.offset),
+            (Some(b), None) => (b.offset, self.data.len()),
+        };
+        let (norm_sq, discarded_sq) = self.panel_norms[p];
+        Some(Panel {
+            index: p,
+            ranks: blocks.iter().map(|b| b.rank).collect(),
+            data: self.data[start..end].to_vec(),
+            norm_sq,
+            discarded_sq,
+        })
     }
     /// Row nodes (the output rows that hold `L`).
     pub fn rows(&self) -> usize {
