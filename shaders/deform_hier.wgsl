@@ -7,8 +7,9 @@
 //   threads over the rank: z_b = V_bᵀ·f summed over the block's active columns, into `work`.
 // * `deform`: one thread per output row. Rows in 0..l_rows are row *positions* of the row
 //   cluster tree (neighbouring threads read neighbouring entries of a block); row index
-//   row_perm[p] is written. For each active column leaf, the block holding the row is found by
-//   bisection in the leaf's block list (sorted by row start: a leaf's blocks partition the rows);
+//   row_perm[p] is written. For each active column leaf, the block holding the row is read from
+//   the leaf × row-segment table (a segment: rows between two block starts, in one block of
+//   every leaf);
 //   a dense block adds B[row, leaf's active columns]·f, a low-rank one U[row, :]·z_b once (at the
 //   block's first active leaf). Rows from l_rows on stay at rest.
 //
@@ -28,8 +29,8 @@ struct Frame {
     _pad0: u32,
     _pad1: u32,
     _pad2: u32,
-    // Word offsets in `idx` of row_perm, of the block table (8 words a block) and of the leaf
-    // lists (2 words an entry: the block's row start, the block); of z in `work`.
+    // Word offsets in `idx` of row_perm (then each row position's segment), of the block table
+    // (8 words a block) and of the leaf × segment table (a block per entry); of z in `work`.
     perm_off: u32,
     blocks_off: u32,
     lb_off: u32,
@@ -50,7 +51,7 @@ struct Params {
     _pad1: u32,
     // Sorted by column position. 1024 = touchfem::gpu::MAX_ACTIVE.
     actives: array<Active, 1024>,
-    // Per active leaf: its run of the leaf lists (start, end, in entries) and of `actives`.
+    // Per active leaf: its row of the leaf × segment table, unused, and its run of `actives`.
     leaves: array<vec4<u32>, 1024>,
 }
 
@@ -172,18 +173,9 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
         r = idx[frame.perm_off + p];
         for (var q = 0u; q < params.n_leaves; q += 1u) {
             let leaf = params.leaves[q];
-            // The first entry whose block starts after row p; the one before holds p.
-            var lo = leaf.x;
-            var hi = leaf.y;
-            while lo < hi {
-                let mid = (lo + hi) / 2u;
-                if idx[frame.lb_off + 2u * mid] <= p {
-                    lo = mid + 1u;
-                } else {
-                    hi = mid;
-                }
-            }
-            let b = block(idx[frame.lb_off + 2u * (lo - 1u) + 1u]);
+            // The row's block in this leaf: the leaf × segment table at the row's segment.
+            let seg = idx[frame.perm_off + frame.l_rows + p];
+            let b = block(idx[frame.lb_off + leaf.x + seg]);
             let m3 = 3u * b.m;
             let i = 3u * (p - b.row_start);
             if b.rank == DENSE {

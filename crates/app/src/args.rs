@@ -88,16 +88,6 @@ pub struct PrecomputeArgs {
     pub json: bool,
 }
 
-/// Parses a compression tolerance: a number in (0, 1).
-pub fn parse_tolerance(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if v > 0.0 && v < 1.0 => Ok(v),
-        _ => Err(format!(
-            "expected a tolerance between 0 and 1 (exclusive), e.g. 1e-3, got '{s}'"
-        )),
-    }
-}
-
 /// Parses "I/N" (1 ≤ I ≤ N ≤ 65536) into a shard index and count.
 pub fn parse_shard(s: &str) -> Result<(usize, usize), String> {
     let bad = || format!("expected I/N with 1 <= I <= N <= 65536 (e.g. 3/8), got '{s}'");

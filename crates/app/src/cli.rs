@@ -143,21 +143,31 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
         scene_table = t;
         scenes.extend(s);
     }
-    let tolerances: &[f64] = if a.quick {
-        &[1e-3]
-    } else {
-        &[1e-2, 1e-3, 1e-4, 1e-6]
+    let tolerances: Vec<f64> = match (a.tolerance, a.quick) {
+        (Some(eps), _) => vec![eps],
+        (None, true) => vec![1e-3],
+        (None, false) => vec![1e-2, 1e-3, 1e-4, 1e-6],
     };
+    let mut hier_table = Vec::new();
     for (name, scene) in scenes {
         rows.extend(cpu_rows(&name, &scene, active, reps)?);
         // The hierarchical L where it has far blocks (more than two leaves of nodes).
         if scene.compliance.rows().len() > 500 {
-            rows.extend(touchfem_lab::hmatrix_study::tradeoff_rows(
+            placement.enter_visual();
+            let t = touchfem_lab::hmatrix_study::bench_rows(
                 &name,
                 &scene,
-                tolerances,
+                &tolerances,
                 reps.min(50),
-            )?);
+                gpu.as_ref(),
+            );
+            placement.leave();
+            let t = t?;
+            rows.extend(touchfem_lab::hmatrix_study::tradeoff_of(
+                &t,
+                scene.mesh.nodes.len(),
+            ));
+            hier_table.extend(t);
         }
         if let Some(g) = &gpu {
             // Submit from the core the driver's threads started on (as the demo does).
@@ -198,6 +208,38 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
                 None => "-".into(),
             },
         );
+    }
+    if !hier_table.is_empty() {
+        println!(
+            "{:<8} {:>7} {:>10} {:>10} {:>6} {:>10} {:>10} {:>10} {:>10} {:>10}",
+            "mesh",
+            "eps",
+            "gpu_MB",
+            "dense_MB",
+            "ratio",
+            "l2_median",
+            "l2_worst",
+            "near_clamp",
+            "gpu_us",
+            "dense_us"
+        );
+        for r in &hier_table {
+            let us = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.0}"));
+            println!(
+                "{:<8} {:>7.0e} {:>10.2} {:>10.2} {:>6.3} {:>10.2e} {:>10.2e} {:>10} {:>10} {:>10}",
+                r.h.mesh,
+                r.h.tolerance,
+                r.gpu_bytes as f64 / 1e6,
+                r.dense_gpu_bytes as f64 / 1e6,
+                r.gpu_ratio,
+                r.h.l2_median,
+                r.h.l2_worst,
+                r.h.l2_worst_near_clamps
+                    .map_or("-".into(), |v| format!("{v:.2e}")),
+                us(r.gpu_pass_us),
+                us(r.gpu_dense_pass_us),
+            );
+        }
     }
     // The answer a reader brings: the fastest method for one contact triangle (3 nodes) and
     // for about a hundred touched nodes, per mesh, from this run, among those within 1e-3 of
@@ -240,6 +282,7 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
         let v = serde_json::json!({
             "rows": rows,
             "scene": scene_table,
+            "hierarchical": hier_table,
             "fastest": fastest,
             "machine": touchfem_lab::report::machine(),
         });

@@ -101,8 +101,11 @@ pub fn command(args: &PrecomputeArgs) -> Result<(), Error> {
         PathBuf::from(s)
     };
     let mut reports = Vec::new();
+    let mut gpu: Vec<(u64, u64)> = Vec::new();
     for o in &objs {
-        // A compressed file has its own key (and so its own cache file name).
+        // `--tolerance`, else the scene's `compression`. A compressed file has its own key
+        // (and so its own cache file name).
+        let compression = compression.or(o.compression);
         let key = match &compression {
             Some(opts) => cache::key_hier(&o.mesh, &o.selection, opts),
             None => o.key,
@@ -133,6 +136,17 @@ pub fn command(args: &PrecomputeArgs) -> Result<(), Error> {
             &INTERRUPTED,
         )?;
         bar.finish_and_clear();
+        // What the GPU will hold for L (a whole file only): the compressed layout against
+        // dense f32.
+        if compression.is_some() && shard == (1, 1) {
+            let c = cache::load(&r.file, key, o.mesh.nodes.len())?;
+            if let Some(h) = c.hier() {
+                gpu.push((
+                    touchfem_gpu::hier_gpu_bytes(h, false),
+                    4 * h.dense_values() as u64,
+                ));
+            }
+        }
         if let (false, Some([p0, p1, np]), Some(eps)) = (args.json, r.panels, r.tolerance) {
             println!(
                 "{}: {} rows × {} columns compressed to {eps:e}, panels {p0}..{p1} of {np}, in {:.2} s ({:.1} MB) -> {}",
@@ -164,7 +178,9 @@ pub fn command(args: &PrecomputeArgs) -> Result<(), Error> {
             "rows": reports.iter().map(|r| r.rows).sum::<usize>(),
             "cols": reports.iter().map(|r| r.cols).sum::<usize>(),
             "bytes": reports.iter().map(|r| r.bytes).sum::<u64>(),
-            "tolerance": args.tolerance,
+            "tolerance": reports.iter().find_map(|r| r.tolerance),
+            "gpu_bytes": (!gpu.is_empty()).then(|| gpu.iter().map(|g| g.0).sum::<u64>()),
+            "dense_gpu_bytes": (!gpu.is_empty()).then(|| gpu.iter().map(|g| g.1).sum::<u64>()),
             "shard": [shard.0, shard.1],
             "objects": reports,
             "units": {"seconds": "s", "bytes": "B"},

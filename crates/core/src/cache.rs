@@ -1176,36 +1176,3 @@ pub fn load_or_compute_with(
         }
     }
 }
-
-/// The cache key of a hierarchical compliance: the dense key with the options mixed in.
-pub fn key_hier(mesh: &Mesh, sel: &Selection, opts: &crate::hmatrix::HOptions) -> u64 {
-    let mut bytes = key(mesh, sel).to_le_bytes().to_vec();
-    for v in [opts.tolerance, opts.eta] {
-        bytes.extend_from_slice(&v.to_le_bytes());
-    }
-    for v in [opts.leaf_size, opts.panel_size] {
-        bytes.extend_from_slice(&(v as u64).to_le_bytes());
-    }
-    xxhash_rust::xxh3::xxh3_64(&bytes)
-}
-
-/// As [`load_or_compute`], with `L` stored hierarchically when `compression` is given (not
-/// cached yet: computed each time).
-pub fn load_or_compute_with(
-    path: &Path,
-    mesh: &Mesh,
-    sel: &Selection,
-    compression: Option<&crate::hmatrix::HOptions>,
-) -> Result<(Compliance, CacheOutcome), crate::Error> {
-    match compression {
-        None => load_or_compute(path, mesh, sel),
-        Some(o) => {
-            let c = Compliance::compute_hier(mesh, sel, o, &mut |_, _| {})?;
-            let why = || CacheError::Format {
-                path: path.to_path_buf(),
-                msg: "a hierarchical compliance is not cached yet".into(),
-            };
-            Ok((c, CacheOutcome::NotSaved(why(), why())))
-        }
-    }
-}

@@ -26,8 +26,6 @@ pub const HIER_VALUE_BINDINGS: usize = 5;
 const DENSE: u32 = u32::MAX;
 /// Words of one block in the table.
 const BLOCK_WORDS: usize = 8;
-/// Words of one entry of the leaf lists (the block's row start, the block).
-const LEAF_ENTRY_WORDS: usize = 2;
 /// Bytes of `Params` before its `leaves` (the header and the active list).
 const LEAVES_AT: u64 = 16 + 16 * MAX_ACTIVE as u64;
 /// Bytes of `Params`.
@@ -68,9 +66,19 @@ fn table_and_work_words(h: &HMatrix) -> (usize, usize) {
             ranks += k;
         }
     }
-    let entries: usize = (0..h.col_leaves()).map(|l| h.leaf_blocks(l).len()).sum();
-    let tables = h.rows() + BLOCK_WORDS * h.blocks().count() + LEAF_ENTRY_WORDS * entries;
+    let segments = row_segments(h).len();
+    let tables = 2 * h.rows() + BLOCK_WORDS * h.blocks().count() + h.col_leaves() * segments;
     (tables, (4 * lr + ranks).max(4))
+}
+
+/// The row segments: the row positions where some block starts (ascending). Within a
+/// segment every column leaf's block is the same, so a row's block for an active leaf is one
+/// lookup in the leaf × segment table instead of a bisection of the leaf's list.
+fn row_segments(h: &HMatrix) -> Vec<u32> {
+    let mut s: Vec<u32> = h.blocks().map(|b| b.rows.start as u32).collect();
+    s.sort_unstable();
+    s.dedup();
+    s
 }
 
 /// Bytes the GPU holds for a hierarchical `L` in one value buffer (the layout
@@ -160,6 +168,8 @@ pub(super) struct HierPath {
     /// Each leaf's run of `leaf_list` (`leaf_start[l]..leaf_start[l + 1]`).
     leaf_start: Vec<u32>,
     leaf_list: Vec<u32>,
+    /// Row segments (columns of the leaf × segment table).
+    n_segments: u32,
     blocks: Vec<HostBlock>,
     /// Value buffers (kept alive by the bind group too) and their bytes.
     values: Vec<wgpu::Buffer>,
@@ -229,6 +239,15 @@ impl HierPath {
         idx.extend(sh.rest_rows.iter().flatten().map(|v| v.to_bits()));
         let perm_off = idx.len() as u32;
         idx.extend_from_slice(h.row_perm());
+        // Each row position's segment, after row_perm.
+        let segs = row_segments(h);
+        let mut seg = 0u32;
+        for p in 0..h.rows() as u32 {
+            while (seg as usize + 1) < segs.len() && segs[seg as usize + 1] <= p {
+                seg += 1;
+            }
+            idx.push(seg);
+        }
         let blocks_off = idx.len() as u32;
         let mut blocks = Vec::with_capacity(info.len());
         let mut n_lr = 0u32;
@@ -259,10 +278,17 @@ impl HierPath {
         let mut leaf_list = Vec::new();
         leaf_start.push(0u32);
         for l in 0..h.col_leaves() {
-            for &b in h.leaf_blocks(l) {
-                idx.extend_from_slice(&[info[b as usize].rows.start as u32, b]);
-                leaf_list.push(b);
+            // The leaf × segment table: each segment's block in this leaf's list (sorted by
+            // row start, partitioning the rows).
+            let list = h.leaf_blocks(l);
+            let mut k = 0;
+            for &s in &segs {
+                while k + 1 < list.len() && info[list[k + 1] as usize].rows.start as u32 <= s {
+                    k += 1;
+                }
+                idx.push(list[k]);
             }
+            leaf_list.extend_from_slice(list);
             leaf_start.push(leaf_list.len() as u32);
         }
         sh.check("the hierarchical L's tables", 4 * idx.len() as u64)?;
@@ -455,6 +481,7 @@ impl HierPath {
             col_leaf: (0..h.cols()).map(|p| h.leaf_of(p) as u32).collect(),
             leaf_start,
             leaf_list,
+            n_segments: segs.len() as u32,
             blocks,
             values,
             l_bytes,
@@ -516,7 +543,9 @@ impl HierPath {
                 e += 1;
             }
             let (l0, l1) = (self.leaf_start[leaf], self.leaf_start[leaf + 1]);
-            self.leaves.push([l0, l1, a as u32, e as u32]);
+            // The leaf's row of the leaf × segment table.
+            self.leaves
+                .push([leaf as u32 * self.n_segments, l1, a as u32, e as u32]);
             for &bi in &self.leaf_list[l0 as usize..l1 as usize] {
                 let b = self.blocks[bi as usize];
                 if b.rank == DENSE || b.rank == 0 {

@@ -96,6 +96,17 @@ pub fn measure(
     eps: f64,
     reps: usize,
 ) -> Result<HRow, Error> {
+    measure_with(name, mesh, c, eps, reps).map(|r| r.0)
+}
+
+/// As [`measure`], with the hierarchical `L` and the finger's forces it timed.
+fn measure_with(
+    name: &str,
+    mesh: &Mesh,
+    c: &Compliance,
+    eps: f64,
+    reps: usize,
+) -> Result<(HRow, touchfem_core::hmatrix::HMatrix, Vec<(u32, DVec3)>), Error> {
     let t = Instant::now();
     let h = c.compress(mesh, &HOptions::new(eps))?;
     let build_s = t.elapsed().as_secs_f64();
@@ -155,7 +166,7 @@ pub fn measure(
     let (finger_us, finger_dense_us) = (time(&finger, false), time(&finger, true));
     let (spread_us, spread_dense_us) = (time(&spread, false), time(&spread, true));
 
-    Ok(HRow {
+    let row = HRow {
         mesh: name.into(),
         rows: h.rows(),
         cols: h.cols(),
@@ -179,34 +190,133 @@ pub fn measure(
         finger_dense_us,
         spread_us,
         spread_dense_us,
-    })
+    };
+    Ok((row, h, finger))
 }
 
-/// `touchfem bench`'s rows for the hierarchical `L` of `body` at each of `tolerances`
-/// (methods `hmatrix-f64-EPS`, one finger's 9 neighbouring columns and 9 spread-out ones):
-/// the product's median time and, as its error, the worst relative L2 error of a point load
-/// over every column (against the dense f64 product).
-pub fn tradeoff_rows(
+/// One row of `touchfem bench`'s hierarchical table: [`HRow`]'s storage and point-load
+/// errors, what the GPU holds, and one finger's pass on the GPU against the dense pass in the
+/// same run.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct BenchRow {
+    /// Storage, errors and CPU times.
+    #[serde(flatten)]
+    pub h: HRow,
+    /// Bytes the GPU holds for the hierarchical `L` (f32 values and tables).
+    pub gpu_bytes: u64,
+    /// Bytes of the dense `L` in f32.
+    pub dense_gpu_bytes: u64,
+    /// `gpu_bytes / dense_gpu_bytes`.
+    pub gpu_ratio: f64,
+    /// One finger's 9 neighbouring columns, the hierarchical pass on the GPU, median µs per
+    /// frame (forces, encode, submit, wait); `None` without a GPU.
+    pub gpu_pass_us: Option<f64>,
+    /// The same forces through the dense `L` in the deformer's default layout, same run.
+    pub gpu_dense_pass_us: Option<f64>,
+}
+
+/// The hierarchical table of `body` at each of `tolerances` (`gpu`: with the passes timed).
+pub fn bench_rows(
     name: &str,
     body: &touchfem_core::scene::Body,
     tolerances: &[f64],
     reps: usize,
-) -> Result<Vec<crate::tradeoff::Row>, Error> {
-    let mut rows = Vec::new();
+    gpu: Option<&touchfem_gpu::Gpu>,
+) -> Result<Vec<BenchRow>, Error> {
+    let c = &body.compliance;
+    let mut out = Vec::new();
+    let mut dense_us = None;
     for &eps in tolerances {
-        let r = measure(name, &body.mesh, &body.compliance, eps, reps)?;
-        for (active, t) in [(9usize, r.finger_us), (9, r.spread_us)] {
+        let (r, h, finger) = measure_with(name, &body.mesh, c, eps, reps)?;
+        let (gpu_bytes, dense_gpu_bytes) = (
+            touchfem_gpu::hier_gpu_bytes(&h, false),
+            4 * h.dense_values() as u64,
+        );
+        let mut gpu_pass_us = None;
+        if let Some(g) = gpu {
+            if dense_us.is_none() {
+                dense_us = Some(pass_us(g, body, c, &finger, reps)?);
+            }
+            let hc = Compliance::from_hier(
+                c.rows().to_vec(),
+                c.l_rows(),
+                c.cols().to_vec(),
+                h,
+                body.mesh.nodes.len(),
+            )?;
+            gpu_pass_us = Some(pass_us(g, body, &hc, &finger, reps)?);
+        }
+        out.push(BenchRow {
+            h: r,
+            gpu_bytes,
+            dense_gpu_bytes,
+            gpu_ratio: gpu_bytes as f64 / dense_gpu_bytes.max(1) as f64,
+            gpu_pass_us,
+            gpu_dense_pass_us: dense_us,
+        });
+    }
+    Ok(out)
+}
+
+/// The time-against-error rows of a hierarchical table (methods `hmatrix-f64-EPS`: the CPU
+/// product for one finger's 9 neighbouring columns and 9 spread-out ones; `hmatrix-gpu-EPS`:
+/// the GPU pass for the finger), each with the worst point-load error.
+pub fn tradeoff_of(table: &[BenchRow], nodes: usize) -> Vec<crate::tradeoff::Row> {
+    let mut rows = Vec::new();
+    for r in table {
+        let eps = r.h.tolerance;
+        let mut times = vec![(format!("hmatrix-f64-{eps:.0e}"), r.h.finger_us)];
+        times.push((format!("hmatrix-f64-{eps:.0e}"), r.h.spread_us));
+        if let Some(t) = r.gpu_pass_us {
+            times.push((format!("hmatrix-gpu-{eps:.0e}"), t));
+        }
+        for (method, t) in times {
             rows.push(crate::tradeoff::Row {
-                method: format!("hmatrix-f64-{eps:.0e}"),
-                mesh: name.into(),
-                nodes: body.mesh.nodes.len(),
-                active_columns: active,
+                method,
+                mesh: r.h.mesh.clone(),
+                nodes,
+                active_columns: 9,
                 time_us: t,
-                rel_error: r.l2_worst,
+                rel_error: r.h.l2_worst,
             });
         }
     }
-    Ok(rows)
+    rows
+}
+
+/// Median µs of one GPU frame of `forces` through `c` (the deformer's default layout).
+fn pass_us(
+    g: &touchfem_gpu::Gpu,
+    body: &touchfem_core::scene::Body,
+    c: &Compliance,
+    forces: &[(u32, DVec3)],
+    reps: usize,
+) -> Result<f64, Error> {
+    let mut d = touchfem_gpu::Deformer::new(
+        &g.device,
+        &g.queue,
+        c,
+        &body.mesh.nodes,
+        &body.mesh.surface,
+        &Default::default(),
+    )?;
+    let f32s: Vec<(u32, [f32; 3])> = forces
+        .iter()
+        .map(|&(col, f)| (col, f.as_vec3().to_array()))
+        .collect();
+    for _ in 0..3 {
+        crate::tradeoff::gpu_frame(g, &mut d, &f32s)?;
+    }
+    let mut failed = None;
+    let t = median_us(reps.clamp(5, 200), || {
+        if let Err(e) = crate::tradeoff::gpu_frame(g, &mut d, &f32s) {
+            failed = Some(e);
+        }
+    });
+    match failed {
+        Some(e) => Err(e),
+        None => Ok(t),
+    }
 }
 
 #[cfg(test)]
