@@ -99,6 +99,9 @@ pub fn measure(
     measure_with(name, mesh, c, eps, reps).map(|r| r.0)
 }
 
+/// A row, its hierarchical `L` and the finger's forces it timed.
+type Measured = (HRow, touchfem_core::hmatrix::HMatrix, Vec<(u32, DVec3)>);
+
 /// As [`measure`], with the hierarchical `L` and the finger's forces it timed.
 fn measure_with(
     name: &str,
@@ -106,7 +109,7 @@ fn measure_with(
     c: &Compliance,
     eps: f64,
     reps: usize,
-) -> Result<(HRow, touchfem_core::hmatrix::HMatrix, Vec<(u32, DVec3)>), Error> {
+) -> Result<Measured, Error> {
     let t = Instant::now();
     let h = c.compress(mesh, &HOptions::new(eps))?;
     let build_s = t.elapsed().as_secs_f64();
