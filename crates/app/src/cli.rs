@@ -276,7 +276,17 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
                 meshes.push(&r.mesh);
             }
         }
-        touchfem_lab::bench_plot::write_plot(path, &rows, &meshes)?;
+        let memory: Vec<touchfem_lab::bench_plot::MemoryPoint> = hier_table
+            .iter()
+            .map(|r| touchfem_lab::bench_plot::MemoryPoint {
+                mesh: r.h.mesh.clone(),
+                tolerance: r.h.tolerance,
+                error: r.h.l2_worst,
+                gpu_bytes: r.gpu_bytes as f64,
+                dense_gpu_bytes: r.dense_gpu_bytes as f64,
+            })
+            .collect();
+        touchfem_lab::bench_plot::write_plot(path, &rows, &meshes, &memory)?;
     }
     if let Some(path) = &a.json {
         let v = serde_json::json!({

@@ -21,8 +21,31 @@ pub(crate) fn register_font() {
     });
 }
 
-/// Draws the visual-update rows of `meshes` (panels left to right) into a PNG.
-pub fn write_plot(path: &Path, rows: &[Row], meshes: &[&str]) -> Result<(), Error> {
+/// One hierarchical `L` for the memory panel: its worst point-load error and the bytes the
+/// GPU holds, with the dense `L`'s beside it.
+#[derive(Clone, Debug)]
+pub struct MemoryPoint {
+    /// Mesh name.
+    pub mesh: String,
+    /// Tolerance ε.
+    pub tolerance: f64,
+    /// Worst relative point-load error.
+    pub error: f64,
+    /// GPU bytes of the hierarchical `L`.
+    pub gpu_bytes: f64,
+    /// GPU bytes of the dense f32 `L`.
+    pub dense_gpu_bytes: f64,
+}
+
+/// Draws the visual-update rows of `meshes` (panels left to right) into a PNG, then, when
+/// `memory` has points, a panel of GPU memory against error (the hierarchical `L` at each
+/// tolerance, the dense `L` as a dashed level per mesh).
+pub fn write_plot(
+    path: &Path,
+    rows: &[Row],
+    meshes: &[&str],
+    memory: &[MemoryPoint],
+) -> Result<(), Error> {
     use plotters::prelude::*;
     let perr = |e: String| Error::Study(format!("{}: cannot draw the plot: {e}", path.display()));
     register_font();
@@ -52,11 +75,14 @@ pub fn write_plot(path: &Path, rows: &[Row], meshes: &[&str]) -> Result<(), Erro
         RGBColor(100, 100, 100),
         RGBColor(200, 160, 0),
     ];
-    let n = meshes.len().max(1) as u32;
+    let n = meshes.len().max(1) as u32 + u32::from(!memory.is_empty());
     let root = BitMapBackend::new(path, (560 * n + 220, 480)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| perr(e.to_string()))?;
     let (plots, legend) = root.split_horizontally(560 * n);
     let panels = plots.split_evenly((1, n as usize));
+    if let Some(panel) = panels.get(meshes.len()).filter(|_| !memory.is_empty()) {
+        memory_panel(panel, memory, &palette).map_err(perr)?;
+    }
     for (panel, mesh) in panels.iter().zip(meshes) {
         let here: Vec<&&Row> = visual.iter().filter(|r| r.mesh == *mesh).collect();
         let tmin = here.iter().map(|r| r.time_us).fold(f64::INFINITY, f64::min);
@@ -138,6 +164,95 @@ pub fn write_plot(path: &Path, rows: &[Row], meshes: &[&str]) -> Result<(), Erro
     root.present().map_err(|e| perr(e.to_string()))
 }
 
+/// GPU memory (MB, log) against the worst point-load error (log), one colour per mesh.
+fn memory_panel<DB: plotters::prelude::DrawingBackend>(
+    panel: &plotters::prelude::DrawingArea<DB, plotters::coord::Shift>,
+    memory: &[MemoryPoint],
+    palette: &[plotters::prelude::RGBColor],
+) -> Result<(), String> {
+    use plotters::prelude::*;
+    let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
+    let mb = |b: f64| (b / 1e6).max(1e-3);
+    let ymin = memory
+        .iter()
+        .map(|p| mb(p.gpu_bytes))
+        .fold(f64::INFINITY, f64::min)
+        * 0.5;
+    let ymax = memory
+        .iter()
+        .map(|p| mb(p.dense_gpu_bytes))
+        .fold(0.0, f64::max)
+        * 2.0;
+    let xmin = memory
+        .iter()
+        .map(|p| p.error.max(ERROR_FLOOR))
+        .fold(1.0, f64::min)
+        * 0.3;
+    let mut chart = ChartBuilder::on(panel)
+        .caption(
+            "hierarchical L: GPU memory against error",
+            ("sans-serif", 18),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(64)
+        .build_cartesian_2d((xmin..1.0f64).log_scale(), (ymin..ymax).log_scale())
+        .map_err(e)?;
+    chart
+        .configure_mesh()
+        .x_desc("worst point-load error ‖Δu‖/‖u‖")
+        .y_desc("GPU MB")
+        .x_label_formatter(&|v| format!("{v:.0e}"))
+        .draw()
+        .map_err(e)?;
+    let mut meshes: Vec<&str> = Vec::new();
+    for p in memory {
+        if !meshes.contains(&p.mesh.as_str()) {
+            meshes.push(&p.mesh);
+        }
+    }
+    for (i, mesh) in meshes.iter().enumerate() {
+        let color = palette[(i + 1) % palette.len()];
+        let pts: Vec<&MemoryPoint> = memory.iter().filter(|p| p.mesh == *mesh).collect();
+        chart
+            .draw_series(pts.iter().map(|p| {
+                Circle::new(
+                    (p.error.max(ERROR_FLOOR), mb(p.gpu_bytes)),
+                    5,
+                    color.filled(),
+                )
+            }))
+            .map_err(e)?
+            .label(format!("{mesh} (dashed: dense)"))
+            .legend(move |(x, y)| Circle::new((x, y), 5, color.filled()));
+        let dense = mb(pts[0].dense_gpu_bytes);
+        chart
+            .draw_series(DashedLineSeries::new(
+                [(xmin, dense), (1.0, dense)],
+                6,
+                4,
+                color.stroke_width(2),
+            ))
+            .map_err(e)?;
+        for p in &pts {
+            chart
+                .draw_series(std::iter::once(Text::new(
+                    format!("{:.0e}", p.tolerance),
+                    (p.error.max(ERROR_FLOOR) * 1.15, mb(p.gpu_bytes) * 1.1),
+                    ("sans-serif", 12).into_font(),
+                )))
+                .map_err(e)?;
+        }
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(e)?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -160,9 +275,25 @@ mod tests {
             row("cg-1e-6", 1000.0, 5e-7),
             row("force-paper", 0.1, 0.4),
         ];
-        write_plot(&path, &rows, &["cube"]).unwrap();
+        write_plot(&path, &rows, &["cube"], &[]).unwrap();
         let img = image::open(&path).unwrap().to_rgb8();
         assert_eq!(img.dimensions(), (780, 480));
+        // With memory points: one more panel, the mesh's colour drawn in it.
+        let mem = [1e-2, 1e-3].map(|t| MemoryPoint {
+            mesh: "mouse".into(),
+            tolerance: t,
+            error: 3.0 * t,
+            gpu_bytes: 12e6 / t.log10().abs(),
+            dense_gpu_bytes: 38e6,
+        });
+        write_plot(&path, &rows, &["cube"], &mem).unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (1340, 480));
+        let right = (780..1340)
+            .flat_map(|x| (0..480).map(move |y| (x, y)))
+            .filter(|&(x, y)| img.get_pixel(x, y).0 == [230u8, 25, 75])
+            .count();
+        assert!(right > 20, "memory markers: {right} pixels");
         // The three visual methods' colours are drawn (black, red, green markers).
         for c in [[230u8, 25, 75], [60, 180, 75]] {
             let n = img.pixels().filter(|p| p.0 == c).count();
