@@ -6,7 +6,10 @@ cut is the clamped face (physical surface "fixed"), the rest is free surface. Un
 
 Usage:  pip install gmsh
         python3 scripts/make_organ.py H OUT.msh      # H: element size in mm
-Approximate node counts: H = 9 -> ~2k, 6 -> ~7k, 4.2 -> ~18k, 3 -> ~46k, 2.6 -> ~70k.
+        python3 scripts/make_organ.py 46k OUT.msh    # presets: 17k, 46k, 100k
+Node counts with Gmsh 4.15 (earlier Gmsh gave more per H): H = 3.15 -> 17 543, 3 -> 20 251,
+2.3 -> 42 827, 2.25 -> 45 226 (preset 46k), 1.7 -> 100 666 (preset 100k, the hierarchical
+L's large case: about 11.6k free-surface nodes).
 Large meshes belong under an ignored directory (out/, target-*), not in git.
 
 Deterministic: single-threaded Gmsh with a fixed random seed. Output: MSH 4.1 binary.
@@ -19,7 +22,8 @@ import gmsh
 
 
 def main():
-    h = float(sys.argv[1])
+    presets = {"17k": 3.15, "46k": 2.25, "100k": 1.7}
+    h = presets[sys.argv[1]] if sys.argv[1] in presets else float(sys.argv[1])
     out = sys.argv[2]
     gmsh.initialize()
     gmsh.option.setNumber("General.Terminal", 0)

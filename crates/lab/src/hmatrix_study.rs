@@ -288,7 +288,7 @@ pub fn tradeoff_of(table: &[BenchRow], nodes: usize) -> Vec<crate::tradeoff::Row
 }
 
 /// Median µs of one GPU frame of `forces` through `c` (the deformer's default layout).
-fn pass_us(
+pub fn pass_us(
     g: &touchfem_gpu::Gpu,
     body: &touchfem_core::scene::Body,
     c: &Compliance,

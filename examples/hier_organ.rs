@@ -1,0 +1,72 @@
+//! The hierarchical compliance on a large organ (issue 29): an organ mesh from
+//! `scripts/make_organ.py` (mm), its whole free surface touchable. Builds the hierarchical `L`
+//! from the factor's solves (timed), checks point loads against an independent precompute of
+//! a sample of columns, and, unless `--no-dense`, computes the dense `L` in the same run (timed)
+//! and times one finger's GPU pass through both (lavapipe). Prints one JSON object.
+//! Measurement for docs/measurements/2026-12-04-hierarchical.md.
+//!
+//! `cargo run --release --example hier_organ -- out/organ46k.msh [EPS] [SAMPLE] [--no-dense]`
+
+use std::time::Instant;
+
+use glam::DVec3;
+use touchfem::compliance::{Compliance, Selection};
+use touchfem::scene::{load_mesh, Body, LoadOptions};
+use touchfem::units::LengthUnit;
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let path = args
+        .get(1)
+        .map(String::as_str)
+        .unwrap_or("out/organ46k.msh");
+    let eps: f64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(1e-3);
+    let sample: usize = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(300);
+    let dense = !args.iter().any(|a| a == "--no-dense");
+    let opts = LoadOptions {
+        unit: Some(LengthUnit::Millimetre),
+        ..Default::default()
+    };
+    let (mesh, _) = load_mesh(path, &opts).expect("the organ mesh");
+    let (row, hc) =
+        touchfem_lab::hmatrix_study::sampled_row(path, &mesh, eps, sample).expect("hierarchical");
+    let h = hc.hier().expect("hierarchical");
+    let mut out = serde_json::to_value(&row).expect("json");
+    out["gpu_bytes"] = touchfem::gpu::hier_gpu_bytes(h, false).into();
+    out["gpu_bytes_f16"] = touchfem::gpu::hier_gpu_bytes(h, true).into();
+    // One finger: the middle column and its 8 nearest columns.
+    let cols = hc.cols();
+    let centre = mesh.nodes[cols[cols.len() / 2] as usize];
+    let mut by: Vec<usize> = (0..cols.len()).collect();
+    by.sort_by(|&a, &b| {
+        let d = |k: usize| mesh.nodes[cols[k] as usize].distance_squared(centre);
+        d(a).total_cmp(&d(b))
+    });
+    let force = DVec3::new(0.2, -0.3, -1.0);
+    let finger: Vec<(u32, DVec3)> = by.iter().take(9).map(|&k| (k as u32, force)).collect();
+    let gpu = touchfem::gpu::Gpu::new_headless().ok();
+    let body = Body::with_compliance(mesh.clone(), hc.clone());
+    if let Some(g) = &gpu {
+        out["gpu_pass_us"] = touchfem_lab::hmatrix_study::pass_us(g, &body, &hc, &finger, 50)
+            .expect("pass")
+            .into();
+    }
+    if dense {
+        let t = Instant::now();
+        let dc = Compliance::compute(&mesh, &Selection::default()).expect("dense");
+        out["dense_precompute_s"] = t.elapsed().as_secs_f64().into();
+        out["dense_bytes_f64"] = (8 * dc.l_f64().len()).into();
+        if let Some(g) = &gpu {
+            // The same finger's columns in the dense compliance's order.
+            let f: Vec<(u32, DVec3)> = finger
+                .iter()
+                .map(|&(k, f)| (dc.col_of(cols[k as usize]).expect("col") as u32, f))
+                .collect();
+            let db = Body::with_compliance(mesh.clone(), dc.clone());
+            out["gpu_dense_pass_us"] = touchfem_lab::hmatrix_study::pass_us(g, &db, &dc, &f, 50)
+                .expect("dense pass")
+                .into();
+        }
+    }
+    println!("{out}");
+}
