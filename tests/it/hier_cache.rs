@@ -734,3 +734,42 @@ fn cli_precompute_with_a_tolerance() {
         assert!(!err.contains("panicked"), "{bad}: {err}");
     }
 }
+
+/// `poke --cache FILE` reads a compressed file as it reads a dense one (no recompute, its
+/// tolerance reported), and the force equals the dense poke's: the haptic path reads exact
+/// near blocks.
+#[test]
+fn poke_reads_a_compressed_cache() {
+    use crate::common::touchfem_status;
+    let (_dir, file) = tmp("poke.tfc");
+    let f = file.to_str().unwrap();
+    let (code, _, err) =
+        touchfem_status(&["precompute", "mouse", "--tolerance", "1e-3", "--out", f]);
+    assert_eq!(code, 0, "{err}");
+    let poke = [
+        "poke", "mouse", "--at", "0,0,100", "--push", "0,0,-5", "--json",
+    ];
+    let (code, out, err) = touchfem_status(&[&poke[..], &["--cache", f]].concat());
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        !err.contains("recomputed"),
+        "the compressed file was not used: {err}"
+    );
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["precompute"]["tolerance"].as_f64(), Some(1e-3));
+    let (code, out, err) = touchfem_status(&poke);
+    assert_eq!(code, 0, "{err}");
+    let d: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert!(d["precompute"]["tolerance"].is_null());
+    for k in 0..3 {
+        let (a, b) = (
+            v["force"][k].as_f64().unwrap(),
+            d["force"][k].as_f64().unwrap(),
+        );
+        assert!(
+            (a - b).abs() <= 1e-12 * b.abs().max(1e-9),
+            "force {k}: {a} vs {b}"
+        );
+    }
+    assert!(d["force"][2].as_f64().unwrap() > 1e-3, "no contact");
+}

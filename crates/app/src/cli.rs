@@ -747,7 +747,20 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
     let sel = Selection::default();
     let compliance = match &a.cache {
         Some(path) => {
-            let (c, outcome) = touchfem_core::cache::load_or_compute(path, &mesh, &sel)?;
+            // `--tolerance`, else a compressed file's own options: a compressed cache is read
+            // as a dense one is (and kept compressed when recomputed).
+            use touchfem_core::cache::hier;
+            let compression = match a.tolerance {
+                Some(eps) => Some(touchfem_core::hmatrix::HOptions::new(eps)),
+                None if hier::is_compressed(path) => hier::header(path).ok().map(|h| h.opts),
+                None => None,
+            };
+            let (c, outcome) = touchfem_core::cache::load_or_compute_with(
+                path,
+                &mesh,
+                &sel,
+                compression.as_ref(),
+            )?;
             if let Some(m) = outcome.message() {
                 eprintln!("{m}");
             }
