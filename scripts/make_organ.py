@@ -9,7 +9,7 @@ Usage:  pip install gmsh
         python3 scripts/make_organ.py 46k OUT.msh    # presets: 17k, 46k, 100k
 Node counts with Gmsh 4.15 (earlier Gmsh gave more per H): H = 3.15 -> 17 543, 3 -> 20 251,
 2.3 -> 42 827, 2.25 -> 45 226 (preset 46k), 1.7 -> 100 666 (preset 100k, the hierarchical
-L's large case: about 11.6k free-surface nodes).
+L's large case: 17 471 surface and 13 692 free-surface nodes).
 Large meshes belong under an ignored directory (out/, target-*), not in git.
 
 Deterministic: single-threaded Gmsh with a fixed random seed. Output: MSH 4.1 binary.
