@@ -36,14 +36,7 @@ fn main() {
     out["gpu_bytes_f16"] = touchfem::gpu::hier_gpu_bytes(h, true).into();
     // One finger: the middle column and its 8 nearest columns.
     let cols = hc.cols();
-    let centre = mesh.nodes[cols[cols.len() / 2] as usize];
-    let mut by: Vec<usize> = (0..cols.len()).collect();
-    by.sort_by(|&a, &b| {
-        let d = |k: usize| mesh.nodes[cols[k] as usize].distance_squared(centre);
-        d(a).total_cmp(&d(b))
-    });
-    let force = DVec3::new(0.2, -0.3, -1.0);
-    let finger: Vec<(u32, DVec3)> = by.iter().take(9).map(|&k| (k as u32, force)).collect();
+    let finger = touchfem_lab::hmatrix_study::finger_forces(&mesh, cols);
     let gpu = touchfem::gpu::Gpu::new_headless().ok();
     let body = Body::with_compliance(mesh.clone(), hc.clone());
     if let Some(g) = &gpu {

@@ -368,6 +368,42 @@ impl GramPlan {
         self.t_pos.len() == self.nodes.len()
     }
 
+    /// Supernode `s`'s block of `W` (`3·|D(s)| × n_s`) and, gathered into `buf`, its rows of
+    /// the touchable nodes at positions `gs` (`k = 3·|gs|` rows), the factor's `Σ` applied
+    /// (an auxiliary unknown's column counts negatively): the two operands of a tile's
+    /// product `W_s · gatheredᵀ`.
+    fn gather<'w>(
+        &self,
+        w: &'w [f64],
+        s: usize,
+        gs: impl Iterator<Item = usize> + Clone,
+        k: usize,
+        buf: &'w mut Vec<f64>,
+    ) -> (MatRef<'w, f64>, MatRef<'w, f64>) {
+        let (lo, hi) = self.range[s];
+        let md = 3 * (hi - lo);
+        let ns = self.begin[s + 1] - self.begin[s];
+        buf.clear();
+        buf.resize(k * ns, 0.0f64);
+        let negative = self.negative.get(self.begin[s]..self.begin[s + 1]);
+        for i in 0..ns {
+            let col = &w[self.off[s] + i * md..][..md];
+            let sign = match negative {
+                Some(n) if n[i] => -1.0,
+                _ => 1.0,
+            };
+            for (t, g) in gs.clone().enumerate() {
+                for ax in 0..3 {
+                    buf[i * k + 3 * t + ax] = sign * col[3 * (g - lo) + ax];
+                }
+            }
+        }
+        (
+            MatRef::from_column_major_slice(&w[self.off[s]..self.off[s + 1]], md, ns),
+            MatRef::from_column_major_slice(buf, k, ns),
+        )
+    }
+
     /// As [`GramPlan::tile`] for the touchable columns `js` (ascending, any gaps), every row:
     /// `out` (`3·nodes × 3·js.len()`, column stride `ld`, zero on entry) receives
     /// `(K⁻¹)[S, T_js]`, column `3q + axis` for `js[q]`.
@@ -390,26 +426,14 @@ impl GramPlan {
             }
             let (lo, hi) = self.range[s];
             let md = 3 * (hi - lo);
-            let ns = self.begin[s + 1] - self.begin[s];
-            let ws = MatRef::from_column_major_slice(&w[self.off[s]..self.off[s + 1]], md, ns);
             let k = 3 * (q1 - q0);
-            gather.clear();
-            gather.resize(k * ns, 0.0f64);
-            let negative = self.negative.get(self.begin[s]..self.begin[s + 1]);
-            for i in 0..ns {
-                let col = &w[self.off[s] + i * md..][..md];
-                let sign = match negative {
-                    Some(n) if n[i] => -1.0,
-                    _ => 1.0,
-                };
-                for (t, &j) in js[q0..q1].iter().enumerate() {
-                    let g = self.t_pos[j];
-                    for ax in 0..3 {
-                        gather[i * k + 3 * t + ax] = sign * col[3 * (g - lo) + ax];
-                    }
-                }
-            }
-            let bm = MatRef::from_column_major_slice(&gather, k, ns);
+            let (ws, bm) = self.gather(
+                w,
+                s,
+                js[q0..q1].iter().map(|&j| self.t_pos[j]),
+                k,
+                &mut gather,
+            );
             faer::linalg::matmul::matmul(
                 out.rb_mut().submatrix_mut(3 * lo, 3 * q0, md, k),
                 Accum::Add,
@@ -445,27 +469,8 @@ impl GramPlan {
                 continue;
             }
             let (lo, hi) = self.range[s];
-            let md = 3 * (hi - lo);
-            let ns = self.begin[s + 1] - self.begin[s];
-            let ws = MatRef::from_column_major_slice(&w[self.off[s]..self.off[s + 1]], md, ns);
             let k = 3 * (b - a);
-            gather.clear();
-            gather.resize(k * ns, 0.0f64);
-            let negative = self.negative.get(self.begin[s]..self.begin[s + 1]);
-            for i in 0..ns {
-                let col = &w[self.off[s] + i * md..][..md];
-                // Σ between: an auxiliary unknown's column counts negatively.
-                let sign = match negative {
-                    Some(n) if n[i] => -1.0,
-                    _ => 1.0,
-                };
-                for (t, &g) in self.t_pos[a..b].iter().enumerate() {
-                    for ax in 0..3 {
-                        gather[i * k + 3 * t + ax] = sign * col[3 * (g - lo) + ax];
-                    }
-                }
-            }
-            let bm = MatRef::from_column_major_slice(&gather, k, ns);
+            let (ws, bm) = self.gather(w, s, self.t_pos[a..b].iter().copied(), k, &mut gather);
             for (r0, r1) in [(lo, hi.min(skip.start)), (lo.max(skip.end), hi)] {
                 if r0 >= r1 {
                     continue;

@@ -88,6 +88,38 @@ fn sorted(v: &[f64]) -> Vec<f64> {
     v
 }
 
+/// The force of each of a test finger's columns, N.
+const FINGER_FORCE: DVec3 = DVec3::new(0.2, -0.3, -1.0);
+
+/// The columns `cols` (mesh nodes) by distance to the nearest of `points`, nearest first.
+fn nearest_to(mesh: &Mesh, cols: &[u32], points: &[DVec3]) -> Vec<usize> {
+    let mut d: Vec<(f64, usize)> = cols
+        .iter()
+        .enumerate()
+        .map(|(k, &n)| {
+            let p = mesh.nodes[n as usize];
+            let d = points
+                .iter()
+                .map(|q| q.distance_squared(p))
+                .fold(f64::INFINITY, f64::min);
+            (d, k)
+        })
+        .collect();
+    d.sort_by(|a, b| a.0.total_cmp(&b.0));
+    d.into_iter().map(|x| x.1).collect()
+}
+
+/// One finger's forces: the middle column of `cols` and its 8 nearest columns, each
+/// (0.2, −0.3, −1) N.
+pub fn finger_forces(mesh: &Mesh, cols: &[u32]) -> Vec<(u32, DVec3)> {
+    let centre = mesh.nodes[cols[cols.len() / 2] as usize];
+    nearest_to(mesh, cols, &[centre])
+        .into_iter()
+        .take(9)
+        .map(|k| (k as u32, FINGER_FORCE))
+        .collect()
+}
+
 /// One row: `c` compressed at `eps` (η = 2, leaves of 32 nodes).
 pub fn measure(
     name: &str,
@@ -125,34 +157,15 @@ fn measure_with(
         .collect();
     let cols = c.cols();
     let near_clamps = (!clamped.is_empty()).then(|| {
-        let mut d: Vec<(f64, usize)> = cols
+        nearest_to(mesh, cols, &clamped)[..cols.len().div_ceil(10)]
             .iter()
-            .enumerate()
-            .map(|(k, &n)| {
-                let p = mesh.nodes[n as usize];
-                let d = clamped
-                    .iter()
-                    .map(|q| q.distance_squared(p))
-                    .fold(f64::INFINITY, f64::min);
-                (d, k)
-            })
-            .collect();
-        d.sort_by(|a, b| a.0.total_cmp(&b.0));
-        d[..cols.len().div_ceil(10)]
-            .iter()
-            .flat_map(|&(_, k)| e.l2[3 * k..3 * k + 3].iter().copied())
+            .flat_map(|&k| e.l2[3 * k..3 * k + 3].iter().copied())
             .fold(0.0, f64::max)
     });
 
     // One finger: column n/2 and its 8 nearest columns; spread: 9 columns evenly apart.
-    let centre = mesh.nodes[cols[cols.len() / 2] as usize];
-    let mut by_dist: Vec<usize> = (0..cols.len()).collect();
-    by_dist.sort_by(|&a, &b| {
-        let d = |k: usize| mesh.nodes[cols[k] as usize].distance_squared(centre);
-        d(a).total_cmp(&d(b))
-    });
-    let force = DVec3::new(0.2, -0.3, -1.0);
-    let finger: Vec<(u32, DVec3)> = by_dist.iter().take(9).map(|&k| (k as u32, force)).collect();
+    let finger = finger_forces(mesh, cols);
+    let force = FINGER_FORCE;
     let spread: Vec<(u32, DVec3)> = (0..9.min(cols.len()))
         .map(|i| ((i * cols.len() / 9) as u32, force))
         .collect();
@@ -414,21 +427,9 @@ pub fn sampled_row(
         .filter(|&n| mesh.fixed[n])
         .map(|n| mesh.nodes[n])
         .collect();
-    let mut near: Vec<(f64, usize)> = cols
-        .iter()
-        .enumerate()
-        .map(|(k, &n)| {
-            let p = mesh.nodes[n as usize];
-            let d = clamped
-                .iter()
-                .map(|q| q.distance_squared(p))
-                .fold(f64::INFINITY, f64::min);
-            (d, k)
-        })
-        .collect();
-    near.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let near = nearest_to(mesh, cols, &clamped);
     let n_near = (sample / 10).max(1).min(near.len());
-    let near_set: Vec<usize> = near[..n_near].iter().map(|x| x.1).collect();
+    let near_set: Vec<usize> = near[..n_near].to_vec();
     pick.extend(near_set.iter().copied());
     pick.sort_unstable();
     pick.dedup();
