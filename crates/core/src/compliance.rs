@@ -1023,7 +1023,8 @@ impl Compliance {
         let mut panels = Vec::with_capacity(which.len());
         for p in which {
             let cols = hp.panel_cols(p);
-            let (data, r, t) = plan.solve_cols(cols)?;
+            let need = hp.panel_rows(p);
+            let (data, r, t) = plan.solve_cols(cols, Some(&need))?;
             residual = residual.max(r);
             phases.solve_s += t[0];
             phases.check_s += t[1];
@@ -1603,7 +1604,7 @@ impl ColumnPlan {
                 let node = self.cols[chunk.start];
                 let (xs, residual) = self
                     .check_solve(node)
-                    .and_then(|(xs, r)| self.agrees(&out, &xs, 0..0, node).map(|_| (xs, r)))
+                    .and_then(|(xs, r)| self.agrees(&out, &xs, |_| true, node).map(|_| (xs, r)))
                     .inspect_err(|_| stop.store(true, Relaxed))?;
                 drop(xs);
                 acc.1[1] += tc.elapsed().as_secs_f64();
@@ -1624,7 +1625,11 @@ impl ColumnPlan {
     /// column `3q + b` for `want[q]` axis `b`. The first column is checked against a direct
     /// solve. Returns the columns, the check's residual and the seconds solving, checking and
     /// scattering (summed over workers).
-    pub(crate) fn solve_cols(&self, want: &[u32]) -> Result<(Vec<f64>, f64, [f64; 3]), FemError> {
+    pub(crate) fn solve_cols(
+        &self,
+        want: &[u32],
+        need: Option<&[bool]>,
+    ) -> Result<(Vec<f64>, f64, [f64; 3]), FemError> {
         use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
         let nr = self.l_rows;
         let ld = 3 * nr;
@@ -1642,6 +1647,13 @@ impl ColumnPlan {
             SOLVE_COLS
         };
         let groups: Vec<&[usize]> = order.chunks(per).collect();
+        // The rows wanted, in the Gram plan's node order (the other methods solve every row).
+        let gram_rows: Option<Vec<bool>> = match (&self.gram, need) {
+            (Some((_, _, row_of)), Some(need)) => {
+                Some(row_of.iter().map(|&r| need[r as usize]).collect())
+            }
+            _ => None,
+        };
         let next = AtomicUsize::new(0);
         let work = || -> Result<GroupsSolved, FemError> {
             let mut got = Vec::new();
@@ -1657,7 +1669,7 @@ impl ColumnPlan {
                 if let Some((gp, w, row_of)) = &self.gram {
                     let m = 3 * gp.nodes().len();
                     let mut tile = vec![0.0f64; m * 3 * cols.len()];
-                    gp.tile_cols(w, &cols, &mut tile, m);
+                    gp.tile_cols(w, &cols, gram_rows.as_deref(), &mut tile, m);
                     t[0] += ts.elapsed().as_secs_f64();
                     let tsc = Instant::now();
                     for j in 0..3 * cols.len() {
@@ -1737,7 +1749,7 @@ impl ColumnPlan {
             let tc = Instant::now();
             let node = self.cols[c0 as usize];
             let (xs, r) = self.check_solve(node)?;
-            self.agrees(&out, &xs, 0..0, node)?;
+            self.agrees(&out, &xs, |ri| need.is_none_or(|n| n[ri]), node)?;
             residual = r;
             times[1] += tc.elapsed().as_secs_f64();
         }
@@ -1809,19 +1821,19 @@ impl ColumnPlan {
     }
 
     /// Checks that the batch's first column `out` (this module's layout) equals the direct
-    /// solve `xs` on the displayed rows outside `skip`, to 1e-8 of max |x|.
+    /// solve `xs` on the displayed rows `keep(row)` accepts, to 1e-8 of max |x|.
     fn agrees(
         &self,
         out: &[f64],
         xs: &[f64],
-        skip: std::ops::Range<usize>,
+        keep: impl Fn(usize) -> bool,
         node: u32,
     ) -> Result<(), FemError> {
         let scale = xs.iter().fold(0.0f64, |a, v| a.max(v.abs()));
         let mut diff = 0.0f64;
         for (ri, &r) in self.rows[..self.l_rows].iter().enumerate() {
-            if skip.contains(&ri) {
-                continue; // mirrored later
+            if !keep(ri) {
+                continue; // mirrored later, or not wanted
             }
             for a in 0..3 {
                 if let Some(d) = self.stiff.dofs.free(r, a) {
@@ -1946,7 +1958,7 @@ impl ColumnPlan {
             let (xs, r) = self.check_solve(node)?;
             residual = r;
             // The Gram column must be the direct solve's displayed rows.
-            self.agrees(&out, &xs, skip, node)?;
+            self.agrees(&out, &xs, |ri| !skip.contains(&ri), node)?;
         }
         times[1] = tc.elapsed().as_secs_f64();
         Ok((residual, times, out))

@@ -404,16 +404,25 @@ impl GramPlan {
         )
     }
 
-    /// As [`GramPlan::tile`] for the touchable columns `js` (ascending, any gaps), every row:
-    /// `out` (`3·nodes × 3·js.len()`, column stride `ld`, zero on entry) receives
-    /// `(K⁻¹)[S, T_js]`, column `3q + axis` for `js[q]`.
-    pub fn tile_cols(&self, w: &[f64], js: &[usize], out: &mut [f64], ld: usize) {
+    /// As [`GramPlan::tile`] for the touchable columns `js` (ascending, any gaps): `out`
+    /// (`3·nodes × 3·js.len()`, column stride `ld`, zero on entry) receives `(K⁻¹)[S, T_js]`,
+    /// column `3q + axis` for `js[q]`, on the node rows (Gram order) `rows` marks (all
+    /// without); the others stay zero.
+    pub fn tile_cols(
+        &self,
+        w: &[f64],
+        js: &[usize],
+        rows: Option<&[bool]>,
+        out: &mut [f64],
+        ld: usize,
+    ) {
         let m = 3 * self.nodes.len();
         let nt = 3 * js.len();
         assert!(ld >= m && out.len() >= ld * nt.saturating_sub(1) + m);
         assert!(js.windows(2).all(|p| p[0] < p[1]));
         let mut out = MatMut::from_column_major_slice_with_stride_mut(out, m, nt, ld);
         let mut gather = Vec::new();
+        let mut sel = Vec::new();
         for s in 0..self.begin.len() - 1 {
             let (tlo, thi) = self.t_range[s];
             // The wanted columns this supernode's block reaches: one run of `js`.
@@ -434,14 +443,44 @@ impl GramPlan {
                 k,
                 &mut gather,
             );
+            sel.clear();
+            if let Some(mask) = rows {
+                sel.extend((lo..hi).filter(|&g| mask[g]));
+                if sel.is_empty() {
+                    continue;
+                }
+            }
+            if sel.is_empty() || sel.len() == hi - lo {
+                faer::linalg::matmul::matmul(
+                    out.rb_mut().submatrix_mut(3 * lo, 3 * q0, md, k),
+                    Accum::Add,
+                    ws,
+                    bm.transpose(),
+                    1.0,
+                    Par::Seq,
+                );
+                continue;
+            }
+            // Only some rows: those of W_s gathered, multiplied, put back.
+            let r = 3 * sel.len();
+            let wsub =
+                Mat::<f64>::from_fn(r, ws.ncols(), |i, c| ws[(3 * (sel[i / 3] - lo) + i % 3, c)]);
+            let mut prod = Mat::<f64>::zeros(r, k);
             faer::linalg::matmul::matmul(
-                out.rb_mut().submatrix_mut(3 * lo, 3 * q0, md, k),
-                Accum::Add,
-                ws,
+                prod.as_mut(),
+                Accum::Replace,
+                wsub.as_ref(),
                 bm.transpose(),
                 1.0,
                 Par::Seq,
             );
+            for c in 0..k {
+                for (t, &g) in sel.iter().enumerate() {
+                    for a in 0..3 {
+                        out[(3 * g + a, 3 * q0 + c)] += prod[(3 * t + a, c)];
+                    }
+                }
+            }
         }
     }
 

@@ -1,39 +1,41 @@
 //! A hierarchical compliance: `L` stored as a block partition whose far blocks are low-rank
-//! factors truncated to a chosen tolerance and whose near blocks are dense (issue 29, first step).
+//! factors truncated to a chosen tolerance and whose near blocks are dense (issue 29).
 //!
 //! # Construction
 //! * **Cluster trees** over the row nodes and the column nodes, a node's 3 DOFs together: the
 //!   bounding box of a cluster's nodes is bisected at its midpoint along its longest axis until
 //!   a cluster holds at most [`HOptions::leaf_size`] nodes. A cluster is a contiguous range of
-//!   its tree's permutation.
+//!   its tree's permutation. When rows and columns are the same points (a whole-surface
+//!   selection) there is one tree.
 //! * **Block partition** by the standard admissibility `min(diam τ, diam σ) ≤ η·dist(τ, σ)`
-//!   (bounding boxes; `dist > 0`): an admissible (far) pair is one block; an inadmissible pair
-//!   is split (both clusters, or the one that is not a leaf) until both are leaves, when it is a
-//!   near block, stored dense.
-//! * **Compression** of a far block `B` (3|τ| × 3|σ|) by its truncated SVD (faer's thin SVD):
-//!   rank `k` is the smallest with `Σ_{i>k} σᵢ² ≤ ε²·Σᵢ σᵢ²`, stored as `U = U_k·diag(σ_k)` and
-//!   `V = V_k`. A block whose factors would take more room than the block itself stays dense.
-//!
-//! The SVD rather than ACA: the block is in hand (here from `L`; later from the factor's
-//! solves, which give whole columns exactly), and the SVD gives the optimal rank for the
-//! tolerance with a guarantee, where ACA's stopping test is a heuristic estimate that would
-//! need the SVD's recompression anyway.
+//!   (bounding boxes; `dist > 0`): an admissible (far) pair is one block unless a side is wider
+//!   than a panel ([`HOptions::panel_size`]), then that side is split; an inadmissible pair is
+//!   split (both clusters, or the one that is not a leaf) until both are leaves, when it is a
+//!   near block, stored dense. With one tree the partition is symmetric: only the blocks on
+//!   and below the diagonal are solved, compressed and saved; each block above is the
+//!   transpose of its mirror, made when the panels are joined (same error, same norm).
+//! * **Panels** ([`HPlan`]): the largest column clusters of at most `panel_size` nodes. A
+//!   panel's columns of `L` are solved together (only the rows its stored blocks need), its
+//!   blocks compressed ([`HPlan::compress_panel`]), and the columns dropped, so the dense `L`
+//!   is never held; shards are runs of panels ([`HMatrix::from_panels`] joins them).
+//! * **Compression** of a far block `B` (3|τ| × 3|σ|): a randomized range finder (16 Gaussian
+//!   test vectors at a time, seeded by the block's position) until `‖B − QQᵀB‖_F² ≤ ½ε²‖B‖_F²`,
+//!   then the SVD of the small `QᵀB` truncated within the rest of the budget; the error
+//!   `‖B − UVᵀ‖_F` is then measured on the block itself. A block over budget (rounding) or whose
+//!   factors would take more room than the block stays dense. Stored as `U` (singular values
+//!   folded in) and `V`.
 //!
 //! # Guarantee
-//! * Per far block: `‖B − UVᵀ‖_F ≤ ε‖B‖_F` (the Eckart–Young tail, exact up to rounding).
+//! * Per far block: `‖B − UVᵀ‖_F ≤ ε‖B‖_F` (measured).
 //! * Globally: the blocks partition `L` and near blocks are exact, so
 //!   `‖L − L_H‖_F² = Σ_far ‖B − UVᵀ‖_F² ≤ ε² Σ_far ‖B‖_F² ≤ ε²‖L‖_F²`, i.e.
-//!   `‖L − L_H‖_F ≤ ε‖L‖_F`. The exact left-hand side is [`HMatrix::truncation_error`].
+//!   `‖L − L_H‖_F ≤ ε‖L‖_F`. The left-hand side is [`HMatrix::truncation_error`].
 //! * Per point load `f` at one column: `‖Δu‖₂ ≤ ‖L − L_H‖₂·|f| ≤ ε‖L‖_F·|f|` (relative to `‖L‖_F`,
 //!   not to `‖u‖`: the relative error of one load is measured, not bounded).
 //!
-//! Factors are held in f64; [`HMatrix::bytes_f32`] is what an f32 copy (the GPU's) would take.
-//!
-//! # Block source
-//! [`HMatrix::build`] asks a closure for each block as a dense matrix, in block-column order
-//! (blocks grouped by column cluster, column clusters in permutation order), so that a source
-//! that solves for columns can serve a block column from one panel of solves.
-//! [`HMatrix::from_compliance`] reads the blocks from a dense [`Compliance`].
+//! Factors are held in f64; [`HMatrix::bytes_f32`] is what an f32 copy takes. The compliance
+//! module builds one from the factor's solves (`Compliance::compute_hier`) or from a dense `L`
+//! (`Compliance::compress`).
 
 use std::ops::Range;
 
@@ -191,6 +193,9 @@ struct Block {
     rank: Option<u32>,
     far: bool,
     offset: usize,
+    /// The transpose of a stored block (a symmetric plan's block above the diagonal), its
+    /// values made from that block's when the panels were joined.
+    mirror: bool,
 }
 
 /// `L` as a hierarchical matrix: dense near blocks and low-rank far blocks (module docs).
@@ -216,8 +221,10 @@ pub struct HMatrix {
     /// The points it was planned from (rows, then columns), so that it can be saved.
     row_points: Vec<DVec3>,
     col_points: Vec<DVec3>,
-    /// Each panel's run of `blocks` and its `(norm_sq, discarded_sq)`.
+    /// Each panel's run of `blocks`, the range of `data` its stored blocks hold, and its
+    /// `(norm_sq, discarded_sq)` (of the stored blocks).
     panel_runs: Vec<Range<u32>>,
+    panel_data: Vec<Range<usize>>,
     panel_norms: Vec<(f64, f64)>,
 }
 
@@ -237,6 +244,11 @@ pub struct HPlan {
     panels: Vec<Range<u32>>,
     /// Each panel's run of `pairs`.
     panel_pairs: Vec<Range<usize>>,
+    /// Rows and columns are the same points (one tree): each pair above the diagonal is the
+    /// transpose of the pair here (its mirror), which is solved and stored instead.
+    mirror: Vec<Option<u32>>,
+    /// Whether a pair's transpose is a mirror of it.
+    has_mirror: Vec<bool>,
     row_points: Vec<DVec3>,
     col_points: Vec<DVec3>,
 }
@@ -292,8 +304,17 @@ impl HPlan {
                 return Err(HError::Point { which, index });
             }
         }
-        let rt = ClusterTree::new(row_points, opts.leaf_size);
         let ct = ClusterTree::new(col_points, opts.leaf_size);
+        // The same points on both sides: one tree, so that the partition is symmetric and one
+        // triangle of it is solved and stored.
+        let same = same_points(row_points, col_points);
+        let rt = match &same {
+            Some(row_of_col) => ClusterTree {
+                nodes: ct.nodes.clone(),
+                perm: ct.perm.iter().map(|&c| row_of_col[c as usize]).collect(),
+            },
+            None => ClusterTree::new(row_points, opts.leaf_size),
+        };
         let mut raw = Vec::new();
         tree::partition(&rt, &ct, 0, 0, opts.eta, opts.panel_size, &mut raw);
         let mut pairs: Vec<(Range<u32>, Range<u32>, bool)> = raw
@@ -304,6 +325,23 @@ impl HPlan {
             })
             .collect();
         pairs.sort_by_key(|(t, s, _)| (s.start, s.end, t.start));
+        let mut mirror = vec![None; pairs.len()];
+        if same.is_some() {
+            let at: std::collections::HashMap<(u32, u32, u32, u32), u32> = pairs
+                .iter()
+                .enumerate()
+                .map(|(i, (t, s, _))| ((t.start, t.end, s.start, s.end), i as u32))
+                .collect();
+            for (i, (t, s, _)) in pairs.iter().enumerate() {
+                if t.start < s.start {
+                    mirror[i] = at.get(&(s.start, s.end, t.start, t.end)).copied();
+                }
+            }
+        }
+        let mut has_mirror = vec![false; pairs.len()];
+        for &s in mirror.iter().flatten() {
+            has_mirror[s as usize] = true;
+        }
         let mut panels = Vec::new();
         tree::panels(&ct, 0, opts.panel_size, &mut panels);
         let mut panel_pairs = Vec::with_capacity(panels.len());
@@ -324,9 +362,36 @@ impl HPlan {
             pairs,
             panels,
             panel_pairs,
+            has_mirror,
+            mirror,
             row_points: row_points.to_vec(),
             col_points: col_points.to_vec(),
         })
+    }
+
+    /// Whether rows and columns are the same points, so that only the blocks on and below
+    /// the diagonal are solved and stored (the others are their transposes).
+    pub fn symmetric(&self) -> bool {
+        self.mirror.iter().any(Option::is_some)
+    }
+
+    /// Blocks of panel `p` that are stored (not mirrors), in order.
+    fn stored(&self, p: usize) -> impl Iterator<Item = usize> + '_ {
+        self.panel_pairs[p]
+            .clone()
+            .filter(|&i| self.mirror[i].is_none())
+    }
+
+    /// The rows (indices) panel `p`'s stored blocks need: all of them unless the plan is
+    /// symmetric, then those on and below the panel (about half on average).
+    pub fn panel_rows(&self, p: usize) -> Vec<bool> {
+        let mut need = vec![false; self.row_perm.len()];
+        for i in self.stored(p) {
+            for q in self.pairs[i].0.clone() {
+                need[self.row_perm[q as usize] as usize] = true;
+            }
+        }
+        need
     }
 
     /// The row points it was planned from.
@@ -419,9 +484,10 @@ impl HPlan {
         if data.iter().any(|v| !v.is_finite()) {
             return Err(HError::NonFinite);
         }
-        let pairs = &self.pairs[self.panel_pairs[p].clone()];
+        let pairs: Vec<&(Range<u32>, Range<u32>, bool)> =
+            self.stored(p).map(|i| &self.pairs[i]).collect();
         let tol = self.opts.tolerance;
-        let one = |(rows, cols, far): &(Range<u32>, Range<u32>, bool)| {
+        let one = |&(ref rows, ref cols, far): &(Range<u32>, Range<u32>, bool)| {
             let ri = &self.row_perm[rows.start as usize..rows.end as usize];
             let (m, n) = (3 * ri.len(), 3 * cols.len());
             let c0 = 3 * (cols.start - pr.start) as usize;
@@ -433,9 +499,15 @@ impl HPlan {
                 }
             }
             let seed = (rows.start as u64) << 32 ^ (cols.start as u64) ^ (rows.end as u64) << 48;
-            compress::compress(&b, m, n, *far, tol, seed)
+            compress::compress(&b, m, n, far, tol, seed)
         };
-        let out = par_map(pairs.len(), threads, |i| one(&pairs[i]));
+        let out = par_map(pairs.len(), threads, |i| one(pairs[i]));
+        // A stored block whose transpose is a mirror counts twice in the norms (its mirror has
+        // the same norm and the same error).
+        let twice: Vec<f64> = self
+            .stored(p)
+            .map(|i| if self.has_mirror[i] { 2.0 } else { 1.0 })
+            .collect();
         let mut panel = Panel {
             index: p,
             ranks: Vec::with_capacity(pairs.len()),
@@ -443,12 +515,12 @@ impl HPlan {
             norm_sq: 0.0,
             discarded_sq: 0.0,
         };
-        for c in out {
+        for (c, w) in out.into_iter().zip(twice) {
             let c = c?;
             panel.ranks.push(c.rank);
             panel.data.extend_from_slice(&c.data);
-            panel.norm_sq += c.norm_sq;
-            panel.discarded_sq += c.discarded_sq;
+            panel.norm_sq += w * c.norm_sq;
+            panel.discarded_sq += w * c.discarded_sq;
         }
         Ok(panel)
     }
@@ -515,15 +587,19 @@ impl HMatrix {
             row_points: Vec::new(),
             col_points: Vec::new(),
             panel_runs: Vec::with_capacity(panels.len()),
+            panel_data: Vec::with_capacity(panels.len()),
             panel_norms: Vec::with_capacity(panels.len()),
         };
+        // Mirrors' values come after every panel's, made once their stored blocks are in.
+        let mut mirrors = Vec::new();
         for (p, panel) in panels.into_iter().enumerate() {
             let run = plan.panel_pairs[p].clone();
-            if panel.ranks.len() != run.len() {
+            let stored: Vec<usize> = plan.stored(p).collect();
+            if panel.ranks.len() != stored.len() {
                 return Err(HError::PanelData(p));
             }
             let mut want = 0usize;
-            for (i, &rank) in run.clone().zip(&panel.ranks) {
+            for (&i, &rank) in stored.iter().zip(&panel.ranks) {
                 let (r, c, far) = &plan.pairs[i];
                 let min = 3 * r.len().min(c.len());
                 if rank.is_some_and(|k| !far || k as usize > min) {
@@ -544,21 +620,77 @@ impl HMatrix {
             let (base, mut local) = (h.data.len(), 0);
             h.panel_runs
                 .push(h.blocks.len() as u32..(h.blocks.len() + run.len()) as u32);
+            h.panel_data.push(base..base + panel.data.len());
             h.panel_norms.push((panel.norm_sq, panel.discarded_sq));
-            for (i, &rank) in run.zip(&panel.ranks) {
+            let mut ranks = panel.ranks.iter();
+            for i in run {
                 let (rows, cols, far) = plan.pairs[i].clone();
+                if let Some(src) = plan.mirror[i] {
+                    // Filled below from its stored block (always in an earlier position).
+                    mirrors.push((h.blocks.len(), src as usize));
+                    h.blocks.push(Block {
+                        rows,
+                        cols,
+                        rank: None,
+                        far,
+                        offset: 0,
+                        mirror: true,
+                    });
+                    continue;
+                }
+                let rank = *ranks.next().ok_or(HError::PanelData(p))?;
                 h.blocks.push(Block {
                     rows,
                     cols,
                     rank,
                     far,
                     offset: base + local,
+                    mirror: false,
                 });
                 local += plan.block_values(i, rank);
             }
             h.data.extend_from_slice(&panel.data);
             h.norm_sq += panel.norm_sq;
             h.discarded_sq += panel.discarded_sq;
+        }
+        // The mirrors: each the transpose of its stored block, the same error.
+        for (bi, src) in mirrors {
+            if src >= bi || h.blocks[src].mirror {
+                return Err(HError::PanelData(0));
+            }
+            let s = h.blocks[src].clone();
+            let (m_, n_) = (3 * s.rows.len(), 3 * s.cols.len());
+            let offset = h.data.len();
+            match s.rank {
+                None => {
+                    // Bᵀ (n × m, column-major): entry (i, j) = B(j, i).
+                    for j in 0..m_ {
+                        for i in 0..n_ {
+                            let v = h.data[s.offset + i * m_ + j];
+                            h.data.push(v);
+                        }
+                    }
+                }
+                Some(k) => {
+                    // (U Vᵀ)ᵀ = V Uᵀ: U' = V (n × k, column-major), V' = U (m × k, row-major).
+                    let k = k as usize;
+                    for l in 0..k {
+                        for i in 0..n_ {
+                            let v = h.data[s.offset + k * m_ + i * k + l];
+                            h.data.push(v);
+                        }
+                    }
+                    for j in 0..m_ {
+                        for l in 0..k {
+                            let v = h.data[s.offset + l * m_ + j];
+                            h.data.push(v);
+                        }
+                    }
+                }
+            }
+            let b = &mut h.blocks[bi];
+            b.rank = s.rank;
+            b.offset = offset;
         }
         for (p, &r) in plan.row_perm.iter().enumerate() {
             h.row_pos[r as usize] = p as u32;
@@ -613,7 +745,7 @@ impl HMatrix {
         self.leaf_blocks = lb;
     }
 
-    /// u = L_H·F over the active columns, with [`Compliance::displace`]'s meaning: `forces` are
+    /// u = L_H·F over the active columns, with `Compliance::displace`'s meaning: `forces` are
     /// (column index, force in N), `out` gets one entry per output row (metres). The cost is
     /// that of the blocks in the active columns' block columns; a far block shared by several
     /// active columns applies its `U` once. Columns out of range are ignored.
@@ -732,16 +864,15 @@ impl HMatrix {
     pub fn panel(&self, p: usize) -> Option<Panel> {
         let run = self.panel_runs.get(p)?;
         let blocks = &self.blocks[run.start as usize..run.end as usize];
-        let (start, end) = match (blocks.first(), self.blocks.get(run.end as usize)) {
-            (None, _) => (0, 0),
-            (Some(b), Some(next)) => (b.offset, next.offset),
-            (Some(b), None) => (b.offset, self.data.len()),
-        };
         let (norm_sq, discarded_sq) = self.panel_norms[p];
         Some(Panel {
             index: p,
-            ranks: blocks.iter().map(|b| b.rank).collect(),
-            data: self.data[start..end].to_vec(),
+            ranks: blocks
+                .iter()
+                .filter(|b| !b.mirror)
+                .map(|b| b.rank)
+                .collect(),
+            data: self.data[self.panel_data[p].clone()].to_vec(),
             norm_sq,
             discarded_sq,
         })
@@ -835,7 +966,7 @@ impl HMatrix {
     pub fn truncation_error(&self) -> f64 {
         self.discarded_sq.sqrt()
     }
-    /// `L_H` expanded into [`Compliance`]'s dense layout (`(3c + b)·3·rows + 3r + a`), for
+    /// `L_H` expanded into the compliance module's dense layout (`(3c + b)·3·rows + 3r + a`), for
     /// checks: as large as the dense `L`.
     pub fn to_dense(&self) -> Vec<f64> {
         let nr3 = 3 * self.row_perm.len();
@@ -880,6 +1011,29 @@ pub fn mean_rank_estimate(eps: f64) -> f64 {
     };
     let ((x0, y0), (x1, y1)) = seg;
     (y0 + (x - x0) * (y1 - y0) / (x1 - x0)).max(1.0)
+}
+
+/// When `rows` and `cols` hold the same points (in any order), the row index of each column's
+/// point; `None` otherwise.
+fn same_points(rows: &[DVec3], cols: &[DVec3]) -> Option<Vec<u32>> {
+    if rows.len() != cols.len() {
+        return None;
+    }
+    let key = |p: &DVec3| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
+    let order = |pts: &[DVec3]| {
+        let mut o: Vec<u32> = (0..pts.len() as u32).collect();
+        o.sort_unstable_by_key(|&i| (key(&pts[i as usize]), i));
+        o
+    };
+    let (ro, co) = (order(rows), order(cols));
+    let mut row_of_col = vec![0u32; cols.len()];
+    for (&r, &c) in ro.iter().zip(&co) {
+        if key(&rows[r as usize]) != key(&cols[c as usize]) {
+            return None;
+        }
+        row_of_col[c as usize] = r;
+    }
+    Some(row_of_col)
 }
 
 /// `f(0), …, f(n − 1)` on up to `threads` threads, in order.

@@ -88,8 +88,8 @@ impl ClusterTree {
 }
 
 /// The block partition below the pair (t, s): (row cluster, column cluster, admissible). A far
-/// pair whose column cluster holds more than `cap` nodes is split on its column side, so that
-/// every block lies within one panel (see [`super::HPlan`]).
+/// pair with a cluster of more than `cap` nodes is split on that side, so that every block lies
+/// within one panel (see [`super::HPlan`]).
 pub(super) fn partition(
     rt: &ClusterTree,
     ct: &ClusterTree,
@@ -102,12 +102,24 @@ pub(super) fn partition(
     let (tc, sc) = (&rt.nodes[t as usize], &ct.nodes[s as usize]);
     let dist = tc.dist(sc);
     if dist > 0.0 && tc.diam().min(sc.diam()) <= eta * dist {
-        match sc.children {
-            Some(sk) if sc.range.len() > cap => {
-                sk.iter()
-                    .for_each(|&b| partition(rt, ct, t, b, eta, cap, out));
+        // Either side wider than a panel is split (both sides alike, so that the partition of
+        // a tree with itself stays symmetric).
+        let big = |c: &Cluster| c.children.filter(|_| c.range.len() > cap);
+        match (big(tc), big(sc)) {
+            (None, None) => out.push((t, s, true)),
+            (Some(tk), None) => tk
+                .iter()
+                .for_each(|&a| partition(rt, ct, a, s, eta, cap, out)),
+            (None, Some(sk)) => sk
+                .iter()
+                .for_each(|&b| partition(rt, ct, t, b, eta, cap, out)),
+            (Some(tk), Some(sk)) => {
+                for &a in &tk {
+                    for &b in &sk {
+                        partition(rt, ct, a, b, eta, cap, out);
+                    }
+                }
             }
-            _ => out.push((t, s, true)),
         }
         return;
     }
