@@ -101,42 +101,25 @@ pub(super) fn partition(
 ) {
     let (tc, sc) = (&rt.nodes[t as usize], &ct.nodes[s as usize]);
     let dist = tc.dist(sc);
-    if dist > 0.0 && tc.diam().min(sc.diam()) <= eta * dist {
-        // Either side wider than a panel is split (both sides alike, so that the partition of
-        // a tree with itself stays symmetric).
+    let far = dist > 0.0 && tc.diam().min(sc.diam()) <= eta * dist;
+    // A far pair is one block unless a side is wider than a panel (then that side is split:
+    // both sides alike, so that the partition of a tree with itself stays symmetric); a near
+    // pair is split until both sides are leaves.
+    let (tk, sk) = if far {
         let big = |c: &Cluster| c.children.filter(|_| c.range.len() > cap);
-        match (big(tc), big(sc)) {
-            (None, None) => out.push((t, s, true)),
-            (Some(tk), None) => tk
-                .iter()
-                .for_each(|&a| partition(rt, ct, a, s, eta, cap, out)),
-            (None, Some(sk)) => sk
-                .iter()
-                .for_each(|&b| partition(rt, ct, t, b, eta, cap, out)),
-            (Some(tk), Some(sk)) => {
-                for &a in &tk {
-                    for &b in &sk {
-                        partition(rt, ct, a, b, eta, cap, out);
-                    }
-                }
-            }
-        }
+        (big(tc), big(sc))
+    } else {
+        (tc.children, sc.children)
+    };
+    if tk.is_none() && sk.is_none() {
+        out.push((t, s, far));
         return;
     }
-    match (tc.children, sc.children) {
-        (None, None) => out.push((t, s, false)),
-        (Some(tk), None) => tk
-            .iter()
-            .for_each(|&a| partition(rt, ct, a, s, eta, cap, out)),
-        (None, Some(sk)) => sk
-            .iter()
-            .for_each(|&b| partition(rt, ct, t, b, eta, cap, out)),
-        (Some(tk), Some(sk)) => {
-            for &a in &tk {
-                for &b in &sk {
-                    partition(rt, ct, a, b, eta, cap, out);
-                }
-            }
+    let ts = tk.map_or(vec![t], |k| k.to_vec());
+    let ss = sk.map_or(vec![s], |k| k.to_vec());
+    for &a in &ts {
+        for &b in &ss {
+            partition(rt, ct, a, b, eta, cap, out);
         }
     }
 }
