@@ -38,6 +38,7 @@ use xxhash_rust::xxh3::{xxh3_64, Xxh3};
 mod atomic;
 mod error;
 pub mod hier;
+mod runs;
 
 pub use atomic::write_atomic;
 pub(crate) use atomic::AtomicFile;
@@ -1065,35 +1066,16 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeInfo, CacheError> {
         }
     }
     opened.sort_by_key(|p| p.head.shard_index);
-    let mut next_col = 0u32;
-    for (i, p) in opened.iter().enumerate() {
-        if p.head.shard_index as usize != i + 1 {
-            return Err(CacheError::Mismatch {
-                path: p.path.clone(),
-                msg: format!(
-                    "part {} is given twice or part {} is missing",
-                    p.head.shard_index,
-                    i + 1
-                ),
-            });
-        }
-        if p.head.col_begin != next_col {
-            return Err(CacheError::Mismatch {
-                path: p.path.clone(),
-                msg: format!(
-                    "holds columns {}..{}, expected them to start at {next_col}",
-                    p.head.col_begin, p.head.col_end
-                ),
-            });
-        }
-        next_col = p.head.col_end;
-    }
-    if next_col != h0.cols {
-        return Err(CacheError::Mismatch {
-            path: opened[opened.len() - 1].path.clone(),
-            msg: format!("the parts end at column {next_col} of {}", h0.cols),
-        });
-    }
+    let runs: Vec<runs::PartRun<'_>> = opened
+        .iter()
+        .map(|p| runs::PartRun {
+            path: &p.path,
+            shard_index: p.head.shard_index,
+            begin: p.head.col_begin,
+            end: p.head.col_end,
+        })
+        .collect();
+    runs::check_runs(&runs, h0.cols, "columns")?;
     let residual = opened
         .iter()
         .map(|p| f64::from_bits(p.head.residual_bits))

@@ -54,6 +54,7 @@ use xxhash_rust::xxh3::{xxh3_64, Xxh3};
 
 use super::atomic::AtomicFile;
 use super::error::CacheError;
+use super::runs::{check_runs, PartRun};
 use crate::compliance::{Compliance, HierParts};
 use crate::hmatrix::{HMatrix, HOptions, HPlan, Panel};
 
@@ -782,35 +783,16 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<(Header, u64), CacheError>
         }
     }
     opened.sort_by_key(|p| p.head.shard_index);
-    let mut next = 0u32;
-    for (i, p) in opened.iter().enumerate() {
-        if p.head.shard_index as usize != i + 1 {
-            return Err(CacheError::Mismatch {
-                path: p.path.clone(),
-                msg: format!(
-                    "part {} is given twice or part {} is missing",
-                    p.head.shard_index,
-                    i + 1
-                ),
-            });
-        }
-        if p.head.panel_begin != next {
-            return Err(CacheError::Mismatch {
-                path: p.path.clone(),
-                msg: format!(
-                    "holds panels {}..{}, expected them to start at {next}",
-                    p.head.panel_begin, p.head.panel_end
-                ),
-            });
-        }
-        next = p.head.panel_end;
-    }
-    if next != h0.panels {
-        return Err(CacheError::Mismatch {
-            path: opened[opened.len() - 1].path.clone(),
-            msg: format!("the parts end at panel {next} of {}", h0.panels),
-        });
-    }
+    let runs: Vec<PartRun<'_>> = opened
+        .iter()
+        .map(|p| PartRun {
+            path: &p.path,
+            shard_index: p.head.shard_index,
+            begin: p.head.panel_begin,
+            end: p.head.panel_end,
+        })
+        .collect();
+    check_runs(&runs, h0.panels, "panels")?;
     let residual = opened
         .iter()
         .map(|p| p.head.residual)
