@@ -336,19 +336,7 @@ impl BufferPath {
         index: (&wgpu::Buffer, u64),
         max_binding: u64,
     ) -> Result<(), GpuError> {
-        let adj = adjacency(self.n_rows, tris);
-        for (what, bytes) in [
-            ("triangle list", 4 * index.1),
-            ("vertex-triangle adjacency", 4 * adj.len() as u64),
-        ] {
-            if bytes > max_binding {
-                return Err(GpuError::BufferTooLarge {
-                    what,
-                    bytes,
-                    limit: max_binding,
-                });
-            }
-        }
+        let adj = checked_adjacency(self.n_rows, tris, index.1, max_binding)?;
         self.bind_group = group0(
             device,
             &self.layout0,
@@ -378,6 +366,30 @@ impl BufferPath {
     pub(super) fn l_bytes(&self) -> u64 {
         self.chunks.iter().map(|c| c.l.size()).sum()
     }
+}
+
+/// [`adjacency`] for new triangles (`index_words` words in the index buffer), each binding
+/// checked against `max_binding` bytes.
+pub(crate) fn checked_adjacency(
+    nr: usize,
+    tris: &[[u32; 3]],
+    index_words: u64,
+    max_binding: u64,
+) -> Result<Vec<u32>, GpuError> {
+    let adj = adjacency(nr, tris);
+    for (what, bytes) in [
+        ("triangle list", 4 * index_words),
+        ("vertex-triangle adjacency", 4 * adj.len() as u64),
+    ] {
+        if bytes > max_binding {
+            return Err(GpuError::BufferTooLarge {
+                what,
+                bytes,
+                limit: max_binding,
+            });
+        }
+    }
+    Ok(adj)
 }
 
 /// The normal pass's adjacency: offsets[0..=nr] followed by the triangle ids, in one list.

@@ -11,7 +11,7 @@ use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
 use crate::bind::{buffer, compute_pipeline, specialised_pipeline, storage_entry, uniform_entry};
-use crate::buffer_path::{adjacency, pack_f16};
+use crate::buffer_path::{adjacency, checked_adjacency, pack_f16};
 use crate::context::GpuError;
 use crate::input::{FrameGpu, Shared, MAX_ACTIVE, WORKGROUP};
 use crate::shaders::{DEFORM_HIER_WGSL, DEFORM_WGSL};
@@ -604,19 +604,7 @@ impl HierPath {
         index: (&wgpu::Buffer, u64),
         max_binding: u64,
     ) -> Result<(), GpuError> {
-        let adj = adjacency(self.n_rows, tris);
-        for (what, bytes) in [
-            ("triangle list", 4 * index.1),
-            ("vertex-triangle adjacency", 4 * adj.len() as u64),
-        ] {
-            if bytes > max_binding {
-                return Err(GpuError::BufferTooLarge {
-                    what,
-                    bytes,
-                    limit: max_binding,
-                });
-            }
-        }
+        let adj = checked_adjacency(self.n_rows, tris, index.1, max_binding)?;
         self.normals_group = normals_group(
             device,
             &self.normals_layout,
