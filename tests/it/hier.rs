@@ -269,6 +269,13 @@ fn built_from_solves_meets_the_bound_for_every_method() {
             "{how:?}: {} panels",
             parts.plan.panels()
         );
+        // The Gram method sketches the larger far blocks through `W` (the others are
+        // compressed from their solved columns): both must meet the bound below.
+        assert!(
+            parts.plan.sketched_blocks() >= 20,
+            "{} sketched blocks",
+            parts.plan.sketched_blocks()
+        );
         // The same rows and columns as the dense compliance, maybe in another order.
         let mut a = parts.cols.clone();
         let mut b = c.cols().to_vec();

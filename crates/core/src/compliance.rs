@@ -1021,16 +1021,26 @@ impl Compliance {
         let mut phases = plan.phases.clone();
         let (mut residual, mut done, mut compress_s) = (0.0f64, 0, 0.0);
         let mut panels = Vec::with_capacity(which.len());
+        // With the Gram method's `W`, far blocks are sketched through it (products), and only
+        // the other blocks' rows are solved.
+        let products = plan.gram_products();
         for p in which {
             let cols = hp.panel_cols(p);
-            let need = hp.panel_rows(p);
-            let (data, r, t) = plan.solve_cols(cols, Some(&need))?;
+            let parts: Vec<_> = hp
+                .panel_leaves(p, products.is_some())
+                .into_iter()
+                .map(|(r, need)| (r, Some(need)))
+                .collect();
+            let (data, r, t) = plan.solve_col_groups(cols, &parts)?;
             residual = residual.max(r);
             phases.solve_s += t[0];
             phases.check_s += t[1];
             phases.scatter_s += t[2];
             let tc = Instant::now();
-            panels.push(hp.compress_panel(p, &data, threads)?);
+            let src = products
+                .as_ref()
+                .map(|g| g as &dyn crate::hmatrix::BlockProducts);
+            panels.push(hp.compress_panel_with(p, &data, src, threads)?);
             compress_s += tc.elapsed().as_secs_f64();
             done += cols.len();
             progress(done, total);
@@ -1066,6 +1076,83 @@ impl Compliance {
             ..parts.stats
         };
         Ok(c)
+    }
+}
+
+/// [`crate::hmatrix::BlockProducts`] through the Gram method's `W`
+/// ([`crate::gram::GramPlan::apply`]).
+pub(crate) struct GramProducts<'a> {
+    gp: &'a crate::gram::GramPlan,
+    w: &'a [f64],
+    /// Gram position of each row index (`usize::MAX`: clamped, no row of `L`).
+    pos_of_row: Vec<usize>,
+    /// Gram position of each column index.
+    pos_of_col: Vec<usize>,
+}
+
+impl crate::hmatrix::BlockProducts for GramProducts<'_> {
+    fn products(
+        &self,
+        rows: &[u32],
+        cols: &[u32],
+        transpose: bool,
+        x: faer::MatRef<'_, f64>,
+        mut out: faer::MatMut<'_, f64>,
+    ) -> Result<(), HError> {
+        let pos = |map: &[usize], idx: &[u32]| -> Result<Vec<(usize, usize)>, HError> {
+            let mut p = idx
+                .iter()
+                .enumerate()
+                .map(|(t, &i)| match map.get(i as usize) {
+                    Some(&g) if g != usize::MAX => Ok((g, t)),
+                    _ => Err(HError::Node {
+                        node: i,
+                        nodes: map.len(),
+                    }),
+                })
+                .collect::<Result<Vec<_>, _>>()?;
+            p.sort_unstable();
+            Ok(p)
+        };
+        let (r, c) = (pos(&self.pos_of_row, rows)?, pos(&self.pos_of_col, cols)?);
+        let (o, i) = if transpose { (c, r) } else { (r, c) };
+        let k = x.ncols();
+        if x.nrows() != 3 * i.len() || out.nrows() != 3 * o.len() || out.ncols() != k {
+            return Err(HError::BlockShape {
+                want: (3 * o.len(), k),
+                got: (out.nrows(), out.ncols()),
+            });
+        }
+        // The sets in Gram order (ascending positions), `x`'s rows permuted alike.
+        let mut xs = Mat::<f64>::zeros(3 * i.len(), k);
+        for j in 0..k {
+            for (t, &(_, from)) in i.iter().enumerate() {
+                for a in 0..3 {
+                    xs[(3 * t + a, j)] = x[(3 * from + a, j)];
+                }
+            }
+        }
+        let mut os = Mat::<f64>::zeros(3 * o.len(), k);
+        let (op, ip): (Vec<usize>, Vec<usize>) = (
+            o.iter().map(|p| p.0).collect(),
+            i.iter().map(|p| p.0).collect(),
+        );
+        thread_local! {
+            static SCRATCH: std::cell::RefCell<crate::gram::ApplyScratch> =
+                std::cell::RefCell::new(crate::gram::ApplyScratch::default());
+        }
+        SCRATCH.with_borrow_mut(|sc| {
+            self.gp
+                .apply(self.w, &op, &ip, xs.as_ref(), os.as_mut(), sc)
+        });
+        for j in 0..k {
+            for (t, &(_, back)) in o.iter().enumerate() {
+                for a in 0..3 {
+                    out[(3 * back + a, j)] = os[(3 * t + a, j)];
+                }
+            }
+        }
+        Ok(())
     }
 }
 
@@ -1620,15 +1707,44 @@ impl ColumnPlan {
         run_workers(workers, &work, progress)
     }
 
+    /// Products with blocks of `L` through the Gram method's `W` (`None` without it).
+    pub(crate) fn gram_products(&self) -> Option<GramProducts<'_>> {
+        let (gp, w, row_of) = self.gram.as_ref()?;
+        let mut pos_of_row = vec![usize::MAX; self.rows.len()];
+        for (g, &r) in row_of.iter().enumerate() {
+            pos_of_row[r as usize] = g;
+        }
+        let at: std::collections::HashMap<u32, usize> =
+            self.rows.iter().enumerate().map(|(i, &n)| (n, i)).collect();
+        let pos_of_col = self
+            .cols
+            .iter()
+            .map(|n| at.get(n).map(|&r| pos_of_row[r]))
+            .collect::<Option<Vec<usize>>>()?;
+        if pos_of_col.contains(&usize::MAX) {
+            return None;
+        }
+        Some(GramProducts {
+            gp,
+            w,
+            pos_of_row,
+            pos_of_col,
+        })
+    }
+
     /// The columns `want` (column indices, any order) of `L` for the hierarchical build, on
     /// all cores: `3R' × 3|want|` column-major (R' = [`ColumnPlan::l_rows`], rows by index),
     /// column `3q + b` for `want[q]` axis `b`. The first column is checked against a direct
     /// solve. Returns the columns, the check's residual and the seconds solving, checking and
     /// scattering (summed over workers).
-    pub(crate) fn solve_cols(
+    ///
+    /// The columns come in groups (ranges of `want` covering it), each with the rows it needs
+    /// (`None`: all): the Gram method's tiles then compute only those rows (the other methods
+    /// solve every row); the first column's rows of its group are the ones checked.
+    pub(crate) fn solve_col_groups(
         &self,
         want: &[u32],
-        need: Option<&[bool]>,
+        parts: &[(std::ops::Range<usize>, Option<Vec<bool>>)],
     ) -> Result<(Vec<f64>, f64, [f64; 3]), FemError> {
         use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
         let nr = self.l_rows;
@@ -1638,29 +1754,56 @@ impl ColumnPlan {
                 "a column index is out of range".into(),
             ));
         }
+        if parts.iter().map(|p| p.0.len()).sum::<usize>() != want.len()
+            || parts.iter().any(|p| p.0.end > want.len())
+            || parts
+                .iter()
+                .any(|p| p.1.as_ref().is_some_and(|n| n.len() < self.l_rows))
+        {
+            return Err(FemError::BadSelection(
+                "column groups do not cover the columns".into(),
+            ));
+        }
         // Groups of columns solved together; the Gram tiles want ascending indices.
         let mut order: Vec<usize> = (0..want.len()).collect();
         let per = if self.gram.is_some() {
-            order.sort_by_key(|&q| want[q]);
             BATCH_COLS
         } else {
             SOLVE_COLS
         };
-        let groups: Vec<&[usize]> = order.chunks(per).collect();
-        // The rows wanted, in the Gram plan's node order (the other methods solve every row).
-        let gram_rows: Option<Vec<bool>> = match (&self.gram, need) {
-            (Some((_, _, row_of)), Some(need)) => {
-                Some(row_of.iter().map(|&r| need[r as usize]).collect())
+        let mut groups: Vec<(&[usize], usize)> = Vec::new();
+        for (r, _) in parts {
+            let o = &mut order[r.clone()];
+            if self.gram.is_some() {
+                o.sort_by_key(|&q| want[q]);
             }
-            _ => None,
-        };
+        }
+        for (pi, (r, _)) in parts.iter().enumerate() {
+            // A part of the caller's is one group when it is not much wider than a batch.
+            let per = if r.len() <= 2 * per {
+                r.len().max(1)
+            } else {
+                per
+            };
+            groups.extend(order[r.clone()].chunks(per).map(|g| (g, pi)));
+        }
+        // The rows wanted, in the Gram plan's node order (the other methods solve every row).
+        let gram_rows: Vec<Option<Vec<bool>>> = parts
+            .iter()
+            .map(|(_, need)| match (&self.gram, need) {
+                (Some((_, _, row_of)), Some(need)) => {
+                    Some(row_of.iter().map(|&r| need[r as usize]).collect())
+                }
+                _ => None,
+            })
+            .collect();
         let next = AtomicUsize::new(0);
         let work = || -> Result<GroupsSolved, FemError> {
             let mut got = Vec::new();
             let mut t = [0.0f64; 3];
             loop {
                 let gi = next.fetch_add(1, Relaxed);
-                let Some(g) = groups.get(gi) else {
+                let Some(&(g, pi)) = groups.get(gi) else {
                     return Ok((got, t));
                 };
                 let cols: Vec<usize> = g.iter().map(|&q| want[q] as usize).collect();
@@ -1669,7 +1812,7 @@ impl ColumnPlan {
                 if let Some((gp, w, row_of)) = &self.gram {
                     let m = 3 * gp.nodes().len();
                     let mut tile = vec![0.0f64; m * 3 * cols.len()];
-                    gp.tile_cols(w, &cols, gram_rows.as_deref(), &mut tile, m);
+                    gp.tile_cols(w, &cols, gram_rows[pi].as_deref(), &mut tile, m);
                     t[0] += ts.elapsed().as_secs_f64();
                     let tsc = Instant::now();
                     for j in 0..3 * cols.len() {
@@ -1739,17 +1882,19 @@ impl ColumnPlan {
                 *a += v;
             }
             for (gi, data) in got {
-                for (k, &q) in groups[gi].iter().enumerate() {
+                for (k, &q) in groups[gi].0.iter().enumerate() {
                     out[3 * q * ld..][..3 * ld].copy_from_slice(&data[3 * k * ld..][..3 * ld]);
                 }
             }
         }
         let mut residual = 0.0;
-        if let Some(&c0) = want.first() {
+        if let Some((r0, need)) = parts.iter().find(|p| !p.0.is_empty()) {
             let tc = Instant::now();
-            let node = self.cols[c0 as usize];
+            let q0 = r0.start;
+            let node = self.cols[want[q0] as usize];
             let (xs, r) = self.check_solve(node)?;
-            self.agrees(&out, &xs, |ri| need.is_none_or(|n| n[ri]), node)?;
+            let at = &out[3 * q0 * ld..][..3 * ld];
+            self.agrees(at, &xs, |ri| need.as_ref().is_none_or(|n| n[ri]), node)?;
             residual = r;
             times[1] += tc.elapsed().as_secs_f64();
         }

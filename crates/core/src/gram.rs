@@ -41,6 +41,8 @@ pub struct GramPlan {
     off: Vec<usize>,
     /// Per factor column, whether the factor's `Σ` is −1 there (empty: `Σ = I`).
     negative: Vec<bool>,
+    /// Each supernode's parent (`usize::MAX` at a root).
+    parent: Vec<usize>,
     /// Floating-point operations of [`GramPlan::forward`] (estimate).
     pub forward_flops: f64,
     /// Floating-point operations of all the [`GramPlan::tile`]s (estimate).
@@ -186,6 +188,7 @@ impl GramPlan {
             t_range,
             off,
             negative: f.negative().to_vec(),
+            parent,
             forward_flops: fwd,
             gram_flops: gram,
         })
@@ -484,6 +487,112 @@ impl GramPlan {
         }
     }
 
+    /// `out += (K⁻¹)[R, C] · c` for any two sets of displayed nodes, given as ascending Gram
+    /// positions (indices into [`GramPlan::nodes`]): `c` is `3|C| × k`, `out` `3|R| × k`,
+    /// DOFs in the sets' order. Only the supernodes both sets reach are visited, each as two
+    /// products through its block of `W` (`W_s[C]ᵀ·c`, then `W_s[R]·` that), so a product of
+    /// `k` vectors costs about `k·(|R| + |C|)` per shared supernode column, not `|R|·|C|`:
+    /// the sketches that compress a far block. The result does not depend on threads.
+    pub fn apply(
+        &self,
+        w: &[f64],
+        rows: &[usize],
+        cols: &[usize],
+        c: MatRef<'_, f64>,
+        mut out: MatMut<'_, f64>,
+        sc: &mut ApplyScratch,
+    ) {
+        let k = c.ncols();
+        assert!(c.nrows() == 3 * cols.len() && out.nrows() == 3 * rows.len());
+        assert!(out.ncols() == k);
+        assert!(rows.windows(2).all(|p| p[0] < p[1]) && cols.windows(2).all(|p| p[0] < p[1]));
+        let nsn = self.begin.len() - 1;
+        if sc.mark.len() != nsn {
+            sc.mark = vec![0; nsn];
+            sc.stamp = 0;
+        }
+        // The supernodes both sets reach: the common ancestors of their home supernodes.
+        sc.stamp = sc.stamp.wrapping_add(2);
+        if sc.stamp < 2 {
+            sc.mark.fill(0);
+            sc.stamp = 2;
+        }
+        let (a, b) = (sc.stamp, sc.stamp + 1);
+        let home = |g: usize| {
+            self.sn_of[self.col_of[3 * g..3 * g + 3]
+                .iter()
+                .copied()
+                .min()
+                .unwrap_or(0)] as usize
+        };
+        for &g in cols {
+            let mut s = home(g);
+            while s != usize::MAX && sc.mark[s] != a {
+                sc.mark[s] = a;
+                s = self.parent[s];
+            }
+        }
+        sc.list.clear();
+        for &g in rows {
+            let mut s = home(g);
+            while s != usize::MAX && sc.mark[s] != b {
+                if sc.mark[s] == a {
+                    sc.list.push(s);
+                }
+                sc.mark[s] = b;
+                s = self.parent[s];
+            }
+        }
+        sc.list.sort_unstable();
+        let list = std::mem::take(&mut sc.list);
+        for &s in &list {
+            let (lo, hi) = self.range[s];
+            let md = 3 * (hi - lo);
+            let ns = self.begin[s + 1] - self.begin[s];
+            let ws = MatRef::from_column_major_slice(&w[self.off[s]..self.off[s + 1]], md, ns);
+            let run = |set: &[usize]| {
+                (
+                    set.partition_point(|&g| g < lo),
+                    set.partition_point(|&g| g < hi),
+                )
+            };
+            let ((c0, c1), (r0, r1)) = (run(cols), run(rows));
+            if c0 >= c1 || r0 >= r1 {
+                continue;
+            }
+            // z = Σ_s W_s[C]ᵀ c (the factor's signs applied to its rows).
+            sc.z.clear();
+            sc.z.resize(ns * k, 0.0);
+            let mut z = MatMut::from_column_major_slice_mut(&mut sc.z, ns, k);
+            let wc = rows_of(ws, lo, &cols[c0..c1], &mut sc.wc);
+            faer::linalg::matmul::matmul(
+                z.rb_mut(),
+                Accum::Replace,
+                wc.transpose(),
+                c.subrows(3 * c0, 3 * (c1 - c0)),
+                1.0,
+                Par::Seq,
+            );
+            if let Some(neg) = self.negative.get(self.begin[s]..self.begin[s + 1]) {
+                for (i, _) in neg.iter().enumerate().filter(|x| *x.1) {
+                    for j in 0..k {
+                        z[(i, j)] = -z[(i, j)];
+                    }
+                }
+            }
+            let wr = rows_of(ws, lo, &rows[r0..r1], &mut sc.wr);
+            faer::linalg::matmul::matmul(
+                out.rb_mut().subrows_mut(3 * r0, 3 * (r1 - r0)),
+                Accum::Add,
+                wr,
+                z.rb(),
+                1.0,
+                Par::Seq,
+            );
+        }
+        sc.list = list;
+    }
+
     /// Columns `j0..j1` of the touchable list: `out` (`3·nodes × 3·(j1 − j0)`, column-major
     /// with column stride `ld` ≥ 3·nodes, rows in Gram order) receives `(K⁻¹)[S, T_j0..j1]`
     /// except on the node rows `skip` (left as they are); it must be zero on entry.
@@ -526,6 +635,53 @@ impl GramPlan {
             }
         }
     }
+}
+
+/// Reusable buffers of [`GramPlan::apply`] (one per thread).
+#[derive(Default)]
+pub struct ApplyScratch {
+    mark: Vec<u32>,
+    stamp: u32,
+    list: Vec<usize>,
+    wc: Vec<f64>,
+    wr: Vec<f64>,
+    z: Vec<f64>,
+}
+
+/// The rows of the nodes at Gram positions `pos` (ascending, within `lo..`) of a supernode's
+/// block `ws`: a view when they are consecutive, else gathered into `buf`.
+fn rows_of<'a>(
+    ws: MatRef<'a, f64>,
+    lo: usize,
+    pos: &[usize],
+    buf: &'a mut Vec<f64>,
+) -> MatRef<'a, f64> {
+    let (first, n) = (pos[0] - lo, pos.len());
+    if pos[n - 1] - pos[0] + 1 == n {
+        return ws.subrows(3 * first, 3 * n);
+    }
+    let (r, ns) = (3 * n, ws.ncols());
+    buf.clear();
+    buf.resize(r * ns, 0.0);
+    for i in 0..ns {
+        let col = ws.col(i).try_as_col_major().map(|c| c.as_slice());
+        let dst = &mut buf[i * r..][..r];
+        match col {
+            Some(col) => {
+                for (t, &g) in pos.iter().enumerate() {
+                    dst[3 * t..3 * t + 3].copy_from_slice(&col[3 * (g - lo)..3 * (g - lo) + 3]);
+                }
+            }
+            None => {
+                for (t, &g) in pos.iter().enumerate() {
+                    for a in 0..3 {
+                        dst[3 * t + a] = ws[(3 * (g - lo) + a, i)];
+                    }
+                }
+            }
+        }
+    }
+    MatRef::from_column_major_slice(buf, r, ns)
 }
 
 /// Solves `K x = e_d` for unit right-hand sides on the supernodal factor, skipping what the
@@ -659,6 +815,61 @@ mod tests {
                 one.iter().zip(&w).all(|(a, b)| a.to_bits() == b.to_bits()),
                 "{t} threads"
             );
+        }
+    }
+
+    /// `apply` of a set of vectors equals the Gram tiles' entries (all rows) times them, for
+    /// scattered, consecutive and disjoint node sets.
+    #[test]
+    fn apply_equals_the_tiles_times_the_vectors() {
+        let m = crate::mesh::cube_with([8, 8, 8], [30.0, 30.0, 30.0], crate::Material::DEFAULT)
+            .expect("cube");
+        let k = crate::fem::Stiffness::assemble(&m).expect("K");
+        let f = k.factorize().expect("factor");
+        let shown = m.free_surface_nodes();
+        let g = GramPlan::new(&f, &k.dofs, &shown, &shown).expect("supernodal");
+        let w = g.forward(&f, 1).expect("W");
+        let n = g.nodes().len();
+        let nt = g.t_pos.len();
+        let mm = 3 * n;
+        let mut full = vec![0.0; mm * 3 * nt];
+        g.tile_cols(&w, &(0..nt).collect::<Vec<_>>(), None, &mut full, mm);
+        // Column j of the tiles is touchable j, at Gram position t_pos[j].
+        let mut col_at = vec![usize::MAX; n];
+        for (j, &p) in g.t_pos.iter().enumerate() {
+            col_at[p] = j;
+        }
+        let mut sc = ApplyScratch::default();
+        let sets: [(Vec<usize>, Vec<usize>); 3] = [
+            ((0..n).step_by(3).collect(), (1..n).step_by(5).collect()),
+            ((n / 2..n).collect(), (0..n / 3).collect()),
+            ((0..n).collect(), (0..n).collect()),
+        ];
+        for (rows, cols) in sets {
+            let kk = 4;
+            let c = Mat::<f64>::from_fn(3 * cols.len(), kk, |i, j| {
+                ((i * 7 + j * 3) % 11) as f64 - 5.0
+            });
+            let mut out = Mat::<f64>::zeros(3 * rows.len(), kk);
+            g.apply(&w, &rows, &cols, c.as_ref(), out.as_mut(), &mut sc);
+            let mut worst = 0.0f64;
+            let mut scale = 0.0f64;
+            for (ri, &r) in rows.iter().enumerate() {
+                for a in 0..3 {
+                    for j in 0..kk {
+                        let mut want = 0.0;
+                        for (ci, &cp) in cols.iter().enumerate() {
+                            for b in 0..3 {
+                                want += full[(3 * col_at[cp] + b) * mm + 3 * r + a]
+                                    * c[(3 * ci + b, j)];
+                            }
+                        }
+                        worst = worst.max((out[(3 * ri + a, j)] - want).abs());
+                        scale = scale.max(want.abs());
+                    }
+                }
+            }
+            assert!(scale > 0.0 && worst <= 1e-10 * scale, "{worst} of {scale}");
         }
     }
 }

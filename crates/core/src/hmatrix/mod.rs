@@ -276,6 +276,22 @@ impl Panel {
     }
 }
 
+/// Products with blocks of `L`, for the far blocks a panel compresses by sketching
+/// ([`HPlan::compress_panel_with`]) instead of from its columns.
+pub trait BlockProducts: Sync {
+    /// `out = L[rows, cols]·x` (`transpose` false; `x` is `3|cols| × k`, `out` `3|rows| × k`)
+    /// or `L[rows, cols]ᵀ·x` (`x` `3|rows| × k`, `out` `3|cols| × k`): `rows` are row
+    /// indices, `cols` column indices, DOFs in their order; `out` is zero on entry.
+    fn products(
+        &self,
+        rows: &[u32],
+        cols: &[u32],
+        transpose: bool,
+        x: faer::MatRef<'_, f64>,
+        out: faer::MatMut<'_, f64>,
+    ) -> Result<(), HError>;
+}
+
 impl HPlan {
     /// The plan for rows at `row_points` and columns at `col_points` (row `i` is output entry
     /// `i`; `out_rows ≥ row_points.len()` entries are written by [`HMatrix::displace`], the
@@ -385,8 +401,78 @@ impl HPlan {
     /// The rows (indices) panel `p`'s stored blocks need: all of them unless the plan is
     /// symmetric, then those on and below the panel (about half on average).
     pub fn panel_rows(&self, p: usize) -> Vec<bool> {
+        self.rows_of(p, false)
+    }
+
+    /// As [`HPlan::panel_rows`] for the blocks compressed from the panel's columns when the
+    /// far blocks that pay for it are sketched ([`HPlan::compress_panel_with`]).
+    pub fn panel_rows_unsketched(&self, p: usize) -> Vec<bool> {
+        self.rows_of(p, true)
+    }
+
+    /// Whether block `i` is compressed by sketching when products are at hand: a far block
+    /// for which `(2k + p)` vectors through it cost less than its `3|cols|` columns.
+    fn sketched(&self, i: usize) -> bool {
+        let (r, c, far) = &self.pairs[i];
+        let (m, n) = (3 * r.len(), 3 * c.len());
+        *far && m * n >= (m + n) * (2 * self.sketch_k() + compress::PROBES)
+    }
+
+    /// Stored blocks compressed by sketching when products are at hand (with the Gram
+    /// method's `W`): the far blocks for which that costs less than their columns.
+    pub fn sketched_blocks(&self) -> usize {
+        (0..self.pairs.len())
+            .filter(|&i| self.mirror[i].is_none() && self.sketched(i))
+            .count()
+    }
+
+    /// The first number of test vectors of a sketch: 1.5× the mean rank at a fifth of the
+    /// tolerance (the probes' margin asks for a better basis), and 4 more; a block that needs
+    /// more is sketched again with twice as many.
+    fn sketch_k(&self) -> usize {
+        (1.5 * mean_rank_estimate(self.opts.tolerance / 5.0)).ceil() as usize + 4
+    }
+
+    /// Panel `p`'s column leaves, as ranges of [`HPlan::panel_cols`], each with the rows (indices)
+    /// its stored blocks need (without the sketched ones when `skip_sketched`): the groups a
+    /// panel's columns are solved in, each for its own rows.
+    pub fn panel_leaves(&self, p: usize, skip_sketched: bool) -> Vec<(Range<usize>, Vec<bool>)> {
+        let Some(pr) = self.panels.get(p) else {
+            return Vec::new();
+        };
+        let start = self.col_leaves.partition_point(|l| l.start < pr.start);
+        let mut out = Vec::new();
+        for leaf in self.col_leaves[start..]
+            .iter()
+            .take_while(|l| l.start < pr.end)
+        {
+            let mut need = vec![false; self.row_perm.len()];
+            for i in self.stored(p) {
+                let (rows, cols, _) = &self.pairs[i];
+                if cols.end <= leaf.start || cols.start >= leaf.end {
+                    continue;
+                }
+                if skip_sketched && self.sketched(i) {
+                    continue;
+                }
+                for q in rows.clone() {
+                    need[self.row_perm[q as usize] as usize] = true;
+                }
+            }
+            out.push((
+                (leaf.start - pr.start) as usize..(leaf.end - pr.start) as usize,
+                need,
+            ));
+        }
+        out
+    }
+
+    fn rows_of(&self, p: usize, skip_sketched: bool) -> Vec<bool> {
         let mut need = vec![false; self.row_perm.len()];
         for i in self.stored(p) {
+            if skip_sketched && self.sketched(i) {
+                continue;
+            }
             for q in self.pairs[i].0.clone() {
                 need[self.row_perm[q as usize] as usize] = true;
             }
@@ -470,6 +556,20 @@ impl HPlan {
     /// `a` to column `panel_cols(p)[j]` axis `b`. The blocks are compressed on up to `threads`
     /// threads; the result does not depend on how many.
     pub fn compress_panel(&self, p: usize, data: &[f64], threads: usize) -> Result<Panel, HError> {
+        self.compress_panel_with(p, data, None, threads)
+    }
+
+    /// As [`HPlan::compress_panel`], the far blocks that pay for it compressed from
+    /// `products` by sketching (`data` then needs only [`HPlan::panel_rows_unsketched`]; the
+    /// other rows are not read). A sketched block's error is estimated, not measured (the
+    /// module's guarantee).
+    pub fn compress_panel_with(
+        &self,
+        p: usize,
+        data: &[f64],
+        products: Option<&dyn BlockProducts>,
+        threads: usize,
+    ) -> Result<Panel, HError> {
         let Some(pr) = self.panels.get(p) else {
             return Err(HError::Panel(p, self.panels.len()));
         };
@@ -484,12 +584,41 @@ impl HPlan {
         if data.iter().any(|v| !v.is_finite()) {
             return Err(HError::NonFinite);
         }
-        let pairs: Vec<&(Range<u32>, Range<u32>, bool)> =
-            self.stored(p).map(|i| &self.pairs[i]).collect();
+        let stored: Vec<usize> = self.stored(p).collect();
         let tol = self.opts.tolerance;
-        let one = |&(ref rows, ref cols, far): &(Range<u32>, Range<u32>, bool)| {
+        let one = |i: usize| {
+            let (rows, cols, far) = &self.pairs[i];
             let ri = &self.row_perm[rows.start as usize..rows.end as usize];
+            let ci = &self.col_perm[cols.start as usize..cols.end as usize];
             let (m, n) = (3 * ri.len(), 3 * cols.len());
+            let seed = (rows.start as u64) << 32 ^ (cols.start as u64) ^ (rows.end as u64) << 48;
+            if let Some(src) = products.filter(|_| self.sketched(i)) {
+                let mut through =
+                    |t: bool, x: faer::MatRef<'_, f64>, out: faer::MatMut<'_, f64>| {
+                        src.products(ri, ci, t, x, out)
+                    };
+                if let Some(c) =
+                    compress::sketch(m, n, tol, seed ^ 0x5EED, self.sketch_k(), &mut through)?
+                {
+                    return Ok(c);
+                }
+                // Not worth factors by sketching: the block itself, from its products.
+                let mut b = faer::Mat::<f64>::zeros(m, n);
+                src.products(
+                    ri,
+                    ci,
+                    false,
+                    faer::Mat::<f64>::identity(n, n).as_ref(),
+                    b.as_mut(),
+                )?;
+                let b: Vec<f64> = (0..n)
+                    .flat_map(|j| b.col(j).iter().copied().collect::<Vec<_>>())
+                    .collect();
+                if b.iter().any(|v| !v.is_finite()) {
+                    return Err(HError::NonFinite);
+                }
+                return compress::compress(&b, m, n, *far, tol, seed);
+            }
             let c0 = 3 * (cols.start - pr.start) as usize;
             let mut b = Vec::with_capacity(m * n);
             for j in 0..n {
@@ -498,10 +627,9 @@ impl HPlan {
                     b.extend_from_slice(&col[3 * r as usize..3 * r as usize + 3]);
                 }
             }
-            let seed = (rows.start as u64) << 32 ^ (cols.start as u64) ^ (rows.end as u64) << 48;
-            compress::compress(&b, m, n, far, tol, seed)
+            compress::compress(&b, m, n, *far, tol, seed)
         };
-        let out = par_map(pairs.len(), threads, |i| one(pairs[i]));
+        let out = par_map(stored.len(), threads, |i| one(stored[i]));
         // A stored block whose transpose is a mirror counts twice in the norms (its mirror has
         // the same norm and the same error).
         let twice: Vec<f64> = self
@@ -510,7 +638,7 @@ impl HPlan {
             .collect();
         let mut panel = Panel {
             index: p,
-            ranks: Vec::with_capacity(pairs.len()),
+            ranks: Vec::with_capacity(stored.len()),
             data: Vec::new(),
             norm_sq: 0.0,
             discarded_sq: 0.0,
