@@ -1,6 +1,7 @@
-//! Compression of one block to a tolerance: a randomized range finder whose error is measured
-//! exactly, then the SVD of the small projected block (Halko, Martinsson & Tropp 2011, §4.4
-//! with the exact residual instead of the probabilistic estimate).
+//! Compression of one block to a tolerance (Halko, Martinsson & Tropp 2011): from its values,
+//! a randomized range finder whose error is measured exactly, then the SVD of the small
+//! projected block (§4.4 with the exact residual instead of the probabilistic estimate); seen
+//! only through products, a sketch with held-out probes (§4.3) and the same SVD.
 
 use faer::linalg::matmul::matmul;
 use faer::{Accum, Mat, MatRef, Par};

@@ -18,18 +18,30 @@
 //!   panel's columns of `L` are solved together (only the rows its stored blocks need), its
 //!   blocks compressed ([`HPlan::compress_panel`]), and the columns dropped, so the dense `L`
 //!   is never held; shards are runs of panels ([`HMatrix::from_panels`] joins them).
-//! * **Compression** of a far block `B` (3|τ| × 3|σ|): a randomized range finder (16 Gaussian
-//!   test vectors at a time, seeded by the block's position) until `‖B − QQᵀB‖_F² ≤ ½ε²‖B‖_F²`,
-//!   then the SVD of the small `QᵀB` truncated within the rest of the budget; the error
-//!   `‖B − UVᵀ‖_F` is then measured on the block itself. A block over budget (rounding) or whose
-//!   factors would take more room than the block stays dense. Stored as `U` (singular values
-//!   folded in) and `V`.
+//! * **Compression** of a far block `B` (3|τ| × 3|σ|) from its values: a randomized range
+//!   finder (16 Gaussian test vectors at a time, seeded by the block's position) until
+//!   `‖B − QQᵀB‖_F² ≤ ½ε²‖B‖_F²`, then the SVD of the small `QᵀB` truncated within the rest of
+//!   the budget; the error `‖B − UVᵀ‖_F` is then measured on the block itself. A block over
+//!   budget (rounding) or whose factors would take more room than the block stays dense.
+//!   Stored as `U` (singular values folded in) and `V`.
+//! * **Sketching** ([`HPlan::compress_panel_with`], [`BlockProducts`]): with the Gram method's
+//!   `W` at hand, a far block for which `2k + p` vectors cost less than its `3|σ|` columns is
+//!   never formed. `Y = BΩ` (`k` Gaussian vectors and `p` = 10 held-out probes) and `BᵀQ`
+//!   (`Q` an orthonormal basis of the first `k` columns of `Y`) come from two products through
+//!   `W` over the supernodes both clusters reach (`GramPlan::apply`); the probes estimate the
+//!   residual `‖(I − QQᵀ)B‖_F²`, which is charged ten times to the budget (`k` doubled while
+//!   it takes more than half); the SVD of `QᵀB` is truncated within the rest. `‖B‖_F²` is
+//!   `‖QᵀB‖_F²` plus the estimate.
 //!
 //! # Guarantee
-//! * Per far block: `‖B − UVᵀ‖_F ≤ ε‖B‖_F` (measured).
+//! * Per far block: `‖B − UVᵀ‖_F ≤ ε‖B‖_F` — measured for a block compressed from its values;
+//!   for a sketched block it holds unless the probes underestimate the residual more than
+//!   tenfold, which for 10 Gaussian probes has probability below 2·10⁻⁴ per block (`χ²₁₀ < 1`);
+//!   an underestimate by `f > 10` lets the block's error reach at most `√(1 + f/20)·ε‖B‖_F`.
 //! * Globally: the blocks partition `L` and near blocks are exact, so
 //!   `‖L − L_H‖_F² = Σ_far ‖B − UVᵀ‖_F² ≤ ε² Σ_far ‖B‖_F² ≤ ε²‖L‖_F²`, i.e.
-//!   `‖L − L_H‖_F ≤ ε‖L‖_F`. The left-hand side is [`HMatrix::truncation_error`].
+//!   `‖L − L_H‖_F ≤ ε‖L‖_F`. [`HMatrix::truncation_error`] is that left-hand side, measured
+//!   for blocks compressed from their values and estimated (unbiased) for sketched ones.
 //! * Per point load `f` at one column: `‖Δu‖₂ ≤ ‖L − L_H‖₂·|f| ≤ ε‖L‖_F·|f|` (relative to `‖L‖_F`,
 //!   not to `‖u‖`: the relative error of one load is measured, not bounded).
 //!
