@@ -499,19 +499,36 @@ impl GramPlan {
         rows: &[usize],
         cols: &[usize],
         c: MatRef<'_, f64>,
+        out: MatMut<'_, f64>,
+        sc: &mut ApplyScratch,
+    ) {
+        self.apply_pieces(w, rows, &[(cols, c)], out, sc);
+    }
+
+    /// As [`GramPlan::apply`] for several column sets at once, each with its own vectors:
+    /// `out = [(K⁻¹)[R, C₁]·c₁, (K⁻¹)[R, C₂]·c₂, …]` (`out` is `3|R| × Σ kᵢ`). Each supernode's
+    /// rows of `R` are gathered once for all the sets: the products `Bᵢᵀ Qᵢ` of the far blocks
+    /// of one column cluster.
+    pub fn apply_pieces(
+        &self,
+        w: &[f64],
+        rows: &[usize],
+        pieces: &[(&[usize], MatRef<'_, f64>)],
         mut out: MatMut<'_, f64>,
         sc: &mut ApplyScratch,
     ) {
-        let k = c.ncols();
-        assert!(c.nrows() == 3 * cols.len() && out.nrows() == 3 * rows.len());
-        assert!(out.ncols() == k);
-        assert!(rows.windows(2).all(|p| p[0] < p[1]) && cols.windows(2).all(|p| p[0] < p[1]));
+        let k: usize = pieces.iter().map(|p| p.1.ncols()).sum();
+        assert!(out.nrows() == 3 * rows.len() && out.ncols() == k);
+        assert!(rows.windows(2).all(|p| p[0] < p[1]));
+        for (cols, c) in pieces {
+            assert!(c.nrows() == 3 * cols.len() && cols.windows(2).all(|p| p[0] < p[1]));
+        }
         let nsn = self.begin.len() - 1;
         if sc.mark.len() != nsn {
             sc.mark = vec![0; nsn];
             sc.stamp = 0;
         }
-        // The supernodes both sets reach: the common ancestors of their home supernodes.
+        // The supernodes both sides reach: the common ancestors of their home supernodes.
         sc.stamp = sc.stamp.wrapping_add(2);
         if sc.stamp < 2 {
             sc.mark.fill(0);
@@ -525,7 +542,7 @@ impl GramPlan {
                 .min()
                 .unwrap_or(0)] as usize
         };
-        for &g in cols {
+        for &g in pieces.iter().flat_map(|p| p.0.iter()) {
             let mut s = home(g);
             while s != usize::MAX && sc.mark[s] != a {
                 sc.mark[s] = a;
@@ -556,23 +573,35 @@ impl GramPlan {
                     set.partition_point(|&g| g < hi),
                 )
             };
-            let ((c0, c1), (r0, r1)) = (run(cols), run(rows));
-            if c0 >= c1 || r0 >= r1 {
+            let (r0, r1) = run(rows);
+            if r0 >= r1 {
                 continue;
             }
-            // z = Σ_s W_s[C]ᵀ c (the factor's signs applied to its rows).
+            // z = W_s[Cᵢ]ᵀ cᵢ side by side (the factor's signs applied to its rows).
             sc.z.clear();
             sc.z.resize(ns * k, 0.0);
             let mut z = MatMut::from_column_major_slice_mut(&mut sc.z, ns, k);
-            let wc = rows_of(ws, lo, &cols[c0..c1], &mut sc.wc);
-            faer::linalg::matmul::matmul(
-                z.rb_mut(),
-                Accum::Replace,
-                wc.transpose(),
-                c.subrows(3 * c0, 3 * (c1 - c0)),
-                1.0,
-                Par::Seq,
-            );
+            let (mut at, mut any) = (0, false);
+            for (cols, c) in pieces {
+                let kc = c.ncols();
+                let (c0, c1) = run(cols);
+                if c0 < c1 {
+                    let wc = rows_of(ws, lo, &cols[c0..c1], &mut sc.wc);
+                    faer::linalg::matmul::matmul(
+                        z.rb_mut().subcols_mut(at, kc),
+                        Accum::Replace,
+                        wc.transpose(),
+                        c.subrows(3 * c0, 3 * (c1 - c0)),
+                        1.0,
+                        Par::Seq,
+                    );
+                    any = true;
+                }
+                at += kc;
+            }
+            if !any {
+                continue;
+            }
             if let Some(neg) = self.negative.get(self.begin[s]..self.begin[s + 1]) {
                 for (i, _) in neg.iter().enumerate().filter(|x| *x.1) {
                     for j in 0..k {
@@ -870,6 +899,31 @@ mod tests {
                 }
             }
             assert!(scale > 0.0 && worst <= 1e-10 * scale, "{worst} of {scale}");
+        }
+        // Several column sets at once equal one `apply` each, side by side.
+        let rows: Vec<usize> = (0..n).step_by(2).collect();
+        let (c1, c2): (Vec<usize>, Vec<usize>) =
+            ((1..n).step_by(4).collect(), (3..n / 2).collect());
+        let x1 = Mat::<f64>::from_fn(3 * c1.len(), 3, |i, j| ((i + 5 * j) % 7) as f64 - 3.0);
+        let x2 = Mat::<f64>::from_fn(3 * c2.len(), 5, |i, j| ((2 * i + j) % 9) as f64 - 4.0);
+        let mut both = Mat::<f64>::zeros(3 * rows.len(), 8);
+        g.apply_pieces(
+            &w,
+            &rows,
+            &[(&c1, x1.as_ref()), (&c2, x2.as_ref())],
+            both.as_mut(),
+            &mut sc,
+        );
+        let mut one = Mat::<f64>::zeros(3 * rows.len(), 3);
+        let mut two = Mat::<f64>::zeros(3 * rows.len(), 5);
+        g.apply(&w, &rows, &c1, x1.as_ref(), one.as_mut(), &mut sc);
+        g.apply(&w, &rows, &c2, x2.as_ref(), two.as_mut(), &mut sc);
+        let scale = one.norm_max().max(two.norm_max());
+        for i in 0..3 * rows.len() {
+            for j in 0..8 {
+                let want = if j < 3 { one[(i, j)] } else { two[(i, j - 3)] };
+                assert!((both[(i, j)] - want).abs() <= 1e-12 * scale, "({i}, {j})");
+            }
         }
     }
 }

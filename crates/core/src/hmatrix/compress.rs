@@ -213,97 +213,135 @@ pub(super) fn sketch(
     k0: usize,
     products: &mut Products<'_>,
 ) -> Result<Option<Compressed>, HError> {
-    let k_max = (m * n).saturating_sub(1) / (m + n).max(1);
     let mut rng = SplitMix(seed);
     let mut k = k0.max(1);
     loop {
-        if k >= k_max || k + PROBES >= m.min(n) {
+        if !sketch_pays(m, n, k) {
             return Ok(None);
         }
-        let omega = Mat::<f64>::from_fn(n, k + PROBES, |_, _| rng.gaussian());
+        let omega = test_vectors(n, k + PROBES, &mut rng);
         let mut y = Mat::<f64>::zeros(m, k + PROBES);
         products(false, omega.as_ref(), y.as_mut())?;
-        if y.col_iter().any(|c| c.iter().any(|v| !v.is_finite())) {
-            return Err(HError::NonFinite);
-        }
-        let q = y.subcols(0, k).qr().compute_thin_Q();
-        let mut probe = y.subcols(k, PROBES).to_owned();
-        for _ in 0..2 {
-            let mut qp = Mat::<f64>::zeros(k, PROBES);
-            matmul(
-                qp.as_mut(),
-                Accum::Replace,
-                q.transpose(),
-                probe.as_ref(),
-                1.0,
-                Par::Seq,
-            );
-            matmul(
-                probe.as_mut(),
-                Accum::Add,
-                q.as_ref(),
-                qp.as_ref(),
-                -1.0,
-                Par::Seq,
-            );
-        }
-        let est: f64 = probe.col_iter().map(|c| c.squared_norm_l2()).sum::<f64>() / PROBES as f64;
+        let (q, est) = basis(y.as_ref(), k)?;
         let mut c = Mat::<f64>::zeros(n, k);
         products(true, q.as_ref(), c.as_mut())?;
-        if c.col_iter().any(|c| c.iter().any(|v| !v.is_finite())) {
-            return Err(HError::NonFinite);
+        match finish(m, n, tol, q.as_ref(), est, c.as_ref())? {
+            Sketch::Short => k *= 2,
+            Sketch::NotWorth => return Ok(None),
+            Sketch::Done(c) => return Ok(Some(c)),
         }
-        let c_sq: f64 = c.col_iter().map(|c| c.squared_norm_l2()).sum();
-        let norm_sq = c_sq + est;
-        let budget = tol * tol * norm_sq;
-        if norm_sq == 0.0 {
-            return Ok(Some(Compressed {
-                rank: Some(0),
-                data: Vec::new(),
-                norm_sq,
-                discarded_sq: 0.0,
-            }));
-        }
-        if SAFETY * est > 0.5 * budget {
-            k *= 2;
-            continue;
-        }
-        // QᵀB = Cᵀ = (V S Uᵀ)ᵀ with C = V S Uᵀ: B ≈ (Q U S) Vᵀ.
-        let svd = c.thin_svd().map_err(|_| HError::Svd(n, k))?;
-        let s = svd.S().column_vector();
-        let (mut r, mut tail) = (s.nrows(), 0.0);
-        while r > 0 && SAFETY * est + tail + s[r - 1] * s[r - 1] <= budget {
-            tail += s[r - 1] * s[r - 1];
-            r -= 1;
-        }
-        if r > k_max {
-            return Ok(None);
-        }
-        let (v, uq) = (svd.U(), svd.V());
-        let mut us = Mat::<f64>::zeros(m, r);
-        let uqs = Mat::<f64>::from_fn(k, r, |i, l| uq[(i, l)] * s[l]);
+    }
+}
+
+/// Whether a sketch with `k` vectors (and the probes) can still give factors that pay.
+pub(super) fn sketch_pays(m: usize, n: usize, k: usize) -> bool {
+    let k_max = (m * n).saturating_sub(1) / (m + n).max(1);
+    k < k_max && k + PROBES < m.min(n)
+}
+
+/// `cols` Gaussian test vectors of length `n` from `rng`.
+pub(super) fn test_vectors(n: usize, cols: usize, rng: &mut SplitMix) -> Mat<f64> {
+    Mat::<f64>::from_fn(n, cols, |_, _| rng.gaussian())
+}
+
+/// From a sketch `Y = BΩ` (`k` + [`PROBES`] columns): `Q`, an orthonormal basis of its first
+/// `k` columns, and the probes' estimate of `‖(I − QQᵀ)B‖_F²`.
+pub(super) fn basis(y: MatRef<'_, f64>, k: usize) -> Result<(Mat<f64>, f64), HError> {
+    if y.col_iter().any(|c| c.iter().any(|v| !v.is_finite())) {
+        return Err(HError::NonFinite);
+    }
+    let q = y.subcols(0, k).qr().compute_thin_Q();
+    let mut probe = y.subcols(k, PROBES).to_owned();
+    for _ in 0..2 {
+        let mut qp = Mat::<f64>::zeros(k, PROBES);
         matmul(
-            us.as_mut(),
+            qp.as_mut(),
             Accum::Replace,
-            q.as_ref(),
-            uqs.as_ref(),
+            q.transpose(),
+            probe.as_ref(),
             1.0,
             Par::Seq,
         );
-        let mut data = Vec::with_capacity(r * (m + n));
-        for l in 0..r {
-            data.extend((0..m).map(|i| us[(i, l)]));
-        }
-        for j in 0..n {
-            data.extend((0..r).map(|l| v[(j, l)]));
-        }
-        return Ok(Some(Compressed {
-            rank: Some(r as u32),
-            data,
+        matmul(
+            probe.as_mut(),
+            Accum::Add,
+            q.as_ref(),
+            qp.as_ref(),
+            -1.0,
+            Par::Seq,
+        );
+    }
+    let est: f64 = probe.col_iter().map(|c| c.squared_norm_l2()).sum::<f64>() / PROBES as f64;
+    Ok((q, est))
+}
+
+/// What a sketch gave.
+pub(super) enum Sketch {
+    /// The factors, within the tolerance.
+    Done(Compressed),
+    /// The basis misses too much: sketch again with more vectors.
+    Short,
+    /// The factors would not pay.
+    NotWorth,
+}
+
+/// Truncates a sketch: `q` the basis (`m × k`), `est` the probes' residual, `c = BᵀQ`
+/// (`n × k`); see [`sketch`].
+pub(super) fn finish(
+    m: usize,
+    n: usize,
+    tol: f64,
+    q: MatRef<'_, f64>,
+    est: f64,
+    c: MatRef<'_, f64>,
+) -> Result<Sketch, HError> {
+    let k = q.ncols();
+    let k_max = (m * n).saturating_sub(1) / (m + n).max(1);
+    if c.col_iter().any(|c| c.iter().any(|v| !v.is_finite())) {
+        return Err(HError::NonFinite);
+    }
+    let c_sq: f64 = c.col_iter().map(|c| c.squared_norm_l2()).sum();
+    let norm_sq = c_sq + est;
+    let budget = tol * tol * norm_sq;
+    if norm_sq == 0.0 {
+        return Ok(Sketch::Done(Compressed {
+            rank: Some(0),
+            data: Vec::new(),
             norm_sq,
-            discarded_sq: est + tail,
+            discarded_sq: 0.0,
         }));
     }
+    if SAFETY * est > 0.5 * budget {
+        return Ok(Sketch::Short);
+    }
+    // QᵀB = Cᵀ = (V S Uᵀ)ᵀ with C = V S Uᵀ: B ≈ (Q U S) Vᵀ.
+    let svd = c.thin_svd().map_err(|_| HError::Svd(n, k))?;
+    let s = svd.S().column_vector();
+    let (mut r, mut tail) = (s.nrows(), 0.0);
+    while r > 0 && SAFETY * est + tail + s[r - 1] * s[r - 1] <= budget {
+        tail += s[r - 1] * s[r - 1];
+        r -= 1;
+    }
+    if r > k_max {
+        return Ok(Sketch::NotWorth);
+    }
+    let (v, uq) = (svd.U(), svd.V());
+    let mut us = Mat::<f64>::zeros(m, r);
+    let uqs = Mat::<f64>::from_fn(k, r, |i, l| uq[(i, l)] * s[l]);
+    matmul(us.as_mut(), Accum::Replace, q, uqs.as_ref(), 1.0, Par::Seq);
+    let mut data = Vec::with_capacity(r * (m + n));
+    for l in 0..r {
+        data.extend((0..m).map(|i| us[(i, l)]));
+    }
+    for j in 0..n {
+        data.extend((0..r).map(|l| v[(j, l)]));
+    }
+    Ok(Sketch::Done(Compressed {
+        rank: Some(r as u32),
+        data,
+        norm_sq,
+        discarded_sq: est + tail,
+    }))
 }
 
 fn concat_cols(a: MatRef<'_, f64>, b: MatRef<'_, f64>) -> Mat<f64> {
@@ -327,7 +365,7 @@ fn concat_rows(a: MatRef<'_, f64>, b: MatRef<'_, f64>) -> Mat<f64> {
 }
 
 /// SplitMix64: a small deterministic generator for the test vectors.
-struct SplitMix(u64);
+pub(super) struct SplitMix(pub(super) u64);
 
 impl SplitMix {
     fn next(&mut self) -> u64 {

@@ -51,6 +51,7 @@
 
 use std::ops::Range;
 
+use faer::reborrow::ReborrowMut;
 use glam::{DMat3, DVec3};
 
 use tree::ClusterTree;
@@ -302,6 +303,24 @@ pub trait BlockProducts: Sync {
         x: faer::MatRef<'_, f64>,
         out: faer::MatMut<'_, f64>,
     ) -> Result<(), HError>;
+
+    /// `out = [L[rows₁, cols]ᵀ·x₁, L[rows₂, cols]ᵀ·x₂, …]` (`out` `3|cols| × Σ kᵢ`, zero on
+    /// entry): the second products of the far blocks of one column cluster at once. By
+    /// default one [`BlockProducts::products`] each.
+    fn products_t_pieces(
+        &self,
+        pieces: &[(&[u32], faer::MatRef<'_, f64>)],
+        cols: &[u32],
+        mut out: faer::MatMut<'_, f64>,
+    ) -> Result<(), HError> {
+        let mut at = 0;
+        for (rows, x) in pieces {
+            let k = x.ncols();
+            self.products(rows, cols, true, *x, out.rb_mut().subcols_mut(at, k))?;
+            at += k;
+        }
+        Ok(())
+    }
 }
 
 impl HPlan {
@@ -598,39 +617,18 @@ impl HPlan {
         }
         let stored: Vec<usize> = self.stored(p).collect();
         let tol = self.opts.tolerance;
-        let one = |i: usize| {
+        let seed_of = |i: usize| {
+            let (rows, cols, _) = &self.pairs[i];
+            (rows.start as u64) << 32 ^ (cols.start as u64) ^ (rows.end as u64) << 48
+        };
+        fn idx<'x>(r: &Range<u32>, perm: &'x [u32]) -> &'x [u32] {
+            &perm[r.start as usize..r.end as usize]
+        }
+        // A block from the panel's columns.
+        let from_columns = |i: usize| {
             let (rows, cols, far) = &self.pairs[i];
-            let ri = &self.row_perm[rows.start as usize..rows.end as usize];
-            let ci = &self.col_perm[cols.start as usize..cols.end as usize];
+            let ri = idx(rows, &self.row_perm);
             let (m, n) = (3 * ri.len(), 3 * cols.len());
-            let seed = (rows.start as u64) << 32 ^ (cols.start as u64) ^ (rows.end as u64) << 48;
-            if let Some(src) = products.filter(|_| self.sketched(i)) {
-                let mut through =
-                    |t: bool, x: faer::MatRef<'_, f64>, out: faer::MatMut<'_, f64>| {
-                        src.products(ri, ci, t, x, out)
-                    };
-                if let Some(c) =
-                    compress::sketch(m, n, tol, seed ^ 0x5EED, self.sketch_k(), &mut through)?
-                {
-                    return Ok(c);
-                }
-                // Not worth factors by sketching: the block itself, from its products.
-                let mut b = faer::Mat::<f64>::zeros(m, n);
-                src.products(
-                    ri,
-                    ci,
-                    false,
-                    faer::Mat::<f64>::identity(n, n).as_ref(),
-                    b.as_mut(),
-                )?;
-                let b: Vec<f64> = (0..n)
-                    .flat_map(|j| b.col(j).iter().copied().collect::<Vec<_>>())
-                    .collect();
-                if b.iter().any(|v| !v.is_finite()) {
-                    return Err(HError::NonFinite);
-                }
-                return compress::compress(&b, m, n, *far, tol, seed);
-            }
             let c0 = 3 * (cols.start - pr.start) as usize;
             let mut b = Vec::with_capacity(m * n);
             for j in 0..n {
@@ -639,9 +637,117 @@ impl HPlan {
                     b.extend_from_slice(&col[3 * r as usize..3 * r as usize + 3]);
                 }
             }
-            compress::compress(&b, m, n, *far, tol, seed)
+            compress::compress(&b, m, n, *far, tol, seed_of(i))
         };
-        let out = par_map(stored.len(), threads, |i| one(stored[i]));
+        // A block alone through products: sketched from `k` vectors, else formed.
+        let alone = |src: &dyn BlockProducts, i: usize, k: usize| {
+            let (rows, cols, far) = &self.pairs[i];
+            let (ri, ci) = (idx(rows, &self.row_perm), idx(cols, &self.col_perm));
+            let (m, n) = (3 * ri.len(), 3 * ci.len());
+            let mut through = |t: bool, x: faer::MatRef<'_, f64>, out: faer::MatMut<'_, f64>| {
+                src.products(ri, ci, t, x, out)
+            };
+            if let Some(c) = compress::sketch(m, n, tol, seed_of(i) ^ 0x5EED, k, &mut through)? {
+                return Ok(c);
+            }
+            // Not worth factors by sketching: the block itself, from its products.
+            let mut b = faer::Mat::<f64>::zeros(m, n);
+            src.products(
+                ri,
+                ci,
+                false,
+                faer::Mat::<f64>::identity(n, n).as_ref(),
+                b.as_mut(),
+            )?;
+            let b: Vec<f64> = (0..n)
+                .flat_map(|j| b.col(j).iter().copied().collect::<Vec<_>>())
+                .collect();
+            if b.iter().any(|v| !v.is_finite()) {
+                return Err(HError::NonFinite);
+            }
+            compress::compress(&b, m, n, *far, tol, seed_of(i))
+        };
+        // The sketched blocks of one column cluster together: one shared Ω for their `BΩ`
+        // through the union of their rows, then their `BᵀQ` side by side.
+        let k0 = self.sketch_k();
+        let cluster = |src: &dyn BlockProducts,
+                       blocks: &[usize]|
+         -> Vec<(usize, Result<compress::Compressed, HError>)> {
+            let cols = &self.pairs[blocks[0]].1;
+            let ci = idx(cols, &self.col_perm);
+            let n = 3 * ci.len();
+            let go = || -> Result<Vec<(usize, compress::Compressed)>, HError> {
+                let all_rows: Vec<u32> = blocks
+                    .iter()
+                    .flat_map(|&i| idx(&self.pairs[i].0, &self.row_perm).iter().copied())
+                    .collect();
+                let mut rng =
+                    compress::SplitMix((cols.start as u64) << 32 ^ cols.end as u64 ^ 0xC1u64 << 56);
+                let omega = compress::test_vectors(n, k0 + compress::PROBES, &mut rng);
+                let mut y = faer::Mat::<f64>::zeros(3 * all_rows.len(), k0 + compress::PROBES);
+                src.products(&all_rows, ci, false, omega.as_ref(), y.as_mut())?;
+                let mut at = 0;
+                let mut qs = Vec::with_capacity(blocks.len());
+                for &i in blocks {
+                    let m = 3 * self.pairs[i].0.len();
+                    qs.push(compress::basis(y.as_ref().subrows(at, m), k0)?);
+                    at += m;
+                }
+                let pieces: Vec<(&[u32], faer::MatRef<'_, f64>)> = blocks
+                    .iter()
+                    .zip(&qs)
+                    .map(|(&i, (q, _))| (idx(&self.pairs[i].0, &self.row_perm), q.as_ref()))
+                    .collect();
+                let mut c = faer::Mat::<f64>::zeros(n, k0 * blocks.len());
+                src.products_t_pieces(&pieces, ci, c.as_mut())?;
+                let mut out = Vec::with_capacity(blocks.len());
+                for (t, (&i, (q, est))) in blocks.iter().zip(&qs).enumerate() {
+                    let m = 3 * self.pairs[i].0.len();
+                    let ct = c.as_ref().subcols(t * k0, k0);
+                    let got = match compress::finish(m, n, tol, q.as_ref(), *est, ct)? {
+                        compress::Sketch::Done(c) => c,
+                        // Short: alone, with twice the vectors; not worth it: formed.
+                        compress::Sketch::Short => alone(src, i, 2 * k0)?,
+                        compress::Sketch::NotWorth => alone(src, i, usize::MAX / 4)?,
+                    };
+                    out.push((i, got));
+                }
+                Ok(out)
+            };
+            match go() {
+                Ok(v) => v.into_iter().map(|(i, c)| (i, Ok(c))).collect(),
+                Err(e) => vec![(blocks[0], Err(e))],
+            }
+        };
+        // Jobs: each sketched column cluster (its blocks are consecutive), each other block.
+        let sk = |i: usize| {
+            let (r, c, _) = &self.pairs[i];
+            products.is_some()
+                && self.sketched(i)
+                && compress::sketch_pays(3 * r.len(), 3 * c.len(), k0)
+        };
+        let mut jobs: Vec<Vec<usize>> = Vec::new();
+        for &i in &stored {
+            match jobs.last_mut() {
+                Some(last) if sk(i) && sk(last[0]) && self.pairs[last[0]].1 == self.pairs[i].1 => {
+                    last.push(i)
+                }
+                _ => jobs.push(vec![i]),
+            }
+        }
+        let done = par_map(jobs.len(), threads, |j| {
+            let job = &jobs[j];
+            match products {
+                Some(src) if sk(job[0]) => cluster(src, job),
+                _ => job.iter().map(|&i| (i, from_columns(i))).collect(),
+            }
+        });
+        let mut slot: std::collections::HashMap<usize, Result<compress::Compressed, HError>> =
+            done.into_iter().flatten().collect();
+        let mut out = Vec::with_capacity(stored.len());
+        for &i in &stored {
+            out.push(slot.remove(&i).unwrap_or(Err(HError::NonFinite)));
+        }
         // A stored block whose transpose is a mirror counts twice in the norms (its mirror has
         // the same norm and the same error).
         let twice: Vec<f64> = self
