@@ -1031,7 +1031,9 @@ impl Compliance {
                 .into_iter()
                 .map(|(r, need)| (r, Some(need)))
                 .collect();
-            let (data, r, t) = plan.solve_col_groups(cols, &parts)?;
+            // One panel in HIER_CHECK_EVERY has its first column checked by a direct solve.
+            let check = p % HIER_CHECK_EVERY == 0;
+            let (data, r, t) = plan.solve_col_groups(cols, &parts, check)?;
             residual = residual.max(r);
             phases.solve_s += t[0];
             phases.check_s += t[1];
@@ -1244,6 +1246,10 @@ pub(crate) type ReadRows<'a, E> = dyn FnMut(usize, usize, &mut [f64]) -> Result<
 
 /// Column nodes per pruned column solve (a batch is solved in groups of this many).
 const SOLVE_COLS: usize = 32;
+
+/// Panels of a hierarchical precompute between two checks of a panel's first column against
+/// a direct solve.
+const HIER_CHECK_EVERY: usize = 4;
 
 /// Batches between two checks of a Gram batch against a direct solve of its first column.
 const GRAM_CHECK_EVERY: usize = 16;
@@ -1781,8 +1787,8 @@ impl ColumnPlan {
 
     /// The columns `want` (column indices, any order) of `L` for the hierarchical build, on
     /// all cores: `3R' × 3|want|` column-major (R' = [`ColumnPlan::l_rows`], rows by index),
-    /// column `3q + b` for `want[q]` axis `b`. The first column is checked against a direct
-    /// solve. Returns the columns, the check's residual and the seconds solving, checking and
+    /// column `3q + b` for `want[q]` axis `b`. With `check`, the first column is checked
+    /// against a direct solve. Returns the columns, the check's residual and the seconds solving, checking and
     /// scattering (summed over workers).
     ///
     /// The columns come in groups (ranges of `want` covering it), each with the rows it needs
@@ -1792,6 +1798,7 @@ impl ColumnPlan {
         &self,
         want: &[u32],
         parts: &[(std::ops::Range<usize>, Option<Vec<bool>>)],
+        check: bool,
     ) -> Result<(Vec<f64>, f64, [f64; 3]), FemError> {
         use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
         let nr = self.l_rows;
@@ -1935,7 +1942,7 @@ impl ColumnPlan {
             }
         }
         let mut residual = 0.0;
-        if let Some((r0, need)) = parts.iter().find(|p| !p.0.is_empty()) {
+        if let Some((r0, need)) = parts.iter().find(|p| check && !p.0.is_empty()) {
             let tc = Instant::now();
             let q0 = r0.start;
             let node = self.cols[want[q0] as usize];

@@ -609,15 +609,21 @@ impl GramPlan {
                     }
                 }
             }
-            let wr = rows_of(ws, lo, &rows[r0..r1], &mut sc.wr);
-            faer::linalg::matmul::matmul(
-                out.rb_mut().subrows_mut(3 * r0, 3 * (r1 - r0)),
-                Accum::Add,
-                wr,
-                z.rb(),
-                1.0,
-                Par::Seq,
-            );
+            // The rows in chunks, so that a gathered chunk of `W_s` stays small.
+            let mut q0 = r0;
+            while q0 < r1 {
+                let q1 = (q0 + ROW_CHUNK).min(r1);
+                let wr = rows_of(ws, lo, &rows[q0..q1], &mut sc.wr);
+                faer::linalg::matmul::matmul(
+                    out.rb_mut().subrows_mut(3 * q0, 3 * (q1 - q0)),
+                    Accum::Add,
+                    wr,
+                    z.rb(),
+                    1.0,
+                    Par::Seq,
+                );
+                q0 = q1;
+            }
         }
         sc.list = list;
     }
@@ -665,6 +671,9 @@ impl GramPlan {
         }
     }
 }
+
+/// Row nodes gathered at a time by [`GramPlan::apply_pieces`].
+const ROW_CHUNK: usize = 512;
 
 /// Reusable buffers of [`GramPlan::apply`] (one per thread).
 #[derive(Default)]

@@ -735,6 +735,16 @@ impl HPlan {
                 _ => jobs.push(vec![i]),
             }
         }
+        // Largest first, so that the threads finish together.
+        let cost = |job: &Vec<usize>| -> usize {
+            let (r, c, _) = &self.pairs[job[0]];
+            if sk(job[0]) {
+                c.len() + job.iter().map(|&i| self.pairs[i].0.len()).sum::<usize>()
+            } else {
+                r.len() * c.len() / 64
+            }
+        };
+        jobs.sort_by_key(|j| std::cmp::Reverse(cost(j)));
         let done = par_map(jobs.len(), threads, |j| {
             let job = &jobs[j];
             match products {
