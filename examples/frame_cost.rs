@@ -90,6 +90,7 @@ fn main() {
         offset: o.offset,
         bounds: (min, max),
         edges: Some(&edges),
+        deformed: false,
     }];
     println!(
         "rows {} triangles {} edges {}",

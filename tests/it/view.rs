@@ -406,6 +406,7 @@ fn render_frame_draws_objects_at_their_offsets() {
         offset: DVec3::ZERO,
         bounds: mesh.bounds(),
         edges: None,
+        deformed: false,
     }];
     let r4 = Renderer::new(&gpu.device, size).unwrap();
     let a = r4

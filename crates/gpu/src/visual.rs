@@ -381,6 +381,7 @@ pub fn frame_objects<'a>(
             offset: o.offset,
             bounds: o.body.mesh.bounds(),
             edges: edges.get(i),
+            deformed: false,
         })
         .collect()
 }

@@ -510,6 +510,7 @@ pub fn frame_ms(
         offset: DVec3::ZERO,
         bounds,
         edges: edges.as_ref(),
+        deformed: false,
     }];
     let frame = Frame {
         objects: &objects,

@@ -284,11 +284,24 @@ fn draw(
     visual: &Visual<'_>,
     sample: &WorldSample,
     style: &FrameStyle,
+    target: Option<&touchfem_gpu::wgpu::TextureView>,
 ) -> Result<Option<image::RgbaImage>, Error> {
     let Some(deformers) = visual.deformers() else {
         return Ok(None);
     };
-    let objects = touchfem_gpu::visual::frame_objects(world, deformers, edges);
+    // `Visual::update` ran the deformation passes for this sample: not again here.
+    let objects: Vec<_> = touchfem_gpu::visual::frame_objects(world, deformers, edges)
+        .into_iter()
+        .map(|o| touchfem_gpu::render::FrameObject {
+            deformed: true,
+            ..o
+        })
+        .collect();
+    // A wireframe denser than one edge per 8 pixels is noise (and most of lavapipe's time
+    // on a large organ): drawn only below that.
+    let [w, h] = renderer.size();
+    let n_edges: u64 = edges.iter().map(|e| u64::from(e.index_count() / 2)).sum();
+    let wireframe = n_edges <= u64::from(w) * u64::from(h) / 8;
     let marks =
         touchfem_gpu::visual::SampleMarks::of(sample, style.arrow_m_per_n).with_tools(world);
     let n_f = marks.n;
@@ -301,16 +314,29 @@ fn draw(
         patch: &[],
         proxies: &marks.proxies[..n_f],
         scale: (hi - lo).length(),
-        wireframe: true,
+        wireframe,
         overlay: None,
         coloring: style.coloring,
         arrows: &marks.arrows[..n_f],
         legend: style.legend.as_ref(),
     };
-    renderer
-        .render_to_image(&gpu.device, &gpu.queue, &frame)
-        .map(Some)
-        .map_err(Error::from)
+    let Some(target) = target else {
+        return renderer
+            .render_to_image(&gpu.device, &gpu.queue, &frame)
+            .map(Some)
+            .map_err(Error::from);
+    };
+    // No image wanted: drawn into the offscreen target, waited for, not read back.
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    renderer.draw(&gpu.device, &gpu.queue, &mut enc, target, &frame)?;
+    let idx = gpu.queue.submit([enc.finish()]);
+    gpu.device
+        .poll(touchfem_gpu::wgpu::PollType::Wait {
+            submission_index: Some(idx),
+            timeout: None,
+        })
+        .map_err(|e| Error::Input(format!("waiting for a frame: {e}")))?;
+    Ok(None)
 }
 
 /// Runs one scene: floor, then haptic loop, with the visual loop drawing throughout; writes
@@ -348,6 +374,30 @@ pub(crate) fn run_scene(
         }
     };
     let mut edges = edges_of(&visual);
+    // Where frames that are not saved are drawn.
+    let offscreen = match (gpu, renderer) {
+        (Some(g), Some(r)) => {
+            let [w, h] = r.size();
+            let t = g
+                .device
+                .create_texture(&touchfem_gpu::wgpu::TextureDescriptor {
+                    label: Some("demo frame"),
+                    size: touchfem_gpu::wgpu::Extent3d {
+                        width: w,
+                        height: h,
+                        depth_or_array_layers: 1,
+                    },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: touchfem_gpu::wgpu::TextureDimension::D2,
+                    format: r.options().format,
+                    usage: touchfem_gpu::wgpu::TextureUsages::RENDER_ATTACHMENT,
+                    view_formats: &[],
+                });
+            Some(t.create_view(&Default::default()))
+        }
+        _ => None,
+    };
     let mut edges_generation = visual.surface_generation();
     let scales = picture_scales(world, 400)?;
     let style = {
@@ -422,8 +472,16 @@ pub(crate) fn run_scene(
                     edges = edges_of(&visual);
                     edges_generation = visual.surface_generation();
                 }
+                // The image is read back only when a frame or a GIF thumbnail is due.
+                let due = {
+                    let now = Instant::now();
+                    (now >= next_save && saved < 12) || (now >= next_gif && gif.len() < 40)
+                };
                 let img = match (gpu, renderer) {
-                    (Some(g), Some(r)) => draw(g, r, &edges, world, &visual, &sample, &style)?,
+                    (Some(g), Some(r)) => {
+                        let target = offscreen.as_ref().filter(|_| !due);
+                        draw(g, r, &edges, world, &visual, &sample, &style, target)?
+                    }
                     _ => None,
                 };
                 if phase.load(Ordering::Acquire) == 1 {

@@ -418,6 +418,10 @@ pub struct FrameObject<'a> {
     /// Its edges, for the wireframe (skipped when `None`; [`Renderer::render_frame`] builds
     /// them when missing).
     pub edges: Option<&'a Edges>,
+    /// Its deformation pass already ran for the forces set (e.g. by
+    /// [`Visual::update`](crate::visual::Visual::update)): [`Renderer::draw`] does not encode
+    /// it again.
+    pub deformed: bool,
 }
 
 /// Everything one image shows, for [`Renderer::draw`]. Positions are in the scene frame.
@@ -839,6 +843,7 @@ impl Renderer {
             offset: DVec3::ZERO,
             bounds: (min, max),
             edges: edges.as_ref(),
+            deformed: false,
         }];
         let fingers: Vec<DVec3> = scene.finger.into_iter().collect();
         let radii: Vec<f64> = scene.finger_radius.into_iter().collect();
@@ -1162,7 +1167,7 @@ impl Renderer {
         if let Some(o) = frame.legend {
             o.prepare(queue, self.size);
         }
-        for o in frame.objects {
+        for o in frame.objects.iter().filter(|o| !o.deformed) {
             o.deformer.encode(encoder);
         }
 
