@@ -277,8 +277,7 @@ struct FrameStyle {
 /// Draws one frame of every object with every finger and god-object, and an arrow for the
 /// force on each touching finger.
 fn draw(
-    gpu: &Gpu,
-    renderer: &touchfem_gpu::render::Renderer,
+    (gpu, renderer): (&Gpu, &touchfem_gpu::render::Renderer),
     edges: &[touchfem_gpu::render::Edges],
     world: &World,
     visual: &Visual<'_>,
@@ -480,7 +479,7 @@ pub(crate) fn run_scene(
                 let img = match (gpu, renderer) {
                     (Some(g), Some(r)) => {
                         let target = offscreen.as_ref().filter(|_| !due);
-                        draw(g, r, &edges, world, &visual, &sample, &style, target)?
+                        draw((g, r), &edges, world, &visual, &sample, &style, target)?
                     }
                     _ => None,
                 };
