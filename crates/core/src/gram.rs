@@ -835,16 +835,23 @@ fn mark_path(marked: &mut [bool], parent: &[usize], mut s: usize) {
 mod tests {
     use super::*;
 
-    /// Shards made on machines with different core counts must merge into the unsharded
-    /// file: `W` may not depend on how its rows are split over threads.
-    #[test]
-    fn w_is_the_same_bit_for_bit_on_any_number_of_threads() {
-        let m = crate::mesh::cube_with([14, 14, 14], [30.0, 30.0, 30.0], crate::Material::DEFAULT)
+    /// A clamped cube of `n`³ cells, its factor and the Gram plan of its free surface (rows and
+    /// columns).
+    fn cube_surface(n: usize) -> (Factor, GramPlan) {
+        let m = crate::mesh::cube_with([n, n, n], [30.0, 30.0, 30.0], crate::Material::DEFAULT)
             .expect("cube");
         let k = crate::fem::Stiffness::assemble(&m).expect("K");
         let f = k.factorize().expect("factor");
         let shown = m.free_surface_nodes();
         let g = GramPlan::new(&f, &k.dofs, &shown, &shown).expect("supernodal");
+        (f, g)
+    }
+
+    /// Shards made on machines with different core counts must merge into the unsharded
+    /// file: `W` may not depend on how its rows are split over threads.
+    #[test]
+    fn w_is_the_same_bit_for_bit_on_any_number_of_threads() {
+        let (f, g) = cube_surface(14);
         let one = g.forward(&f, 1).expect("W");
         assert!(one.iter().any(|&v| v != 0.0) && one.iter().all(|v| v.is_finite()));
         for t in [2, 3, 7] {
@@ -860,12 +867,7 @@ mod tests {
     /// scattered, consecutive and disjoint node sets.
     #[test]
     fn apply_equals_the_tiles_times_the_vectors() {
-        let m = crate::mesh::cube_with([8, 8, 8], [30.0, 30.0, 30.0], crate::Material::DEFAULT)
-            .expect("cube");
-        let k = crate::fem::Stiffness::assemble(&m).expect("K");
-        let f = k.factorize().expect("factor");
-        let shown = m.free_surface_nodes();
-        let g = GramPlan::new(&f, &k.dofs, &shown, &shown).expect("supernodal");
+        let (f, g) = cube_surface(8);
         let w = g.forward(&f, 1).expect("W");
         let n = g.nodes().len();
         let nt = g.t_pos.len();
