@@ -30,7 +30,8 @@ struct Frame {
     _pad1: u32,
     _pad2: u32,
     // Word offsets in `idx` of row_perm (then each row position's segment), of the block table
-    // (8 words a block) and of the leaf × segment table (a block per entry); of z in `work`.
+    // (8 words a block: row start, m, column start, n with the transposed flag in bit 31, rank,
+    // buffer, first value, z) and of the leaf × segment table (a block per entry); of z in `work`.
     perm_off: u32,
     blocks_off: u32,
     lb_off: u32,
@@ -120,6 +121,11 @@ struct Block {
     // Row nodes.
     m: u32,
     col_start: u32,
+    // Column nodes.
+    n: u32,
+    // Read as the transpose of its source block's values (a mirror: the source's U and V
+    // swapped, a dense source read across).
+    t: bool,
     // DENSE or k.
     rank: u32,
     buf: u32,
@@ -131,7 +137,11 @@ struct Block {
 
 fn block(bi: u32) -> Block {
     let o = frame.blocks_off + 8u * bi;
-    return Block(idx[o], idx[o + 1u], idx[o + 2u], idx[o + 4u], idx[o + 5u], idx[o + 6u], idx[o + 7u]);
+    let n = idx[o + 3u];
+    return Block(
+        idx[o], idx[o + 1u], idx[o + 2u], n & 0x7fffffffu, (n >> 31u) == 1u,
+        idx[o + 4u], idx[o + 5u], idx[o + 6u], idx[o + 7u],
+    );
 }
 
 @compute @workgroup_size(64)
@@ -145,15 +155,22 @@ fn reduce(
         let a0 = work[4u * h + 1u];
         let a1 = work[4u * h + 2u];
         let k = b.rank;
-        // V (3n × k, row-major) follows U (3m × k).
+        // V (3n × k, row-major) follows U (3m × k); a transposed block's "V" is its source's
+        // U (3n × k, column-major, first).
         let v = b.off + 3u * b.m * k;
+        let n3 = 3u * b.n;
         for (var l = lid.x; l < k; l += 64u) {
             var z = 0.0;
             for (var a = a0; a < a1; a += 1u) {
                 let e = params.actives[a];
-                let i = v + 3u * (e.pos - b.col_start) * k + l;
-                z += val(b.buf, i) * e.force.x + val(b.buf, i + k) * e.force.y
-                    + val(b.buf, i + 2u * k) * e.force.z;
+                let c = 3u * (e.pos - b.col_start);
+                if b.t {
+                    z += dot(val3(b.buf, b.off + l * n3 + c), e.force);
+                } else {
+                    let i = v + c * k + l;
+                    z += val(b.buf, i) * e.force.x + val(b.buf, i + k) * e.force.y
+                        + val(b.buf, i + 2u * k) * e.force.z;
+                }
             }
             work[frame.z_off + b.z + l] = bitcast<u32>(z);
         }
@@ -178,7 +195,19 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
             let b = block(idx[frame.lb_off + leaf.x + seg]);
             let m3 = 3u * b.m;
             let i = 3u * (p - b.row_start);
-            if b.rank == DENSE {
+            let n3 = 3u * b.n;
+            if b.rank == DENSE && b.t {
+                // The source is 3n × 3m column-major: this row's entries run down its columns.
+                for (var a = leaf.z; a < leaf.w; a += 1u) {
+                    let e = params.actives[a];
+                    let c = b.off + i * n3 + 3u * (e.pos - b.col_start);
+                    u += vec3<f32>(
+                        dot(val3(b.buf, c), e.force),
+                        dot(val3(b.buf, c + n3), e.force),
+                        dot(val3(b.buf, c + 2u * n3), e.force),
+                    );
+                }
+            } else if b.rank == DENSE {
                 // 3m × 3n column-major.
                 for (var a = leaf.z; a < leaf.w; a += 1u) {
                     let e = params.actives[a];
@@ -187,10 +216,23 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
                         + val3(b.buf, c + 2u * m3) * e.force.z;
                 }
             } else if leaf.z == 0u || params.actives[leaf.z - 1u].pos < b.col_start {
-                // This is the block's first active leaf: U (3m × k, column-major)·z_b.
+                // This is the block's first active leaf: U (3m × k, column-major)·z_b; for a
+                // transposed block its source's V (3m × k, row-major, after its U).
                 let z = frame.z_off + b.z;
-                for (var l = 0u; l < b.rank; l += 1u) {
-                    u += val3(b.buf, b.off + l * m3 + i) * bitcast<f32>(work[z + l]);
+                if b.t {
+                    let v = b.off + n3 * b.rank + i * b.rank;
+                    for (var l = 0u; l < b.rank; l += 1u) {
+                        let zl = bitcast<f32>(work[z + l]);
+                        u += vec3<f32>(
+                            val(b.buf, v + l),
+                            val(b.buf, v + b.rank + l),
+                            val(b.buf, v + 2u * b.rank + l),
+                        ) * zl;
+                    }
+                } else {
+                    for (var l = 0u; l < b.rank; l += 1u) {
+                        u += val3(b.buf, b.off + l * m3 + i) * bitcast<f32>(work[z + l]);
+                    }
                 }
             }
         }

@@ -210,7 +210,7 @@ fn hier_values_split_over_several_buffers_match() {
         })
         .max()
         .unwrap();
-    let total = 4 * h.stored_values() as u64;
+    let total = 4 * unique_values(h) as u64;
     let cap = largest.max(total * 2 / 7);
     let opts = DeformerOptions {
         max_binding_bytes: Some(cap),
@@ -290,7 +290,16 @@ fn hier_stores_less_than_the_dense_l() {
             h.blocks().count()
         );
         assert!(b16 < b32);
-        assert!(b32 >= 4 * h.stored_values() as u64);
+        assert!(b32 >= 4 * unique_values(h) as u64);
+        // One triangle on the GPU: each mirror is read as its source's transpose.
+        let mirrors = h.blocks().filter(|b| b.mirror_of.is_some()).count();
+        assert!(mirrors > 0);
+        assert!(
+            (unique_values(h) as f64) < 0.6 * h.stored_values() as f64,
+            "{} of {} values uploaded",
+            unique_values(h),
+            h.stored_values()
+        );
     }
     assert!(hier_gpu_bytes(hmat(&m.h3), false) < dense_f32);
 }
@@ -334,7 +343,7 @@ fn hier_bad_cases_are_typed_errors() {
     );
     assert!(matches!(r, Err(GpuError::Unsupported(_))), "{:?}", r.err());
     // Values that need more buffers than there are bindings, or a block above the cap.
-    let total = 4 * hmat(c).stored_values() as u64;
+    let total = 4 * unique_values(hmat(c)) as u64;
     for cap in [total / 8, 64] {
         let r = deformer(
             c,
@@ -456,4 +465,15 @@ fn visual_path_draws_a_hierarchical_compliance() {
     cpu.update(&sample);
     assert_eq!(cpu.backend(), "cpu-f64");
     assert_eq!(cpu.cpu_displacement(0), &want[..]);
+}
+
+/// Values the GPU holds for `h`: every block's but the mirrors'.
+fn unique_values(h: &HMatrix) -> usize {
+    h.blocks()
+        .filter(|b| b.mirror_of.is_none())
+        .map(|b| {
+            let (m, n) = (3 * b.rows.len(), 3 * b.cols.len());
+            b.rank.map_or(m * n, |k| (m + n) * k)
+        })
+        .sum()
 }

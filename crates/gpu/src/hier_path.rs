@@ -24,6 +24,8 @@ pub const HIER_VALUE_BINDINGS: usize = 5;
 
 /// A block's rank in the GPU table when it is stored dense.
 const DENSE: u32 = u32::MAX;
+/// Flag (in a block's column count) of a block read as its source's transpose.
+const TRANSPOSED: u32 = 1 << 31;
 /// Words of one block in the table.
 const BLOCK_WORDS: usize = 8;
 /// Bytes of `Params` before its `leaves` (the header and the active list).
@@ -88,18 +90,27 @@ fn row_segments(h: &HMatrix) -> Vec<u32> {
 /// bytes a low-rank block, 4 a rank). A split over several buffers adds at most 16 bytes a
 /// buffer; [`Deformer::l_bytes`](crate::Deformer::l_bytes) is the exact figure. No GPU needed.
 pub fn hier_gpu_bytes(h: &HMatrix, f16: bool) -> u64 {
-    let n = h.stored_values() as u64;
+    let n = unique_values(h) as u64;
     let values = if f16 { (2 * n).div_ceil(4) * 4 } else { 4 * n };
     let (tables, work) = table_and_work_words(h);
     values.max(16) + 4 * (tables + work) as u64
 }
 
+/// Values the GPU holds: every block's but the mirrors' (each read as its source's
+/// transpose).
+fn unique_values(h: &HMatrix) -> usize {
+    h.blocks()
+        .filter(|b| b.mirror_of.is_none())
+        .map(|b| block_len(&b))
+        .sum()
+}
+
 /// Per block its (value buffer, first element); per buffer its elements.
 type Placement = (Vec<(u32, u32)>, Vec<usize>);
 
-/// Where each block's values go: `(buffer, first element)` per block, and the elements of
-/// each buffer. Greedy in block order; an error if a block exceeds `max_bytes` or the blocks
-/// need more than [`HIER_VALUE_BINDINGS`] buffers.
+/// Where each block's values go: `(buffer, first element)` per block (a mirror: its source's),
+/// and the elements of each buffer. Greedy in block order; an error if a block exceeds
+/// `max_bytes` or the blocks need more than [`HIER_VALUE_BINDINGS`] buffers.
 fn place_blocks(h: &HMatrix, half: bool, max_bytes: u64) -> Result<Placement, GpuError> {
     let max_bytes = max_bytes.min(MAX_VALUE_BUFFER);
     // Half floats: whole words.
@@ -112,6 +123,13 @@ fn place_blocks(h: &HMatrix, half: bool, max_bytes: u64) -> Result<Placement, Gp
     let mut place = Vec::with_capacity(h.blocks().count());
     let mut lens = vec![0usize];
     for b in h.blocks() {
+        if let Some(src) = b.mirror_of {
+            let at = *place
+                .get(src)
+                .ok_or_else(|| GpuError::BadInput("a mirror block before its source".into()))?;
+            place.push(at);
+            continue;
+        }
         let n = block_len(&b);
         if n > cap {
             return Err(GpuError::BufferTooLarge {
@@ -130,7 +148,7 @@ fn place_blocks(h: &HMatrix, half: bool, max_bytes: u64) -> Result<Placement, Gp
     if lens.len() > HIER_VALUE_BINDINGS {
         return Err(GpuError::BufferTooLarge {
             what: "the hierarchical L's values (5 storage bindings)",
-            bytes: bytes(h.stored_values()),
+            bytes: bytes(unique_values(h)),
             limit: HIER_VALUE_BINDINGS as u64 * max_bytes,
         });
     }
@@ -253,11 +271,12 @@ impl HierPath {
         let mut n_lr = 0u32;
         for (b, &(buf, off)) in info.iter().zip(&place) {
             let rank = b.rank.map_or(DENSE, |k| k as u32);
+            let transposed = if b.mirror_of.is_some() { TRANSPOSED } else { 0 };
             idx.extend_from_slice(&[
                 b.rows.start as u32,
                 b.rows.len() as u32,
                 b.cols.start as u32,
-                b.cols.len() as u32,
+                b.cols.len() as u32 | transposed,
                 rank,
                 buf,
                 off,
@@ -309,7 +328,11 @@ impl HierPath {
         // Values, one buffer at a time (the host holds one buffer's f32 copy).
         let force_scale = if sh.half {
             let mut max = 0.0f32;
-            for (b, v) in info.iter().map(|b| (b, &h.values()[b.offset..])) {
+            for (b, v) in info
+                .iter()
+                .filter(|b| b.mirror_of.is_none())
+                .map(|b| (b, &h.values()[b.offset..]))
+            {
                 // The dense entries and U, not V (unit columns).
                 let n = match b.rank {
                     None => block_len(b),
@@ -328,8 +351,13 @@ impl HierPath {
         for (k, &len) in lens.iter().enumerate() {
             staging.clear();
             staging.reserve(len);
-            while next < info.len() && place[next].0 == k as u32 {
+            while next < info.len() && (info[next].mirror_of.is_some() || place[next].0 == k as u32)
+            {
                 let b = &info[next];
+                if b.mirror_of.is_some() {
+                    next += 1;
+                    continue;
+                }
                 let v = &h.values()[b.offset..][..block_len(b)];
                 let scaled = match b.rank {
                     None => v.len(),

@@ -195,6 +195,10 @@ pub struct BlockInfo {
     /// in) then `V` (`3|cols| × k`, row-major: one column DOF's k weights together), so that
     /// the block is `U·Vᵀ`.
     pub offset: usize,
+    /// For a block above the diagonal of a symmetric plan: the block (index in
+    /// [`HMatrix::blocks`]) it is the transpose of. Its own values at `offset` are that
+    /// block's transposed; a reader may use the source's instead (the GPU pass does).
+    pub mirror_of: Option<usize>,
 }
 
 #[derive(Clone, Debug)]
@@ -209,6 +213,8 @@ struct Block {
     /// The transpose of a stored block (a symmetric plan's block above the diagonal), its
     /// values made from that block's when the panels were joined.
     mirror: bool,
+    /// That stored block's index (for a mirror).
+    source: u32,
 }
 
 /// `L` as a hierarchical matrix: dense near blocks and low-rank far blocks (module docs).
@@ -565,12 +571,15 @@ impl HPlan {
             .map(|(r, c, far)| (r.len(), c.len(), *far))
     }
 
-    /// Values an [`HMatrix`] on this plan would store if each far block had rank
+    /// Values an [`HMatrix`] on this plan would keep in its file and on the GPU (one triangle
+    /// of a symmetric plan: the mirrors are read as transposes) if each far block had rank
     /// `rank` (a mean, see [`mean_rank_estimate`]) or stayed dense where that is smaller:
     /// the estimate behind `touchfem info --tolerance`.
     pub fn estimate_values(&self, rank: f64) -> usize {
         self.block_shapes()
-            .map(|(r, c, far)| {
+            .zip(&self.mirror)
+            .filter(|(_, m)| m.is_none())
+            .map(|((r, c, far), _)| {
                 let (m, n) = (3 * r, 3 * c);
                 let dense = m * n;
                 if far {
@@ -891,6 +900,7 @@ impl HMatrix {
                         far,
                         offset: 0,
                         mirror: true,
+                        source: src,
                     });
                     continue;
                 }
@@ -902,6 +912,7 @@ impl HMatrix {
                     far,
                     offset: base + local,
                     mirror: false,
+                    source: 0,
                 });
                 local += plan.block_values(i, rank);
             }
@@ -1157,6 +1168,7 @@ impl HMatrix {
             rank: b.rank.map(|k| k as usize),
             far: b.far,
             offset: b.offset,
+            mirror_of: b.mirror.then_some(b.source as usize),
         })
     }
     /// Every stored value, blocks in [`HMatrix::blocks`] order (see [`BlockInfo::offset`]).
