@@ -668,9 +668,7 @@ impl HPlan {
                 faer::Mat::<f64>::identity(n, n).as_ref(),
                 b.as_mut(),
             )?;
-            let b: Vec<f64> = (0..n)
-                .flat_map(|j| b.col(j).iter().copied().collect::<Vec<_>>())
-                .collect();
+            let b: Vec<f64> = b.col_iter().flat_map(|c| c.iter().copied()).collect();
             if b.iter().any(|v| !v.is_finite()) {
                 return Err(HError::NonFinite);
             }
