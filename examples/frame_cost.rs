@@ -93,9 +93,10 @@ fn main() {
         deformed: false,
     }];
     println!(
-        "rows {} triangles {} edges {}",
+        "rows {} triangles {} ({} smooth) edges {}",
         c.rows().len(),
         o.body.mesh.surface.len(),
+        d.smooth_triangles(),
         edges.index_count() / 2
     );
     let time = |label: &str, f: &dyn Fn(&mut wgpu::CommandEncoder)| {

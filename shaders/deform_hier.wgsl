@@ -2,19 +2,27 @@
 // L_H is a block partition of dense near blocks and low-rank far blocks U·Vᵀ. Used by
 // `touchfem::gpu::Deformer` for a hierarchical compliance; its normal pass is deform.wgsl's.
 //
-// Two dispatches a frame:
-// * `reduce`: one workgroup per hit low-rank block b (a far block over an active column), its
-//   threads over the rank: z_b = V_bᵀ·f summed over the block's active columns, into `work`.
+// Per frame the host (touchfem-gpu's hier_path.rs) sorts the active columns by position, lists
+// the active column leaves and, per leaf, every block of its column (a "hit": the block's
+// values as a matrix in rows × listed columns, and its coefficients). Two dispatches:
+// * `reduce`: one workgroup per low-rank hit b (a far block over active columns), its threads
+//   over the rank: z_b = V_bᵀ·f over the block's active columns, written into `work` as
+//   (l, z_l) pairs; the encoder then copies them into the window's coefficients.
 // * `deform`: one thread per output row. Rows in 0..l_rows are row *positions* of the row
 //   cluster tree (neighbouring threads read neighbouring entries of a block); row index
-//   row_perm[p] is written. For each active column leaf, the block holding the row is read from
-//   the leaf × row-segment table (a segment: rows between two block starts, in one block of
-//   every leaf);
-//   a dense block adds B[row, leaf's active columns]·f, a low-rank one U[row, :]·z_b once (at the
-//   block's first active leaf). Rows from l_rows on stay at rest.
+//   row_perm[p] is written. For each active leaf, the row's hit is found through the leaf ×
+//   segment table (a segment: rows between two block starts, in one block of every leaf) and
+//   adds Σ_j B[row, col_j]·c_j: a dense block's active columns times the forces, a low-rank
+//   block's U times z_b (listed at the block's first active leaf only).
+//   Rows from l_rows on stay at rest.
 //
-// The host (touchfem-gpu's hier_path.rs) sorts the active columns by position and lists the
-// active leaves and hit blocks; nothing is read back. All counts come from uniforms.
+// Written for software rasterisers as much as GPUs: llvmpipe (lavapipe) runs every branch of
+// divergent code for every lane and loads storage buffers lane by lane. So the row pass has a
+// single code path (dense, low-rank and transposed blocks differ only in the hit's base and
+// strides), its per-frame tables are in a uniform buffer (`tab`), and the values are read from
+// one buffer per loop (`add0` … `add4`; a hit's loops for other buffers run no iteration).
+// A frame whose tables exceed one 64 KiB window is dispatched once per window, each adding
+// to the last.
 
 struct Frame {
     // Displayed vertices (output rows).
@@ -30,8 +38,9 @@ struct Frame {
     _pad1: u32,
     _pad2: u32,
     // Word offsets in `idx` of row_perm (then each row position's segment), of the block table
-    // (8 words a block: row start, m, column start, n with the transposed flag in bit 31, rank,
-    // buffer, first value, z) and of the leaf × segment table (a block per entry); of z in `work`.
+    // (7 words a block: row start, m, column start, n with the transposed flag in bit 31, rank,
+    // buffer, first value) and of the leaf × segment table (an index into the leaf's hits);
+    // of the (l, z_l) pairs in `work`.
     perm_off: u32,
     blocks_off: u32,
     lb_off: u32,
@@ -45,34 +54,43 @@ struct Active {
 }
 
 struct Params {
-    // Active leaves and hit low-rank blocks this frame.
-    n_leaves: u32,
+    // Hit low-rank blocks this frame.
     n_hits: u32,
     _pad0: u32,
     _pad1: u32,
+    _pad2: u32,
     // Sorted by column position. 1024 = touchfem::gpu::MAX_ACTIVE.
     actives: array<Active, 1024>,
-    // Per active leaf: its row of the leaf × segment table, unused, and its run of `actives`.
-    leaves: array<vec4<u32>, 1024>,
 }
 
-// A block's rank when it is stored dense.
+// A block's rank in the block table when it is stored dense.
 const DENSE: u32 = 0xffffffffu;
 
 // Word of a vertex (relative to its start) that receives |u| (the deformer's own Vertex layout:
 // 3, position.w); 0xffffffff: not written.
 override DISPLACEMENT_WORD: u32 = 0xffffffffu;
 
+// Value buffers in use (1..=5): loops over unused ones are compiled out.
+override VALUE_BUFFERS: u32 = 5u;
+
 // f32 values; the half-float variant reads u32 words holding two halves each.
 alias Word = f32;
 
 @group(0) @binding(0) var<uniform> frame: Frame;
 @group(0) @binding(1) var<uniform> params: Params;
-// Rest positions (4 words a row, f32 bits), row_perm, the block table and the leaf lists.
+// Rest positions (4 words a row, f32 bits), row_perm, segments, the block table and the leaf ×
+// segment table.
 @group(0) @binding(2) var<storage, read> idx: array<u32>;
 @group(0) @binding(3) var<storage, read_write> out: array<f32>;
-// The hit list (4 words a hit: block, first and end active entry, pad), then z (f32 bits).
+// The low-rank hits (4 words each: block, first and end active entry, first pair), then the
+// (l, z_l) pairs.
 @group(0) @binding(4) var<storage, read_write> work: array<u32>;
+// One window of this frame's tables (bound at a dynamic offset), in vec4s: [0] the number of
+// active leaves and whether this is the frame's first window; per leaf (from 1) its row of the
+// leaf × segment table and its first hit; per hit two vec4s (first value, row stride, column
+// stride, first row position; columns, first coefficient pair, value buffer); the
+// coefficients, (column, value bits) pairs, two a vec4.
+@group(0) @binding(5) var<uniform> tab: array<vec4<u32>, 4096>;
 // The values, split over up to five bindings, whole blocks each (WGSL cannot index an array of
 // buffers at run time); unused ones are bound to a small dummy buffer.
 @group(1) @binding(0) var<storage, read> v0: array<Word>;
@@ -81,67 +99,219 @@ alias Word = f32;
 @group(1) @binding(3) var<storage, read> v3: array<Word>;
 @group(1) @binding(4) var<storage, read> v4: array<Word>;
 
-// Value buffers in use (1..=5): with one, loads skip the switch.
-override VALUE_BUFFERS: u32 = 5u;
-
-fn word(b: u32, i: u32) -> Word {
-    if VALUE_BUFFERS == 1u {
-        return v0[i];
-    }
-    switch b {
-        case 0u: {
-            return v0[i];
-        }
-        case 1u: {
-            return v1[i];
-        }
-        case 2u: {
-            return v2[i];
-        }
-        case 3u: {
-            return v3[i];
-        }
-        default: {
-            return v4[i];
-        }
-    }
+// Value i of each buffer.
+fn val0(i: u32) -> f32 {
+    return v0[i];
+}
+fn val1(i: u32) -> f32 {
+    return v1[i];
+}
+fn val2(i: u32) -> f32 {
+    return v2[i];
+}
+fn val3(i: u32) -> f32 {
+    return v3[i];
+}
+fn val4(i: u32) -> f32 {
+    return v4[i];
 }
 
-// Value i of buffer b.
-fn val(b: u32, i: u32) -> f32 {
-    return word(b, i);
+// A hit: entry (r, c) of its block at base + r·rs + c·cs; `cols` coefficient pairs from `coef`
+// (pair index in the window); its values in buffer `buf`.
+struct Hit {
+    base: u32,
+    rs: u32,
+    cs: u32,
+    row_start: u32,
+    cols: u32,
+    coef: u32,
+    buf: u32,
 }
 
-fn val3(b: u32, i: u32) -> vec3<f32> {
-    return vec3<f32>(val(b, i), val(b, i + 1u), val(b, i + 2u));
+// Coefficient pair j of the window: (column, value).
+fn coef(j: u32) -> vec2<u32> {
+    let w = tab[j >> 1u];
+    return select(w.xy, w.zw, (j & 1u) == 1u);
+}
+
+// Σ_j B[3i + (0, 1, 2), col_j]·c_j for a hit in buffer b, zero for the others (their loop runs
+// no iteration).
+fn add0(h: Hit, r: u32) -> vec3<f32> {
+    var u = vec3<f32>(0.0);
+    let n = select(0u, h.cols, h.buf == 0u);
+    for (var j = 0u; j < n; j += 1u) {
+        let c = coef(h.coef + j);
+        let e = h.base + r * h.rs + c.x * h.cs;
+        u += vec3<f32>(val0(e), val0(e + h.rs), val0(e + 2u * h.rs)) * bitcast<f32>(c.y);
+    }
+    return u;
+}
+fn add1(h: Hit, r: u32) -> vec3<f32> {
+    var u = vec3<f32>(0.0);
+    let n = select(0u, h.cols, h.buf == 1u);
+    for (var j = 0u; j < n; j += 1u) {
+        let c = coef(h.coef + j);
+        let e = h.base + r * h.rs + c.x * h.cs;
+        u += vec3<f32>(val1(e), val1(e + h.rs), val1(e + 2u * h.rs)) * bitcast<f32>(c.y);
+    }
+    return u;
+}
+fn add2(h: Hit, r: u32) -> vec3<f32> {
+    var u = vec3<f32>(0.0);
+    let n = select(0u, h.cols, h.buf == 2u);
+    for (var j = 0u; j < n; j += 1u) {
+        let c = coef(h.coef + j);
+        let e = h.base + r * h.rs + c.x * h.cs;
+        u += vec3<f32>(val2(e), val2(e + h.rs), val2(e + 2u * h.rs)) * bitcast<f32>(c.y);
+    }
+    return u;
+}
+fn add3(h: Hit, r: u32) -> vec3<f32> {
+    var u = vec3<f32>(0.0);
+    let n = select(0u, h.cols, h.buf == 3u);
+    for (var j = 0u; j < n; j += 1u) {
+        let c = coef(h.coef + j);
+        let e = h.base + r * h.rs + c.x * h.cs;
+        u += vec3<f32>(val3(e), val3(e + h.rs), val3(e + 2u * h.rs)) * bitcast<f32>(c.y);
+    }
+    return u;
+}
+fn add4(h: Hit, r: u32) -> vec3<f32> {
+    var u = vec3<f32>(0.0);
+    let n = select(0u, h.cols, h.buf == 4u);
+    for (var j = 0u; j < n; j += 1u) {
+        let c = coef(h.coef + j);
+        let e = h.base + r * h.rs + c.x * h.cs;
+        u += vec3<f32>(val4(e), val4(e + h.rs), val4(e + 2u * h.rs)) * bitcast<f32>(c.y);
+    }
+    return u;
+}
+
+// Σ over the value buffers in use.
+fn add(h: Hit, r: u32) -> vec3<f32> {
+    var u = add0(h, r);
+    if VALUE_BUFFERS > 1u {
+        u += add1(h, r);
+    }
+    if VALUE_BUFFERS > 2u {
+        u += add2(h, r);
+    }
+    if VALUE_BUFFERS > 3u {
+        u += add3(h, r);
+    }
+    if VALUE_BUFFERS > 4u {
+        u += add4(h, r);
+    }
+    return u;
+}
+
+@compute @workgroup_size(64)
+fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let t = gid.x;
+    if t >= frame.n_rows {
+        return;
+    }
+    let head = tab[0];
+    var u = vec3<f32>(0.0);
+    var r = t;
+    if t < frame.l_rows {
+        let p = t;
+        r = idx[frame.perm_off + p];
+        let seg = idx[frame.perm_off + frame.l_rows + p];
+        for (var q = 0u; q < head.x; q += 1u) {
+            let leaf = tab[1u + q];
+            // The row's hit in this leaf: the leaf × segment table at the row's segment.
+            let hv = leaf.y + 2u * idx[frame.lb_off + leaf.x + seg];
+            let a = tab[hv];
+            let b = tab[hv + 1u];
+            u += add(Hit(a.x, a.y, a.z, a.w, b.x, b.y, b.z), 3u * (p - a.w));
+        }
+    }
+    let s = 4u * r;
+    let rest = vec3<f32>(bitcast<f32>(idx[s]), bitcast<f32>(idx[s + 1u]), bitcast<f32>(idx[s + 2u]));
+    let o = frame.out_offset + r * frame.out_stride;
+    // The first window starts from the rest position, later ones add to it.
+    let before = vec3<f32>(out[o], out[o + 1u], out[o + 2u]);
+    let x = select(before, rest, head.y == 1u) + u;
+    out[o] = x.x;
+    out[o + 1u] = x.y;
+    out[o + 2u] = x.z;
+    if DISPLACEMENT_WORD != 0xffffffffu {
+        out[o + DISPLACEMENT_WORD] = length(x - rest);
+    }
 }
 
 struct Block {
-    row_start: u32,
-    // Row nodes.
+    // Row and column nodes.
     m: u32,
-    col_start: u32,
-    // Column nodes.
     n: u32,
     // Read as the transpose of its source block's values (a mirror: the source's U and V
-    // swapped, a dense source read across).
+    // swapped).
     t: bool,
-    // DENSE or k.
     rank: u32,
     buf: u32,
     // First value in its buffer.
     off: u32,
-    // Its z in `work` (after z_off).
-    z: u32,
 }
 
 fn block(bi: u32) -> Block {
-    let o = frame.blocks_off + 8u * bi;
+    let o = frame.blocks_off + 7u * bi;
     let n = idx[o + 3u];
-    return Block(
-        idx[o], idx[o + 1u], idx[o + 2u], n & 0x7fffffffu, (n >> 31u) == 1u,
-        idx[o + 4u], idx[o + 5u], idx[o + 6u], idx[o + 7u],
-    );
+    return Block(idx[o + 1u], n & 0x7fffffffu, (n >> 31u) == 1u, idx[o + 4u], idx[o + 5u],
+        idx[o + 6u]);
+}
+
+// z_l = Σ_a V[3(pos_a − col start) + (0, 1, 2), l]·f_a over the hit's active entries, V's
+// entry (c, l) at base + c·rs + l·cs, in buffer b (0 for the others).
+fn reduce0(base: u32, rs: u32, cs: u32, l: u32, a0: u32, a1: u32, col_start: u32, b: u32) -> f32 {
+    var z = 0.0;
+    let n = select(a0, a1, b == 0u);
+    for (var a = a0; a < n; a += 1u) {
+        let e = params.actives[a];
+        let i = base + 3u * (e.pos - col_start) * rs + l * cs;
+        z += val0(i) * e.force.x + val0(i + rs) * e.force.y + val0(i + 2u * rs) * e.force.z;
+    }
+    return z;
+}
+fn reduce1(base: u32, rs: u32, cs: u32, l: u32, a0: u32, a1: u32, col_start: u32, b: u32) -> f32 {
+    var z = 0.0;
+    let n = select(a0, a1, b == 1u);
+    for (var a = a0; a < n; a += 1u) {
+        let e = params.actives[a];
+        let i = base + 3u * (e.pos - col_start) * rs + l * cs;
+        z += val1(i) * e.force.x + val1(i + rs) * e.force.y + val1(i + 2u * rs) * e.force.z;
+    }
+    return z;
+}
+fn reduce2(base: u32, rs: u32, cs: u32, l: u32, a0: u32, a1: u32, col_start: u32, b: u32) -> f32 {
+    var z = 0.0;
+    let n = select(a0, a1, b == 2u);
+    for (var a = a0; a < n; a += 1u) {
+        let e = params.actives[a];
+        let i = base + 3u * (e.pos - col_start) * rs + l * cs;
+        z += val2(i) * e.force.x + val2(i + rs) * e.force.y + val2(i + 2u * rs) * e.force.z;
+    }
+    return z;
+}
+fn reduce3(base: u32, rs: u32, cs: u32, l: u32, a0: u32, a1: u32, col_start: u32, b: u32) -> f32 {
+    var z = 0.0;
+    let n = select(a0, a1, b == 3u);
+    for (var a = a0; a < n; a += 1u) {
+        let e = params.actives[a];
+        let i = base + 3u * (e.pos - col_start) * rs + l * cs;
+        z += val3(i) * e.force.x + val3(i + rs) * e.force.y + val3(i + 2u * rs) * e.force.z;
+    }
+    return z;
+}
+fn reduce4(base: u32, rs: u32, cs: u32, l: u32, a0: u32, a1: u32, col_start: u32, b: u32) -> f32 {
+    var z = 0.0;
+    let n = select(a0, a1, b == 4u);
+    for (var a = a0; a < n; a += 1u) {
+        let e = params.actives[a];
+        let i = base + 3u * (e.pos - col_start) * rs + l * cs;
+        z += val4(i) * e.force.x + val4(i + rs) * e.force.y + val4(i + 2u * rs) * e.force.z;
+    }
+    return z;
 }
 
 @compute @workgroup_size(64)
@@ -151,99 +321,39 @@ fn reduce(
     @builtin(local_invocation_id) lid: vec3<u32>,
 ) {
     for (var h = wid.x; h < params.n_hits; h += nwg.x) {
-        let b = block(work[4u * h]);
+        let bi = work[4u * h];
+        let b = block(bi);
+        let col_start = idx[frame.blocks_off + 7u * bi + 2u];
         let a0 = work[4u * h + 1u];
         let a1 = work[4u * h + 2u];
+        let pair = frame.z_off + 2u * work[4u * h + 3u];
         let k = b.rank;
         // V (3n × k, row-major) follows U (3m × k); a transposed block's "V" is its source's
         // U (3n × k, column-major, first).
-        let v = b.off + 3u * b.m * k;
-        let n3 = 3u * b.n;
+        var base = b.off + 3u * b.m * k;
+        var rs = k;
+        var cs = 1u;
+        if b.t {
+            base = b.off;
+            rs = 1u;
+            cs = 3u * b.n;
+        }
         for (var l = lid.x; l < k; l += 64u) {
-            var z = 0.0;
-            for (var a = a0; a < a1; a += 1u) {
-                let e = params.actives[a];
-                let c = 3u * (e.pos - b.col_start);
-                if b.t {
-                    z += dot(val3(b.buf, b.off + l * n3 + c), e.force);
-                } else {
-                    let i = v + c * k + l;
-                    z += val(b.buf, i) * e.force.x + val(b.buf, i + k) * e.force.y
-                        + val(b.buf, i + 2u * k) * e.force.z;
-                }
+            var z = reduce0(base, rs, cs, l, a0, a1, col_start, b.buf);
+            if VALUE_BUFFERS > 1u {
+                z += reduce1(base, rs, cs, l, a0, a1, col_start, b.buf);
             }
-            work[frame.z_off + b.z + l] = bitcast<u32>(z);
-        }
-    }
-}
-
-@compute @workgroup_size(64)
-fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let t = gid.x;
-    if t >= frame.n_rows {
-        return;
-    }
-    var u = vec3<f32>(0.0);
-    var r = t;
-    if t < frame.l_rows {
-        let p = t;
-        r = idx[frame.perm_off + p];
-        for (var q = 0u; q < params.n_leaves; q += 1u) {
-            let leaf = params.leaves[q];
-            // The row's block in this leaf: the leaf × segment table at the row's segment.
-            let seg = idx[frame.perm_off + frame.l_rows + p];
-            let b = block(idx[frame.lb_off + leaf.x + seg]);
-            let m3 = 3u * b.m;
-            let i = 3u * (p - b.row_start);
-            let n3 = 3u * b.n;
-            if b.rank == DENSE && b.t {
-                // The source is 3n × 3m column-major: this row's entries run down its columns.
-                for (var a = leaf.z; a < leaf.w; a += 1u) {
-                    let e = params.actives[a];
-                    let c = b.off + i * n3 + 3u * (e.pos - b.col_start);
-                    u += vec3<f32>(
-                        dot(val3(b.buf, c), e.force),
-                        dot(val3(b.buf, c + n3), e.force),
-                        dot(val3(b.buf, c + 2u * n3), e.force),
-                    );
-                }
-            } else if b.rank == DENSE {
-                // 3m × 3n column-major.
-                for (var a = leaf.z; a < leaf.w; a += 1u) {
-                    let e = params.actives[a];
-                    let c = b.off + 3u * (e.pos - b.col_start) * m3 + i;
-                    u += val3(b.buf, c) * e.force.x + val3(b.buf, c + m3) * e.force.y
-                        + val3(b.buf, c + 2u * m3) * e.force.z;
-                }
-            } else if leaf.z == 0u || params.actives[leaf.z - 1u].pos < b.col_start {
-                // This is the block's first active leaf: U (3m × k, column-major)·z_b; for a
-                // transposed block its source's V (3m × k, row-major, after its U).
-                let z = frame.z_off + b.z;
-                if b.t {
-                    let v = b.off + n3 * b.rank + i * b.rank;
-                    for (var l = 0u; l < b.rank; l += 1u) {
-                        let zl = bitcast<f32>(work[z + l]);
-                        u += vec3<f32>(
-                            val(b.buf, v + l),
-                            val(b.buf, v + b.rank + l),
-                            val(b.buf, v + 2u * b.rank + l),
-                        ) * zl;
-                    }
-                } else {
-                    for (var l = 0u; l < b.rank; l += 1u) {
-                        u += val3(b.buf, b.off + l * m3 + i) * bitcast<f32>(work[z + l]);
-                    }
-                }
+            if VALUE_BUFFERS > 2u {
+                z += reduce2(base, rs, cs, l, a0, a1, col_start, b.buf);
             }
+            if VALUE_BUFFERS > 3u {
+                z += reduce3(base, rs, cs, l, a0, a1, col_start, b.buf);
+            }
+            if VALUE_BUFFERS > 4u {
+                z += reduce4(base, rs, cs, l, a0, a1, col_start, b.buf);
+            }
+            work[pair + 2u * l] = l;
+            work[pair + 2u * l + 1u] = bitcast<u32>(z);
         }
-    }
-    let s = 4u * r;
-    let x = vec3<f32>(bitcast<f32>(idx[s]), bitcast<f32>(idx[s + 1u]), bitcast<f32>(idx[s + 2u])) + u;
-    let o = frame.out_offset + r * frame.out_stride;
-    out[o] = x.x;
-    out[o + 1u] = x.y;
-    out[o + 2u] = x.z;
-    if DISPLACEMENT_WORD != 0xffffffffu {
-        out[o + DISPLACEMENT_WORD] = length(u);
     }
 }

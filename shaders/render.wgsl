@@ -124,6 +124,18 @@ fn fs_surface(in: SurfaceOut) -> @location(0) vec4<f32> {
     return vec4<f32>(shade(in.world, n, color), 1.0);
 }
 
+// A surface without creases (touchfem::gpu::Deformer::creased is false: at rest every vertex
+// normal is within acos(0.99) of its triangles', where fs_surface uses the vertex normal alone):
+// the interpolated vertex normal, without the per-pixel facet normal.
+@fragment
+fn fs_surface_smooth(in: SurfaceOut) -> @location(0) vec4<f32> {
+    var color = cam.base_color.rgb;
+    if cam.colormap.x > 0.0 {
+        color = viridis(in.magnitude * cam.colormap.x);
+    }
+    return vec4<f32>(shade(in.world, in.normal, color), 1.0);
+}
+
 @vertex
 fn vs_line(@location(0) pos: vec4<f32>) -> @builtin(position) vec4<f32> {
     let world = pos.xyz + cam.offset.xyz;

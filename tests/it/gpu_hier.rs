@@ -163,6 +163,8 @@ fn cases(c: &Compliance) -> Vec<(&'static str, Vec<u32>)> {
         ("spread over leaves", spread),
         ("two sibling leaves", first),
         ("64 columns, one twice", many),
+        // Every column leaf: tables over several uniform windows.
+        ("every column", (0..nc.min(MAX_ACTIVE) as u32).collect()),
     ]
 }
 
@@ -190,6 +192,12 @@ fn hier_positions_match_the_cpu_product() {
             );
             assert!(umax > 1e-5, "{case}: max|u| {umax:e}");
             assert!(err <= tol, "ε {name}, {case}: error {err:e} > {tol:e}");
+            let windows = d.frame_windows().expect("hierarchical");
+            if case == "every column" {
+                assert!(windows >= 2, "{case}: {windows} window(s)");
+            } else if case == "one column" {
+                assert_eq!(windows, 1);
+            }
         }
         // Back to rest: nothing stale from the last frame.
         let [e, _, x] = frame(c, &mut d, &[], false);

@@ -59,6 +59,8 @@ pub struct Deformer {
     forces: Vec<(u32, [f32; 3])>,
     /// Bumped by each [`set_triangles`](Self::set_triangles).
     surface_generation: u64,
+    /// Leading triangles without a crease ([`smooth_triangles`](Self::smooth_triangles)).
+    smooth: u32,
 }
 
 impl std::fmt::Debug for Deformer {
@@ -146,6 +148,14 @@ impl Deformer {
             row_of[node as usize] = i as u32;
         }
         let tris = rows_of_triangles(&row_of, triangles)?;
+        // Triangles without a crease first (a renderer shades them more cheaply), each part in
+        // the given order.
+        let smooth = smooth_mask(&rest_rows, &tris);
+        let n_smooth = smooth.iter().filter(|&&s| s).count() as u32;
+        let tris: Vec<[u32; 3]> = (tris.iter().zip(&smooth).filter(|p| *p.1))
+            .chain(tris.iter().zip(&smooth).filter(|p| !*p.1))
+            .map(|p| *p.0)
+            .collect();
 
         // Output target.
         let target = match &options.output {
@@ -303,6 +313,7 @@ impl Deformer {
             correction: None,
             forces: Vec::with_capacity(MAX_ACTIVE),
             surface_generation: 0,
+            smooth: n_smooth,
         };
         d.set_forces(queue, &[])?;
         Ok(d)
@@ -457,7 +468,19 @@ impl Deformer {
         self.index_buffer = index_buffer;
         self.triangles = tris;
         self.surface_generation += 1;
+        // A cut's faces meet the surface at an edge: shaded as creases, in the given order.
+        self.smooth = 0;
         Ok(())
+    }
+
+    /// How many triangles, first in [`triangles`](Self::triangles) and the index buffer, have
+    /// no crease: at rest each of their vertices' normals is within about 8° (cosine 0.99) of
+    /// theirs. [`new`](Self::new) puts them first (the rest keep their order after them); after
+    /// [`set_triangles`](Self::set_triangles) there are none. A renderer shades these with their
+    /// vertex normals alone and the others with their facet normals at creases (found per
+    /// pixel, most of a software rasteriser's fragment cost).
+    pub fn smooth_triangles(&self) -> u32 {
+        self.smooth
     }
 
     /// How many times [`set_triangles`](Self::set_triangles) replaced the surface (0 after
@@ -478,6 +501,9 @@ impl Deformer {
     /// Records the deformation and normal passes (one compute pass) into `encoder`. Draw from
     /// [`vertex_buffer`](Self::vertex_buffer) in a later pass of the same or a later submission.
     pub fn encode(&self, encoder: &mut wgpu::CommandEncoder) {
+        if let Path::Hier(p) = &self.path {
+            p.record_reduce(encoder);
+        }
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("touchfem deform"),
             timestamp_writes: None,
@@ -574,6 +600,16 @@ impl Deformer {
             Path::Buffers(p) => p.l_bytes(),
             Path::Texture(p) => p.l_bytes(),
             Path::Hier(p) => p.l_bytes(),
+        }
+    }
+
+    /// For [`LStorage::Hier`], the uniform windows the last [`set_forces`](Self::set_forces)
+    /// laid its tables out in (one a dispatch of the row pass; more than one only when many
+    /// column leaves are active); `None` for the dense layouts.
+    pub fn frame_windows(&self) -> Option<usize> {
+        match &self.path {
+            Path::Hier(p) => Some(p.frame_windows()),
+            Path::Buffers(_) | Path::Texture(_) => None,
         }
     }
 
@@ -699,6 +735,37 @@ fn validate_target(
     ))
 }
 
+/// Cosine of the largest angle between a triangle's and its vertices' normals on a surface
+/// without creases: render.wgsl's `fs_surface` shades with the vertex normal alone from this
+/// cosine on.
+pub(crate) const CREASE_COS: f64 = 0.99;
+
+/// Per triangle, whether it has no crease: its normal within acos([`CREASE_COS`]) of each of
+/// its vertices' area-weighted normals (`rest`: positions per row; `tris`: row indices). A
+/// degenerate triangle has a crease.
+pub(crate) fn smooth_mask(rest: &[[f32; 4]], tris: &[[u32; 3]]) -> Vec<bool> {
+    let at = |r: u32| {
+        let p = rest[r as usize];
+        DVec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
+    };
+    let face = |t: &[u32; 3]| (at(t[1]) - at(t[0])).cross(at(t[2]) - at(t[0]));
+    let mut vn = vec![DVec3::ZERO; rest.len()];
+    for t in tris {
+        let n = face(t);
+        for &v in t {
+            vn[v as usize] += n;
+        }
+    }
+    tris.iter()
+        .map(|t| {
+            let n = face(t).normalize_or_zero();
+            n != DVec3::ZERO
+                && t.iter()
+                    .all(|&v| n.dot(vn[v as usize].normalize_or_zero()) >= CREASE_COS)
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use crate::input::{LData, LStorage};
@@ -741,5 +808,83 @@ mod tests {
         assert_eq!(a.f16_scale(), 0.5);
         assert_eq!(a.f16_scale(), touchfem_core::compliance::f16_scale(&l32));
         assert_eq!(LData::F64(&[]).f16_scale(), 1.0);
+    }
+
+    /// The unit sphere subdivided `levels` times from an octahedron: positions and
+    /// counter-clockwise triangles.
+    fn sphere(levels: u32) -> (Vec<[f32; 4]>, Vec<[u32; 3]>) {
+        let mut p: Vec<glam::DVec3> = [
+            [1., 0., 0.],
+            [-1., 0., 0.],
+            [0., 1., 0.],
+            [0., -1., 0.],
+            [0., 0., 1.],
+            [0., 0., -1.],
+        ]
+        .map(glam::DVec3::from)
+        .to_vec();
+        let mut t: Vec<[u32; 3]> = vec![
+            [0, 2, 4],
+            [2, 1, 4],
+            [1, 3, 4],
+            [3, 0, 4],
+            [2, 0, 5],
+            [1, 2, 5],
+            [3, 1, 5],
+            [0, 3, 5],
+        ];
+        for _ in 0..levels {
+            let mut mid = std::collections::HashMap::new();
+            let mut next = Vec::new();
+            for &[a, b, c] in &t {
+                let mut m = |i: u32, j: u32| {
+                    *mid.entry((i.min(j), i.max(j))).or_insert_with(|| {
+                        p.push((p[i as usize] + p[j as usize]).normalize());
+                        p.len() as u32 - 1
+                    })
+                };
+                let (ab, bc, ca) = (m(a, b), m(b, c), m(c, a));
+                next.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
+            }
+            t = next;
+        }
+        let rest = p
+            .iter()
+            .map(|v| [v.x as f32, v.y as f32, v.z as f32, 1.0])
+            .collect();
+        (rest, t)
+    }
+
+    #[test]
+    fn creases_are_told_from_smooth_surfaces() {
+        let smooth = |r: &[[f32; 4]], t: &[[u32; 3]]| {
+            super::smooth_mask(r, t).iter().filter(|&&s| s).count()
+        };
+        // An octahedron's edges are creases, and a coarse sphere's (its facets 20° apart); a
+        // finely subdivided sphere has none, however it is scaled.
+        let (rest, t) = sphere(0);
+        assert_eq!(smooth(&rest, &t), 0);
+        let (rest, t) = sphere(1);
+        assert_eq!(smooth(&rest, &t), 0);
+        let (rest, t) = sphere(4);
+        assert_eq!(smooth(&rest, &t), t.len());
+        let big: Vec<[f32; 4]> = rest
+            .iter()
+            .map(|v| [v[0] * 80.0, v[1] * 80.0, v[2] * 80.0, 1.0])
+            .collect();
+        assert_eq!(smooth(&big, &t), t.len());
+        // A sharp spike pulled out of the fine sphere: the triangles around it and their
+        // neighbours (whose vertex normals it bends) are creased, the rest stay smooth.
+        let mut spiked = rest.clone();
+        spiked[0] = [3.0, 0.0, 0.0, 1.0];
+        let around = t.iter().filter(|tri| tri.contains(&0)).count();
+        let n = smooth(&spiked, &t);
+        assert!(
+            n < t.len() - around && n > t.len() * 9 / 10,
+            "{n} of {}",
+            t.len()
+        );
+        // A degenerate triangle is shaded as a crease.
+        assert_eq!(smooth(&rest, &[[0, 0, 1]]), 0);
     }
 }

@@ -154,8 +154,12 @@ mod tests {
         ] {
             assert!(src.contains(&decl), "{decl} not found");
         }
-        let leaves = format!("array<vec4<u32>, {}>", super::MAX_ACTIVE);
-        assert!(super::DEFORM_HIER_WGSL.contains(&leaves));
+        // And the hierarchical pass's per-frame window, its vec4s.
+        let window = format!("array<vec4<u32>, {}>", super::hier_path::WINDOW_VEC4S);
+        assert!(
+            super::DEFORM_HIER_WGSL.contains(&window),
+            "{window} not found"
+        );
         let inline = super::INLINE_ACTIVE;
         assert_eq!(16 + 16 * inline as u32, super::IMMEDIATE_BYTES);
         for decl in [

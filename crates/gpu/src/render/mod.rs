@@ -482,6 +482,8 @@ pub struct Renderer {
     size: [u32; 2],
     options: RenderOptions,
     surface: wgpu::RenderPipeline,
+    /// The surface without the per-pixel facet normal ([`Deformer::smooth_triangles`]).
+    surface_smooth: wgpu::RenderPipeline,
     lines: wgpu::RenderPipeline,
     sphere: wgpu::RenderPipeline,
     sphere_hidden: wgpu::RenderPipeline,
@@ -646,6 +648,17 @@ impl Renderer {
             C::Less,
             None,
         );
+        let surface_smooth = pipeline(
+            "touchfem surface (no creases)",
+            "vs_surface",
+            "fs_surface_smooth",
+            &surface_buffers,
+            T::TriangleList,
+            Some(wgpu::Face::Back),
+            true,
+            C::Less,
+            None,
+        );
         let lines = pipeline(
             "touchfem wireframe",
             "vs_line",
@@ -731,6 +744,7 @@ impl Renderer {
             size,
             options,
             surface,
+            surface_smooth,
             lines,
             sphere,
             sphere_hidden,
@@ -1199,7 +1213,6 @@ impl Renderer {
             multiview_mask: None,
         });
         let record = |i: usize| (UNIFORM_STRIDE * (i as u64 + 1)) as u32;
-        pass.set_pipeline(&self.surface);
         for (i, o) in frame.objects.iter().enumerate() {
             pass.set_bind_group(0, &self.bind_group, &[record(i)]);
             pass.set_vertex_buffer(0, o.deformer.vertex_buffer().slice(..));
@@ -1207,7 +1220,18 @@ impl Renderer {
                 o.deformer.index_buffer().slice(..),
                 wgpu::IndexFormat::Uint32,
             );
-            pass.draw_indexed(0..o.deformer.index_count(), 0, 0..1);
+            // Triangles without a crease (first) skip the per-pixel facet normal: most of a
+            // software rasteriser's fragment cost on a large organ.
+            let (smooth, all) = (3 * o.deformer.smooth_triangles(), o.deformer.index_count());
+            for (pipeline, range) in [
+                (&self.surface_smooth, 0..smooth),
+                (&self.surface, smooth..all),
+            ] {
+                if !range.is_empty() {
+                    pass.set_pipeline(pipeline);
+                    pass.draw_indexed(range, 0, 0..1);
+                }
+            }
         }
         if frame.wireframe {
             pass.set_pipeline(&self.lines);
