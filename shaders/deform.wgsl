@@ -48,9 +48,10 @@ override DISPLACEMENT_WORD: u32 = 0xffffffffu;
 @group(0) @binding(1) var<uniform> active_list: array<Active, 1024>;
 @group(0) @binding(2) var<storage, read> rest: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> out: array<f32>;
-// Surface triangles as row indices, 3 per triangle.
+// Surface triangles as row indices, 3 per triangle (the normal pass reads their fans instead).
 @group(0) @binding(4) var<storage, read> tris: array<u32>;
-// CSR vertex → incident triangles: offsets[0..=n_rows] then the triangle ids.
+// Per vertex its triangle fans: offsets[0..=n_rows], then the neighbours, each chain's first
+// marked by FAN_START (touchfem_core::mesh::vertex_fans).
 @group(0) @binding(5) var<storage, read> adj: array<u32>;
 
 @group(1) @binding(0) var<uniform> chunk: Chunk;
@@ -98,19 +99,26 @@ fn position(v: u32) -> vec3<f32> {
     return vec3<f32>(out[o], out[o + 1u], out[o + 2u]);
 }
 
+// Marks the first neighbour of a chain in `adj` (touchfem_core::mesh::FAN_START).
+const FAN_START: u32 = 0x80000000u;
+
 @compute @workgroup_size(64)
 fn normals(@builtin(global_invocation_id) gid: vec3<u32>) {
     let v = gid.x;
     if v >= frame.n_rows || frame.normal_offset == 0xffffffffu {
         return;
     }
+    let pv = position(v);
     var n = vec3<f32>(0.0);
+    var prev = vec3<f32>(0.0);
     let list = frame.n_rows + 1u;
     for (var i = adj[v]; i < adj[v + 1u]; i += 1u) {
-        let t = 3u * adj[list + i];
-        let p0 = position(tris[t]);
+        // Consecutive neighbours a, b of a chain: the triangle (v, a, b), counter-clockwise.
         // |cross| is twice the area: the sum is area-weighted.
-        n += cross(position(tris[t + 1u]) - p0, position(tris[t + 2u]) - p0);
+        let e = adj[list + i];
+        let p = position(e & ~FAN_START) - pv;
+        n += select(cross(prev, p), vec3<f32>(0.0), (e & FAN_START) != 0u);
+        prev = p;
     }
     let len = length(n);
     if len > 0.0 {

@@ -392,9 +392,15 @@ pub(crate) fn checked_adjacency(
     Ok(adj)
 }
 
-/// The normal pass's adjacency: offsets[0..=nr] followed by the triangle ids, in one list.
+/// The normal pass's adjacency: offsets[0..=nr], then each vertex's triangle fans
+/// ([`vertex_fans`](touchfem_core::mesh::vertex_fans): its neighbours, each chain begun by
+/// `FAN_START`), in one list. One position load per neighbour instead of three corners and
+/// three positions per triangle.
 pub(crate) fn adjacency(nr: usize, tris: &[[u32; 3]]) -> Vec<u32> {
-    let (mut adj, list) = touchfem_core::mesh::vertex_triangles(nr, tris);
+    let (ranges, list) = touchfem_core::mesh::vertex_fans(nr, tris, false);
+    let mut adj = Vec::with_capacity(nr + 1 + list.len());
+    adj.extend(ranges.iter().map(|r| r[0]));
+    adj.push(list.len() as u32);
     adj.extend_from_slice(&list);
     adj
 }
