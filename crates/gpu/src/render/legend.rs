@@ -6,8 +6,8 @@
 const BOX_ALPHA: f32 = 0.75;
 
 /// Viridis (matplotlib's perceptually uniform colour map; van der Walt & Smith), sRGB, at
-/// `i / 9` for `i = 0..=9`; linear in between. The same table is `VIRIDIS` in
-/// `shaders/render.wgsl` (a unit test checks that they agree).
+/// `i / 9` for `i = 0..=9`; linear in between. The renderer samples it through
+/// [`colormap_lut`].
 pub const VIRIDIS: [[u8; 3]; 10] = [
     [0x44, 0x01, 0x54],
     [0x48, 0x28, 0x78],
@@ -34,6 +34,37 @@ pub fn viridis(t: f64) -> [u8; 3] {
     let (a, b) = (VIRIDIS[i], VIRIDIS[i + 1]);
     std::array::from_fn(|k| {
         (f64::from(a[k]) + f * (f64::from(b[k]) - f64::from(a[k]))).round() as u8
+    })
+}
+
+/// Entries of [`colormap_lut`].
+pub(crate) const LUT_LEN: usize = 256;
+
+/// The colour map as the renderer's fragments read it (`render.wgsl`'s `colormap_lut`): at
+/// `t = i / 255`, interpolated in sRGB between the [`VIRIDIS`] stops like the legend, then
+/// converted to linear RGB (alpha 1). A fragment interpolates linearly between two entries:
+/// within 10⁻³ of the exact colour (two lookups instead of nine blends and three `pow`s a
+/// pixel on a software rasteriser).
+pub(crate) fn colormap_lut() -> [[f32; 4]; LUT_LEN] {
+    let to_linear = |c: f64| {
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    std::array::from_fn(|i| {
+        let x = i as f64 / (LUT_LEN - 1) as f64 * (VIRIDIS.len() - 1) as f64;
+        let k = (x.floor() as usize).min(VIRIDIS.len() - 2);
+        let f = x - k as f64;
+        let (a, b) = (VIRIDIS[k], VIRIDIS[k + 1]);
+        let srgb = |j: usize| (f64::from(a[j]) + f * (f64::from(b[j]) - f64::from(a[j]))) / 255.0;
+        [
+            to_linear(srgb(0)) as f32,
+            to_linear(srgb(1)) as f32,
+            to_linear(srgb(2)) as f32,
+            1.0,
+        ]
     })
 }
 
@@ -531,26 +562,55 @@ mod tests {
         assert_eq!(viridis(4.0 / 9.0), VIRIDIS[4]);
     }
 
-    /// The shader's table is this one.
+    /// The fragments' table: sRGB-interpolated viridis, linearised; between entries (as the
+    /// shader reads it) within 10⁻³ of the exact colour, and at the stops the legend's bytes.
     #[test]
-    fn shader_table_matches() {
-        let src = super::super::RENDER_WGSL;
-        let start = src.find("const VIRIDIS").expect("VIRIDIS in render.wgsl");
-        let body = &src[start..src[start..].find(");").unwrap() + start];
-        let nums: Vec<f64> = body
-            .split(|c: char| !(c.is_ascii_digit() || c == '.'))
-            .filter(|s| s.contains('.'))
-            .map(|s| s.parse().unwrap())
-            .collect();
-        assert_eq!(nums.len(), 30, "{body}");
-        for (i, c) in VIRIDIS.iter().enumerate() {
-            for k in 0..3 {
-                assert!(
-                    (nums[3 * i + k] - f64::from(c[k]) / 255.0).abs() < 5e-4,
-                    "stop {i} channel {k}"
-                );
+    fn colormap_lut_follows_the_legend() {
+        let lut = super::colormap_lut();
+        let to_srgb = |c: f64| {
+            if c <= 0.0031308 {
+                12.92 * c
+            } else {
+                1.055 * c.powf(1.0 / 2.4) - 0.055
+            }
+        };
+        let exact = |t: f64| -> [f64; 3] {
+            let x = t * 9.0;
+            let k = (x.floor() as usize).min(8);
+            let f = x - k as f64;
+            std::array::from_fn(|j| {
+                let (a, b) = (f64::from(VIRIDIS[k][j]), f64::from(VIRIDIS[k + 1][j]));
+                let c: f64 = (a + f * (b - a)) / 255.0;
+                if c <= 0.04045 {
+                    c / 12.92
+                } else {
+                    ((c + 0.055) / 1.055).powf(2.4)
+                }
+            })
+        };
+        let mut worst = 0.0f64;
+        for s in 0..=10_000 {
+            let t = s as f64 / 10_000.0;
+            // As render.wgsl's `viridis`.
+            let x = t * 255.0;
+            let i = (x.floor() as usize).min(254);
+            let f = x - i as f64;
+            let e = exact(t);
+            for j in 0..3 {
+                let got = f64::from(lut[i][j]) + f * f64::from(lut[i + 1][j] - lut[i][j]);
+                worst = worst.max((got - e[j]).abs());
             }
         }
+        assert!(worst < 1e-3, "worst {worst:e}");
+        for (k, stop) in VIRIDIS.iter().enumerate() {
+            // Stop k sits at t = k/9; the nearest entries bracket it.
+            let t = k as f64 / 9.0;
+            let e = exact(t);
+            for j in 0..3 {
+                assert_eq!((to_srgb(e[j]) * 255.0).round() as u8, stop[j], "stop {k}");
+            }
+        }
+        assert_eq!(lut[0][3], 1.0);
     }
 
     #[test]
