@@ -547,7 +547,9 @@ impl Deformer {
         3 * self.triangles.len() as u32
     }
 
-    /// The surface triangles in vertex (row) indices (CPU copy).
+    /// The surface triangles in vertex (row) indices (CPU copy), in the index buffer's order:
+    /// after [`new`](Self::new) those without a crease first
+    /// ([`smooth_triangles`](Self::smooth_triangles)).
     pub fn triangles(&self) -> &[[u32; 3]] {
         &self.triangles
     }
