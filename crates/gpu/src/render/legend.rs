@@ -6,8 +6,8 @@
 const BOX_ALPHA: f32 = 0.75;
 
 /// Viridis (matplotlib's perceptually uniform colour map; van der Walt & Smith), sRGB, at
-/// `i / 9` for `i = 0..=9`; linear in between. The renderer samples it through
-/// [`colormap_lut`].
+/// `i / 9` for `i = 0..=9`; linear in between. The renderer's fragments sample it through a
+/// 256-entry table of it.
 pub const VIRIDIS: [[u8; 3]; 10] = [
     [0x44, 0x01, 0x54],
     [0x48, 0x28, 0x78],
