@@ -20,7 +20,8 @@
 // divergent code for every lane and loads storage buffers lane by lane. So the row pass has a
 // single code path (dense, low-rank and transposed blocks differ only in the hit's base and
 // strides), its per-frame tables are in a uniform buffer (`tab`), and the values are read from
-// one buffer per loop (`add0` … `add4`; a hit's loops for other buffers run no iteration).
+// one buffer per loop (`add0`, repeated per value buffer by the host; a hit's loops for other
+// buffers run no iteration).
 // A frame whose tables exceed one 64 KiB window is dispatched once per window, each adding
 // to the last.
 
@@ -70,9 +71,6 @@ const DENSE: u32 = 0xffffffffu;
 // 3, position.w); 0xffffffff: not written.
 override DISPLACEMENT_WORD: u32 = 0xffffffffu;
 
-// Value buffers in use (1..=5): loops over unused ones are compiled out.
-override VALUE_BUFFERS: u32 = 5u;
-
 // f32 values; the half-float variant reads u32 words holding two halves each.
 alias Word = f32;
 
@@ -99,23 +97,6 @@ alias Word = f32;
 @group(1) @binding(3) var<storage, read> v3: array<Word>;
 @group(1) @binding(4) var<storage, read> v4: array<Word>;
 
-// Value i of each buffer.
-fn val0(i: u32) -> f32 {
-    return v0[i];
-}
-fn val1(i: u32) -> f32 {
-    return v1[i];
-}
-fn val2(i: u32) -> f32 {
-    return v2[i];
-}
-fn val3(i: u32) -> f32 {
-    return v3[i];
-}
-fn val4(i: u32) -> f32 {
-    return v4[i];
-}
-
 // A hit: entry (r, c) of its block at base + r·rs + c·cs; `cols` coefficient pairs from `coef`
 // (pair index in the window); its values in buffer `buf`.
 struct Hit {
@@ -134,6 +115,14 @@ fn coef(j: u32) -> vec2<u32> {
     return select(w.xy, w.zw, (j & 1u) == 1u);
 }
 
+// BEGIN PER BUFFER: what reads value buffer 0. hier_path.rs repeats this block for v1 … v4
+// (renaming val0, add0, reduce0, v0 and buffer 0), one a value buffer in use.
+
+// Value i of buffer 0.
+fn val0(i: u32) -> f32 {
+    return v0[i];
+}
+
 // Σ_j B[3i + (0, 1, 2), col_j]·c_j for a hit in buffer b, zero for the others (their loop runs
 // no iteration).
 fn add0(h: Hit, r: u32) -> vec3<f32> {
@@ -146,62 +135,24 @@ fn add0(h: Hit, r: u32) -> vec3<f32> {
     }
     return u;
 }
-fn add1(h: Hit, r: u32) -> vec3<f32> {
-    var u = vec3<f32>(0.0);
-    let n = select(0u, h.cols, h.buf == 1u);
-    for (var j = 0u; j < n; j += 1u) {
-        let c = coef(h.coef + j);
-        let e = h.base + r * h.rs + c.x * h.cs;
-        u += vec3<f32>(val1(e), val1(e + h.rs), val1(e + 2u * h.rs)) * bitcast<f32>(c.y);
+// z_l = Σ_a V[3(pos_a − col start) + (0, 1, 2), l]·f_a over the hit's active entries, V's
+// entry (c, l) at base + c·rs + l·cs, in buffer b (0 for the others).
+fn reduce0(base: u32, rs: u32, cs: u32, l: u32, a0: u32, a1: u32, col_start: u32, b: u32) -> f32 {
+    var z = 0.0;
+    let n = select(a0, a1, b == 0u);
+    for (var a = a0; a < n; a += 1u) {
+        let e = params.actives[a];
+        let i = base + 3u * (e.pos - col_start) * rs + l * cs;
+        z += val0(i) * e.force.x + val0(i + rs) * e.force.y + val0(i + 2u * rs) * e.force.z;
     }
-    return u;
+    return z;
 }
-fn add2(h: Hit, r: u32) -> vec3<f32> {
-    var u = vec3<f32>(0.0);
-    let n = select(0u, h.cols, h.buf == 2u);
-    for (var j = 0u; j < n; j += 1u) {
-        let c = coef(h.coef + j);
-        let e = h.base + r * h.rs + c.x * h.cs;
-        u += vec3<f32>(val2(e), val2(e + h.rs), val2(e + 2u * h.rs)) * bitcast<f32>(c.y);
-    }
-    return u;
-}
-fn add3(h: Hit, r: u32) -> vec3<f32> {
-    var u = vec3<f32>(0.0);
-    let n = select(0u, h.cols, h.buf == 3u);
-    for (var j = 0u; j < n; j += 1u) {
-        let c = coef(h.coef + j);
-        let e = h.base + r * h.rs + c.x * h.cs;
-        u += vec3<f32>(val3(e), val3(e + h.rs), val3(e + 2u * h.rs)) * bitcast<f32>(c.y);
-    }
-    return u;
-}
-fn add4(h: Hit, r: u32) -> vec3<f32> {
-    var u = vec3<f32>(0.0);
-    let n = select(0u, h.cols, h.buf == 4u);
-    for (var j = 0u; j < n; j += 1u) {
-        let c = coef(h.coef + j);
-        let e = h.base + r * h.rs + c.x * h.cs;
-        u += vec3<f32>(val4(e), val4(e + h.rs), val4(e + 2u * h.rs)) * bitcast<f32>(c.y);
-    }
-    return u;
-}
+// END PER BUFFER
 
 // Σ over the value buffers in use.
 fn add(h: Hit, r: u32) -> vec3<f32> {
     var u = add0(h, r);
-    if VALUE_BUFFERS > 1u {
-        u += add1(h, r);
-    }
-    if VALUE_BUFFERS > 2u {
-        u += add2(h, r);
-    }
-    if VALUE_BUFFERS > 3u {
-        u += add3(h, r);
-    }
-    if VALUE_BUFFERS > 4u {
-        u += add4(h, r);
-    }
+    // MORE BUFFERS: u += addB(h, r);
     return u;
 }
 
@@ -261,59 +212,6 @@ fn block(bi: u32) -> Block {
         idx[o + 6u]);
 }
 
-// z_l = Σ_a V[3(pos_a − col start) + (0, 1, 2), l]·f_a over the hit's active entries, V's
-// entry (c, l) at base + c·rs + l·cs, in buffer b (0 for the others).
-fn reduce0(base: u32, rs: u32, cs: u32, l: u32, a0: u32, a1: u32, col_start: u32, b: u32) -> f32 {
-    var z = 0.0;
-    let n = select(a0, a1, b == 0u);
-    for (var a = a0; a < n; a += 1u) {
-        let e = params.actives[a];
-        let i = base + 3u * (e.pos - col_start) * rs + l * cs;
-        z += val0(i) * e.force.x + val0(i + rs) * e.force.y + val0(i + 2u * rs) * e.force.z;
-    }
-    return z;
-}
-fn reduce1(base: u32, rs: u32, cs: u32, l: u32, a0: u32, a1: u32, col_start: u32, b: u32) -> f32 {
-    var z = 0.0;
-    let n = select(a0, a1, b == 1u);
-    for (var a = a0; a < n; a += 1u) {
-        let e = params.actives[a];
-        let i = base + 3u * (e.pos - col_start) * rs + l * cs;
-        z += val1(i) * e.force.x + val1(i + rs) * e.force.y + val1(i + 2u * rs) * e.force.z;
-    }
-    return z;
-}
-fn reduce2(base: u32, rs: u32, cs: u32, l: u32, a0: u32, a1: u32, col_start: u32, b: u32) -> f32 {
-    var z = 0.0;
-    let n = select(a0, a1, b == 2u);
-    for (var a = a0; a < n; a += 1u) {
-        let e = params.actives[a];
-        let i = base + 3u * (e.pos - col_start) * rs + l * cs;
-        z += val2(i) * e.force.x + val2(i + rs) * e.force.y + val2(i + 2u * rs) * e.force.z;
-    }
-    return z;
-}
-fn reduce3(base: u32, rs: u32, cs: u32, l: u32, a0: u32, a1: u32, col_start: u32, b: u32) -> f32 {
-    var z = 0.0;
-    let n = select(a0, a1, b == 3u);
-    for (var a = a0; a < n; a += 1u) {
-        let e = params.actives[a];
-        let i = base + 3u * (e.pos - col_start) * rs + l * cs;
-        z += val3(i) * e.force.x + val3(i + rs) * e.force.y + val3(i + 2u * rs) * e.force.z;
-    }
-    return z;
-}
-fn reduce4(base: u32, rs: u32, cs: u32, l: u32, a0: u32, a1: u32, col_start: u32, b: u32) -> f32 {
-    var z = 0.0;
-    let n = select(a0, a1, b == 4u);
-    for (var a = a0; a < n; a += 1u) {
-        let e = params.actives[a];
-        let i = base + 3u * (e.pos - col_start) * rs + l * cs;
-        z += val4(i) * e.force.x + val4(i + rs) * e.force.y + val4(i + 2u * rs) * e.force.z;
-    }
-    return z;
-}
-
 @compute @workgroup_size(64)
 fn reduce(
     @builtin(workgroup_id) wid: vec3<u32>,
@@ -340,18 +238,7 @@ fn reduce(
         }
         for (var l = lid.x; l < k; l += 64u) {
             var z = reduce0(base, rs, cs, l, a0, a1, col_start, b.buf);
-            if VALUE_BUFFERS > 1u {
-                z += reduce1(base, rs, cs, l, a0, a1, col_start, b.buf);
-            }
-            if VALUE_BUFFERS > 2u {
-                z += reduce2(base, rs, cs, l, a0, a1, col_start, b.buf);
-            }
-            if VALUE_BUFFERS > 3u {
-                z += reduce3(base, rs, cs, l, a0, a1, col_start, b.buf);
-            }
-            if VALUE_BUFFERS > 4u {
-                z += reduce4(base, rs, cs, l, a0, a1, col_start, b.buf);
-            }
+            // MORE BUFFERS: z += reduceB(base, rs, cs, l, a0, a1, col_start, b.buf);
             work[pair + 2u * l] = l;
             work[pair + 2u * l + 1u] = bitcast<u32>(z);
         }

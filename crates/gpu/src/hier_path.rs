@@ -40,23 +40,57 @@ const WINDOW_BYTES: u64 = 16 * WINDOW_VEC4S as u64;
 /// Largest value buffer, bytes: element indices stay below 2³¹ (u32 arithmetic in WGSL).
 const MAX_VALUE_BUFFER: u64 = 1 << 31;
 
-/// `shaders/deform_hier.wgsl` with the values read as half floats, two per `u32` word.
-pub(crate) fn deform_hier_f16_wgsl() -> String {
+/// `shaders/deform_hier.wgsl` for `buffers` value buffers (1 ..= [`HIER_VALUE_BINDINGS`]): its
+/// per-buffer block (what reads `v0`) repeated for `v1` …, their sums added where the file
+/// says so; with `half`, the values read as half floats, two per `u32` word.
+pub(crate) fn deform_hier_wgsl(buffers: usize, half: bool) -> String {
+    const BEGIN: &str = "// BEGIN PER BUFFER";
+    const END: &str = "// END PER BUFFER\n";
+    const MORE_ADD: &str = "    // MORE BUFFERS: u += addB(h, r);\n";
+    const MORE_REDUCE: &str =
+        "            // MORE BUFFERS: z += reduceB(base, rs, cs, l, a0, a1, col_start, b.buf);\n";
     const F32_WORD: &str = "alias Word = f32;";
-    assert!(DEFORM_HIER_WGSL.contains(F32_WORD));
-    let mut src = DEFORM_HIER_WGSL.replace(F32_WORD, "alias Word = u32;");
-    for b in 0..HIER_VALUE_BINDINGS {
-        let f32_val = format!("    return v{b}[i];\n");
-        assert!(src.contains(&f32_val));
-        src = src.replace(
-            &f32_val,
-            &format!(
-                "    let w = unpack2x16float(v{b}[i >> 1u]);\n    \
-                 return select(w.x, w.y, (i & 1u) == 1u);\n"
-            ),
+    let src = DEFORM_HIER_WGSL;
+    let (Some(a), Some(b)) = (src.find(BEGIN), src.find(END)) else {
+        unreachable!("deform_hier.wgsl marks its per-buffer block (a unit test checks)");
+    };
+    let b = b + END.len();
+    let block = &src[a..b];
+    let mut out = String::with_capacity(src.len() + buffers * block.len());
+    out.push_str(&src[..b]);
+    for k in 1..buffers {
+        out.push_str(
+            &block
+                .replace("val0", &format!("val{k}"))
+                .replace("add0", &format!("add{k}"))
+                .replace("reduce0", &format!("reduce{k}"))
+                .replace("v0[", &format!("v{k}["))
+                .replace("== 0u", &format!("== {k}u")),
         );
     }
-    src
+    out.push_str(&src[b..]);
+    let adds: String = (1..buffers)
+        .map(|k| format!("    u += add{k}(h, r);\n"))
+        .collect();
+    let reduces: String = (1..buffers)
+        .map(|k| {
+            format!("            z += reduce{k}(base, rs, cs, l, a0, a1, col_start, b.buf);\n")
+        })
+        .collect();
+    out = out.replace(MORE_ADD, &adds).replace(MORE_REDUCE, &reduces);
+    if half {
+        out = out.replace(F32_WORD, "alias Word = u32;");
+        for k in 0..buffers {
+            out = out.replace(
+                &format!("    return v{k}[i];\n"),
+                &format!(
+                    "    let w = unpack2x16float(v{k}[i >> 1u]);\n    \
+                     return select(w.x, w.y, (i & 1u) == 1u);\n"
+                ),
+            );
+        }
+    }
+    out
 }
 
 /// Values a block holds: `9mn` dense, `3(m + n)k` low-rank.
@@ -624,11 +658,7 @@ impl HierPath {
             &adj,
         );
 
-        let source = if sh.half {
-            deform_hier_f16_wgsl().into()
-        } else {
-            DEFORM_HIER_WGSL.into()
-        };
+        let source = deform_hier_wgsl(values.len(), sh.half).into();
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("touchfem deform_hier.wgsl"),
             source: wgpu::ShaderSource::Wgsl(source),
@@ -637,13 +667,12 @@ impl HierPath {
             label: Some("touchfem deform.wgsl (normals)"),
             source: wgpu::ShaderSource::Wgsl(DEFORM_WGSL.into()),
         });
-        let buffers = ("VALUE_BUFFERS", values.len() as f64);
         // The deformer's own `Vertex`es carry |u| in position.w (word 3).
-        let with_word = [buffers, ("DISPLACEMENT_WORD", 3.0)];
+        let with_word = [("DISPLACEMENT_WORD", 3.0)];
         let constants = if sh.vertex_layout {
             &with_word[..]
         } else {
-            &with_word[..1]
+            &[]
         };
         let mut path = HierPath {
             half: sh.half,
@@ -667,14 +696,7 @@ impl HierPath {
             group0,
             values_group,
             normals_group,
-            reduce: specialised_pipeline(
-                device,
-                &module,
-                "reduce",
-                &[&layout0, &layout1],
-                0,
-                &with_word[..1],
-            ),
+            reduce: compute_pipeline(device, &module, "reduce", &[&layout0, &layout1], 0),
             deform: specialised_pipeline(
                 device,
                 &module,

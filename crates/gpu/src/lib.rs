@@ -63,16 +63,32 @@ mod tests {
         assert_eq!(w, [0x3c00 | (0xc000 << 16), 0x3800]);
     }
 
-    /// The half-float variant of `deform_hier.wgsl` validates.
+    /// `deform_hier.wgsl` for every number of value buffers, in f32 and half floats,
+    /// validates, reads each buffer in use and sums them.
     #[test]
-    fn hier_f16_shader_validates() {
-        let src = super::hier_path::deform_hier_f16_wgsl();
-        assert!(src.contains("alias Word = u32;") && src.contains("unpack2x16float"));
-        validate(
-            "deform_hier.wgsl (f16)",
-            &src,
-            naga::valid::Capabilities::SHADER_FLOAT16_IN_FLOAT32,
-        );
+    fn hier_shader_variants_validate() {
+        use super::hier_path::deform_hier_wgsl;
+        for n in 1..=super::HIER_VALUE_BINDINGS {
+            for half in [false, true] {
+                let src = deform_hier_wgsl(n, half);
+                let name = format!("deform_hier.wgsl ({n} buffers, half {half})");
+                assert_eq!(src.contains("unpack2x16float"), half, "{name}");
+                assert!(!src.contains("MORE BUFFERS"), "{name}");
+                for k in 0..super::HIER_VALUE_BINDINGS {
+                    let reads = src.contains(&format!("v{k}[i"));
+                    assert_eq!(reads, k < n, "{name}: v{k}");
+                    if k > 0 {
+                        assert_eq!(src.contains(&format!("u += add{k}(h, r);")), k < n);
+                        assert_eq!(src.contains(&format!("z += reduce{k}(")), k < n);
+                    }
+                }
+                validate(
+                    &name,
+                    &src,
+                    naga::valid::Capabilities::SHADER_FLOAT16_IN_FLOAT32,
+                );
+            }
+        }
     }
 
     /// Every shader in `shaders/` parses and validates with naga (no GPU needed): the
