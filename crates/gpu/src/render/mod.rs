@@ -647,30 +647,24 @@ impl Renderer {
         };
         use wgpu::CompareFunction as C;
         use wgpu::PrimitiveTopology as T;
-        let surface = pipeline(
-            "touchfem surface",
-            "vs_surface",
-            "fs_surface",
-            &surface_buffers,
-            T::TriangleList,
-            // A tet mesh's boundary is closed and counter-clockwise seen from outside: its back
-            // faces are hidden anyway (culling them saves their fragments on a CPU rasteriser).
-            Some(wgpu::Face::Back),
-            true,
-            C::Less,
-            None,
-        );
-        let surface_smooth = pipeline(
-            "touchfem surface (no creases)",
-            "vs_surface",
-            "fs_surface_smooth",
-            &surface_buffers,
-            T::TriangleList,
-            Some(wgpu::Face::Back),
-            true,
-            C::Less,
-            None,
-        );
+        let surface_with = |label, fs| {
+            pipeline(
+                label,
+                "vs_surface",
+                fs,
+                &surface_buffers,
+                T::TriangleList,
+                // A tet mesh's boundary is closed and counter-clockwise seen from outside: its
+                // back faces are hidden anyway (culling them saves their fragments on a CPU
+                // rasteriser).
+                Some(wgpu::Face::Back),
+                true,
+                C::Less,
+                None,
+            )
+        };
+        let surface = surface_with("touchfem surface", "fs_surface");
+        let surface_smooth = surface_with("touchfem surface (no creases)", "fs_surface_smooth");
         let lines = pipeline(
             "touchfem wireframe",
             "vs_line",
