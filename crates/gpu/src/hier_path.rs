@@ -758,8 +758,9 @@ impl HierPath {
             if !self.filling.leaves.is_empty()
                 && self.filling.used() + self.leaf_need[leaf] as usize > WINDOW_VEC4S
             {
-                if self.windows.len() == self.windows.capacity() {
-                    // Not reached: the windows are sized for the largest frame.
+                // This window and the last must fit. Not reached: the windows are sized for
+                // the largest frame.
+                if self.windows.len() + 2 > self.tab.len() / WINDOW_VEC4S {
                     log::error!("the hierarchical pass's windows are full; columns left out");
                     break;
                 }
