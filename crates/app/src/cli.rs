@@ -677,7 +677,7 @@ struct HierEstimate {
 fn hier_estimate(mesh: &touchfem_core::Mesh, eps: f64) -> Result<HierEstimate, Error> {
     let opts = touchfem_core::compliance::hmatrix::HOptions::new(eps);
     let plan = touchfem_core::compliance::selection_plan(mesh, &Selection::default(), &opts)
-        .map_err(touchfem_core::fem::FemError::from)?;
+        .map_err(touchfem_core::compliance::ComplianceError::from)?;
     let rank = touchfem_core::compliance::hmatrix::mean_rank_estimate(eps);
     let values = plan.estimate_values(rank);
     Ok(HierEstimate {
