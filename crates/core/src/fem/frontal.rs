@@ -519,7 +519,7 @@ impl Worker {
                 )?;
                 Ok(())
             },
-            &singular,
+            singular,
         )?;
         if let Some(negative) = negative {
             for (j, &neg) in negative.iter().enumerate() {

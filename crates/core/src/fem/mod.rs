@@ -616,7 +616,7 @@ impl Stiffness {
                 )?;
                 Ok(())
             },
-            &singular,
+            singular,
         )?;
         if !negative.is_empty() {
             let faer::sparse::linalg::cholesky::SymbolicCholeskyRaw::Supernodal(sn) =
