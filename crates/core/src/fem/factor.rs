@@ -4,9 +4,9 @@ use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::{Accum, Mat, MatMut, MatRef, Par};
 
 /// The factor of the system: `P K Pᵀ = G Gᵀ` (Cholesky) for `K`; for a mixed system
-/// ([`locking_free::mixed`], quasi-definite), `P K Pᵀ = G Σ Gᵀ` with `Σ = diag(±1)`: −1 at the
-/// auxiliary unknowns' columns. `G` has a positive diagonal either way, so forward solves
-/// are the same; the solves and the Gram product put `Σ` between.
+/// ([`super::locking_free::mixed`], quasi-definite), `P K Pᵀ = G Σ Gᵀ` with `Σ = diag(±1)`:
+/// −1 at the auxiliary unknowns' columns. `G` has a positive diagonal either way, so forward
+/// solves are the same; the solves and the Gram product put `Σ` between.
 pub struct Factor {
     pub(super) symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
     pub(super) values: crate::fem::frontal::Values,
@@ -151,7 +151,7 @@ impl Factor {
         }
     }
 
-    /// Whether the values stream from a file ([`FactorStore::File`]).
+    /// Whether the values stream from a file ([`FactorStore::File`](super::FactorStore::File)).
     pub fn is_mapped(&self) -> bool {
         self.values.is_mapped()
     }
