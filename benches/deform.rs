@@ -23,9 +23,9 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use glam::DVec3;
 use touchfem::compliance::Compliance;
 use touchfem::gpu::{Deformer, DeformerOptions, Gpu, LStorage, OutputTarget};
+use touchfem::mesh::units::Material;
 use touchfem::mesh::{cube_with, Mesh};
 use touchfem::threads::VisualPlacement;
-use touchfem::units::Material;
 use touchfem::wgpu;
 
 struct Rng(u64);

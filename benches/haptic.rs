@@ -6,9 +6,9 @@ use glam::DVec3;
 use std::hint::black_box;
 use std::time::Duration;
 use touchfem::compliance::{Compliance, Selection};
+use touchfem::contact::finger::Finger;
+use touchfem::contact::force::{ForceBc, ForceModel};
 use touchfem::contact::Surface;
-use touchfem::finger::Finger;
-use touchfem::force::{ForceBc, ForceModel};
 use touchfem::mesh::{cube, cube_with};
 use touchfem::{Material, Mesh};
 

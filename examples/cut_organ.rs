@@ -12,8 +12,8 @@ use std::time::Instant;
 use glam::DVec3;
 use touchfem::compliance::{Compliance, NodeSet, Selection};
 use touchfem::cut::Cut;
+use touchfem::mesh::units::LengthUnit;
 use touchfem::scene::{load_mesh, LoadOptions};
-use touchfem::units::LengthUnit;
 
 fn parse3(s: &str) -> DVec3 {
     let v: Vec<f64> = s.split(',').map(|x| x.parse().expect("a number")).collect();

@@ -11,8 +11,8 @@ use std::time::Instant;
 
 use glam::DVec3;
 use touchfem::compliance::{Compliance, Selection};
+use touchfem::mesh::units::LengthUnit;
 use touchfem::scene::{load_mesh, Body, LoadOptions};
-use touchfem::units::LengthUnit;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();

@@ -98,7 +98,7 @@ fn main() {
         });
         if let Some(f) = &ooc {
             let shown = mesh.free_surface_nodes();
-            let u = touchfem::gram::UnitSolver::new(f, {
+            let u = touchfem::fem::gram::UnitSolver::new(f, {
                 let d = &k.dofs;
                 shown
                     .iter()
@@ -128,7 +128,8 @@ fn main() {
         let k = touchfem::fem::Stiffness::assemble(&mesh).expect("K");
         let f = k.factorize().expect("factor");
         let shown = mesh.free_surface_nodes();
-        let g = touchfem::gram::GramPlan::new(&f, &k.dofs, &shown, &shown).expect("supernodal");
+        let g =
+            touchfem::fem::gram::GramPlan::new(&f, &k.dofs, &shown, &shown).expect("supernodal");
         for threads in [1, 2] {
             let t = std::time::Instant::now();
             let w = g.forward(&f, threads).expect("W");

@@ -518,7 +518,7 @@ fn a_tiny_poke_has_readable_picture_labels() {
         .poke(
             glam::DVec3::new(15e-3, 15e-3, 30e-3),
             glam::DVec3::new(0.0, 0.0, -1e-7),
-            touchfem::force::ForceModel::Paper,
+            touchfem::contact::force::ForceModel::Paper,
             50,
         )
         .unwrap();

@@ -5,10 +5,10 @@ use crate::common;
 
 use glam::DVec3;
 use touchfem::compliance::{Compliance, Selection};
-use touchfem::contact::{ContactPoint, Feature, GodObject, Surface};
-use touchfem::force::{
+use touchfem::contact::force::{
     coupled_force, finger_force, point_compliance, saturate, ForceBc, ForceModel,
 };
+use touchfem::contact::{ContactPoint, Feature, GodObject, Surface};
 use touchfem::mesh::cube;
 use touchfem::Material;
 

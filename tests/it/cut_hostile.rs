@@ -235,7 +235,7 @@ fn a_single_tet_thick_sliver_cut_through_loses_its_top_and_stays_exact() {
     let wall = touchfem::mesh::cube_with(
         [4, 1, 4],
         [30.0, 3.0, 30.0],
-        touchfem::units::Material {
+        touchfem::mesh::units::Material {
             young_pa: 10_000.0,
             poisson: 0.45,
         },

@@ -1,4 +1,4 @@
-//! A cut carried live: the correction beside `L` ([`touchfem::correction`]) read by the
+//! A cut carried live: the correction beside `L` ([`touchfem::compliance::correction`]) read by the
 //! compliance's accessors, against a full precompute of the cut mesh.
 
 use std::sync::Arc;
@@ -220,7 +220,7 @@ fn pinned_nodes_are_no_longer_touchable_and_do_not_move() {
     assert_eq!(u[carried.row_of(v).unwrap()], DVec3::ZERO);
     assert!(u.iter().all(|x| x.is_finite()));
     // A correction that does not fit is refused.
-    let bad = touchfem::correction::Correction {
+    let bad = touchfem::compliance::correction::Correction {
         rank: 1,
         ..Default::default()
     };

@@ -2,8 +2,8 @@
 
 use glam::DVec3;
 use touchfem::compliance::Selection;
+use touchfem::contact::force::ForceModel;
 use touchfem::contact::{Friction, Tool};
-use touchfem::force::ForceModel;
 use touchfem::runtime::{HapticWorld, WorldSample};
 use touchfem::scene::{Body, SceneSource, World};
 use touchfem_lab::hertz::{study, HertzSetup};
@@ -635,8 +635,8 @@ fn two_fingertips_on_one_object_are_solved_together() {
 
 #[test]
 fn the_friction_cones_feedback_is_the_force_steps_bit_for_bit() {
+    use touchfem::contact::force::{finger_feedback, finger_force, ForceBc};
     use touchfem::contact::GodObject;
-    use touchfem::force::{finger_feedback, finger_force, ForceBc};
     let body = Body::new(touchfem::mesh::cube(), &Selection::default()).unwrap();
     let (tri, _) = body.surface.closest_global(DVec3::new(0.004, 0.006, 0.03));
     let mut god = GodObject::touching(tri);

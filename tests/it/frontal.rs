@@ -1,4 +1,4 @@
-//! The out-of-core factorisation (`touchfem::frontal`): its factor against faer's, its bits on
+//! The out-of-core factorisation (`touchfem::fem::frontal`): its factor against faer's, its bits on
 //! any number of threads, the precompute from a factor in a file against one in memory, its
 //! errors, and the pages it leaves mapped.
 
@@ -189,7 +189,7 @@ fn a_solve_from_the_file_leaves_its_pages_unmapped() {
     // Every supernode visited: the full solve of one column.
     let shown = m.free_surface_nodes();
     let dofs = &k.dofs;
-    let u = touchfem::gram::UnitSolver::new(
+    let u = touchfem::fem::gram::UnitSolver::new(
         &f,
         shown
             .iter()

@@ -221,7 +221,7 @@ fn render_mouse(pressed: bool, spheres: bool) -> image::RgbaImage {
         let at = DVec3::new(-0.01, 0.0, 0.06);
         let push = DVec3::new(0.0, 0.0, -0.01);
         let p = s
-            .poke(at, push, touchfem::force::ForceModel::Paper, 50)
+            .poke(at, push, touchfem::contact::force::ForceModel::Paper, 50)
             .expect("poke");
         let c = p.contact.expect("the finger presses the mouse's back");
         let (f32s, n) = p.bc.to_f32();
@@ -280,7 +280,7 @@ struct Press {
 
 fn press(s: &touchfem::scene::Body, at: DVec3, push: DVec3) -> Press {
     let p = s
-        .poke(at, push, touchfem::force::ForceModel::Paper, 50)
+        .poke(at, push, touchfem::contact::force::ForceModel::Paper, 50)
         .expect("poke");
     let c = p.contact.expect("the finger touches");
     let (f32s, n) = p.bc.to_f32();

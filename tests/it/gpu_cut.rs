@@ -220,7 +220,7 @@ fn a_correction_that_does_not_fit_is_refused_and_changes_nothing() {
     let mesh = touchfem::mesh::cube();
     let base = Compliance::compute(&mesh, &Selection::default()).unwrap();
     let mut d = deformer(&base, &mesh, LStorage::Buffers);
-    let bad = touchfem::correction::Correction {
+    let bad = touchfem::compliance::correction::Correction {
         rank: 1,
         ..Default::default()
     };

@@ -9,13 +9,13 @@ use std::sync::OnceLock;
 
 use crate::common::cpu_normals;
 use glam::DVec3;
+use touchfem::compliance::correction::Correction;
+use touchfem::compliance::hmatrix::{HMatrix, HOptions};
 use touchfem::compliance::{Compliance, Selection};
-use touchfem::correction::Correction;
 use touchfem::gpu::{
     hier_gpu_bytes, Deformer, DeformerOptions, Gpu, GpuError, LStorage, HIER_VALUE_BINDINGS,
     MAX_ACTIVE,
 };
-use touchfem::hmatrix::{HMatrix, HOptions};
 use touchfem::mesh::Mesh;
 use touchfem::wgpu;
 

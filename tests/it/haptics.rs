@@ -5,9 +5,9 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use touchfem::compliance::{Compliance, Selection};
+use touchfem::contact::finger::Finger;
+use touchfem::contact::force::ForceModel;
 use touchfem::contact::Surface;
-use touchfem::finger::Finger;
-use touchfem::force::ForceModel;
 use touchfem::mesh::cube;
 
 /// Counts allocations made by threads that armed the counter.

@@ -270,7 +270,7 @@ fn sliding_across_near_zero_area_triangles_is_continuous() {
         }],
         fingers: vec![touchfem::scene::FingerSpec {
             device: touchfem::scene::DeviceSpec::Pointer,
-            model: touchfem::force::ForceModel::Paper,
+            model: touchfem::contact::force::ForceModel::Paper,
             limits: None,
             tool: Default::default(),
         }],

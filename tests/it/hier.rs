@@ -4,8 +4,8 @@
 use std::sync::OnceLock;
 
 use glam::DVec3;
+use touchfem::compliance::hmatrix::{HError, HMatrix, HOptions};
 use touchfem::compliance::{Compliance, Selection};
-use touchfem::hmatrix::{HError, HMatrix, HOptions};
 use touchfem::Mesh;
 
 fn mouse() -> &'static (Mesh, Compliance) {
@@ -351,7 +351,7 @@ fn built_from_solves_meets_the_bound_for_every_method() {
 /// forces is within the tolerance's bound (`‖Δu‖ ≤ ε‖L‖_F‖F‖`).
 #[test]
 fn haptic_forces_equal_the_dense_path() {
-    use touchfem::force::ForceModel;
+    use touchfem::contact::force::ForceModel;
     use touchfem::scene::Body;
     let (m, c) = mouse();
     let eps = 1e-3;

@@ -7,9 +7,9 @@ use std::sync::OnceLock;
 
 use glam::DVec3;
 use touchfem::cache::{self, hier, CacheError, CacheOutcome};
+use touchfem::compliance::hmatrix::HOptions;
 use touchfem::compliance::{shard_panels, Compliance, HierParts, Selection};
 use touchfem::fem::FactorStore;
-use touchfem::hmatrix::HOptions;
 use touchfem::precompute::precompute_to_file_with;
 use touchfem::Mesh;
 use xxhash_rust::xxh3::xxh3_64;

@@ -54,7 +54,7 @@ fn the_ladders_punch_agrees_with_a_dense_lu_solve() {
     let mesh = touchfem::mesh::cube_with(
         [8; 3],
         [30.0; 3],
-        touchfem::units::Material {
+        touchfem::mesh::units::Material {
             young_pa: 10_000.0,
             poisson: 0.49,
         },

@@ -4,7 +4,7 @@
 //! file is recomputed. Needs an adapter for the GPU part (lavapipe works).
 
 use glam::DVec3;
-use touchfem::force::ForceModel;
+use touchfem::contact::force::ForceModel;
 use touchfem::gpu::{Deformer, DeformerOptions, Gpu, LStorage};
 use touchfem::scene::file::Hold;
 use touchfem::scene::{SceneSource, World};

@@ -7,9 +7,9 @@ use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use touchfem::compliance::{Compliance, NodeSet, Selection};
+use touchfem::contact::force::{finger_force, ForceBc, ForceModel};
 use touchfem::contact::{ContactPoint, GodObject};
 use touchfem::devices::{HapticDevice, KeyframePath};
-use touchfem::force::{finger_force, ForceBc, ForceModel};
 use touchfem::runtime::haptic::{RAMP_S, SKIN};
 use touchfem::runtime::{
     join_haptic, run_haptic, sample_channel, DoneGuard, HapticWorld, LiveStatus, WorldSample,

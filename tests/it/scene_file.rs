@@ -4,7 +4,7 @@
 use glam::DVec3;
 use proptest::prelude::*;
 use touchfem::compliance::{Compliance, NodeSet, Selection};
-use touchfem::force::ForceModel;
+use touchfem::contact::force::ForceModel;
 use touchfem::scene::{DeviceSpec, SceneSource, World};
 
 fn load(text: &str, dir: &std::path::Path) -> Result<World, touchfem::Error> {

@@ -9,12 +9,12 @@ use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
+use touchfem::contact::force::{finger_force, ForceBc, ForceModel};
 use touchfem::contact::GodObject;
 use touchfem::devices::udp::{
     decode_force, encode_position, Clock, ForcePacket, Key, FLAG_LIMITED, FLAG_RELEASED,
     FLAG_STALE, FLAG_TOUCHING, TAG_LEN,
 };
-use touchfem::force::{finger_force, ForceBc, ForceModel};
 use touchfem::runtime::serve::{serve, ServeOptions, ServeReport};
 use touchfem::scene::{SceneSource, World};
 

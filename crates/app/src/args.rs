@@ -6,9 +6,9 @@ use glam::DVec3;
 use std::path::PathBuf;
 
 use touchfem_core::contact::{Friction, Tool};
+use touchfem_core::mesh::units::{Formulation, LengthUnit, Material};
 use touchfem_core::mesh::Mesh;
 use touchfem_core::scene::{load_mesh, LoadOptions};
-use touchfem_core::units::{Formulation, LengthUnit, Material};
 
 /// Touch and see soft objects in real time (Hirota & Kaneko's precomputed-compliance FEM).
 #[derive(Parser, Debug)]

@@ -5,7 +5,7 @@ use crate::args::*;
 use glam::DVec3;
 
 use touchfem_core::compliance::Selection;
-use touchfem_core::force::ForceModel;
+use touchfem_core::contact::force::ForceModel;
 use touchfem_core::scene::Body;
 
 use crate::error::Error;
@@ -565,9 +565,9 @@ fn info(
         None => None,
     };
     let t = mesh.table1();
-    let cond = touchfem_core::conditioning::estimate(&mesh, 60)?;
-    let (e32, e16) = touchfem_core::conditioning::predict_storage_error(&mesh)?;
-    if let Some(w) = touchfem_core::conditioning::storage_warning(spec, e32, e16) {
+    let cond = touchfem_core::compliance::conditioning::estimate(&mesh, 60)?;
+    let (e32, e16) = touchfem_core::compliance::conditioning::predict_storage_error(&mesh)?;
+    if let Some(w) = touchfem_core::compliance::conditioning::storage_warning(spec, e32, e16) {
         eprintln!("{w}");
     }
     if json {
@@ -675,10 +675,10 @@ struct HierEstimate {
 }
 
 fn hier_estimate(mesh: &touchfem_core::Mesh, eps: f64) -> Result<HierEstimate, Error> {
-    let opts = touchfem_core::hmatrix::HOptions::new(eps);
+    let opts = touchfem_core::compliance::hmatrix::HOptions::new(eps);
     let plan = touchfem_core::compliance::selection_plan(mesh, &Selection::default(), &opts)
-        .map_err(touchfem_core::fem::FemError::from)?;
-    let rank = touchfem_core::hmatrix::mean_rank_estimate(eps);
+        .map_err(touchfem_core::compliance::ComplianceError::from)?;
+    let rank = touchfem_core::compliance::hmatrix::mean_rank_estimate(eps);
     let values = plan.estimate_values(rank);
     Ok(HierEstimate {
         tolerance: eps,
@@ -751,7 +751,7 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
             // as a dense one is (and kept compressed when recomputed).
             use touchfem_core::cache::hier;
             let compression = match a.tolerance {
-                Some(eps) => Some(touchfem_core::hmatrix::HOptions::new(eps)),
+                Some(eps) => Some(touchfem_core::compliance::hmatrix::HOptions::new(eps)),
                 None if hier::is_compressed(path) => hier::header(path).ok().map(|h| h.opts),
                 None => None,
             };
@@ -1179,7 +1179,7 @@ fn precompute_with_bar(
         Some(eps) => Compliance::compute_hier(
             mesh,
             sel,
-            &touchfem_core::hmatrix::HOptions::new(eps),
+            &touchfem_core::compliance::hmatrix::HOptions::new(eps),
             &mut progress,
         )?,
         None => Compliance::compute_with_progress(mesh, sel, &mut progress)?,

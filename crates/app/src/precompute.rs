@@ -8,8 +8,8 @@ use std::time::Instant;
 
 use crate::error::Error;
 use touchfem_core::cache;
+use touchfem_core::compliance::hmatrix::HOptions;
 use touchfem_core::compliance::Selection;
-use touchfem_core::hmatrix::HOptions;
 use touchfem_core::precompute::precompute_to_file_with;
 use touchfem_core::scene::file::{cache_dir, cache_file, PlannedObject};
 use touchfem_core::scene::{SceneSource, World};

@@ -45,10 +45,10 @@ pub(crate) use atomic::AtomicFile;
 use atomic::{sync_dir, unique_tmp};
 pub use error::CacheError;
 
+use crate::compliance::hmatrix::HOptions;
+use crate::compliance::near::NearBlocks;
 use crate::compliance::{Compliance, Selection, BATCH_COLS};
-use crate::hmatrix::HOptions;
 use crate::mesh::Mesh;
-use crate::near::NearBlocks;
 
 const MAGIC: &[u8; 8] = hier::MAGIC;
 /// The dense cache format's version (the compressed one is [`hier::FORMAT_VERSION`]).
@@ -112,13 +112,13 @@ pub fn key(mesh: &Mesh, sel: &Selection) -> u64 {
         }
     }
     // Only a non-standard formulation is hashed, so standard files keep their keys.
-    if mesh.formulation != crate::units::Formulation::Standard {
+    if mesh.formulation != crate::mesh::units::Formulation::Standard {
         h.update(b"formulation:");
         h.update(mesh.formulation.name().as_bytes());
         // Which element the locking-free formulation is: a file made with another (the
         // nodal average, or the MINI bubble before 2026-12-03's pressure projection) must
         // not be reused.
-        if mesh.formulation == crate::units::Formulation::LockingFree {
+        if mesh.formulation == crate::mesh::units::Formulation::LockingFree {
             h.update(b":");
             h.update(
                 crate::fem::locking_free::Smoothing::CHOSEN

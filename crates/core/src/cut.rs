@@ -65,7 +65,7 @@ impl Cut {
     /// Prepares `mesh` for cutting: assembles and factors its stiffness (as the precompute
     /// does). Errors on the locking-free formulation.
     pub fn new(mesh: &Mesh) -> Result<Cut, Error> {
-        if mesh.formulation != crate::units::Formulation::Standard {
+        if mesh.formulation != crate::mesh::units::Formulation::Standard {
             return Err(Error::Input(
                 "cutting needs the standard formulation (the locking-free mixed system is not a low-rank change)"
                     .into(),
@@ -665,8 +665,8 @@ impl Cut {
     pub fn correction(
         &self,
         c: &crate::compliance::Compliance,
-    ) -> Result<crate::correction::Correction, Error> {
-        use crate::correction::Correction;
+    ) -> Result<crate::compliance::correction::Correction, Error> {
+        use crate::compliance::correction::Correction;
         if !c.holds_l() {
             return Err(Error::Input(
                 "carrying a cut needs L on the host (not a lean compliance)".into(),

@@ -16,7 +16,11 @@ pub enum Error {
     Cache(#[from] crate::cache::CacheError),
     /// A hierarchical compliance cannot be built.
     #[error(transparent)]
-    HMatrix(#[from] crate::hmatrix::HError),
+    HMatrix(#[from] crate::compliance::hmatrix::HError),
+    /// A compliance with a hierarchical `L` cannot be computed (a stiffness's error is
+    /// [`Error::Fem`]).
+    #[error(transparent)]
+    Compliance(crate::compliance::ComplianceError),
     /// The UDP bridge cannot start (address, socket, key).
     #[error(transparent)]
     Udp(#[from] crate::devices::udp::UdpError),
@@ -57,6 +61,15 @@ pub enum Error {
     },
 }
 
+impl From<crate::compliance::ComplianceError> for Error {
+    fn from(e: crate::compliance::ComplianceError) -> Error {
+        match e {
+            crate::compliance::ComplianceError::Fem(e) => Error::Fem(e),
+            other => Error::Compliance(other),
+        }
+    }
+}
+
 /// Implements `From<E>` for a caller's error type for each of the engine's domain errors
 /// (mesh, FEM, cache, UDP), converting through [`Error`](enum@Error) into the variant that wraps it, so that
 /// `?` works on them directly: `touchfem_core::from_domain_errors!(MyError::Core);`. The list
@@ -69,7 +82,8 @@ macro_rules! from_domain_errors {
             $crate::fem::FemError,
             $crate::cache::CacheError,
             $crate::contact::ContactError,
-            $crate::hmatrix::HError,
+            $crate::compliance::hmatrix::HError,
+            $crate::compliance::ComplianceError,
             $crate::devices::udp::UdpError);
     };
     (@each $err:ident $variant:ident $($t:ty),*) => {$(

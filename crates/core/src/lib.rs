@@ -12,35 +12,53 @@
 //! Data flows one way:
 //! * precompute: [`mesh`] → [`fem`] (sparse K, Cholesky) → [`compliance`] (L, L_ii⁻¹) →
 //!   [`cache`] (the file);
-//! * haptic path: [`devices`] → [`runtime::HapticWorld`] ([`contact`] god-objects, [`force`]
-//!   eq. 9–12, the [`runtime::bound`]) → devices, and the [`runtime::WorldSample`] published;
+//! * haptic path: [`devices`] → [`runtime::HapticWorld`] ([`contact`] god-objects,
+//!   [`contact::force`] eq. 9–12, the [`runtime::bound`]) → devices, and the
+//!   [`runtime::WorldSample`] published;
 //! * visual path: [`compliance::Compliance::displace`] on the CPU here; the GPU pass is the
 //!   `touchfem-gpu` crate's.
 
+//!
+//! ## Rooms
+//!
+//! The root holds only the rooms of the engine, and every `use crate::…` points down this
+//! order (bottom first; `scripts/check-rooms.py` checks it in CI):
+//!
+//! 1. [`limits`]: the fixed capacities (fingers, objects, patch nodes);
+//! 2. [`options`]: the environment variables, the only reader of the environment;
+//! 3. [`threads`]: CPU placement and priorities of the native threads;
+//! 4. [`mesh`]: the tetrahedral mesh, its readers and [`mesh::units`] (materials, lengths);
+//! 5. [`fem`]: the stiffness `K`, its one factorisation, the frontal factor, the Gram
+//!    products and the locking-free formulation;
+//! 6. [`compliance`]: `L` and its solve plan, near blocks, the low-rank correction,
+//!    precision, conditioning and the hierarchical [`compliance::hmatrix`];
+//! 7. [`cache`]: the compliance files and the precompute job;
+//! 8. [`contact`]: god-objects, the point force, the finger, the sphere, friction, the tool;
+//! 9. [`devices`]: the haptic devices (pointer, script, replay, UDP) and their limits;
+//! 10. [`error`]: the crate-level [`Error`](enum@Error) wrapping the rooms' typed errors;
+//! 11. [`cut`]: the blade, the removal of tets and the cut body's correction;
+//! 12. [`scene`]: scene files and the [`scene::World`];
+//! 13. [`haptic`]: the pure haptic step ([`haptic::HapticWorld`], the bound, the coupling,
+//!     the sample) and the cutter's work, without threads or clocks;
+//! 14. [`runtime`]: the native side: the haptic and cutter threads, the pacer, sessions and
+//!     the UDP server.
+
 pub mod cache;
 pub mod compliance;
-pub mod conditioning;
 pub mod contact;
-pub mod correction;
 pub mod cut;
 pub mod devices;
 pub mod error;
 pub mod fem;
-pub mod finger;
-pub mod force;
-pub mod frontal;
-pub mod gram;
-pub mod hmatrix;
+pub mod haptic;
+pub mod limits;
 pub mod mesh;
-pub mod near;
 pub mod options;
-pub mod precision;
 pub mod precompute;
 pub mod runtime;
 pub mod scene;
 pub mod threads;
-pub mod units;
 
 pub use error::Error;
+pub use mesh::units::{Formulation, LengthUnit, Material};
 pub use mesh::{Mesh, MeshError, RawMesh};
-pub use units::{Formulation, LengthUnit, Material};

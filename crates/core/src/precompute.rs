@@ -9,8 +9,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use crate::cache::{self, CacheError, Header, Writer};
+use crate::compliance::hmatrix::HOptions;
 use crate::compliance::{ColumnPlan, Compliance, PhaseTimes, Selection, BATCH_COLS};
-use crate::hmatrix::HOptions;
 use crate::{Error, Mesh};
 
 /// What one precompute wrote.

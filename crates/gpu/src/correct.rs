@@ -13,7 +13,7 @@ use crate::bind::{buffer, specialised_pipeline, storage_entry, uniform_entry};
 use crate::context::GpuError;
 use crate::input::WORKGROUP;
 use crate::shaders::correct_source;
-use touchfem_core::correction::Correction;
+use touchfem_core::compliance::correction::Correction;
 
 /// Largest rank the GPU pass carries (the weights' uniform array, `shaders/correct.wgsl`).
 pub const MAX_CORRECTION_RANK: usize = 4096;

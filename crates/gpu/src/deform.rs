@@ -12,7 +12,7 @@ use crate::input::{
     MAX_ACTIVE, NO_NORMALS, VERTEX_STRIDE, WORKGROUP,
 };
 use crate::texture_path::TexturePath;
-use touchfem_core::correction::Correction;
+use touchfem_core::compliance::correction::Correction;
 
 enum Path {
     Buffers(BufferPath),

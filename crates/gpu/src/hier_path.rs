@@ -18,7 +18,7 @@ use crate::buffer_path::{adjacency, checked_adjacency, pack_f16};
 use crate::context::GpuError;
 use crate::input::{FrameGpu, Shared, MAX_ACTIVE, WORKGROUP};
 use crate::shaders::{DEFORM_HIER_WGSL, DEFORM_WGSL};
-use touchfem_core::hmatrix::{BlockInfo, HMatrix};
+use touchfem_core::compliance::hmatrix::{BlockInfo, HMatrix};
 
 /// Storage bindings the values may be split over (`deform_hier.wgsl`'s `v0` … `v4`): with
 /// the block table, the output and the work buffer, eight storage buffers a stage — WebGPU's

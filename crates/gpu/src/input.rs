@@ -94,7 +94,7 @@ pub enum LData<'a> {
     /// In a checked cache file, read and rounded on upload.
     File(&'a dyn touchfem_core::compliance::LSource),
     /// Hierarchical (dense near blocks, low-rank far blocks).
-    Hier(&'a touchfem_core::hmatrix::HMatrix),
+    Hier(&'a touchfem_core::compliance::hmatrix::HMatrix),
 }
 
 impl<'a> From<touchfem_core::compliance::StoredL<'a>> for LData<'a> {
@@ -187,7 +187,7 @@ pub struct OutputTarget {
 
 /// How `L` is stored on the device. The dense layouts compute the same `u = L·F` (to f32
 /// rounding) and write the same vertices; the hierarchical one computes `u = L_H·F` of the
-/// compressed `L`, as [`HMatrix::displace`](touchfem_core::hmatrix::HMatrix::displace) does.
+/// compressed `L`, as [`HMatrix::displace`](touchfem_core::compliance::hmatrix::HMatrix::displace) does.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum LStorage {
     /// [`Texture`](Self::Texture) on CPU adapters (software rasterisers such as lavapipe) that

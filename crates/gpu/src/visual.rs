@@ -17,7 +17,7 @@ use crate::context::Gpu;
 use crate::deform::Deformer;
 use crate::input::DeformerOptions;
 use touchfem_core::compliance::Compliance;
-use touchfem_core::force::MAX_FINGERS;
+use touchfem_core::contact::force::MAX_FINGERS;
 use touchfem_core::runtime::cutting::{CutBody, CutFeed};
 use touchfem_core::runtime::WorldSample;
 use touchfem_core::scene::World;

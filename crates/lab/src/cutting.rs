@@ -12,9 +12,9 @@ use std::time::Instant;
 
 use glam::DVec3;
 use touchfem_core::compliance::{Compliance, Selection};
+use touchfem_core::contact::finger::Finger;
+use touchfem_core::contact::force::ForceModel;
 use touchfem_core::contact::Surface;
-use touchfem_core::finger::Finger;
-use touchfem_core::force::ForceModel;
 use touchfem_core::runtime::cutting::{CutBody, Cutter};
 use touchfem_core::scene::{SceneSource, World};
 

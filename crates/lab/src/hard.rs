@@ -8,16 +8,16 @@
 
 use glam::DVec3;
 use std::fmt::Write as _;
-use touchfem_core::conditioning::dense_k;
+use touchfem_core::compliance::conditioning::dense_k;
+use touchfem_core::compliance::precision::{displace_f16, displace_f32};
 use touchfem_core::mesh::worst_quality;
-use touchfem_core::precision::{displace_f16, displace_f32};
 
 use touchfem_core::compliance::{Compliance, NodeSet, Selection};
+use touchfem_core::contact::force::ForceModel;
 use touchfem_core::fem::Stiffness;
-use touchfem_core::force::ForceModel;
+use touchfem_core::mesh::units::{Formulation, LengthUnit, Material};
 use touchfem_core::mesh::{grid_raw, Mesh, RawMesh};
 use touchfem_core::scene::Body;
-use touchfem_core::units::{Formulation, LengthUnit, Material};
 
 /// One hard case's numbers.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -132,9 +132,9 @@ pub fn measure(case: &str, mesh: Mesh) -> Result<HardCase, crate::error::Error> 
     let by_node: Vec<DVec3> = (0..mesh.nodes.len() as u32)
         .map(|n| c.row_of(n).map(|r| u[r]).unwrap_or(DVec3::ZERO))
         .collect();
-    let f64_error = touchfem_core::precision::rel_err(&by_node, &lu);
-    let f32_error = touchfem_core::precision::rel_err(&displace_f32(&c, &forces), &u);
-    let f16_error = touchfem_core::precision::rel_err(&displace_f16(&c, &forces), &u);
+    let f64_error = touchfem_core::compliance::precision::rel_err(&by_node, &lu);
+    let f32_error = touchfem_core::compliance::precision::rel_err(&displace_f32(&c, &forces), &u);
+    let f16_error = touchfem_core::compliance::precision::rel_err(&displace_f16(&c, &forces), &u);
     let kmax = {
         let k = Stiffness::assemble(&mesh)?;
         k.k.as_ref()

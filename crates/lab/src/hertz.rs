@@ -149,7 +149,12 @@ pub fn study(s: &HertzSetup) -> Result<HertzTable, Error> {
         let push = DVec3::new(0.0, 0.0, -d);
         let sphere = body.poke_sphere(top, push, r, None, None)?;
         log::debug!("{:?} cap {}", sphere.report, body.patch_capacity());
-        let point = body.poke(top, push, touchfem_core::force::ForceModel::Exact, 1)?;
+        let point = body.poke(
+            top,
+            push,
+            touchfem_core::contact::force::ForceModel::Exact,
+            1,
+        )?;
         rows.push(HertzRow {
             depth_m: d,
             sphere_n: sphere.feedback.z,

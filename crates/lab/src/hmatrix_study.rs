@@ -7,8 +7,8 @@
 use std::time::Instant;
 
 use glam::DVec3;
+use touchfem_core::compliance::hmatrix::HOptions;
 use touchfem_core::compliance::{Compliance, Selection};
-use touchfem_core::hmatrix::HOptions;
 use touchfem_core::Mesh;
 
 use crate::error::Error;
@@ -132,7 +132,11 @@ pub fn measure(
 }
 
 /// A row, its hierarchical `L` and the finger's forces it timed.
-type Measured = (HRow, touchfem_core::hmatrix::HMatrix, Vec<(u32, DVec3)>);
+type Measured = (
+    HRow,
+    touchfem_core::compliance::hmatrix::HMatrix,
+    Vec<(u32, DVec3)>,
+);
 
 /// As [`measure`], with the hierarchical `L` and the finger's forces it timed.
 fn measure_with(

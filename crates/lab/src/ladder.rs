@@ -18,8 +18,8 @@ use glam::{DVec3, Vec3};
 use std::fmt::Write as _;
 
 use touchfem_core::compliance::{Compliance, NodeSet, Selection};
+use touchfem_core::mesh::units::Formulation;
 use touchfem_core::mesh::Mesh;
-use touchfem_core::units::Formulation;
 
 /// One rung of the ladder.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -307,7 +307,7 @@ pub fn cube_ladder_with(
         let mut mesh = touchfem_core::mesh::cube_with(
             [n; 3],
             [30.0; 3],
-            touchfem_core::units::Material {
+            touchfem_core::mesh::units::Material {
                 young_pa: 10_000.0,
                 poisson: 0.49,
             },
@@ -368,7 +368,7 @@ pub(crate) fn mouse_ladder(
     files.push((4.4, std::path::PathBuf::from("mouse")));
     files.sort_by(|a, b| b.0.total_cmp(&a.0));
     let opts = touchfem_core::scene::LoadOptions {
-        unit: Some(touchfem_core::units::LengthUnit::Millimetre),
+        unit: Some(touchfem_core::mesh::units::LengthUnit::Millimetre),
         fixed_group: "fixed".into(),
         ..Default::default()
     };

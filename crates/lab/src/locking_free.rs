@@ -17,8 +17,8 @@ use std::fmt::Write as _;
 
 use touchfem_core::fem::locking_free::{self, Smoothing};
 use touchfem_core::fem::Stiffness;
+use touchfem_core::mesh::units::Material;
 use touchfem_core::mesh::{cube_with, Mesh};
-use touchfem_core::units::Material;
 
 /// The load of the study.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]

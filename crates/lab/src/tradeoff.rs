@@ -12,10 +12,10 @@
 use glam::{DVec3, Vec3};
 use std::time::Instant;
 
+use touchfem_core::compliance::precision::rel_err;
 use touchfem_core::compliance::{Compliance, Selection};
-use touchfem_core::finger::Finger;
-use touchfem_core::force::{finger_force, ForceBc, ForceModel};
-use touchfem_core::precision::rel_err;
+use touchfem_core::contact::finger::Finger;
+use touchfem_core::contact::force::{finger_force, ForceBc, ForceModel};
 use touchfem_core::runtime::pacer::percentile;
 use touchfem_core::scene::Body;
 use touchfem_core::Mesh;
@@ -210,18 +210,18 @@ fn force_rows(name: &str, scene: &Body, reps: usize) -> Result<Vec<Row>, crate::
         let mut i = 0;
         let t = median_us(reps.max(1000), || {
             i = (i + 1) % pairs.len();
-            std::hint::black_box(touchfem_core::force::coupled_point_forces(
+            std::hint::black_box(touchfem_core::contact::force::coupled_point_forces(
                 c, &pairs[i], skin, &mut g,
             ));
         });
         let mut worst: f64 = 0.0;
         for pair in &pairs {
-            if !touchfem_core::force::coupled_point_forces(c, pair, skin, &mut g) {
+            if !touchfem_core::contact::force::coupled_point_forces(c, pair, skin, &mut g) {
                 continue;
             }
             let mut bc = ForceBc::default();
             for (cp, f) in pair.iter().zip(&g) {
-                touchfem_core::force::add_point_force(c, cp, *f, &mut bc);
+                touchfem_core::contact::force::add_point_force(c, cp, *f, &mut bc);
             }
             c.displace(bc.entries(), &mut u);
             for cp in pair {

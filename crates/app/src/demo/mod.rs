@@ -16,8 +16,8 @@ use std::sync::atomic::{AtomicU8, Ordering};
 use std::time::Instant;
 
 use crate::error::Error;
+use touchfem_core::contact::force::MAX_FINGERS;
 use touchfem_core::devices::{HapticDevice, KeyframePath};
-use touchfem_core::force::MAX_FINGERS;
 use touchfem_core::runtime::pacer::run_floor;
 use touchfem_core::runtime::pacer::{percentile, HapticStats};
 use touchfem_core::runtime::{

@@ -7,7 +7,7 @@ use std::io::Write;
 use std::path::Path;
 
 use crate::error::Error;
-use touchfem_core::force::MAX_FINGERS;
+use touchfem_core::contact::force::MAX_FINGERS;
 use touchfem_core::runtime::session::Session;
 use touchfem_core::runtime::{HapticWorld, WorldSample, MAX_OBJECTS};
 use touchfem_core::scene::World;

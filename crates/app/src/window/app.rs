@@ -564,7 +564,7 @@ impl<'a> App<'a> {
             let (f, n) = if o < sample.n_objects {
                 sample.bcs[o].to_f32()
             } else {
-                touchfem_core::force::ForceBc::default().to_f32()
+                touchfem_core::contact::force::ForceBc::default().to_f32()
             };
             d.set_forces(&g.queue, &f[..n])?;
         }

@@ -84,7 +84,7 @@ pub fn blade_twin(world: &World) -> Result<BladeTwin, String> {
             format!(
                 "blade: no blade finger could be added for the pointer (the scene has {} \
                  fingers, or an inline `finger` array)",
-                touchfem_core::force::MAX_FINGERS
+                touchfem_core::contact::force::MAX_FINGERS
             )
         })
 }

@@ -6,9 +6,9 @@ use std::sync::atomic::Ordering;
 use super::blade::PointerRoute;
 use super::WindowOptions;
 use crate::error::Error;
+use touchfem_core::contact::force::MAX_FINGERS;
 use touchfem_core::devices::pointer::PointerDevice;
 use touchfem_core::devices::{HapticDevice, KeyframePath};
-use touchfem_core::force::MAX_FINGERS;
 use touchfem_core::runtime::{
     join_haptic, run_haptic, sample_channel, session, DoneGuard, LiveStatus,
 };

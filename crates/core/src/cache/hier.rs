@@ -55,8 +55,8 @@ use xxhash_rust::xxh3::{xxh3_64, Xxh3};
 use super::atomic::AtomicFile;
 use super::error::CacheError;
 use super::runs::{check_runs, PartRun};
+use crate::compliance::hmatrix::{HMatrix, HOptions, HPlan, Panel};
 use crate::compliance::{Compliance, HierParts};
-use crate::hmatrix::{HMatrix, HOptions, HPlan, Panel};
 
 /// The magic of every touchfem cache file (both versions).
 pub(crate) const MAGIC: &[u8; 8] = b"TFEMCMP\0";

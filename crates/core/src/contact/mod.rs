@@ -13,6 +13,8 @@ use glam::DVec3;
 
 use crate::mesh::Mesh;
 
+pub mod finger;
+pub mod force;
 mod friction;
 mod sphere;
 mod tool;

@@ -42,8 +42,7 @@ use super::tool::Friction;
 use super::Surface;
 use crate::compliance::Compliance;
 
-/// Most candidate nodes of one object's contact problem (all its spheres together).
-pub const MAX_PATCH: usize = 256;
+pub use crate::limits::MAX_PATCH;
 
 /// A rigid sphere in the contact problem, in the object's frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -165,7 +164,7 @@ pub struct Patch {
     /// Whether `chol` is the factor of A on `set` (in its order).
     factored: bool,
     report: PatchReport,
-    stiffness: [f64; crate::force::MAX_FINGERS],
+    stiffness: [f64; crate::limits::MAX_FINGERS],
     /// The (node, sphere) pairs, in the set's order, that `stiffness` was computed for.
     stiff_key: Vec<(u32, u8)>,
     /// Each node's tangential position relative to its sphere's centre after this tick's
@@ -232,7 +231,7 @@ impl Patch {
             rhs: vec![0.0; m],
             factored: false,
             report: PatchReport::default(),
-            stiffness: [0.0; crate::force::MAX_FINGERS],
+            stiffness: [0.0; crate::limits::MAX_FINGERS],
             stiff_key: Vec::with_capacity(m),
             rt_end: vec![DVec3::ZERO; m],
             swept: vec![false; m],
@@ -254,7 +253,7 @@ impl Patch {
         self.factored = true;
         self.report = PatchReport::default();
         self.stiff_key.clear();
-        self.stiffness = [0.0; crate::force::MAX_FINGERS];
+        self.stiffness = [0.0; crate::limits::MAX_FINGERS];
     }
 
     /// The last solve's report.
@@ -324,11 +323,11 @@ impl Patch {
         self.stiff_key.clear();
         self.stiff_key
             .extend(self.set.iter().map(|&i| (self.node[i], self.owner[i])));
-        self.stiffness = [0.0; crate::force::MAX_FINGERS];
+        self.stiffness = [0.0; crate::limits::MAX_FINGERS];
         if k == 0 {
             return;
         }
-        for sphere in 0..crate::force::MAX_FINGERS {
+        for sphere in 0..crate::limits::MAX_FINGERS {
             if !self.set.iter().any(|&i| self.owner[i] as usize == sphere) {
                 continue;
             }
@@ -469,7 +468,7 @@ impl Patch {
             self.set.clear();
             self.factored = true;
             self.stiff_key.clear();
-            self.stiffness = [0.0; crate::force::MAX_FINGERS];
+            self.stiffness = [0.0; crate::limits::MAX_FINGERS];
             self.report = report;
             return report;
         }

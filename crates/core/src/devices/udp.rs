@@ -37,7 +37,7 @@ use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
 use super::{FingerDevices, ForceState};
-use crate::force::MAX_FINGERS;
+use crate::limits::MAX_FINGERS;
 
 /// Magic of a position packet.
 pub(crate) const POSITION_MAGIC: &[u8; 4] = b"TFP1";

@@ -53,7 +53,13 @@ pub enum FemError {
     /// A touchable node is clamped, or a node index is out of range.
     #[error("bad node selection: {0}")]
     BadSelection(String),
-    /// The hierarchical compliance could not be built.
-    #[error("hierarchical compliance: {0}")]
-    Hier(#[from] crate::hmatrix::HError),
+}
+
+impl From<crate::mesh::units::MaterialError> for FemError {
+    fn from(e: crate::mesh::units::MaterialError) -> FemError {
+        match e {
+            crate::mesh::units::MaterialError::BadMaterial(m) => FemError::BadMaterial(m),
+            crate::mesh::units::MaterialError::Incompressible => FemError::Incompressible,
+        }
+    }
 }

@@ -31,8 +31,8 @@
 use glam::DVec3;
 
 use super::{shape_gradients, FemError, Stiffness};
+use crate::mesh::units::Formulation;
 use crate::mesh::Mesh;
-use crate::units::Formulation;
 
 /// How the volumetric strain is treated (see the module's text).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -549,8 +549,8 @@ pub(crate) fn wanted(mesh: &Mesh) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::mesh::units::{LengthUnit, Material};
     use crate::mesh::{cube_with, grid_raw};
-    use crate::units::{LengthUnit, Material};
     use faer::Mat;
     use nalgebra::{DMatrix, DVector};
 

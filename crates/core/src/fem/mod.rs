@@ -3,17 +3,25 @@
 //! analysis, METIS ordering): Cholesky, or for the locking-free formulation's mixed system a
 //! signed `G Σ Gᵀ` ([`Factor`]).
 
-use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::sparse::SparseColMat;
-use faer::{Accum, Mat, MatMut, MatRef, Par, Side};
+use faer::{Mat, Side};
 use glam::DVec3;
 
+use crate::mesh::units::Material;
 use crate::mesh::Mesh;
-use crate::units::Material;
 
 pub mod error;
+mod factor;
+pub mod frontal;
+pub mod gram;
 pub mod locking_free;
+mod numeric;
+mod ordering;
 pub use error::FemError;
+pub use factor::Factor;
+pub(crate) use numeric::llt_else_ldlt;
+pub use ordering::Ordering;
+use ordering::{metis_order, nested_dissection};
 
 /// The numbering of free (unclamped) DOFs: DOF `3·node + axis` → free index.
 #[derive(Clone, Debug)]
@@ -211,7 +219,7 @@ pub enum FactorStore {
     /// In memory (faer's supernodal factorisation).
     Heap,
     /// In an unlinked temporary file in `dir`, written by the multifrontal sweep of
-    /// [`crate::frontal`] on `threads` threads and read through a map (supernodal analyses
+    /// [`crate::fem::frontal`] on `threads` threads and read through a map (supernodal analyses
     /// only; the heap otherwise).
     File {
         /// Directory of the temporary file.
@@ -235,158 +243,6 @@ pub enum FactorStore {
 /// the displacements (per node, a 3-vector), and to other auxiliary unknowns (by index; each
 /// pair given from both sides).
 pub(crate) type AuxRow = (u32, f64, Vec<(u32, DVec3)>, Vec<(u32, f64)>);
-
-/// The fill-reducing ordering of the sparse Cholesky factorisation.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Ordering {
-    /// faer's approximate minimum degree.
-    Amd,
-    /// Nested dissection of the node graph by coordinate bisection (separators last), on
-    /// 3-DOF node blocks: less fill than AMD on 3D meshes (see README, precompute).
-    NestedDissection,
-    /// METIS's multilevel nested dissection (`METIS_NodeND`) of the node graph, on 3-DOF
-    /// node blocks: the least fill of the three (falls back to `NestedDissection` if METIS
-    /// fails).
-    #[default]
-    Metis,
-}
-
-/// METIS's fill-reducing order of the graph `ptr`/`idx` (new → old), `None` if METIS fails.
-fn metis_order(ptr: &[usize], idx: &[usize]) -> Option<Vec<usize>> {
-    let n = ptr.len().checked_sub(1)?;
-    if n == 0 {
-        return Some(Vec::new());
-    }
-    let mut nv = i32::try_from(n).ok()?;
-    let mut xadj: Vec<i32> = ptr
-        .iter()
-        .map(|&p| i32::try_from(p).ok())
-        .collect::<Option<_>>()?;
-    let mut adj: Vec<i32> = idx
-        .iter()
-        .map(|&p| i32::try_from(p).ok())
-        .collect::<Option<_>>()?;
-    let mut opts = [0i32; metis_sys::METIS_NOPTIONS as usize];
-    let mut perm = vec![0i32; n];
-    let mut iperm = vec![0i32; n];
-    // METIS seeds one process-wide random generator at the start of each call: two calls at
-    // once would share it and give orderings (and factors' bits) that depend on timing.
-    static METIS: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    let _one_at_a_time = METIS.lock().unwrap_or_else(|e| e.into_inner());
-    // SAFETY: the arrays have the lengths METIS_NodeND requires (xadj n + 1, adjncy xadj[n],
-    // options METIS_NOPTIONS, perm and iperm n); METIS only reads the inputs and writes the
-    // outputs during the call.
-    let rc = unsafe {
-        metis_sys::METIS_SetDefaultOptions(opts.as_mut_ptr());
-        metis_sys::METIS_NodeND(
-            &mut nv,
-            xadj.as_mut_ptr(),
-            adj.as_mut_ptr(),
-            std::ptr::null_mut(),
-            opts.as_mut_ptr(),
-            perm.as_mut_ptr(),
-            iperm.as_mut_ptr(),
-        )
-    };
-    if rc != metis_sys::rstatus_et_METIS_OK {
-        return None;
-    }
-    let order: Vec<usize> = perm.iter().map(|&p| p as usize).collect();
-    let mut seen = vec![false; n];
-    for &o in &order {
-        if o >= n || std::mem::replace(&mut seen[o], true) {
-            return None;
-        }
-    }
-    Some(order)
-}
-
-/// Leaves of the nested dissection hold at most this many nodes.
-const ND_LEAF: usize = 96;
-
-/// Nested dissection of the node graph `adj` (CSR: `ptr`, `idx`) by coordinate bisection:
-/// the nodes are split at the median of the bounding box's longest axis, the nodes of the first
-/// half that touch the second half form the separator, which is ordered after both halves.
-/// Returns the nodes in elimination order.
-fn nested_dissection(coords: &[DVec3], ptr: &[usize], idx: &[usize]) -> Vec<usize> {
-    fn rec(
-        nodes: &mut [usize],
-        coords: &[DVec3],
-        ptr: &[usize],
-        idx: &[usize],
-        side: &mut [u8],
-        order: &mut Vec<usize>,
-    ) {
-        if nodes.len() <= ND_LEAF {
-            order.extend_from_slice(nodes);
-            return;
-        }
-        // Try a median cut across each axis; keep the one with the smallest separator.
-        let mid = nodes.len() / 2;
-        let mut best: Option<(usize, usize)> = None; // (separator size, axis)
-        for ax in 0..3 {
-            split(nodes, coords, ax, mid);
-            let sep = separator(nodes, mid, ptr, idx, side).len();
-            if best.is_none_or(|(s, _)| sep < s) {
-                best = Some((sep, ax));
-            }
-        }
-        let ax = best.map_or(0, |b| b.1);
-        split(nodes, coords, ax, mid);
-        let sep = separator(nodes, mid, ptr, idx, side);
-        for &i in sep.iter() {
-            side[i] = 3;
-        }
-        let mut a: Vec<usize> = nodes[..mid]
-            .iter()
-            .copied()
-            .filter(|&i| side[i] != 3)
-            .collect();
-        for &i in sep.iter() {
-            side[i] = 0;
-        }
-        let mut b = nodes[mid..].to_vec();
-        rec(&mut a, coords, ptr, idx, side, order);
-        rec(&mut b, coords, ptr, idx, side, order);
-        order.extend_from_slice(&sep);
-    }
-    /// Puts the nodes below the median of axis `ax` first.
-    fn split(nodes: &mut [usize], coords: &[DVec3], ax: usize, mid: usize) {
-        nodes.select_nth_unstable_by(mid, |&a, &b| {
-            coords[a][ax]
-                .partial_cmp(&coords[b][ax])
-                .unwrap_or(std::cmp::Ordering::Equal)
-                .then(a.cmp(&b))
-        });
-    }
-    /// The nodes of `nodes[..mid]` with a neighbour in `nodes[mid..]`.
-    fn separator(
-        nodes: &[usize],
-        mid: usize,
-        ptr: &[usize],
-        idx: &[usize],
-        side: &mut [u8],
-    ) -> Vec<usize> {
-        for &i in &nodes[mid..] {
-            side[i] = 2;
-        }
-        let sep = nodes[..mid]
-            .iter()
-            .copied()
-            .filter(|&i| idx[ptr[i]..ptr[i + 1]].iter().any(|&j| side[j] == 2))
-            .collect();
-        for &i in &nodes[mid..] {
-            side[i] = 0;
-        }
-        sep
-    }
-    let n = coords.len();
-    let mut nodes: Vec<usize> = (0..n).collect();
-    let mut side = vec![0u8; n];
-    let mut order = Vec::with_capacity(n);
-    rec(&mut nodes, coords, ptr, idx, &mut side, &mut order);
-    order
-}
 
 impl Stiffness {
     /// Assembles K with the clamped DOFs eliminated, in the mesh's formulation, each tet of its
@@ -630,7 +486,7 @@ impl Stiffness {
         let bytes = 8 * symbolic.len_val();
         let f = match store {
             FactorStore::File { dir, threads } if supernodal => {
-                let file = crate::frontal::factor_file(dir, bytes)?;
+                let file = crate::fem::frontal::factor_file(dir, bytes)?;
                 self.numeric_file(symbolic, &file, *threads)?
             }
             FactorStore::Auto {
@@ -639,7 +495,7 @@ impl Stiffness {
                 above,
             } if supernodal && bytes > *above => {
                 // No room for the file (or no directory): memory, as before.
-                match crate::frontal::factor_file(dir, bytes) {
+                match crate::fem::frontal::factor_file(dir, bytes) {
                     Ok(file) => self.numeric_file(symbolic, &file, *threads)?,
                     Err(_) => self.numeric_heap(symbolic, faer::Par::rayon(0))?,
                 }
@@ -725,45 +581,44 @@ impl Stiffness {
             }
         };
         let negative = self.negative_columns(&symbolic);
-        if negative.is_empty() {
-            let mut buf = MemBuffer::try_new(
-                symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
-            )
-            .map_err(|e| fact_err(&e))?;
-            symbolic
-                .factorize_numeric_llt::<f64>(
-                    &mut values,
+        llt_else_ldlt(
+            !negative.is_empty(),
+            &mut values,
+            |values| {
+                let mut buf = MemBuffer::try_new(
+                    symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
+                )
+                .map_err(|e| fact_err(&e))?;
+                symbolic.factorize_numeric_llt::<f64>(
+                    values,
                     self.k.as_ref(),
                     Side::Lower,
                     Default::default(),
                     par,
                     MemStack::new(&mut buf),
                     Default::default(),
+                )?;
+                Ok(())
+            },
+            |values| {
+                let mut buf = MemBuffer::try_new(
+                    symbolic.factorize_numeric_ldlt_scratch::<f64>(par, Default::default()),
                 )
-                .map_err(|e| {
-                    let faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } =
-                        e;
-                    singular(index)
-                })?;
-        } else {
-            let mut buf = MemBuffer::try_new(
-                symbolic.factorize_numeric_ldlt_scratch::<f64>(par, Default::default()),
-            )
-            .map_err(|e| fact_err(&e))?;
-            symbolic
-                .factorize_numeric_ldlt::<f64>(
-                    &mut values,
+                .map_err(|e| fact_err(&e))?;
+                symbolic.factorize_numeric_ldlt::<f64>(
+                    values,
                     self.k.as_ref(),
                     Side::Lower,
                     Default::default(),
                     par,
                     MemStack::new(&mut buf),
                     Default::default(),
-                )
-                .map_err(|e| {
-                    let faer::linalg::cholesky::ldlt::factor::LdltError::ZeroPivot { index } = e;
-                    singular(index)
-                })?;
+                )?;
+                Ok(())
+            },
+            singular,
+        )?;
+        if !negative.is_empty() {
             let faer::sparse::linalg::cholesky::SymbolicCholeskyRaw::Supernodal(sn) =
                 symbolic.raw()
             else {
@@ -778,7 +633,7 @@ impl Stiffness {
                 let m = ns + sn.supernode(sup).pattern().len();
                 let block = &mut values[vp[sup]..vp[sup + 1]];
                 for j in 0..ns {
-                    crate::frontal::signed_column(
+                    crate::fem::frontal::signed_column(
                         &mut block[j * m..(j + 1) * m],
                         j,
                         negative[b0 + j],
@@ -789,14 +644,14 @@ impl Stiffness {
         }
         Ok(Factor {
             symbolic,
-            values: crate::frontal::Values::Heap(values),
+            values: crate::fem::frontal::Values::Heap(values),
             front_bytes: 0,
             negative,
         })
     }
 
-    /// The out-of-core multifrontal factorisation of [`crate::frontal`] (`symbolic` must be
-    /// supernodal): the factor goes to `file` ([`crate::frontal::factor_file`]) and is read
+    /// The out-of-core multifrontal factorisation of [`crate::fem::frontal`] (`symbolic` must be
+    /// supernodal): the factor goes to `file` ([`crate::fem::frontal::factor_file`]) and is read
     /// back through a map.
     fn numeric_file(
         &self,
@@ -817,13 +672,19 @@ impl Stiffness {
             None => ((0..n).collect(), (0..n).collect()),
         };
         let owner = |dof: usize| self.owner_of(dof);
-        let order = crate::frontal::Elimination {
+        let order = crate::fem::frontal::Elimination {
             fwd: &fwd,
             inv: &inv,
             negative: &negative,
         };
-        let (values, front_bytes) =
-            crate::frontal::factorize_to_file(sn, self.k.as_ref(), order, file, threads, &owner)?;
+        let (values, front_bytes) = crate::fem::frontal::factorize_to_file(
+            sn,
+            self.k.as_ref(),
+            order,
+            file,
+            threads,
+            &owner,
+        )?;
         Ok(Factor {
             symbolic,
             values,
@@ -843,205 +704,6 @@ impl Stiffness {
             for (r, v) in k.row_idx_of_col(c).zip(k.val_of_col(c)) {
                 y[r] += v * xc;
             }
-        }
-    }
-}
-
-/// The factor of the system: `P K Pᵀ = G Gᵀ` (Cholesky) for `K`; for a mixed system
-/// ([`locking_free::mixed`], quasi-definite), `P K Pᵀ = G Σ Gᵀ` with `Σ = diag(±1)`: −1 at the
-/// auxiliary unknowns' columns. `G` has a positive diagonal either way, so forward solves
-/// are the same; the solves and the Gram product put `Σ` between.
-pub struct Factor {
-    symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
-    values: crate::frontal::Values,
-    /// Peak bytes of the out-of-core factorisation's fronts and update stacks (0 on the heap).
-    front_bytes: usize,
-    /// Per factor column, whether `Σ` is −1 there; empty when `Σ = I`.
-    negative: Vec<bool>,
-}
-
-impl Factor {
-    /// Solves K X = B in place (B has a row per unknown of the system — the free DOFs, then
-    /// any auxiliary ones — and m columns), on the calling thread.
-    pub fn solve_in_place(&self, b: &mut Mat<f64>) {
-        use faer::dyn_stack::{MemBuffer, MemStack};
-        if !self.negative.is_empty() {
-            // The signed form: forward, Σ, back, in the factor's order.
-            let pos = self.position_of_dof();
-            let mut x = Mat::<f64>::zeros(b.nrows(), b.ncols());
-            for j in 0..b.ncols() {
-                for (d, &p) in pos.iter().enumerate() {
-                    x[(p, j)] = b[(d, j)];
-                }
-            }
-            self.solve_in_factor_order(x.as_mut());
-            for j in 0..b.ncols() {
-                for (d, &p) in pos.iter().enumerate() {
-                    b[(d, j)] = x[(p, j)];
-                }
-            }
-            return;
-        }
-        let llt =
-            faer::sparse::linalg::cholesky::LltRef::new(&self.symbolic, self.values.as_slice());
-        let mut buf = MemBuffer::new(
-            self.symbolic
-                .solve_in_place_scratch::<f64>(b.ncols(), faer::Par::Seq),
-        );
-        llt.solve_in_place_with_conj(
-            faer::Conj::No,
-            b.as_mut(),
-            faer::Par::Seq,
-            MemStack::new(&mut buf),
-        );
-    }
-
-    /// Solves `K X = B` in place with `B`'s rows in the factor's order (the elimination order):
-    /// forward, `Σ`, back, over every supernode (a supernodal factor only; else nothing).
-    pub(crate) fn solve_in_factor_order(&self, x: MatMut<'_, f64>) {
-        let Some((sym, _)) = self.supernodal() else {
-            return;
-        };
-        let all = vec![true; sym.n_supernodes()];
-        self.sweeps(x, &all, &all);
-    }
-
-    /// The forward sweep `G⁻¹` over the supernodes `reach`, `Σ`, and the back sweep `G⁻ᵀ` over
-    /// `keep`, on `x` in the factor's order.
-    pub(crate) fn sweeps(&self, mut x: MatMut<'_, f64>, reach: &[bool], keep: &[bool]) {
-        let f = self;
-        let Some((sym, val)) = f.supernodal() else {
-            return;
-        };
-        let nsn = sym.n_supernodes();
-        let k = x.ncols();
-        let vp = sym.col_ptr_for_val();
-        let mut tmp: Vec<f64> = Vec::new();
-        let (begin, end) = (sym.supernode_begin(), sym.supernode_end());
-        let block = |s: usize| {
-            let pattern = sym.supernode(s).pattern();
-            let ns = end[s] - begin[s];
-            let ls =
-                MatRef::from_column_major_slice(&val[vp[s]..vp[s + 1]], ns + pattern.len(), ns);
-            (begin[s], ns, pattern, ls)
-        };
-        // Values passed since the last release: the forward sweep climbs the values, the back
-        // sweep descends them.
-        let mut passed = crate::frontal::Passed::default();
-        let mut pass = |s: usize| {
-            if let Some(r) = passed.add(vp[s]..vp[s + 1]) {
-                f.release(r);
-            }
-        };
-        for s in (0..nsn).filter(|&s| reach[s]) {
-            let (start, ns, pattern, ls) = block(s);
-            let (l11, l21) = ls.split_at_row(ns);
-            let npat = pattern.len();
-            let mut xs = x.rb_mut().subrows_mut(start, ns);
-            faer::linalg::triangular_solve::solve_lower_triangular_in_place(
-                l11,
-                xs.rb_mut(),
-                Par::Seq,
-            );
-            tmp.clear();
-            tmp.resize(npat * k, 0.0);
-            let mut t = MatMut::from_column_major_slice_mut(&mut tmp, npat, k);
-            faer::linalg::matmul::matmul(t.rb_mut(), Accum::Replace, l21, xs.rb(), 1.0, Par::Seq);
-            for j in 0..k {
-                let tc = &tmp[j * npat..][..npat];
-                let mut xc = x.rb_mut().col_mut(j);
-                for (&r, v) in pattern.iter().zip(tc) {
-                    xc[r] -= *v;
-                }
-            }
-            pass(s);
-        }
-        for (r, _) in f.negative().iter().enumerate().filter(|(_, &n)| n) {
-            for j in 0..k {
-                x[(r, j)] = -x[(r, j)];
-            }
-        }
-        for s in (0..nsn).rev().filter(|&s| keep[s]) {
-            let (start, ns, pattern, ls) = block(s);
-            let (l11, l21) = ls.split_at_row(ns);
-            let npat = pattern.len();
-            tmp.clear();
-            tmp.resize(npat * k, 0.0);
-            for j in 0..k {
-                let xc = x.rb().col(j);
-                for (t, &r) in tmp[j * npat..][..npat].iter_mut().zip(pattern) {
-                    *t = xc[r];
-                }
-            }
-            let t = MatRef::from_column_major_slice(&tmp, npat, k);
-            let mut xs = x.rb_mut().subrows_mut(start, ns);
-            faer::linalg::matmul::matmul(
-                xs.rb_mut(),
-                Accum::Add,
-                l21.transpose(),
-                t,
-                -1.0,
-                Par::Seq,
-            );
-            faer::linalg::triangular_solve::solve_upper_triangular_in_place(
-                l11.transpose(),
-                xs.rb_mut(),
-                Par::Seq,
-            );
-            pass(s);
-        }
-        if let Some(r) = passed.rest() {
-            f.release(r);
-        }
-    }
-
-    /// Whether the values stream from a file ([`FactorStore::File`]).
-    pub fn is_mapped(&self) -> bool {
-        self.values.is_mapped()
-    }
-
-    /// Drops this process's pages of the values `range` when they stream from a file (see
-    /// [`crate::frontal::Values::release`]).
-    pub fn release(&self, range: std::ops::Range<usize>) {
-        self.values.release(range);
-    }
-
-    /// Peak bytes of the out-of-core factorisation's fronts and update stacks (0 for faer's).
-    pub fn front_bytes(&self) -> usize {
-        self.front_bytes
-    }
-
-    /// Per factor column, whether `Σ` is −1 there (see [`Factor`]); empty when `Σ = I`.
-    pub(crate) fn negative(&self) -> &[bool] {
-        &self.negative
-    }
-
-    /// Non-zeros of the Cholesky factor.
-    pub fn nonzeros(&self) -> usize {
-        self.symbolic.len_val()
-    }
-
-    /// The supernodal structure and values of the factor of the permuted K, or `None` when
-    /// faer chose a simplicial factorisation (small or very sparse K).
-    pub fn supernodal(
-        &self,
-    ) -> Option<(
-        &faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky<usize>,
-        &[f64],
-    )> {
-        match self.symbolic.raw() {
-            faer::sparse::linalg::cholesky::SymbolicCholeskyRaw::Supernodal(s) => {
-                Some((s, self.values.as_slice()))
-            }
-            _ => None,
-        }
-    }
-
-    /// The position of each free DOF in the factor's elimination order.
-    pub(crate) fn position_of_dof(&self) -> Vec<usize> {
-        match self.symbolic.perm() {
-            Some(p) => p.arrays().1.to_vec(),
-            None => (0..self.symbolic.nrows()).collect(),
         }
     }
 }

@@ -1,7 +1,7 @@
 //! The paper's cube (Table 1): 30 mm edge, 4×4×4 cells of five tets each, bottom face clamped.
 
 use super::{Mesh, MeshError, RawMesh};
-use crate::units::{LengthUnit, Material};
+use crate::mesh::units::{LengthUnit, Material};
 use std::collections::BTreeMap;
 
 /// Edge length of the paper's cube, in millimetres.

@@ -8,6 +8,7 @@
 
 mod cube;
 pub mod io;
+pub mod units;
 
 pub use cube::{cube, cube_with, graded_block, grid_raw, mouse, phantom, CUBE_EDGE_MM};
 
@@ -16,7 +17,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 use thiserror::Error;
 
-use crate::units::{Formulation, LengthUnit, Material};
+use crate::mesh::units::{Formulation, LengthUnit, Material, MaterialError};
 
 /// Errors found while reading or validating a mesh. Indices are 0-based, in the file's numbering.
 #[derive(Debug, Error)]
@@ -563,7 +564,7 @@ impl Mesh {
                 .map_err(|e| MeshError::BadRegionMaterial {
                     group: group.clone(),
                     msg: match e {
-                        crate::fem::error::FemError::BadMaterial(m) => m,
+                        MaterialError::BadMaterial(m) => m,
                         other => other.to_string(),
                     },
                 })?;
@@ -593,18 +594,17 @@ impl Mesh {
     }
 
     /// Checks the base material and every region's (see [`Material::validate`]).
-    pub fn validate_materials(&self) -> Result<(), crate::fem::error::FemError> {
+    pub fn validate_materials(&self) -> Result<(), MaterialError> {
         self.material.validate()?;
         for r in &self.regions {
             // A region's bad material (ν = 0.5 included) names the region.
             r.material.validate().map_err(|e| match e {
-                crate::fem::error::FemError::BadMaterial(m) => {
-                    crate::fem::error::FemError::BadMaterial(format!("region '{}': {m}", r.group))
+                MaterialError::BadMaterial(m) => {
+                    MaterialError::BadMaterial(format!("region '{}': {m}", r.group))
                 }
-                crate::fem::error::FemError::Incompressible => {
-                    crate::fem::error::FemError::BadMaterial(format!("region '{}': {e}", r.group))
+                MaterialError::Incompressible => {
+                    MaterialError::BadMaterial(format!("region '{}': {e}", r.group))
                 }
-                other => other,
             })?;
         }
         Ok(())

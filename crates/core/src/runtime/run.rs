@@ -5,12 +5,12 @@
 use glam::DVec3;
 use std::sync::atomic::Ordering;
 
-use super::haptic::HapticWorld;
 use super::pacer::Pacer;
-use super::sample::{LiveStatus, SampleWriter, MAX_OBJECTS};
 use super::session::{Recorder, TickRecord};
 use crate::devices::{FingerDevices, ForceState};
-use crate::force::MAX_FINGERS;
+use crate::haptic::HapticWorld;
+use crate::haptic::{LiveStatus, SampleWriter, MAX_OBJECTS};
+use crate::limits::MAX_FINGERS;
 use crate::runtime::pacer::HapticStats;
 use crate::scene::World;
 use crate::Error;

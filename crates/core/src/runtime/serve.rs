@@ -94,7 +94,7 @@ pub fn udp_world(spec: &str, limits: Option<&DeviceLimits>) -> Result<World, Err
             // A bare mesh: its one-finger scene text with as many UDP fingers as a packet may
             // carry, so that a recorded session's scene has them all and replays.
             let mut src = SceneSource::for_mesh(spec, "udp");
-            for _ in 1..crate::force::MAX_FINGERS {
+            for _ in 1..crate::limits::MAX_FINGERS {
                 src.text.push_str("\n[[finger]]\ndevice = \"udp\"\n");
             }
             World::from_source_with(&src, crate::scene::file::cache_dir().as_deref())?

@@ -25,9 +25,9 @@ use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use super::haptic::HapticWorld;
-use super::sample::WorldSample;
-use crate::force::MAX_FINGERS;
+use crate::haptic::HapticWorld;
+use crate::haptic::WorldSample;
+use crate::limits::MAX_FINGERS;
 use crate::scene::World;
 use crate::Error;
 

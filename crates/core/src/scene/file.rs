@@ -16,12 +16,13 @@ use toml::Spanned;
 
 use super::world::{DeviceSpec, FingerSpec, HapticSettings, Object, World};
 use super::{load_mesh, Body, LoadOptions};
+use crate::compliance::hmatrix::HOptions;
 use crate::compliance::{Compliance, NodeSet, Selection};
+use crate::contact::force::ForceModel;
 use crate::devices::limits::DeviceLimits;
-use crate::force::{ForceModel, MAX_FINGERS};
-use crate::hmatrix::HOptions;
-use crate::runtime::MAX_OBJECTS;
-use crate::units::LengthUnit;
+use crate::limits::MAX_FINGERS;
+use crate::limits::MAX_OBJECTS;
+use crate::mesh::units::LengthUnit;
 use crate::Error;
 
 /// The bundled scenes: (name, TOML text).
@@ -425,7 +426,7 @@ impl World {
                 None => None,
                 Some(f) => Some(
                     f.get_ref()
-                        .parse::<crate::units::Formulation>()
+                        .parse::<crate::mesh::units::Formulation>()
                         .map_err(|e| at(f.span(), "formulation", e))?,
                 ),
             };
@@ -514,12 +515,12 @@ impl World {
             })?;
             if !o.region.is_empty() {
                 // A region without `poisson` keeps the object's.
-                let specs: Vec<(String, crate::units::Material)> = o
+                let specs: Vec<(String, crate::mesh::units::Material)> = o
                     .region
                     .iter()
                     .map(|r| {
                         let r = r.get_ref();
-                        let material = crate::units::Material {
+                        let material = crate::mesh::units::Material {
                             young_pa: *r.young.get_ref(),
                             poisson: r
                                 .poisson
@@ -844,8 +845,8 @@ impl World {
         }
         // Early warning: a body whose compliance loses more than 1e-3 in f32 or f16 storage.
         for o in &objects {
-            let (e32, e16) = crate::conditioning::storage_error(&o.body.compliance);
-            if let Some(w) = crate::conditioning::storage_warning(&o.name, e32, e16) {
+            let (e32, e16) = crate::compliance::conditioning::storage_error(&o.body.compliance);
+            if let Some(w) = crate::compliance::conditioning::storage_warning(&o.name, e32, e16) {
                 log::warn!("{w}");
             }
         }
@@ -883,7 +884,7 @@ pub enum Hold {
     Dense,
     /// For a live session (`view`, `serve`): when the scene has at most one finger and the
     /// object's `L` is in the cache and at least `NEAR_ONLY_BYTES`, only the blocks that
-    /// finger's force solve reads ([`crate::near::NearBlocks`]); the GPU copy is then read
+    /// finger's force solve reads ([`crate::compliance::near::NearBlocks`]); the GPU copy is then read
     /// from the cache file. `TOUCHFEM_HOST_L=dense` keeps all of it; `near` holds only the
     /// blocks whatever the size (still one finger and a cache file at most).
     Live,

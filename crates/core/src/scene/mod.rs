@@ -5,12 +5,12 @@ use glam::DVec3;
 use std::path::Path;
 
 use crate::compliance::{Compliance, Selection};
+use crate::contact::force::{finger_force, ForceBc, ForceModel};
 use crate::contact::{
     Budget, ContactPoint, Friction, GodObject, Patch, PatchReport, Sphere, Surface,
 };
-use crate::force::{finger_force, ForceBc, ForceModel};
+use crate::mesh::units::{LengthUnit, Material};
 use crate::mesh::{self, Mesh, MeshError};
-use crate::units::{LengthUnit, Material};
 use crate::Error;
 
 pub mod file;
@@ -28,7 +28,7 @@ pub struct LoadOptions {
     /// Poisson's ratio override.
     pub poisson: Option<f64>,
     /// Formulation override (default: standard).
-    pub formulation: Option<crate::units::Formulation>,
+    pub formulation: Option<crate::mesh::units::Formulation>,
     /// The node group to clamp.
     pub fixed_group: String,
     /// Tets of another material: (physical volume group, material), disjoint (see
@@ -93,7 +93,9 @@ pub fn load_mesh(spec: &str, opts: &LoadOptions) -> Result<(Mesh, LengthUnit), E
     if let Some(f) = opts.formulation {
         mesh.formulation = f;
     }
-    mesh.material.validate()?;
+    mesh.material
+        .validate()
+        .map_err(crate::fem::FemError::from)?;
     if !opts.regions.is_empty() {
         mesh.set_regions(&opts.regions)?;
     }
@@ -331,7 +333,8 @@ impl Body {
         let mut god = GodObject::touching(tri);
         let mut stick = crate::contact::StickSlip::default();
         let steps = steps.max(1);
-        let feel = |c: &ContactPoint| crate::force::finger_feedback(&self.compliance, c, model);
+        let feel =
+            |c: &ContactPoint| crate::contact::force::finger_feedback(&self.compliance, c, model);
         let mut contact = None;
         let mut step = |x: DVec3| -> Option<ContactPoint> {
             let free = god.update(&self.surface, x);

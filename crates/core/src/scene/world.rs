@@ -4,9 +4,9 @@
 use glam::DVec3;
 
 use super::Body;
+use crate::contact::force::ForceModel;
 use crate::devices::limits::DeviceLimits;
-use crate::force::ForceModel;
-use crate::units::LengthUnit;
+use crate::mesh::units::LengthUnit;
 
 /// One object of a scene.
 pub struct Object {
@@ -101,9 +101,9 @@ pub struct World {
     pub name: String,
     /// The unit the scene file's coordinates were given in.
     pub unit: LengthUnit,
-    /// Its objects (at most [`crate::runtime::MAX_OBJECTS`]).
+    /// Its objects (at most [`crate::limits::MAX_OBJECTS`]).
     pub objects: Vec<Object>,
-    /// Its fingers (at most [`crate::force::MAX_FINGERS`]).
+    /// Its fingers (at most [`crate::limits::MAX_FINGERS`]).
     pub fingers: Vec<FingerSpec>,
     /// The haptic loop's settings.
     pub haptics: HapticSettings,

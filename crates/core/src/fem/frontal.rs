@@ -17,6 +17,7 @@
 //! where it runs, so neither do the factor's bits.
 
 use crate::fem::error::FemError;
+use crate::fem::numeric::llt_else_ldlt;
 use faer::reborrow::*;
 use faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky;
 use faer::{Accum, MatMut, Par};
@@ -479,10 +480,12 @@ impl Worker {
         let negative = sh.negative.get(b0..b0 + ns).filter(|n| n.contains(&true));
         // The diagonal block: G₁₁ G₁₁ᵀ, or for a mixed system's front L₁₁ D L₁₁ᵀ in the
         // signed form G₁₁ Σ G₁₁ᵀ.
-        match negative {
-            None => {
+        llt_else_ldlt(
+            negative.is_some(),
+            &mut (&mut self.scratch, l11.rb_mut()),
+            |(scratch, l11)| {
                 reserve(
-                    &mut self.scratch,
+                    scratch,
                     faer::linalg::cholesky::llt::factor::cholesky_in_place_scratch::<f64>(
                         ns,
                         par,
@@ -493,18 +496,14 @@ impl Worker {
                     l11.rb_mut(),
                     Default::default(),
                     par,
-                    faer::dyn_stack::MemStack::new(&mut self.scratch),
+                    faer::dyn_stack::MemStack::new(scratch),
                     Default::default(),
-                )
-                .map_err(|e| {
-                    let faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } =
-                        e;
-                    singular(index)
-                })?;
-            }
-            Some(negative) => {
+                )?;
+                Ok(())
+            },
+            |(scratch, l11)| {
                 reserve(
-                    &mut self.scratch,
+                    scratch,
                     faer::linalg::cholesky::ldlt::factor::cholesky_in_place_scratch::<f64>(
                         ns,
                         par,
@@ -515,18 +514,18 @@ impl Worker {
                     l11.rb_mut(),
                     Default::default(),
                     par,
-                    faer::dyn_stack::MemStack::new(&mut self.scratch),
+                    faer::dyn_stack::MemStack::new(scratch),
                     Default::default(),
-                )
-                .map_err(|e| {
-                    let faer::linalg::cholesky::ldlt::factor::LdltError::ZeroPivot { index } = e;
-                    singular(index)
-                })?;
-                for (j, &neg) in negative.iter().enumerate() {
-                    let col = l11.rb_mut().col_mut(j).try_as_col_major_mut();
-                    let col = col.ok_or_else(|| bad("a front column is not contiguous".into()))?;
-                    signed_column(col.as_slice_mut(), j, neg).map_err(|()| singular(j))?;
-                }
+                )?;
+                Ok(())
+            },
+            singular,
+        )?;
+        if let Some(negative) = negative {
+            for (j, &neg) in negative.iter().enumerate() {
+                let col = l11.rb_mut().col_mut(j).try_as_col_major_mut();
+                let col = col.ok_or_else(|| bad("a front column is not contiguous".into()))?;
+                signed_column(col.as_slice_mut(), j, neg).map_err(|()| singular(j))?;
             }
         }
         // X = F₂₁ G₁₁⁻ᵀ; signed: G₂₁ = X Σ, and the update F₂₂ −= X Σ Xᵀ = G₂₁ Xᵀ.

@@ -19,8 +19,7 @@ use glam::{DMat3, DVec3};
 use crate::compliance::{invert3, Compliance};
 use crate::contact::ContactPoint;
 
-/// Most fingers the coupled solve takes.
-pub const MAX_FINGERS: usize = 4;
+pub use crate::limits::MAX_FINGERS;
 /// Most entries in a force boundary condition: three vertices per point finger, and the
 /// contact nodes of the spheres on the object.
 pub(crate) const MAX_BC: usize = 3 * MAX_FINGERS + crate::contact::MAX_PATCH;

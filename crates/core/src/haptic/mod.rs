@@ -8,7 +8,7 @@
 //!   a contact.
 //! * **One contact on an object**: the finger's force model (the paper's eq. 9–12, or exact).
 //!   **Several contacts on one object** are solved together
-//!   ([`crate::force::coupled_point_forces`]): the contact points move by their displacements under
+//!   ([`crate::contact::force::coupled_point_forces`]): the contact points move by their displacements under
 //!   all the point forces at once. A fingertip compliance of [`SKIN`] × the point's own
 //!   compliance keeps the system well posed when two fingers touch the same triangle, or the
 //!   same point (they then share the load).
@@ -44,20 +44,28 @@
 //!   counts as no valid position (zero force; the finger is placed afresh, and ramped in if
 //!   inside, at its next reading).
 
+pub mod bound;
+pub mod coupling;
+pub mod cutter;
+mod sample;
+
+pub use sample::{
+    sample_channel, FingerView, LiveStatus, SampleReader, SampleWriter, WorldSample, MAX_OBJECTS,
+};
+
 use glam::{DMat3, DVec3};
 
-use super::bound::ForceBound;
-use super::coupling::VirtualCoupling;
-use super::cutting::{CutBody, Stroke};
-use super::sample::{FingerView, WorldSample, MAX_OBJECTS};
+use self::bound::ForceBound;
+use self::coupling::VirtualCoupling;
+use self::cutter::{CutBody, Stroke};
 use crate::compliance::Compliance;
+use crate::contact::force::{
+    add_point_force, coupled_point_forces, finger_feedback, finger_force, saturate, ForceBc,
+    ForceModel, MAX_FINGERS,
+};
 use crate::contact::Surface;
 use crate::contact::{
     Budget, ContactPoint, GodObject, Patch, PatchReport, Sphere, StickSlip, Tool,
-};
-use crate::force::{
-    add_point_force, coupled_point_forces, finger_feedback, finger_force, saturate, ForceBc,
-    ForceModel, MAX_FINGERS,
 };
 use crate::scene::{Object, World};
 use std::sync::Arc;
@@ -464,7 +472,7 @@ impl<'w> HapticWorld<'w> {
     }
 
     /// The blades' strokes of the last tick (object frame), for the cutter
-    /// ([`crate::runtime::cutting`]).
+    /// ([`crate::haptic::cutter`]).
     pub fn strokes(&self) -> &[Stroke] {
         &self.strokes[..self.n_strokes]
     }
@@ -624,7 +632,7 @@ impl<'w> HapticWorld<'w> {
                 Some(k)
             }
             ForceModel::Exact => {
-                crate::compliance::invert3(crate::force::point_compliance(comp, &c))
+                crate::compliance::invert3(crate::contact::force::point_compliance(comp, &c))
             }
         }
     }

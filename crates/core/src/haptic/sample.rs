@@ -3,10 +3,9 @@
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
-use crate::force::{ForceBc, MAX_FINGERS};
+use crate::contact::force::{ForceBc, MAX_FINGERS};
 
-/// Most objects in one scene.
-pub const MAX_OBJECTS: usize = 4;
+pub use crate::limits::MAX_OBJECTS;
 
 /// One finger as the visual path sees it.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -97,7 +96,7 @@ pub struct LiveStatus {
     /// no deadlines.
     pub visual_ready: AtomicBool,
     /// The cut bodies the cutter's thread has built, for the visual loop.
-    pub cuts: std::sync::Arc<super::cutting::CutFeed>,
+    pub cuts: std::sync::Arc<super::cutter::CutFeed>,
 }
 
 impl LiveStatus {

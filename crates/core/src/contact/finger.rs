@@ -5,8 +5,8 @@
 use glam::DVec3;
 
 use crate::compliance::Compliance;
+use crate::contact::force::{finger_force, saturate, ForceBc, ForceModel};
 use crate::contact::{ContactPoint, GodObject, Surface};
-use crate::force::{finger_force, saturate, ForceBc, ForceModel};
 
 /// The per-finger state of the haptic path: god-object plus the last outputs.
 #[derive(Clone, Debug)]

@@ -3,6 +3,24 @@
 
 use std::fmt;
 use std::str::FromStr;
+use thiserror::Error;
+
+/// Why a material cannot be used (the FEM room turns it into its own error with the same
+/// message).
+#[derive(Debug, Error)]
+pub enum MaterialError {
+    /// E or ν out of range.
+    #[error("bad material: {0}")]
+    BadMaterial(String),
+    /// ν = 0.5 exactly: the bulk modulus is infinite (see
+    /// [`FemError::Incompressible`](crate::fem::FemError::Incompressible)).
+    #[error(
+        "Poisson's ratio 0.5 (exactly incompressible) has an infinite bulk modulus: no \
+         displacement-only stiffness holds it; use 0.4999 with formulation \"locking-free\" \
+         (the standard formulation locks there)"
+    )]
+    Incompressible,
+}
 
 /// The length unit a mesh file's coordinates are written in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -110,19 +128,19 @@ impl Material {
     };
 
     /// Checks that E > 0 and -1 < ν < 0.5, both finite; ν = 0.5 exactly is
-    /// [`FemError::Incompressible`](crate::fem::error::FemError::Incompressible).
-    pub fn validate(&self) -> Result<(), crate::fem::error::FemError> {
+    /// [`MaterialError::Incompressible`].
+    pub fn validate(&self) -> Result<(), MaterialError> {
         if !(self.young_pa.is_finite() && self.young_pa > 0.0) {
-            return Err(crate::fem::error::FemError::BadMaterial(format!(
+            return Err(MaterialError::BadMaterial(format!(
                 "Young's modulus must be finite and > 0 Pa, got {}",
                 self.young_pa
             )));
         }
         if self.poisson == 0.5 {
-            return Err(crate::fem::error::FemError::Incompressible);
+            return Err(MaterialError::Incompressible);
         }
         if !(self.poisson.is_finite() && self.poisson > -1.0 && self.poisson < 0.5) {
-            return Err(crate::fem::error::FemError::BadMaterial(format!(
+            return Err(MaterialError::BadMaterial(format!(
                 "Poisson's ratio must be in (-1, 0.5), got {}",
                 self.poisson
             )));

@@ -267,7 +267,7 @@ impl GramPlan {
         let vp = sym.col_ptr_for_val();
         let sweep = |rows: std::ops::Range<usize>| {
             // A factor in a file: drop the pages passed now and then.
-            let mut passed = crate::frontal::Passed::default();
+            let mut passed = crate::fem::frontal::Passed::default();
             for s in 0..self.begin.len() - 1 {
                 if let Some(r) = passed.add(vp[s]..vp[s + 1]) {
                     f.release(r);
@@ -786,7 +786,7 @@ impl UnitSolver {
 
     /// The forward sweep over the supernodes the columns reach, the back sweep over `keep`.
     /// On a factor in a file, the pages passed are dropped now and then
-    /// ([`crate::frontal::Passed`]).
+    /// ([`crate::fem::frontal::Passed`]).
     fn sweep(&self, f: &Factor, dofs: &[usize], mut x: MatMut<'_, f64>, keep: &[bool]) {
         let Some((sym, _)) = f.supernodal() else {
             return;

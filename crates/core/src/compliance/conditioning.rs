@@ -28,7 +28,7 @@ pub struct Conditioning {
 /// locking-free formulation, whose K is only held as a mixed system, the power iteration runs
 /// on the nodal-average stiffness (an upper bound: the stabilised system is softer), the
 /// inverse iteration on the mixed system itself.
-pub fn estimate(mesh: &Mesh, iters: usize) -> Result<Conditioning, crate::Error> {
+pub fn estimate(mesh: &Mesh, iters: usize) -> Result<Conditioning, crate::fem::FemError> {
     let k = Stiffness::assemble(mesh)?;
     let f = k.factorize()?;
     let bound = if k.n_aux() > 0 {
@@ -117,16 +117,16 @@ pub(crate) fn storage_error(c: &Compliance) -> (f64, f64) {
         if exact.iter().all(|v| *v == DVec3::ZERO) || !exact.iter().all(|v| v.is_finite()) {
             continue;
         }
-        let err = |u: Vec<DVec3>| crate::precision::rel_err(&u, &exact);
-        e32 = e32.max(err(crate::precision::displace_f32(c, load)));
-        e16 = e16.max(err(crate::precision::displace_f16(c, load)));
+        let err = |u: Vec<DVec3>| crate::compliance::precision::rel_err(&u, &exact);
+        e32 = e32.max(err(crate::compliance::precision::displace_f32(c, load)));
+        e16 = e16.max(err(crate::compliance::precision::displace_f16(c, load)));
     }
     (e32, e16)
 }
 
 /// `storage_error` without the whole compliance: the two columns it needs (the free-surface
 /// node farthest from the clamp, and another) solved with rows on the surface. For `info`.
-pub fn predict_storage_error(mesh: &Mesh) -> Result<(f64, f64), crate::Error> {
+pub fn predict_storage_error(mesh: &Mesh) -> Result<(f64, f64), crate::fem::FemError> {
     use crate::compliance::{NodeSet, Selection};
     let free = mesh.free_surface_nodes();
     let clamped: Vec<DVec3> = (0..mesh.nodes.len())
@@ -222,7 +222,7 @@ mod tests {
     fn a_mixed_system_is_estimated_against_its_condensed_stiffness() {
         let mut mesh = crate::mesh::cube();
         mesh.material.poisson = 0.49;
-        mesh.formulation = crate::units::Formulation::LockingFree;
+        mesh.formulation = crate::mesh::units::Formulation::LockingFree;
         assert!(Stiffness::assemble(&mesh).unwrap().n_aux() > 0);
         let (c, hi) = estimate_against_dense(&mesh);
         assert!(

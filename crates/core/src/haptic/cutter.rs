@@ -1,0 +1,387 @@
+//! Cutting live, the part without threads (the cutter's thread is `runtime::cutting`): the
+//! blade's strokes go from the haptic thread to a cutter off it, which
+//! removes the tets they sweep ([`crate::cut`]), builds the exact correction of `L` and the
+//! opened surface, and hands the whole cut body back; the haptic path installs it between two
+//! ticks ([`crate::haptic::HapticWorld::install_cut`]) and the visual path draws from it.
+//! The haptic tick never waits for a cut: until the new body arrives it reads the last one.
+//!
+//! * A blade finger ([`crate::contact::Tool::Blade`]) engages when its god-object touches (the
+//!   device at or below the surface): the blade then hangs `depth` below the device position
+//!   along the inward normal of the triangle it entered by, and each tick's motion is a
+//!   [`Stroke`]. It disengages when the god-object is free again.
+//! * Only an object with a `cuttable` region is cut, and only the region's tets.
+//! * The cutter coalesces the strokes that arrived since its last pass into one quad (the
+//!   chord of the blade's path), so one pass costs one sweep of the mesh's tets whatever the
+//!   haptic rate.
+
+use std::sync::Arc;
+
+use glam::DVec3;
+
+use crate::compliance::Compliance;
+use crate::contact::Surface;
+use crate::cut::{blade_tets, Cut, CutReport};
+use crate::scene::{CutRegion, World};
+use crate::Error;
+
+/// The blade's motion during one tick, in its object's frame (metres).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Stroke {
+    /// The object it cuts.
+    pub object: usize,
+    /// The blade's top (the device position) at the start and the end of the tick.
+    pub from: DVec3,
+    /// See `from`.
+    pub to: DVec3,
+    /// The inward normal the blade hangs along (unit).
+    pub inward: DVec3,
+    /// The blade's depth, m.
+    pub depth: f64,
+}
+
+/// A cut object as both paths read it: the compliance with the cut's correction carried
+/// beside `L`, and the opened rest surface.
+#[derive(Debug)]
+pub struct CutBody {
+    /// `L` (shared with the uncut body) and the correction.
+    pub compliance: Compliance,
+    /// The rest surface of the remaining tets (the cut's faces included).
+    pub surface: Surface,
+    /// The surface's triangles as mesh node triples (what a renderer draws).
+    pub triangles: Vec<[u32; 3]>,
+    /// What the whole cut so far did.
+    pub report: CutReport,
+    /// Tets removed so far (every pass), the pieces' included.
+    pub tets_removed: usize,
+    /// Pieces cut off so far (left with no clamp: removed, their nodes pinned still).
+    pub pieces_removed: usize,
+    /// 1 for the first cut body of the object, then one more a body.
+    pub generation: u64,
+    /// The strokes (chords) that made it from the object's previous body, in order: what a
+    /// recorded session keeps to build it again.
+    pub strokes: Vec<Stroke>,
+    /// How many times the object's correction was folded into a new `L` before this body
+    /// (its compliance then holds that `L`, not the uncut one).
+    pub folds: u32,
+}
+
+struct ObjectCut {
+    cut: Cut,
+    base: Compliance,
+    mesh: crate::Mesh,
+    region: CutRegion,
+    generation: u64,
+    tets_removed: usize,
+    pieces_removed: usize,
+    last: CutReport,
+    since: Vec<Stroke>,
+    folds: u32,
+}
+
+impl ObjectCut {
+    /// Removes `tets` from object `o` (and any piece left with no clamp) and counts them.
+    fn remove(&mut self, o: usize, tets: &[usize]) -> Result<(), Error> {
+        let report = self.cut.remove(&self.mesh, tets)?;
+        self.tets_removed += report.tets_removed;
+        self.pieces_removed += report.pieces_removed;
+        if report.pieces_removed > 0 {
+            log::info!(
+                "a cut took {} piece(s) off object {o} (no clamp held them): removed",
+                report.pieces_removed
+            );
+        }
+        self.last = report;
+        Ok(())
+    }
+}
+
+/// What a [`Cutter`] is made from: each cuttable object's mesh, compliance and region.
+pub struct CutPlan {
+    objects: Vec<Option<(crate::Mesh, Compliance, CutRegion)>>,
+}
+
+/// The rank at which a cutter folds its correction into `L` (see [`Cutter::fold_due`]): a
+/// cut body's construction grows as the rank squared (`V = U Cᵀ`), and on the mouse it
+/// passes a display frame (16 ms, with the removal) between ranks 120 (6 ms) and 360
+/// (44 ms); a fold there costs about 0.15 s off the haptic thread (measured in
+/// docs/measurements/2026-12-04-cutting.md).
+pub const FOLD_RANK: usize = 160;
+
+/// The off-thread side of cutting: each cuttable object's kept factor and correction.
+pub struct Cutter {
+    objects: Vec<Option<ObjectCut>>,
+    fold_rank: usize,
+}
+
+impl Cutter {
+    /// Prepares every cuttable object of `world` (factors its stiffness: the part of the
+    /// precompute a cut needs, kept rather than `L`'s columns at every cuttable DOF, which
+    /// would cost a full column solve per DOF up front). Errors on an object whose `L` is not
+    /// held on the host or whose formulation cannot be cut.
+    pub fn new(world: &World) -> Result<Cutter, Error> {
+        Cutter::from_plan(Cutter::plan(world)?)
+    }
+
+    /// What [`Cutter::new`] needs of `world`, copied (cheap: `L` is shared), so that the
+    /// factorisation can run on another thread ([`Cutter::from_plan`]).
+    pub fn plan(world: &World) -> Result<CutPlan, Error> {
+        let mut objects = Vec::with_capacity(world.objects.len());
+        for obj in &world.objects {
+            let Some(region) = &obj.cuttable else {
+                objects.push(None);
+                continue;
+            };
+            if !obj.body.compliance.holds_l() {
+                return Err(Error::Input(format!(
+                    "object '{}' is cuttable but its L is not held in memory",
+                    obj.name
+                )));
+            }
+            objects.push(Some((
+                obj.body.mesh.clone(),
+                obj.body.compliance.clone(),
+                region.clone(),
+            )));
+        }
+        Ok(CutPlan { objects })
+    }
+
+    /// Factors every planned object's stiffness.
+    pub fn from_plan(plan: CutPlan) -> Result<Cutter, Error> {
+        let mut objects = Vec::with_capacity(plan.objects.len());
+        for p in plan.objects {
+            objects.push(match p {
+                None => None,
+                Some((mesh, base, region)) => Some(ObjectCut {
+                    cut: Cut::new(&mesh)?,
+                    base,
+                    mesh,
+                    region,
+                    generation: 0,
+                    tets_removed: 0,
+                    pieces_removed: 0,
+                    last: CutReport::default(),
+                    since: Vec::new(),
+                    folds: 0,
+                }),
+            });
+        }
+        Ok(Cutter {
+            objects,
+            fold_rank: FOLD_RANK,
+        })
+    }
+
+    /// Sets the rank past which [`Cutter::fold_due`] folds (default [`FOLD_RANK`]).
+    pub fn set_fold_rank(&mut self, rank: usize) {
+        self.fold_rank = rank;
+    }
+
+    /// Folds the correction of every object whose rank has reached the fold rank into a new
+    /// `L` ([`Cut::fold`]) and starts its cut afresh from it ([`Cut::rebase`]), so that the
+    /// next body carries only what is cut after. Returns how many objects it folded. The
+    /// bodies already handed out stay valid (they share the old `L`). An object is also
+    /// folded, when due, just before its next cut, so a fold always happens at the same point
+    /// of its cuts (a replay folds where the live run did); the cutter's thread calls this as
+    /// soon as it has handed its bodies over, to fold while the blade is still.
+    pub fn fold_due(&mut self) -> Result<usize, Error> {
+        let mut n = 0;
+        for o in 0..self.objects.len() {
+            n += usize::from(self.fold_object(o)?);
+        }
+        Ok(n)
+    }
+
+    /// Folds object `o` when its rank has reached the fold rank; true when it did.
+    fn fold_object(&mut self, o: usize) -> Result<bool, Error> {
+        let Some(Some(oc)) = self.objects.get_mut(o) else {
+            return Ok(false);
+        };
+        if oc.cut.rank() < self.fold_rank.max(1) {
+            return Ok(false);
+        }
+        let folded = oc.cut.fold(&oc.base)?;
+        oc.cut = oc.cut.rebase(&oc.mesh)?;
+        oc.base = folded;
+        oc.folds += 1;
+        Ok(true)
+    }
+
+    /// The tets removed from object `o` so far (`None`: it is not cuttable).
+    pub fn removed(&self, o: usize) -> Option<&[bool]> {
+        self.objects.get(o)?.as_ref().map(|oc| oc.cut.removed())
+    }
+
+    /// Whether any object can be cut.
+    pub fn any(&self) -> bool {
+        self.objects.iter().any(|o| o.is_some())
+    }
+
+    /// Cuts along `stroke`: removes the region's tets its quad sweeps (and any piece that
+    /// loses every clamp), and returns the object's new cut body, or `None` when it removed
+    /// nothing (or the object is not cuttable). A degenerate or non-finite stroke removes
+    /// nothing.
+    pub fn apply(&mut self, stroke: &Stroke) -> Result<Option<Arc<CutBody>>, Error> {
+        if !self.cut_only(stroke)? {
+            return Ok(None);
+        }
+        self.body(stroke.object).map(Some)
+    }
+
+    /// Removes `tets` (indices into object `o`'s mesh; those outside its cuttable region or
+    /// already removed are ignored) and any piece left with no clamp, as a blade would, and
+    /// returns the object's new cut body, or `None` when nothing was removed. For scripted
+    /// cuts and measurements; a live run cuts with a blade's strokes. Not recorded in sessions.
+    pub fn remove_tets(&mut self, o: usize, tets: &[usize]) -> Result<Option<Arc<CutBody>>, Error> {
+        let Some(Some(oc)) = self.objects.get(o) else {
+            return Ok(None);
+        };
+        let removed = oc.cut.removed();
+        let n = oc.mesh.tets.len();
+        let tets: Vec<usize> = tets
+            .iter()
+            .copied()
+            .filter(|&t| t < n && oc.region.contains(t) && !removed[t])
+            .collect();
+        if tets.is_empty() {
+            return Ok(None);
+        }
+        self.fold_object(o)?;
+        let Some(Some(oc)) = self.objects.get_mut(o) else {
+            return Ok(None);
+        };
+        oc.remove(o, &tets)?;
+        self.body(o).map(Some)
+    }
+
+    /// Object `o`'s strokes, in order (a recorded cut event): cuts along each, then builds
+    /// one body. `None` when they removed nothing.
+    pub fn apply_strokes(
+        &mut self,
+        o: usize,
+        strokes: &[Stroke],
+    ) -> Result<Option<Arc<CutBody>>, Error> {
+        let mut any = false;
+        for s in strokes.iter().filter(|s| s.object == o) {
+            any |= self.cut_only(s)?;
+        }
+        if !any {
+            return Ok(None);
+        }
+        self.body(o).map(Some)
+    }
+
+    /// Removes what `stroke` sweeps; true when it removed something (and then records it
+    /// among the strokes of the object's next body).
+    fn cut_only(&mut self, stroke: &Stroke) -> Result<bool, Error> {
+        let Some(Some(oc)) = self.objects.get_mut(stroke.object) else {
+            return Ok(false);
+        };
+        let removed = oc.cut.removed();
+        let tets: Vec<usize> = blade_tets(
+            &oc.mesh,
+            stroke.from,
+            stroke.to,
+            stroke.inward,
+            stroke.depth,
+        )
+        .into_iter()
+        .filter(|&t| oc.region.contains(t) && !removed[t])
+        .collect();
+        if tets.is_empty() {
+            return Ok(false);
+        }
+        // (Folded only before a stroke that cuts: a recorded session holds just those.)
+        self.fold_object(stroke.object)?;
+        let Some(Some(oc)) = self.objects.get_mut(stroke.object) else {
+            return Ok(false);
+        };
+        oc.remove(stroke.object, &tets)?;
+        oc.since.push(*stroke);
+        Ok(true)
+    }
+
+    /// Object `o`'s cut body as it stands: the correction, the opened surface.
+    fn body(&mut self, o: usize) -> Result<Arc<CutBody>, Error> {
+        let Some(Some(oc)) = self.objects.get_mut(o) else {
+            return Err(Error::Input(format!("object {o} is not cuttable")));
+        };
+        let correction = oc.cut.correction(&oc.base)?;
+        let compliance = oc
+            .base
+            .with_correction(Arc::new(correction))
+            .map_err(Error::from)?;
+        let mut open = oc.mesh.clone();
+        open.surface = oc.mesh.open_surface(oc.cut.removed());
+        let surface = Surface::new(&open);
+        oc.generation += 1;
+        Ok(Arc::new(CutBody {
+            compliance,
+            surface,
+            triangles: open.surface,
+            report: oc.last.clone(),
+            tets_removed: oc.tets_removed,
+            pieces_removed: oc.pieces_removed,
+            generation: oc.generation,
+            strokes: std::mem::take(&mut oc.since),
+            folds: oc.folds,
+        }))
+    }
+
+    /// [`Cutter::apply`] on a run of strokes: consecutive strokes of one object with the same
+    /// blade are joined into their chord first, and each object that lost tets gets one new
+    /// body (whose `strokes` are the chords, in order).
+    pub fn apply_all(&mut self, strokes: &[Stroke]) -> Result<Vec<(usize, Arc<CutBody>)>, Error> {
+        let mut changed: Vec<usize> = Vec::new();
+        let mut k = 0;
+        while k < strokes.len() {
+            let mut s = strokes[k];
+            let mut j = k + 1;
+            while j < strokes.len()
+                && strokes[j].object == s.object
+                && strokes[j].inward == s.inward
+                && strokes[j].depth == s.depth
+            {
+                s.to = strokes[j].to;
+                j += 1;
+            }
+            if self.cut_only(&s)? && !changed.contains(&s.object) {
+                changed.push(s.object);
+            }
+            k = j;
+        }
+        changed
+            .into_iter()
+            .map(|o| Ok((o, self.body(o)?)))
+            .collect()
+    }
+}
+
+/// The newest cut body of each object, for the visual path: written by the cutter's thread,
+/// read by the visual loop (the haptic thread never touches it, so its lock is not shared
+/// with the haptic path).
+#[derive(Debug, Default)]
+pub struct CutFeed {
+    bodies: std::sync::Mutex<Vec<(usize, Arc<CutBody>)>>,
+    /// Bumped at each new body.
+    pub generation: std::sync::atomic::AtomicU64,
+}
+
+impl CutFeed {
+    /// Publishes object `o`'s new body.
+    pub fn publish(&self, o: usize, body: Arc<CutBody>) {
+        let mut g = self.bodies.lock().unwrap_or_else(|e| e.into_inner());
+        g.retain(|(k, _)| *k != o);
+        g.push((o, body));
+        self.generation
+            .fetch_add(1, std::sync::atomic::Ordering::Release);
+    }
+
+    /// Each object's newest body.
+    pub fn latest(&self) -> Vec<(usize, Arc<CutBody>)> {
+        self.bodies
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+}
