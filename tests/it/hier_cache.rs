@@ -1012,3 +1012,60 @@ fn cli_poke_keeps_a_damaged_compressed_cache_and_names_a_crafted_tolerance() {
         "not rewritten as the precompute wrote it"
     );
 }
+
+/// The one precompute call, compressed: its key and file, and the hierarchical `L` it returns
+/// is the one its file holds (what the GPU byte count is computed from, without reading the
+/// file again); a shard returns none.
+#[test]
+fn the_precompute_call_returns_the_l_it_wrote() {
+    use touchfem::precompute::{precompute, Destination, Job};
+    let m = touchfem::mesh::cube();
+    let sel = Selection::default();
+    let o = HOptions {
+        leaf_size: 8,
+        panel_size: 32,
+        ..HOptions::new(EPS)
+    };
+    let (_d, p) = tmp("job.tfc");
+    let job = Job {
+        name: "cube",
+        mesh: &m,
+        selection: &sel,
+        compression: Some(o),
+        shard: (1, 1),
+        out: Destination::File(&p),
+    };
+    let done = precompute(&job, &mut |_, _| {}, &Default::default()).unwrap();
+    assert_eq!(done.key, cache::key_hier(&m, &sel, &o));
+    assert_eq!(done.report.file, p);
+    assert_eq!(done.report.tolerance, Some(EPS));
+    same_bytes(&p, &small().path);
+    let h = done
+        .hier()
+        .expect("a complete compressed precompute returns its L");
+    let c = cache::load(&p, done.key, m.nodes.len()).unwrap();
+    let back = c.hier().unwrap();
+    assert_eq!(h.panels(), back.panels());
+    assert_eq!(h.dense_values(), back.dense_values());
+    assert_eq!(h.stored_values(), back.stored_values());
+    #[cfg(feature = "gpu")]
+    assert_eq!(
+        touchfem::gpu::hier_gpu_bytes(h, false),
+        touchfem::gpu::hier_gpu_bytes(back, false)
+    );
+    for f in loads(c.cols().len()) {
+        let mut a = vec![DVec3::ZERO; h.out_rows()];
+        let mut b = vec![DVec3::ZERO; back.out_rows()];
+        h.displace(&f, &mut a);
+        back.displace(&f, &mut b);
+        assert_eq!(a, b);
+    }
+    let shard = Job {
+        shard: (1, 2),
+        ..job
+    };
+    assert!(precompute(&shard, &mut |_, _| {}, &Default::default())
+        .unwrap()
+        .hier()
+        .is_none());
+}

@@ -784,7 +784,7 @@ impl<R: Read> Shard for Reader<R> {
 }
 
 /// Joins compressed shards (any order) into one complete file at `out`, equal byte for byte to
-/// the unsharded precompute ([`format::check_merge`] checks that they belong together);
+/// the unsharded precompute (the shared merge checks say whether they belong together);
 /// checks every panel's checksum and each part's file checksum while copying. Returns the
 /// merged file's header and length.
 pub fn merge(parts: &[PathBuf], out: &Path) -> Result<(Header, u64), CacheError> {
