@@ -31,7 +31,7 @@ pub struct Header {
     pub cols: u32,
     /// Columns per batch.
     pub batch: u32,
-    /// Mesh + material + selection hash ([`key`]).
+    /// Mesh + material + selection hash ([`key`](super::key)).
     pub key: u64,
     /// Shard index, 1-based.
     pub shard_index: u32,
