@@ -419,11 +419,25 @@ fn keys_tell_the_kinds_and_options_apart() {
         cache::load(&p, hk, cube.nodes.len()),
         Err(CacheError::Stale { .. })
     ));
+    // A dense file where a compressed one is asked for: recomputed, the note saying so.
     let (c1, o1) = cache::load_or_compute_with(&p, &cube, &sel, Some(&small)).unwrap();
-    assert!(matches!(
-        o1,
-        CacheOutcome::Recomputed(CacheError::Stale { .. })
-    ));
+    assert!(
+        matches!(
+            o1,
+            CacheOutcome::Recomputed(CacheError::Compression {
+                found: None,
+                asked: Some(_),
+                ..
+            })
+        ),
+        "{o1:?}"
+    );
+    assert!(
+        o1.message()
+            .unwrap()
+            .contains("is dense, but one compressed to tolerance 1e-3"),
+        "{o1:?}"
+    );
     assert!(c1.hier().is_some());
     assert!(hier::is_compressed(&p));
     let (c2, o2) = cache::load_or_compute_with(&p, &cube, &sel, Some(&small)).unwrap();
@@ -431,10 +445,17 @@ fn keys_tell_the_kinds_and_options_apart() {
     assert_eq!(products(&c1), products(&c2));
     // Asked for the dense L again: the compressed file is stale, and is replaced.
     let (c3, o3) = cache::load_or_compute_with(&p, &cube, &sel, None).unwrap();
-    assert!(matches!(
-        o3,
-        CacheOutcome::Recomputed(CacheError::Stale { .. })
-    ));
+    assert!(
+        matches!(
+            o3,
+            CacheOutcome::Recomputed(CacheError::Compression {
+                found: Some(_),
+                asked: None,
+                ..
+            })
+        ),
+        "{o3:?}"
+    );
     assert_eq!(c3.l_f64(), c0.l_f64());
     assert!(!hier::is_compressed(&p));
     // Bad options are a typed error, not a panic.
@@ -773,4 +794,278 @@ fn poke_reads_a_compressed_cache() {
         );
     }
     assert!(d["force"][2].as_f64().unwrap() > 1e-3, "no contact");
+}
+
+/// A compressed file made for another tolerance is named so, with both tolerances (not "made
+/// for another mesh, material or selection"); a header whose tolerance was changed, its
+/// checksums fixed, is refused under the tolerance asked for though its key still matches,
+/// and recomputed to that tolerance.
+#[test]
+fn another_or_a_crafted_tolerance_is_named_and_never_used() {
+    let f = small();
+    let m = touchfem::mesh::cube();
+    let sel = Selection::default();
+    let made = HOptions {
+        leaf_size: 8,
+        panel_size: 32,
+        ..HOptions::new(EPS)
+    };
+    assert_eq!(cache::key_hier(&m, &sel, &made), f.key);
+    // Another tolerance: its own error and message.
+    let other = HOptions {
+        tolerance: 1e-2,
+        ..made
+    };
+    let e = cache::load_made_with(
+        &f.path,
+        cache::key_hier(&m, &sel, &other),
+        f.nodes,
+        Some(&other),
+    )
+    .unwrap_err();
+    assert!(
+        matches!(
+            e,
+            CacheError::Compression {
+                found: Some(a),
+                asked: Some(b),
+                ..
+            } if a.tolerance == EPS && b.tolerance == 1e-2
+        ),
+        "{e:?}"
+    );
+    let msg = e.to_string();
+    assert!(
+        msg.contains("was made for tolerance 1e-3, not 1e-2"),
+        "{msg}"
+    );
+    assert!(!msg.contains("mesh"), "{msg}");
+    // The crafted header: tolerance 0.999999, header and file checksums fixed.
+    let mut b = std::fs::read(&f.path).unwrap();
+    b[64..72].copy_from_slice(&0.999999f64.to_bits().to_le_bytes());
+    seal(&mut b);
+    let (_d, crafted) = tmp("crafted.tfc");
+    std::fs::write(&crafted, &b).unwrap();
+    assert_eq!(hier::header(&crafted).unwrap().opts.tolerance, 0.999999);
+    // Its key still matches: the plain loader (key only) cannot tell; the options can.
+    let e = cache::load_made_with(&crafted, f.key, f.nodes, Some(&made)).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("was made for tolerance 9.99999e-1, not 1e-3"),
+        "{e}"
+    );
+    let (c, o) = cache::load_or_compute_with(&crafted, &m, &sel, Some(&made)).unwrap();
+    assert!(
+        matches!(o, CacheOutcome::Recomputed(CacheError::Compression { .. })),
+        "{o:?}"
+    );
+    assert_eq!(c.hier().unwrap().options().tolerance, EPS);
+    assert_eq!(hier::header(&crafted).unwrap().opts.tolerance, EPS);
+    // Rewritten to the tolerance asked for: the very bytes of the file it was crafted from.
+    same_bytes(&crafted, &f.path);
+    let (_, o) = cache::load_or_compute_with(&crafted, &m, &sel, Some(&made)).unwrap();
+    assert!(matches!(o, CacheOutcome::Hit), "{o:?}");
+}
+
+/// A compressed file whose header is damaged (any one byte of it) is never rewritten dense
+/// when no tolerance is asked for: [`cache::load_or_compute_file`] stops with
+/// `CacheError::Unreadable` and leaves the file as it was; the same file asked for by its
+/// tolerance is recomputed compressed.
+#[test]
+fn a_damaged_compressed_file_stays_compressed() {
+    let f = small();
+    let m = touchfem::mesh::cube();
+    let sel = Selection::default();
+    let good = std::fs::read(&f.path).unwrap();
+    let (_d, p) = tmp("damaged.tfc");
+    assert_eq!(
+        cache::stored_compression(&f.path)
+            .unwrap()
+            .map(|o| o.tolerance),
+        Some(EPS)
+    );
+    for at in 0..hier::HEADER {
+        let mut b = good.clone();
+        b[at] ^= 0x5a;
+        std::fs::write(&p, &b).unwrap();
+        let e = cache::load_or_compute_file(&p, &m, &sel, None).unwrap_err();
+        assert!(
+            matches!(e, CacheError::Unreadable { .. }),
+            "byte {at}: {e:?}"
+        );
+        let msg = e.to_string();
+        assert!(
+            msg.contains("damaged.tfc") && msg.contains("not replaced by a dense one"),
+            "byte {at}: {msg}"
+        );
+        assert_eq!(
+            std::fs::read(&p).unwrap(),
+            b,
+            "byte {at}: the file was touched"
+        );
+    }
+    // Asked for by its options, it is recomputed compressed (the same bytes as before).
+    let made = HOptions {
+        leaf_size: 8,
+        panel_size: 32,
+        ..HOptions::new(EPS)
+    };
+    let (c, o) = cache::load_or_compute_file(&p, &m, &sel, Some(&made)).unwrap();
+    assert!(matches!(o, CacheOutcome::Recomputed(_)), "{o:?}");
+    assert!(c.hier().is_some());
+    same_bytes(&p, &f.path);
+    // A dense file, a missing one and a file that is no cache at all go on as before.
+    let (_e, q) = tmp("dense.tfc");
+    assert!(cache::stored_compression(&q).unwrap().is_none());
+    let (c, o) = cache::load_or_compute_file(&q, &m, &sel, None).unwrap();
+    assert!(
+        matches!(o, CacheOutcome::Recomputed(CacheError::Io { .. })),
+        "{o:?}"
+    );
+    assert!(c.hier().is_none());
+    assert!(cache::stored_compression(&q).unwrap().is_none());
+    let (_, o) = cache::load_or_compute_file(&q, &m, &sel, None).unwrap();
+    assert!(matches!(o, CacheOutcome::Hit), "{o:?}");
+}
+
+/// A cache reads from bytes in memory as from its file: both formats, the same compliance;
+/// hostile bytes are the same typed errors.
+#[test]
+fn caches_load_from_bytes() {
+    let f = small();
+    let bytes = std::fs::read(&f.path).unwrap();
+    let a = cache::load(&f.path, f.key, f.nodes).unwrap();
+    let b = cache::load_bytes(&bytes, f.key, f.nodes).unwrap();
+    assert_eq!(products(&a), products(&b));
+    for cut in [0, 7, 50, 104, bytes.len() / 2, bytes.len() - 1] {
+        assert!(matches!(
+            cache::load_bytes(&bytes[..cut], f.key, f.nodes),
+            Err(CacheError::Truncated { .. } | CacheError::Format { .. })
+        ));
+    }
+    let m = touchfem::mesh::cube();
+    let sel = Selection::default();
+    let (_d, p) = tmp("dense.tfc");
+    let c = Compliance::compute(&m, &sel).unwrap();
+    let k = cache::key(&m, &sel);
+    cache::save(&p, &c, k, m.nodes.len()).unwrap();
+    let mut dense = std::fs::read(&p).unwrap();
+    let back = cache::load_bytes(&dense, k, m.nodes.len()).unwrap();
+    assert_eq!(back.l_f64(), c.l_f64());
+    assert!(matches!(
+        cache::load_bytes(&dense, k ^ 1, m.nodes.len()),
+        Err(CacheError::Stale { .. })
+    ));
+    let mid = dense.len() / 2;
+    dense[mid] ^= 1;
+    let e = cache::load_bytes(&dense, k, m.nodes.len()).unwrap_err();
+    assert!(matches!(e, CacheError::Corrupt { .. }), "{e:?}");
+    assert!(e.to_string().contains("(bytes)"), "{e}");
+}
+
+/// The issue's path on the command line: a compressed mouse cache with one header byte
+/// damaged, `poke --cache` without `--tolerance`: exit 2 with one `error:` line, the file
+/// untouched (not rewritten dense); with a crafted tolerance and `--tolerance 1e-3`, the
+/// note names both tolerances and the poke reports 1e-3.
+#[test]
+fn cli_poke_keeps_a_damaged_compressed_cache_and_names_a_crafted_tolerance() {
+    use crate::common::touchfem_status;
+    let (_dir, file) = tmp("cube.tfc");
+    let f = file.to_str().unwrap();
+    let (code, _, err) =
+        touchfem_status(&["precompute", "cube", "--tolerance", "1e-3", "--out", f]);
+    assert_eq!(code, 0, "{err}");
+    let good = std::fs::read(&file).unwrap();
+    let poke = [
+        "poke", "cube", "--at", "15,15,30", "--push", "0,0,-5", "--json", "--cache", f,
+    ];
+    let mut b = good.clone();
+    b[70] ^= 1;
+    std::fs::write(&file, &b).unwrap();
+    let (code, _, err) = touchfem_status(&poke);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.starts_with("error:") && err.trim_end().lines().count() == 1,
+        "{err}"
+    );
+    assert!(err.contains("not replaced by a dense one"), "{err}");
+    assert_eq!(
+        std::fs::read(&file).unwrap(),
+        b,
+        "the damaged file was rewritten"
+    );
+    // The crafted tolerance under --tolerance 1e-3: recomputed, both tolerances named.
+    let mut b = good.clone();
+    b[64..72].copy_from_slice(&0.999999f64.to_bits().to_le_bytes());
+    seal(&mut b);
+    std::fs::write(&file, &b).unwrap();
+    let (code, out, err) = touchfem_status(&[&poke[..], &["--tolerance", "1e-3"]].concat());
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("was made for tolerance 9.99999e-1, not 1e-3"),
+        "{err}"
+    );
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["precompute"]["tolerance"].as_f64(), Some(1e-3));
+    assert!(
+        std::fs::read(&file).unwrap() == good,
+        "not rewritten as the precompute wrote it"
+    );
+}
+
+/// The one precompute call, compressed: its key and file, and the hierarchical `L` it returns
+/// is the one its file holds (what the GPU byte count is computed from, without reading the
+/// file again); a shard returns none.
+#[test]
+fn the_precompute_call_returns_the_l_it_wrote() {
+    use touchfem::precompute::{precompute, Destination, Job};
+    let m = touchfem::mesh::cube();
+    let sel = Selection::default();
+    let o = HOptions {
+        leaf_size: 8,
+        panel_size: 32,
+        ..HOptions::new(EPS)
+    };
+    let (_d, p) = tmp("job.tfc");
+    let job = Job {
+        name: "cube",
+        mesh: &m,
+        selection: &sel,
+        compression: Some(o),
+        shard: (1, 1),
+        out: Destination::File(&p),
+    };
+    let done = precompute(&job, &mut |_, _| {}, &Default::default()).unwrap();
+    assert_eq!(done.key, cache::key_hier(&m, &sel, &o));
+    assert_eq!(done.report.file, p);
+    assert_eq!(done.report.tolerance, Some(EPS));
+    same_bytes(&p, &small().path);
+    let h = done
+        .hier()
+        .expect("a complete compressed precompute returns its L");
+    let c = cache::load(&p, done.key, m.nodes.len()).unwrap();
+    let back = c.hier().unwrap();
+    assert_eq!(h.panels(), back.panels());
+    assert_eq!(h.dense_values(), back.dense_values());
+    assert_eq!(h.stored_values(), back.stored_values());
+    #[cfg(feature = "gpu")]
+    assert_eq!(
+        touchfem::gpu::hier_gpu_bytes(h, false),
+        touchfem::gpu::hier_gpu_bytes(back, false)
+    );
+    for f in loads(c.cols().len()) {
+        let mut a = vec![DVec3::ZERO; h.out_rows()];
+        let mut b = vec![DVec3::ZERO; back.out_rows()];
+        h.displace(&f, &mut a);
+        back.displace(&f, &mut b);
+        assert_eq!(a, b);
+    }
+    let shard = Job {
+        shard: (1, 2),
+        ..job
+    };
+    assert!(precompute(&shard, &mut |_, _| {}, &Default::default())
+        .unwrap()
+        .hier()
+        .is_none());
 }

@@ -785,3 +785,79 @@ fn fuzzed_cache_files_give_typed_errors_or_valid_loads_never_a_panic() {
     );
     assert_eq!(case.get(), 512);
 }
+
+/// A dense file is the documented layout, byte for byte, rebuilt here from the format's
+/// description alone (header fields at their offsets, the lists, `L`'s f64 bytes, one xxh3 per
+/// batch, the checksum): what the format module writes cannot drift from the description.
+/// The one precompute call writes it under its key and file name.
+#[test]
+fn a_dense_file_is_the_documented_layout_byte_for_byte() {
+    use touchfem::precompute::{precompute, Destination, Job};
+    use xxhash_rust::xxh3::{xxh3_64, Xxh3};
+    let dir = tempfile::tempdir().unwrap();
+    let m = cube();
+    let sel = Selection::default();
+    let job = Job {
+        name: "the cube",
+        mesh: &m,
+        selection: &sel,
+        compression: None,
+        shard: (1, 1),
+        out: Destination::Dir(dir.path()),
+    };
+    let key = cache::key(&m, &sel);
+    let done = precompute(&job, &mut |_, _| {}, &Default::default()).unwrap();
+    assert_eq!(done.key, key);
+    assert_eq!(job.key(), key);
+    assert!(done.hier().is_none());
+    let file = dir.path().join(format!("the_cube-{key:016x}.tfc"));
+    assert_eq!(done.report.file, file);
+    let bytes = std::fs::read(&file).unwrap();
+    assert_eq!(done.report.bytes as usize, bytes.len());
+    let c = cache::load(&file, key, m.nodes.len()).unwrap();
+    let (nr, nc, lr) = (c.rows().len(), c.cols().len(), c.l_rows());
+    let batch = cache::Part::open(&file).unwrap().head.batch as usize;
+    let mut want = b"TFEMCMP\0".to_vec();
+    for v in [3u32, 8, 125, nr as u32, nc as u32, batch as u32] {
+        want.extend_from_slice(&v.to_le_bytes());
+    }
+    want.extend_from_slice(&key.to_le_bytes());
+    let free = c.stats.free_dofs as u32;
+    for v in [1u32, 1, 0, nc as u32, free, lr as u32] {
+        want.extend_from_slice(&v.to_le_bytes());
+    }
+    want.extend_from_slice(&c.stats.residual.to_bits().to_le_bytes());
+    assert_eq!(want.len(), 72);
+    for &v in c.rows().iter().chain(c.cols()) {
+        want.extend_from_slice(&v.to_le_bytes());
+    }
+    let head_and_lists = want.len();
+    let l: Vec<u8> = c.l_f64().iter().flat_map(|v| v.to_le_bytes()).collect();
+    assert_eq!(l.len(), 72 * lr * nc);
+    want.extend_from_slice(&l);
+    let sums: Vec<u8> = l
+        .chunks(72 * lr * batch)
+        .flat_map(|b| xxh3_64(b).to_le_bytes())
+        .collect();
+    want.extend_from_slice(&sums);
+    let mut h = Xxh3::new();
+    h.update(&want[..head_and_lists]);
+    h.update(&sums);
+    want.extend_from_slice(&h.digest().to_le_bytes());
+    assert_eq!(bytes.len(), want.len());
+    assert!(bytes == want, "the file differs from the documented layout");
+    // From bytes in memory, the same compliance.
+    let back = cache::load_bytes(&bytes, key, m.nodes.len()).unwrap();
+    assert_eq!(back.l_f64(), c.l_f64());
+    // A shard of the one call gets the part suffix.
+    let job = Job {
+        shard: (2, 3),
+        ..job
+    };
+    let done = precompute(&job, &mut |_, _| {}, &Default::default()).unwrap();
+    assert_eq!(
+        done.report.file,
+        dir.path()
+            .join(format!("the_cube-{key:016x}.tfc.part-2-of-3"))
+    );
+}

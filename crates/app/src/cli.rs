@@ -748,14 +748,9 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
     let compliance = match &a.cache {
         Some(path) => {
             // `--tolerance`, else a compressed file's own options: a compressed cache is read
-            // as a dense one is (and kept compressed when recomputed).
-            use touchfem_core::cache::hier;
-            let compression = match a.tolerance {
-                Some(eps) => Some(touchfem_core::compliance::hmatrix::HOptions::new(eps)),
-                None if hier::is_compressed(path) => hier::header(path).ok().map(|h| h.opts),
-                None => None,
-            };
-            let (c, outcome) = touchfem_core::cache::load_or_compute_with(
+            // as a dense one is, kept compressed when recomputed, and never rewritten dense.
+            let compression = a.tolerance.map(touchfem_core::compliance::hmatrix::HOptions::new);
+            let (c, outcome) = touchfem_core::cache::load_or_compute_file(
                 path,
                 &mesh,
                 &sel,

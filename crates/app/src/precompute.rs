@@ -2,7 +2,7 @@
 //! shards and merging; Ctrl-C keeps the finished batches for a resume (dense only: a compressed
 //! precompute, `--tolerance`, is not resumable and Ctrl-C ends it).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -10,8 +10,8 @@ use crate::error::Error;
 use touchfem_core::cache;
 use touchfem_core::compliance::hmatrix::HOptions;
 use touchfem_core::compliance::Selection;
-use touchfem_core::precompute::precompute_to_file_with;
-use touchfem_core::scene::file::{cache_dir, cache_file, PlannedObject};
+use touchfem_core::precompute::{precompute, Destination, Job};
+use touchfem_core::scene::file::{cache_dir, PlannedObject};
 use touchfem_core::scene::{SceneSource, World};
 
 use crate::args::PrecomputeArgs;
@@ -92,43 +92,33 @@ pub fn command(args: &PrecomputeArgs) -> Result<(), Error> {
         .ok_or_else(|| Error::Input("name a scene or mesh (or --merge PART...)".into()))?;
     let objs = objects(args, spec)?;
     let shard = args.shard.unwrap_or((1, 1));
-    let suffix = |p: PathBuf| -> PathBuf {
-        if shard.1 == 1 {
-            return p;
-        }
-        let mut s = p.into_os_string();
-        s.push(format!(".part-{}-of-{}", shard.0, shard.1));
-        PathBuf::from(s)
+    // `--out`: the file of a single object, else the directory of several; no `--out`: the
+    // cache directory.
+    let out = match &args.out {
+        Some(f) => f.clone(),
+        None => cache_dir().ok_or_else(|| {
+            Error::Input("caching is off (TOUCHFEM_CACHE_DIR is empty): give --out FILE".into())
+        })?,
     };
     let mut reports = Vec::new();
     let mut gpu: Vec<(u64, u64)> = Vec::new();
     for o in &objs {
-        // `--tolerance`, else the scene's `compression`. A compressed file has its own key
-        // (and so its own cache file name).
-        let compression = compression.or(o.compression);
-        let key = match &compression {
-            Some(opts) => cache::key_hier(&o.mesh, &o.selection, opts),
-            None => o.key,
-        };
         let out = match (&args.out, objs.len()) {
-            (Some(f), 1) => f.clone(),
-            (Some(dir), _) => suffix(cache_file(dir, &o.name, key)),
-            (None, _) => {
-                let dir = cache_dir().ok_or_else(|| {
-                    Error::Input(
-                        "caching is off (TOUCHFEM_CACHE_DIR is empty): give --out FILE".into(),
-                    )
-                })?;
-                suffix(cache_file(&dir, &o.name, key))
-            }
+            (Some(_), 1) => Destination::File(&out),
+            _ => Destination::Dir(&out),
+        };
+        let job = Job {
+            name: &o.name,
+            mesh: &o.mesh,
+            selection: &o.selection,
+            // `--tolerance`, else the scene's `compression`.
+            compression: compression.or(o.compression),
+            shard,
+            out,
         };
         let bar = progress_bar(o.mesh.nodes.len());
-        let r = precompute_to_file_with(
-            &o.mesh,
-            &o.selection,
-            compression.as_ref(),
-            &out,
-            shard,
+        let done = precompute(
+            &job,
             &mut |done, total| {
                 bar.set_length(total as u64);
                 bar.set_position(done as u64);
@@ -138,15 +128,13 @@ pub fn command(args: &PrecomputeArgs) -> Result<(), Error> {
         bar.finish_and_clear();
         // What the GPU will hold for L (a whole file only): the compressed layout against
         // dense f32.
-        if compression.is_some() && shard == (1, 1) {
-            let c = cache::load(&r.file, key, o.mesh.nodes.len())?;
-            if let Some(h) = c.hier() {
-                gpu.push((
-                    touchfem_gpu::hier_gpu_bytes(h, false),
-                    4 * h.dense_values() as u64,
-                ));
-            }
+        if let Some(h) = done.hier() {
+            gpu.push((
+                touchfem_gpu::hier_gpu_bytes(h, false),
+                4 * h.dense_values() as u64,
+            ));
         }
+        let r = done.report;
         if let (false, Some([p0, p1, np]), Some(eps)) = (args.json, r.panels, r.tolerance) {
             println!(
                 "{}: {} rows × {} columns compressed to {eps:e}, panels {p0}..{p1} of {np}, in {:.2} s ({:.1} MB) -> {}",

@@ -32,15 +32,16 @@
 //!    products and the locking-free formulation;
 //! 6. [`compliance`]: `L` and its solve plan, near blocks, the low-rank correction,
 //!    precision, conditioning and the hierarchical [`compliance::hmatrix`];
-//! 7. [`cache`]: the compliance files and the precompute job;
+//! 7. [`cache`]: the compliance files, read from bytes or files;
 //! 8. [`contact`]: god-objects, the point force, the finger, the sphere, friction, the tool;
 //! 9. [`devices`]: the haptic devices (pointer, script, replay, UDP) and their limits;
 //! 10. [`error`]: the crate-level [`Error`](enum@Error) wrapping the rooms' typed errors;
-//! 11. [`cut`]: the blade, the removal of tets and the cut body's correction;
-//! 12. [`scene`]: scene files and the [`scene::World`];
-//! 13. [`haptic`]: the pure haptic step ([`haptic::HapticWorld`], the bound, the coupling,
+//! 11. [`precompute`]: the one precompute call;
+//! 12. [`cut`]: the blade, the removal of tets and the cut body's correction;
+//! 13. [`scene`]: scene files and the [`scene::World`];
+//! 14. [`haptic`]: the pure haptic step ([`haptic::HapticWorld`], the bound, the coupling,
 //!     the sample) and the cutter's work, without threads or clocks;
-//! 14. [`runtime`]: the native side: the haptic and cutter threads, the pacer, sessions and
+//! 15. [`runtime`]: the native side: the haptic and cutter threads, the pacer, sessions and
 //!     the UDP server.
 
 pub mod cache;

@@ -1,17 +1,119 @@
 //! `touchfem precompute`: the compliance a scene needs, streamed batch by batch into a cache
 //! file (never the whole L in memory), optionally one shard of the columns at a time so that
 //! several machines share the work, and the merge of the shards. With a compression tolerance
-//! ([`precompute_to_file_with`]) `L` is built hierarchically panel by panel and written in the
-//! compressed format (version 4, [`cache::hier`]); a shard is a run of panels.
+//! `L` is built hierarchically panel by panel and written in the compressed format (version 4,
+//! [`cache::hier`]); a shard is a run of panels.
+//!
+//! [`precompute`] is the one call: a [`Job`] (an object's mesh, selection, compression, shard
+//! and destination) in, an [`Outcome`] (the file, its key, the figures, and the hierarchical
+//! `L` written) out.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use crate::cache::{self, CacheError, Header, Writer};
-use crate::compliance::hmatrix::HOptions;
-use crate::compliance::{ColumnPlan, Compliance, PhaseTimes, Selection, BATCH_COLS};
+use crate::compliance::{ColumnPlan, Compliance, HierParts, PhaseTimes, Selection, BATCH_COLS};
+use crate::compliance::hmatrix::{HMatrix, HOptions};
 use crate::{Error, Mesh};
+
+/// Where a precompute writes.
+#[derive(Clone, Copy, Debug)]
+pub enum Destination<'a> {
+    /// This file, as named (also for a shard).
+    File(&'a Path),
+    /// The object's cache file in this directory, named by the object's name and the key
+    /// ([`cache::file_in`]), with `.part-I-of-N` appended for a shard ([`cache::shard_file`]).
+    Dir(&'a Path),
+}
+
+/// One precompute: an object's compliance (or one shard of it) into one cache file.
+#[derive(Clone, Debug)]
+pub struct Job<'a> {
+    /// The object's name (names the file in a [`Destination::Dir`]).
+    pub name: &'a str,
+    /// The mesh, with its material and clamps.
+    pub mesh: &'a Mesh,
+    /// Which rows and columns of `L`.
+    pub selection: &'a Selection,
+    /// `L` compressed hierarchically with these options; `None`: dense.
+    pub compression: Option<HOptions>,
+    /// Shard `(I, N)`, 1-based; `(1, 1)`: the whole.
+    pub shard: (usize, usize),
+    /// Where the file goes.
+    pub out: Destination<'a>,
+}
+
+impl Job<'_> {
+    /// The key the file is written under: [`cache::key_hier`] when compressed, else
+    /// [`cache::key`].
+    pub fn key(&self) -> u64 {
+        match &self.compression {
+            Some(o) => cache::key_hier(self.mesh, self.selection, o),
+            None => cache::key(self.mesh, self.selection),
+        }
+    }
+
+    /// The file the job writes (for a key from [`Job::key`]).
+    pub fn file(&self, key: u64) -> PathBuf {
+        match self.out {
+            Destination::File(f) => f.to_path_buf(),
+            Destination::Dir(d) => cache::shard_file(cache::file_in(d, self.name, key), self.shard),
+        }
+    }
+}
+
+/// What one [`precompute`] made.
+#[derive(Debug)]
+pub struct Outcome {
+    /// The file written, the sizes, times and residual.
+    pub report: Report,
+    /// The key the file was written under.
+    pub key: u64,
+    /// The hierarchical `L` written, for a complete (unsharded) compressed precompute.
+    hier: Option<HMatrix>,
+}
+
+impl Outcome {
+    /// The hierarchical `L` the file holds, for a complete compressed precompute (`None` for a
+    /// dense file or a shard): what the GPU's byte count is computed from, without reading the
+    /// file again.
+    pub fn hier(&self) -> Option<&HMatrix> {
+        self.hier.as_ref()
+    }
+}
+
+/// Runs `job`: picks the key ([`Job::key`]), names the file ([`Job::file`]), computes the
+/// compliance (or the shard's part of it) into it and reports what it wrote.
+/// `progress(columns done, columns in this shard)`. A dense precompute keeps its finished
+/// batches in `OUT.partial` when `stop` is set, and continues from them when run again
+/// ([`precompute_to_file`]); a compressed one is not resumable.
+pub fn precompute(
+    job: &Job<'_>,
+    progress: &mut dyn FnMut(usize, usize),
+    stop: &AtomicBool,
+) -> Result<Outcome, Error> {
+    let key = job.key();
+    let out = job.file(key);
+    let (mesh, sel, shard) = (job.mesh, job.selection, job.shard);
+    let Some(opts) = &job.compression else {
+        let report = precompute_until(mesh, sel, &out, shard, progress, &|_| {
+            stop.load(Ordering::Relaxed)
+        })?;
+        return Ok(Outcome {
+            report,
+            key,
+            hier: None,
+        });
+    };
+    let (report, parts) = hier_to_file(mesh, sel, opts, key, &out, shard, progress)?;
+    let hier = if shard.1 == 1 {
+        Some(HMatrix::from_panels(parts.plan, parts.panels)?)
+    } else {
+        None
+    };
+    Ok(Outcome { report, key, hier })
+}
 
 /// What one precompute wrote.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -85,6 +187,21 @@ pub fn precompute_to_file_with(
             stop.load(Ordering::Relaxed)
         });
     };
+    let key = cache::key_hier(mesh, sel, opts);
+    Ok(hier_to_file(mesh, sel, opts, key, out, shard, progress)?.0)
+}
+
+/// The compressed precompute of shard `shard` into `out` under `key`: the report and the
+/// parts written.
+fn hier_to_file(
+    mesh: &Mesh,
+    sel: &Selection,
+    opts: &HOptions,
+    key: u64,
+    out: &Path,
+    shard: (usize, usize),
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<(Report, HierParts), Error> {
     let t0 = Instant::now();
     if shard.0 == 0 || shard.0 > shard.1 {
         return Err(Error::Input(format!(
@@ -101,14 +218,13 @@ pub fn precompute_to_file_with(
         shard,
         progress,
     )?;
-    let key = cache::key_hier(mesh, sel, opts);
     let ts = Instant::now();
     let bytes = cache::hier::write_parts(out, &parts, key, mesh.nodes.len(), shard)?;
     let mut phases = parts.stats.phases.clone();
     phases.sync_s = ts.elapsed().as_secs_f64();
     let range = crate::compliance::shard_panels(parts.plan.panels(), shard.0, shard.1);
     let held: usize = range.clone().map(|p| parts.plan.panel_cols(p).len()).sum();
-    Ok(Report {
+    let report = Report {
         file: out.to_path_buf(),
         seconds: t0.elapsed().as_secs_f64(),
         rows: parts.rows.len(),
@@ -120,7 +236,8 @@ pub fn precompute_to_file_with(
         bytes,
         residual: parts.stats.residual,
         phases,
-    })
+    };
+    Ok((report, parts))
 }
 
 /// As [`precompute_to_file`]; `stop(batches written)` is asked after each batch, and `true`

@@ -3,6 +3,10 @@
 use std::path::PathBuf;
 use thiserror::Error;
 
+use crate::compliance::ComplianceError;
+use crate::fem::FemError;
+use crate::compliance::hmatrix::HOptions;
+
 /// Why a cache file was not used.
 #[derive(Debug, Error)]
 pub enum CacheError {
@@ -65,4 +69,56 @@ pub enum CacheError {
         /// What does not match.
         msg: String,
     },
+    /// Made with another compression than asked for: another tolerance (or other options),
+    /// or compressed where a dense `L` was asked for, or the other way round.
+    #[error("cache {path} {}", compression_words(.found.as_ref(), .asked.as_ref()))]
+    Compression {
+        /// The file.
+        path: PathBuf,
+        /// The options it was made with; `None`: dense.
+        found: Option<HOptions>,
+        /// The options asked for; `None`: dense.
+        asked: Option<HOptions>,
+    },
+    /// A compressed file that cannot be read, where no tolerance was asked for: it is not
+    /// replaced by a dense one (which can be many times larger).
+    #[error("cache {path} is not a readable compressed cache ({why}); it is not replaced by a dense one, which can be many times larger: give the tolerance it was made with to recompute it compressed, or remove it")]
+    Unreadable {
+        /// The file.
+        path: PathBuf,
+        /// Why it cannot be read.
+        why: String,
+    },
+    /// The compliance could not be computed (after the file could not be used).
+    #[error(transparent)]
+    Compute(#[from] ComplianceError),
+}
+
+impl From<FemError> for CacheError {
+    fn from(e: FemError) -> Self {
+        CacheError::Compute(ComplianceError::Fem(e))
+    }
+}
+
+/// The words of [`CacheError::Compression`] after the file's name.
+fn compression_words(found: Option<&HOptions>, asked: Option<&HOptions>) -> String {
+    match (found, asked) {
+        (Some(f), Some(a)) if f.tolerance != a.tolerance => format!(
+            "was made for tolerance {:e}, not {:e}",
+            f.tolerance, a.tolerance
+        ),
+        (Some(f), Some(a)) => format!(
+            "was made with other compression options (admissibility {}, leaves of {}, panels of {}; asked: {}, {}, {})",
+            f.eta, f.leaf_size, f.panel_size, a.eta, a.leaf_size, a.panel_size
+        ),
+        (Some(f), None) => format!(
+            "is compressed (tolerance {:e}), but a dense one was asked for",
+            f.tolerance
+        ),
+        (None, Some(a)) => format!(
+            "is dense, but one compressed to tolerance {:e} was asked for",
+            a.tolerance
+        ),
+        (None, None) => "was made with the compression asked for".into(),
+    }
 }

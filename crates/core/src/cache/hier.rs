@@ -54,14 +54,14 @@ use xxhash_rust::xxh3::{xxh3_64, Xxh3};
 
 use super::atomic::AtomicFile;
 use super::error::CacheError;
-use super::runs::{check_runs, PartRun};
+use super::format::{
+    self, f64_at, range_inconsistency, u32_at, u64_at, Common, Shard, BYTES_NAME, HIER_VERSION,
+};
 use crate::compliance::hmatrix::{HMatrix, HOptions, HPlan, Panel};
 use crate::compliance::{Compliance, HierParts};
 
-/// The magic of every touchfem cache file (both versions).
-pub(crate) const MAGIC: &[u8; 8] = b"TFEMCMP\0";
 /// The compressed format's version.
-pub const FORMAT_VERSION: u32 = 4;
+pub const FORMAT_VERSION: u32 = HIER_VERSION;
 /// Bytes of the header, its checksum included.
 pub const HEADER: usize = 104;
 const PANEL_HEAD: usize = 32;
@@ -102,17 +102,9 @@ pub struct Header {
 impl Header {
     fn to_bytes(&self) -> [u8; HEADER] {
         let mut h = [0u8; HEADER];
-        h[..8].copy_from_slice(MAGIC);
+        self.common().put(&mut h, FORMAT_VERSION);
         let mut put = |o: usize, v: &[u8]| h[o..o + v.len()].copy_from_slice(v);
-        put(8, &FORMAT_VERSION.to_le_bytes());
-        put(12, &8u32.to_le_bytes());
-        put(16, &self.n_nodes.to_le_bytes());
-        put(20, &self.rows.to_le_bytes());
-        put(24, &self.cols.to_le_bytes());
         put(28, &self.l_rows.to_le_bytes());
-        put(32, &self.key.to_le_bytes());
-        put(40, &self.shard_index.to_le_bytes());
-        put(44, &self.shard_count.to_le_bytes());
         put(48, &self.panels.to_le_bytes());
         put(52, &self.panel_begin.to_le_bytes());
         put(56, &self.panel_end.to_le_bytes());
@@ -128,28 +120,30 @@ impl Header {
         h
     }
 
-    /// Parses a header whose magic, version, precision and checksum are right.
+    /// The fields shared with the dense format.
+    fn common(&self) -> Common {
+        Common {
+            n_nodes: self.n_nodes,
+            rows: self.rows,
+            cols: self.cols,
+            key: self.key,
+            shard_index: self.shard_index,
+            shard_count: self.shard_count,
+        }
+    }
+
+    /// Parses a header whose magic, version and precision are right (its checksum is not
+    /// checked here).
     fn parse(b: &[u8; HEADER]) -> Result<Header, String> {
-        if &b[..8] != MAGIC {
-            return Err("not a touchfem compliance cache".into());
-        }
-        let version = u32_at(b, 8);
-        if version != FORMAT_VERSION {
-            return Err(format!(
-                "format version {version}, expected {FORMAT_VERSION} (compressed)"
-            ));
-        }
-        if u32_at(b, 12) != 8 {
-            return Err(format!("precision {} bytes, expected 8", u32_at(b, 12)));
-        }
+        let c = Common::read(b, FORMAT_VERSION, "compressed")?;
         Ok(Header {
-            n_nodes: u32_at(b, 16),
-            rows: u32_at(b, 20),
-            cols: u32_at(b, 24),
+            n_nodes: c.n_nodes,
+            rows: c.rows,
+            cols: c.cols,
             l_rows: u32_at(b, 28),
-            key: u64_at(b, 32),
-            shard_index: u32_at(b, 40),
-            shard_count: u32_at(b, 44),
+            key: c.key,
+            shard_index: c.shard_index,
+            shard_count: c.shard_count,
             panels: u32_at(b, 48),
             panel_begin: u32_at(b, 52),
             panel_end: u32_at(b, 56),
@@ -166,18 +160,14 @@ impl Header {
 
     /// What is wrong with the header's sizes, if anything.
     fn inconsistency(&self) -> Option<String> {
-        if self.l_rows > self.rows {
-            Some(format!("{} rows of L, {} rows", self.l_rows, self.rows))
-        } else if self.shard_index == 0 || self.shard_index > self.shard_count {
-            Some(format!("part {} of {}", self.shard_index, self.shard_count))
-        } else if self.panel_begin > self.panel_end || self.panel_end > self.panels {
-            Some(format!(
-                "panels {}..{} of {}",
-                self.panel_begin, self.panel_end, self.panels
-            ))
-        } else {
-            check_opts(&self.opts).err()
-        }
+        let common = self.common();
+        common
+            .rows_inconsistency(self.l_rows)
+            .or_else(|| common.shard_inconsistency())
+            .or_else(|| {
+                range_inconsistency(self.panel_begin, self.panel_end, self.panels, "panels")
+            })
+            .or_else(|| check_opts(&self.opts).err())
     }
 
     /// Bytes of the lists, the points and their checksum.
@@ -200,16 +190,6 @@ fn check_opts(o: &HOptions) -> Result<(), String> {
     Ok(())
 }
 
-fn u32_at(b: &[u8], o: usize) -> u32 {
-    u32::from_le_bytes(b[o..o + 4].try_into().expect("4 bytes"))
-}
-fn u64_at(b: &[u8], o: usize) -> u64 {
-    u64::from_le_bytes(b[o..o + 8].try_into().expect("8 bytes"))
-}
-fn f64_at(b: &[u8], o: usize) -> f64 {
-    f64::from_bits(u64_at(b, o))
-}
-
 /// Whether `path` starts like a compressed (version 4) cache file: the magic and version 4.
 /// `false` for anything else, also an unreadable file (its reader reports why).
 pub fn is_compressed(path: &Path) -> bool {
@@ -217,8 +197,7 @@ pub fn is_compressed(path: &Path) -> bool {
     std::fs::File::open(path)
         .and_then(|mut f| f.read_exact(&mut b))
         .is_ok()
-        && &b[..8] == MAGIC
-        && u32_at(&b, 8) == FORMAT_VERSION
+        && format::is_version(&b, FORMAT_VERSION)
 }
 
 /// A compressed file or shard being written: streamed through an atomic file, hashing as it
@@ -462,9 +441,9 @@ pub fn write_parts(
 
 /// An opened compressed file or shard: header and lists checked; panels read in order, each
 /// checked against its checksum, then the file's checksum ([`Reader::finish`]).
-struct Reader {
+struct Reader<R: Read> {
     path: PathBuf,
-    file: BufReader<std::fs::File>,
+    file: R,
     len: u64,
     /// Bytes read so far.
     pos: u64,
@@ -475,17 +454,31 @@ struct Reader {
     next: u32,
 }
 
-impl Reader {
-    fn open(path: &Path) -> Result<Reader, CacheError> {
+impl Reader<BufReader<std::fs::File>> {
+    fn open(path: &Path) -> Result<Self, CacheError> {
         let io = |source| CacheError::Io {
             path: path.to_path_buf(),
             source,
         };
         let file = std::fs::File::open(path).map_err(io)?;
         let len = file.metadata().map_err(io)?.len();
+        Reader::start(path, BufReader::with_capacity(1 << 20, file), len)
+    }
+}
+
+impl<'a> Reader<&'a [u8]> {
+    /// A reader of a whole file's bytes in memory.
+    fn bytes(b: &'a [u8]) -> Result<Self, CacheError> {
+        Reader::start(Path::new(BYTES_NAME), b, b.len() as u64)
+    }
+}
+
+impl<R: Read> Reader<R> {
+    /// Reads and checks the header and the lists of `len` bytes from `file`.
+    fn start(path: &Path, file: R, len: u64) -> Result<Self, CacheError> {
         let mut r = Reader {
             path: path.to_path_buf(),
-            file: BufReader::with_capacity(1 << 20, file),
+            file,
             len,
             pos: 0,
             hash: Xxh3::new(),
@@ -507,15 +500,16 @@ impl Reader {
             lists: Vec::new(),
             next: 0,
         };
-        if len >= 8 {
-            let mut m = [0u8; 8];
-            r.file.read_exact(&mut m).map_err(io)?;
-            if &m != MAGIC {
-                return Err(r.format("not a touchfem compliance cache".into()));
-            }
-            r.file.seek_relative(-8).map_err(io)?;
+        // The magic first (a file that is not a cache is named so, however short), then the
+        // rest of the header.
+        let first = r.take(len.min(8) as usize)?;
+        if first.len() == 8 && first != format::MAGIC {
+            return Err(r.format("not a touchfem compliance cache".into()));
         }
-        let hb: [u8; HEADER] = r.take(HEADER)?.try_into().expect("header bytes");
+        let mut hb = [0u8; HEADER];
+        hb[..first.len()].copy_from_slice(&first);
+        let rest = r.take(HEADER - first.len())?;
+        hb[first.len()..].copy_from_slice(&rest);
         let head = Header::parse(&hb).map_err(|msg| r.format(msg))?;
         if xxh3_64(&hb[..96]) != u64_at(&hb, 96) {
             return Err(r.corrupt("header checksum mismatch".into()));
@@ -691,21 +685,50 @@ pub fn header(path: &Path) -> Result<Header, CacheError> {
 /// Reads a complete hierarchical compliance from `path`: checks magic, version, checksums,
 /// key and node count ([`CacheError::Stale`]), that it is not a shard
 /// ([`CacheError::Partial`]), rebuilds the plan from the stored points and options and checks
-/// every panel against it.
-pub fn load(path: &Path, expected_key: u64, n_nodes: usize) -> Result<Compliance, CacheError> {
-    let mut r = Reader::open(path)?;
+/// every panel against it. With `opts`, a file made with other options is
+/// [`CacheError::Compression`] (its header's options are checked against the ones asked for,
+/// not only its key).
+pub fn load(
+    path: &Path,
+    expected_key: u64,
+    n_nodes: usize,
+    opts: Option<&HOptions>,
+) -> Result<Compliance, CacheError> {
+    load_from(Reader::open(path)?, expected_key, n_nodes, opts)
+}
+
+/// As [`load`], from a whole file's bytes in memory.
+pub fn load_bytes(
+    bytes: &[u8],
+    expected_key: u64,
+    n_nodes: usize,
+    opts: Option<&HOptions>,
+) -> Result<Compliance, CacheError> {
+    load_from(Reader::bytes(bytes)?, expected_key, n_nodes, opts)
+}
+
+fn load_from<R: Read>(
+    mut r: Reader<R>,
+    expected_key: u64,
+    n_nodes: usize,
+    opts: Option<&HOptions>,
+) -> Result<Compliance, CacheError> {
     let h = r.head.clone();
-    if h.key != expected_key || h.n_nodes as usize != n_nodes {
-        return Err(CacheError::Stale {
+    let path = r.path.clone();
+    let path = path.as_path();
+    if let Some(o) = opts.filter(|&o| *o != h.opts) {
+        return Err(CacheError::Compression {
             path: path.to_path_buf(),
+            found: Some(h.opts),
+            asked: Some(*o),
         });
     }
-    if h.shard_count != 1 || h.panel_begin != 0 || h.panel_end != h.panels {
-        return Err(CacheError::Partial {
-            path: path.to_path_buf(),
-            index: h.shard_index,
-            count: h.shard_count,
-        });
+    h.common().fresh(path, expected_key, n_nodes)?;
+    if let Some(e) = h
+        .common()
+        .partial(path, h.panel_begin, h.panel_end, h.panels)
+    {
+        return Err(e);
     }
     let (rows, cols, rp, cp) = r.lists();
     let inconsistent = |e: String| CacheError::Format {
@@ -734,69 +757,49 @@ pub fn load(path: &Path, expected_key: u64, n_nodes: usize) -> Result<Compliance
     Ok(c)
 }
 
+impl<R: Read> Shard for Reader<R> {
+    fn path(&self) -> &Path {
+        &self.path
+    }
+    fn common(&self) -> Common {
+        self.head.common()
+    }
+    fn run(&self) -> (u32, u32, u32) {
+        (self.head.panel_begin, self.head.panel_end, self.head.panels)
+    }
+    fn residual(&self) -> f64 {
+        self.head.residual
+    }
+    fn same_lists(&self, first: &Self) -> bool {
+        self.lists == first.lists
+    }
+    fn other_make(&self, first: &Self) -> Option<String> {
+        let (h, h0) = (&self.head, &first.head);
+        (h.opts != h0.opts
+            || h.panels != h0.panels
+            || h.free_dofs != h0.free_dofs
+            || h.l_rows != h0.l_rows)
+            .then(|| "made with other compression options or stiffness".into())
+    }
+}
+
 /// Joins compressed shards (any order) into one complete file at `out`, equal byte for byte to
-/// the unsharded precompute. Refuses parts of another mesh, selection or options, and a
-/// missing, repeated or overlapping part ([`CacheError::Mismatch`]); checks every panel's
-/// checksum and each part's file checksum while copying. Returns the merged file's header and length.
+/// the unsharded precompute (the shared merge checks say whether they belong together);
+/// checks every panel's checksum and each part's file checksum while copying. Returns the
+/// merged file's header and length.
 pub fn merge(parts: &[PathBuf], out: &Path) -> Result<(Header, u64), CacheError> {
     let mut opened = parts
         .iter()
         .map(|p| Reader::open(p))
         .collect::<Result<Vec<_>, _>>()?;
-    let Some(first) = opened.first() else {
-        return Err(CacheError::Mismatch {
-            path: out.to_path_buf(),
-            msg: "no parts given".into(),
-        });
-    };
-    let (h0, lists0) = (first.head.clone(), first.lists.clone());
-    for p in &opened {
-        let h = &p.head;
-        let bad = |msg: String| {
-            Err(CacheError::Mismatch {
-                path: p.path.clone(),
-                msg,
-            })
-        };
-        if h.key != h0.key || h.n_nodes != h0.n_nodes || p.lists != lists0 {
-            return bad(format!(
-                "made for another mesh, material, selection or tolerance than {} (key {:016x}, not {:016x})",
-                parts[0].display(),
-                h.key,
-                h0.key
-            ));
-        }
-        if h.opts != h0.opts
-            || h.panels != h0.panels
-            || h.free_dofs != h0.free_dofs
-            || h.l_rows != h0.l_rows
-        {
-            return bad("made with other compression options or stiffness".into());
-        }
-        if h.shard_count as usize != parts.len() {
-            return bad(format!(
-                "is part {} of {}, but {} parts were given",
-                h.shard_index,
-                h.shard_count,
-                parts.len()
-            ));
-        }
-    }
-    opened.sort_by_key(|p| p.head.shard_index);
-    let runs: Vec<PartRun<'_>> = opened
-        .iter()
-        .map(|p| PartRun {
-            path: &p.path,
-            shard_index: p.head.shard_index,
-            begin: p.head.panel_begin,
-            end: p.head.panel_end,
-        })
-        .collect();
-    check_runs(&runs, h0.panels, "panels")?;
-    let residual = opened
-        .iter()
-        .map(|p| p.head.residual)
-        .fold(0.0f64, f64::max);
+    let residual = format::check_merge(
+        &mut opened,
+        parts,
+        out,
+        "panels",
+        "mesh, material, selection or tolerance",
+    )?;
+    let (h0, lists0) = (opened[0].head.clone(), opened[0].lists.clone());
     let head = Header {
         shard_index: 1,
         shard_count: 1,

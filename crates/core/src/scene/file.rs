@@ -1003,13 +1003,7 @@ fn cut_region(
 }
 
 /// The cache file name of an object: `NAME-KEY.tfc` (name made file-safe) in `dir`.
-pub fn cache_file(dir: &Path, name: &str, key: u64) -> PathBuf {
-    let safe: String = name
-        .chars()
-        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
-        .collect();
-    dir.join(format!("{safe}-{key:016x}.tfc"))
-}
+pub use crate::cache::file_in as cache_file;
 
 /// The compliance for `sel`, from the cache when valid; computed (and saved, if possible)
 /// otherwise. `near_from` (a live session with one finger): an `L` of at least that many f64

@@ -1,157 +1,24 @@
-//! A cache file for the precomputed compliance, so that the factorisation and solves run once.
+//! The dense cache format, version 3: `L` as it is, column batch by column batch, so that a
+//! file can be written from many threads at once, resumed after an interruption, and read back
+//! in ranges without holding it ([`load_near`]).
 //!
-//! Format (little-endian), version 3. A file holds the columns `col_begin..col_end` of L: all of
-//! them for a complete cache, one part of them for a shard (`touchfem precompute --shard I/N`).
-//! ```text
-//! magic        8 bytes  "TFEMCMP\0"
-//! version      u32      3
-//! precision    u32      8 (f64 values)
-//! n_nodes      u32
-//! rows         u32      R
-//! cols         u32      C
-//! batch        u32      columns per batch (compliance::BATCH_COLS)
-//! key          u64      xxh3 of mesh nodes + tets + material + regions (+ formulation unless standard, with the locking-free element's name) + fixed set + row/column selection
-//! shard        u32 ×2   index I (1-based) and count N; a complete file is 1 of 1
-//! col range    u32 ×2   col_begin, col_end (on the batch grid)
-//! free_dofs    u32
-//! l_rows       u32      R' ≤ R: the rows that hold L (the free ones, listed first); the
-//!                       clamped rows after them are zero and not stored
-//! residual     f64      max |K·x − e| over the checked columns
-//! lists        R u32 row nodes, C u32 column nodes (all of them, also in a shard)
-//! L            9·R'·(col_end − col_begin) f64 (layout of `compliance`, those columns only)
-//! batch sums   one u64 per batch of the range: xxh3 of that batch's L bytes
-//! checksum     u64      xxh3 of header + lists + batch sums
-//! ```
-//! A hierarchical compliance (`L` compressed to a tolerance) is stored in format version 4 with
-//! the same magic ([`hier`]); [`load`], [`save`], [`load_near`] and [`merge`] dispatch on the
-//! version. Version 3 is unchanged: with no tolerance `L` stays dense, bit for bit.
-//!
-//! Every file is self-describing (the key names the mesh, material and selection), so a merge of
-//! parts made for different meshes, materials or selections is refused ([`CacheError::Mismatch`]).
-//! A missing, stale (other key), truncated or corrupt (bad checksum) file is reported as a
-//! [`CacheError`] and [`load_or_compute`] recomputes and rewrites it; nothing stale is used.
-//! Files are written to a unique temporary name, synced, renamed, and the directory synced.
+//! Its layout is in the [cache module's](super) documentation.
+//! The fields up to the shard are [`format`](super::format)'s, shared with the compressed
+//! format. Files are written to a unique temporary name, synced, renamed, and the directory
+//! synced.
 
 use std::path::{Path, PathBuf};
 use xxhash_rust::xxh3::{xxh3_64, Xxh3};
 
-mod atomic;
-mod error;
-pub mod hier;
-mod runs;
-
-pub use atomic::write_atomic;
-pub(crate) use atomic::AtomicFile;
-use atomic::{sync_dir, unique_tmp};
-pub use error::CacheError;
-
-use crate::compliance::hmatrix::HOptions;
+use super::atomic::{sync_dir, unique_tmp};
+use super::error::CacheError;
+use super::format::{
+    self, range_inconsistency, u32_at, u64_at, Common, Shard, Source, BYTES_NAME, DENSE_VERSION,
+};
+use crate::compliance::{Compliance, BATCH_COLS};
 use crate::compliance::near::NearBlocks;
-use crate::compliance::{Compliance, Selection, BATCH_COLS};
-use crate::mesh::Mesh;
 
-const MAGIC: &[u8; 8] = hier::MAGIC;
-/// The dense cache format's version (the compressed one is [`hier::FORMAT_VERSION`]).
-pub(crate) const FORMAT_VERSION: u32 = 3;
 const HEADER: usize = 72;
-/// Version of what [`key`] hashes (not of the file layout, which the header's version names):
-/// scene hashes and recorded sessions include the key, so it changes only when the hashed
-/// content does.
-const KEY_VERSION: u32 = 1;
-
-/// What happened when loading through the cache.
-#[derive(Debug)]
-pub enum CacheOutcome {
-    /// The file was valid and used.
-    Hit,
-    /// The file could not be used (the reason), so L was recomputed and the file rewritten.
-    Recomputed(CacheError),
-    /// L was computed (the first error says why the file could not be used) but the file could
-    /// not be written (the second): the compliance is kept in memory and the session goes on.
-    NotSaved(CacheError, CacheError),
-}
-
-impl CacheOutcome {
-    /// A one-line note (`note: …`) or warning (`warning: …`) for the user; `None` on a hit.
-    pub fn message(&self) -> Option<String> {
-        match self {
-            CacheOutcome::Hit => None,
-            CacheOutcome::Recomputed(why) => Some(format!("note: compliance recomputed ({why})")),
-            CacheOutcome::NotSaved(_, e) => Some(format!(
-                "warning: the compliance cache could not be written ({e}); going on with the computed compliance"
-            )),
-        }
-    }
-}
-
-/// The hash that a cache file must match: mesh geometry and topology, material, regions (each
-/// one's group, material and tets), clamp set and the row/column selection.
-pub fn key(mesh: &Mesh, sel: &Selection) -> u64 {
-    let mut h = Xxh3::new();
-    h.update(&KEY_VERSION.to_le_bytes());
-    for p in &mesh.nodes {
-        for c in p.to_array() {
-            h.update(&c.to_bits().to_le_bytes());
-        }
-    }
-    for t in &mesh.tets {
-        for i in t {
-            h.update(&i.to_le_bytes());
-        }
-    }
-    h.update(&mesh.material.young_pa.to_bits().to_le_bytes());
-    h.update(&mesh.material.poisson.to_bits().to_le_bytes());
-    // Regions (none: nothing hashed, so keys without regions are those of before).
-    for r in &mesh.regions {
-        h.update(b"|region|");
-        h.update(r.group.as_bytes());
-        h.update(&r.material.young_pa.to_bits().to_le_bytes());
-        h.update(&r.material.poisson.to_bits().to_le_bytes());
-        for t in &r.tets {
-            h.update(&t.to_le_bytes());
-        }
-    }
-    // Only a non-standard formulation is hashed, so standard files keep their keys.
-    if mesh.formulation != crate::mesh::units::Formulation::Standard {
-        h.update(b"formulation:");
-        h.update(mesh.formulation.name().as_bytes());
-        // Which element the locking-free formulation is: a file made with another (the
-        // nodal average, or the MINI bubble before 2026-12-03's pressure projection) must
-        // not be reused.
-        if mesh.formulation == crate::mesh::units::Formulation::LockingFree {
-            h.update(b":");
-            h.update(
-                crate::fem::locking_free::Smoothing::CHOSEN
-                    .name()
-                    .as_bytes(),
-            );
-        }
-    }
-    for &f in &mesh.fixed {
-        h.update(&[f as u8]);
-    }
-    for set in [&sel.rows, &sel.cols] {
-        h.update(b"|");
-        for n in set.resolve(mesh) {
-            h.update(&n.to_le_bytes());
-        }
-    }
-    h.digest()
-}
-
-/// The key of a compressed (hierarchical) cache file: [`key`]'s content, a tag that keeps it
-/// from ever equalling the dense key, and every compression option (tolerance, admissibility,
-/// leaf and panel sizes), so that a file made with other options is stale.
-pub fn key_hier(mesh: &Mesh, sel: &Selection, opts: &HOptions) -> u64 {
-    let mut h = Xxh3::new();
-    h.update(b"touchfem hierarchical compliance|");
-    h.update(&key(mesh, sel).to_le_bytes());
-    h.update(&opts.tolerance.to_bits().to_le_bytes());
-    h.update(&opts.eta.to_bits().to_le_bytes());
-    h.update(&(opts.leaf_size as u64).to_le_bytes());
-    h.update(&(opts.panel_size as u64).to_le_bytes());
-    h.digest()
-}
 
 /// The header of a cache file or shard: what it was made for and which columns it holds.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -164,7 +31,7 @@ pub struct Header {
     pub cols: u32,
     /// Columns per batch.
     pub batch: u32,
-    /// Mesh + material + selection hash ([`key`]).
+    /// Mesh + material + selection hash ([`key`](super::key)).
     pub key: u64,
     /// Shard index, 1-based.
     pub shard_index: u32,
@@ -185,23 +52,46 @@ pub struct Header {
 impl Header {
     fn to_bytes(&self) -> [u8; HEADER] {
         let mut h = [0u8; HEADER];
-        h[..8].copy_from_slice(MAGIC);
+        self.common().put(&mut h, DENSE_VERSION);
         let mut put = |o: usize, v: u32| h[o..o + 4].copy_from_slice(&v.to_le_bytes());
-        put(8, FORMAT_VERSION);
-        put(12, 8);
-        put(16, self.n_nodes);
-        put(20, self.rows);
-        put(24, self.cols);
         put(28, self.batch);
-        put(40, self.shard_index);
-        put(44, self.shard_count);
         put(48, self.col_begin);
         put(52, self.col_end);
         put(56, self.free_dofs);
         put(60, self.l_rows);
-        h[32..40].copy_from_slice(&self.key.to_le_bytes());
         h[64..72].copy_from_slice(&self.residual_bits.to_le_bytes());
         h
+    }
+
+    /// The fields shared with the compressed format.
+    fn common(&self) -> Common {
+        Common {
+            n_nodes: self.n_nodes,
+            rows: self.rows,
+            cols: self.cols,
+            key: self.key,
+            shard_index: self.shard_index,
+            shard_count: self.shard_count,
+        }
+    }
+
+    /// Parses a header whose magic, version and precision are right (no size is checked).
+    fn parse(b: &[u8; HEADER]) -> Result<Header, String> {
+        let c = Common::read(b, DENSE_VERSION, "dense")?;
+        Ok(Header {
+            n_nodes: c.n_nodes,
+            rows: c.rows,
+            cols: c.cols,
+            batch: u32_at(b, 28),
+            key: c.key,
+            shard_index: c.shard_index,
+            shard_count: c.shard_count,
+            col_begin: u32_at(b, 48),
+            col_end: u32_at(b, 52),
+            free_dofs: u32_at(b, 56),
+            l_rows: u32_at(b, 60),
+            residual_bits: u64_at(b, 64),
+        })
     }
 
     fn held_batches(&self) -> usize {
@@ -236,24 +126,22 @@ impl Header {
     /// `0..=cols` on the batch grid, `l_rows ≤ rows`, the shard index in `1..=count`.
     fn inconsistency(&self) -> Option<String> {
         let grid = |c: u32| self.batch != 0 && (c.is_multiple_of(self.batch) || c == self.cols);
+        let common = self.common();
         if self.batch == 0 {
             Some("a batch of 0 columns".into())
-        } else if self.l_rows > self.rows {
-            Some(format!("{} rows of L, {} rows", self.l_rows, self.rows))
-        } else if self.col_begin > self.col_end || self.col_end > self.cols {
-            Some(format!(
-                "columns {}..{} of {}",
-                self.col_begin, self.col_end, self.cols
-            ))
+        } else if let Some(why) = common.rows_inconsistency(self.l_rows) {
+            Some(why)
+        } else if let Some(why) =
+            range_inconsistency(self.col_begin, self.col_end, self.cols, "columns")
+        {
+            Some(why)
         } else if !grid(self.col_begin) || !grid(self.col_end) {
             Some(format!(
                 "columns {}..{} are not on the grid of {}-column batches",
                 self.col_begin, self.col_end, self.batch
             ))
-        } else if self.shard_index == 0 || self.shard_index > self.shard_count {
-            Some(format!("part {} of {}", self.shard_index, self.shard_count))
         } else {
-            None
+            common.shard_inconsistency()
         }
     }
 
@@ -581,13 +469,9 @@ impl Drop for Writer {
     }
 }
 
-/// Writes a complete compliance to `path` (atomically: a unique temporary file, synced, then a
-/// rename and a sync of the directory): a dense one as version 3, a hierarchical one
-/// ([`Compliance::hier`]) as version 4 ([`hier`]).
+/// Writes a complete dense compliance to `path` as version 3 (atomically: a unique temporary
+/// file, synced, then a rename and a sync of the directory).
 pub fn save(path: &Path, c: &Compliance, key: u64, n_nodes: usize) -> Result<(), CacheError> {
-    if c.hier().is_some() {
-        return hier::save(path, c, key, n_nodes).map(|_| ());
-    }
     let nr = c.l_rows();
     let nc = c.cols().len();
     let head = Header {
@@ -612,17 +496,10 @@ pub fn save(path: &Path, c: &Compliance, key: u64, n_nodes: usize) -> Result<(),
     w.finish().map(|_| ())
 }
 
-fn u32_at(b: &[u8], o: usize) -> u32 {
-    u32::from_le_bytes(b[o..o + 4].try_into().expect("4 bytes"))
-}
-fn u64_at(b: &[u8], o: usize) -> u64 {
-    u64::from_le_bytes(b[o..o + 8].try_into().expect("8 bytes"))
-}
-
-/// An opened cache file or shard whose header, lists and checksum table were checked; the L
-/// values are read (and checked batch by batch) on demand.
-pub struct Part {
-    /// The file.
+/// An opened cache file or shard (or bytes in memory) whose header, lists and checksum table
+/// were checked; the L values are read (and checked batch by batch) on demand.
+pub struct Part<'a> {
+    /// The file (for bytes in memory, a name for the messages).
     pub path: PathBuf,
     /// Its header.
     pub head: Header,
@@ -631,30 +508,35 @@ pub struct Part {
     /// Column nodes.
     pub cols: Vec<u32>,
     sums: Vec<u64>,
-    file: std::fs::File,
+    src: Source<'a>,
 }
 
-impl Part {
+impl Part<'static> {
     /// Opens `path`: checks magic, version, precision, length and the checksum of header,
     /// lists and batch sums.
-    pub fn open(path: &Path) -> Result<Part, CacheError> {
-        use std::io::Read;
-        use std::os::unix::fs::FileExt;
+    pub fn open(path: &Path) -> Result<Part<'static>, CacheError> {
+        let file = std::fs::File::open(path).map_err(|source| CacheError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Part::read(path, Source::File(file))
+    }
+}
+
+impl<'a> Part<'a> {
+    /// As [`Part::open`], over a whole file's bytes in memory.
+    pub fn from_bytes(bytes: &'a [u8]) -> Result<Part<'a>, CacheError> {
+        Part::read(Path::new(BYTES_NAME), Source::Bytes(bytes))
+    }
+
+    fn read(path: &Path, src: Source<'a>) -> Result<Part<'a>, CacheError> {
         let p = || path.to_path_buf();
         let io = |source| CacheError::Io { path: p(), source };
-        let mut file = std::fs::File::open(path).map_err(io)?;
-        let len = file.metadata().map_err(io)?.len();
+        let len = src.len().map_err(io)?;
         let mut hb = [0u8; HEADER];
-        let got = (&mut file).take(HEADER as u64).read(&mut hb).map_err(io)?;
-        let mut got = got;
-        while got < HEADER {
-            let n = file.read(&mut hb[got..]).map_err(io)?;
-            if n == 0 {
-                break;
-            }
-            got += n;
-        }
-        if got >= 8 && &hb[..8] != MAGIC {
+        let got = len.min(HEADER as u64) as usize;
+        src.read_exact_at(&mut hb[..got], 0).map_err(io)?;
+        if got >= 8 && &hb[..8] != format::MAGIC {
             return Err(CacheError::Format {
                 path: p(),
                 msg: "not a touchfem compliance cache".into(),
@@ -667,33 +549,7 @@ impl Part {
                 expected: HEADER,
             });
         }
-        let version = u32_at(&hb, 8);
-        if version != FORMAT_VERSION {
-            return Err(CacheError::Format {
-                path: p(),
-                msg: format!("format version {version}, expected {FORMAT_VERSION} (dense)"),
-            });
-        }
-        if u32_at(&hb, 12) != 8 {
-            return Err(CacheError::Format {
-                path: p(),
-                msg: format!("precision {} bytes, expected 8", u32_at(&hb, 12)),
-            });
-        }
-        let head = Header {
-            n_nodes: u32_at(&hb, 16),
-            rows: u32_at(&hb, 20),
-            cols: u32_at(&hb, 24),
-            batch: u32_at(&hb, 28),
-            key: u64_at(&hb, 32),
-            shard_index: u32_at(&hb, 40),
-            shard_count: u32_at(&hb, 44),
-            col_begin: u32_at(&hb, 48),
-            col_end: u32_at(&hb, 52),
-            free_dofs: u32_at(&hb, 56),
-            l_rows: u32_at(&hb, 60),
-            residual_bits: u64_at(&hb, 64),
-        };
+        let head = Header::parse(&hb).map_err(|msg| CacheError::Format { path: p(), msg })?;
         // Every size is checked, without overflow, and bounded by the real length before
         // anything is allocated: a crafted header cannot ask for more memory than the file.
         if let Some(why) = head.inconsistency() {
@@ -720,10 +576,10 @@ impl Part {
             });
         }
         let mut lists = vec![0u8; head.lists_len()];
-        file.read_exact_at(&mut lists, HEADER as u64).map_err(io)?;
+        src.read_exact_at(&mut lists, HEADER as u64).map_err(io)?;
         let nb = head.held_batches();
         let mut table = vec![0u8; 8 * nb + 8];
-        file.read_exact_at(&mut table, expected - 8 * nb as u64 - 8)
+        src.read_exact_at(&mut table, expected - 8 * nb as u64 - 8)
             .map_err(io)?;
         let mut h = Xxh3::new();
         h.update(&hb);
@@ -747,13 +603,12 @@ impl Part {
             rows,
             cols,
             sums,
-            file,
+            src,
         })
     }
 
     /// Reads held batch `i` into `out` (resized to its length) and checks its checksum.
     pub(crate) fn read_batch(&self, i: usize, out: &mut Vec<f64>) -> Result<(), CacheError> {
-        use std::os::unix::fs::FileExt;
         let h = &self.head;
         let first = h.col_begin as usize + i * h.batch as usize;
         let ncols = (h.col_end as usize - first).min(h.batch as usize);
@@ -762,7 +617,7 @@ impl Part {
         out.resize(n, 0.0);
         let off = h.batch_offset(i);
         let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut out[..]);
-        self.file
+        self.src
             .read_exact_at(bytes, off)
             .map_err(|source| CacheError::Io {
                 path: self.path.clone(),
@@ -787,7 +642,7 @@ impl Part {
 /// module's column-major layout, the file's own row and column order) when the GPU copy is
 /// built. Its checksums were verified when it was loaded ([`load_near`]).
 pub(crate) struct FileL {
-    part: Part,
+    part: Part<'static>,
     max_abs_f32: f32,
 }
 
@@ -814,7 +669,6 @@ impl FileL {
 
     /// Entries `range`, rounded to f32.
     pub fn read_f32(&self, range: std::ops::Range<usize>) -> Result<Vec<f32>, CacheError> {
-        use std::os::unix::fs::FileExt;
         if range.end > self.len() || range.start > range.end {
             return Err(CacheError::Format {
                 path: self.part.path.clone(),
@@ -829,7 +683,7 @@ impl FileL {
         while at < range.end {
             let n = (range.end - at).min(buf.len());
             self.part
-                .file
+                .src
                 .read_exact_at(
                     bytemuck::cast_slice_mut(&mut buf[..n]),
                     data + 8 * at as u64,
@@ -857,26 +711,12 @@ impl crate::compliance::LSource for FileL {
     }
 }
 
-/// Loads a complete compliance from `path` (checked as [`load`]) without holding `L`: each
-/// batch is read, checked and dropped, keeping only the blocks of the near pairs of
-/// `triangles` ([`NearBlocks::pairs`]) for the haptic path; the deformer reads `L` from the
-/// file again ([`Compliance::stored_l`]).
-/// A compressed (version 4) file is loaded whole ([`hier::load`]): it is small.
-pub fn load_near(
-    path: &Path,
-    expected_key: u64,
-    n_nodes: usize,
-    triangles: &[[u32; 3]],
-) -> Result<Compliance, CacheError> {
-    if hier::is_compressed(path) {
-        return hier::load(path, expected_key, n_nodes);
-    }
-    load_near_part(Part::open(path)?, expected_key, n_nodes, triangles)
-}
-
-/// As [`load_near`], from a part already opened (and its header checked).
+/// Loads a complete dense compliance from a part opened from its file (checked as [`load`])
+/// without holding `L`: each batch is read, checked and dropped, keeping only the blocks of
+/// the near pairs of `triangles` ([`NearBlocks::pairs`]) for the haptic path; the deformer
+/// reads `L` from the file again ([`Compliance::stored_l`]).
 pub(crate) fn load_near_part(
-    part: Part,
+    part: Part<'static>,
     expected_key: u64,
     n_nodes: usize,
     triangles: &[[u32; 3]],
@@ -939,33 +779,24 @@ pub(crate) fn load_near_part(
 }
 
 /// A stale (other key or node count) or partial (a shard) file is an error.
-fn check_complete(part: &Part, expected_key: u64, n_nodes: usize) -> Result<(), CacheError> {
+fn check_complete(part: &Part<'_>, expected_key: u64, n_nodes: usize) -> Result<(), CacheError> {
     let h = &part.head;
-    if h.key != expected_key || h.n_nodes as usize != n_nodes {
-        return Err(CacheError::Stale {
-            path: part.path.clone(),
-        });
+    h.common().fresh(&part.path, expected_key, n_nodes)?;
+    match h
+        .common()
+        .partial(&part.path, h.col_begin, h.col_end, h.cols)
+    {
+        Some(e) => Err(e),
+        None => Ok(()),
     }
-    if h.shard_count != 1 || h.col_begin != 0 || h.col_end != h.cols {
-        return Err(CacheError::Partial {
-            path: part.path.clone(),
-            index: h.shard_index,
-            count: h.shard_count,
-        });
-    }
-    Ok(())
 }
 
-/// Reads a complete compliance from `path`, checking magic, version, precision, key, length,
-/// checksums and that it is not a shard. Streams L into memory batch by batch (no second copy
-/// of the file). A compressed (version 4) file gives a hierarchical compliance
-/// ([`hier::load`]).
-pub fn load(path: &Path, expected_key: u64, n_nodes: usize) -> Result<Compliance, CacheError> {
-    if hier::is_compressed(path) {
-        return hier::load(path, expected_key, n_nodes);
-    }
-    let part = Part::open(path)?;
+/// Reads a complete dense compliance from a part opened from a file ([`Part::open`]) or from
+/// bytes ([`Part::from_bytes`]), checking the key, that it is not a shard, and every batch's
+/// checksum. Streams L into memory batch by batch (no second copy of the file).
+pub fn load(part: Part<'_>, expected_key: u64, n_nodes: usize) -> Result<Compliance, CacheError> {
     check_complete(&part, expected_key, n_nodes)?;
+    let path = part.path.as_path();
     let h = &part.head;
     let nr = h.l_rows as usize;
     let nc = h.cols as usize;
@@ -990,96 +821,47 @@ pub fn load(path: &Path, expected_key: u64, n_nodes: usize) -> Result<Compliance
     Ok(c)
 }
 
-/// What a merge wrote.
-#[derive(Clone, Debug)]
-pub struct MergeInfo {
-    /// Displayed nodes.
-    pub rows: usize,
-    /// Touchable nodes.
-    pub cols: usize,
-    /// Bytes of the merged file.
-    pub bytes: u64,
-    /// The compression tolerance of compressed (version 4) parts; `None` for dense ones.
-    pub tolerance: Option<f64>,
+impl Shard for Part<'_> {
+    fn path(&self) -> &Path {
+        &self.path
+    }
+    fn common(&self) -> Common {
+        self.head.common()
+    }
+    fn run(&self) -> (u32, u32, u32) {
+        (self.head.col_begin, self.head.col_end, self.head.cols)
+    }
+    fn residual(&self) -> f64 {
+        f64::from_bits(self.head.residual_bits)
+    }
+    fn same_lists(&self, first: &Self) -> bool {
+        self.rows == first.rows && self.cols == first.cols
+    }
+    fn other_make(&self, first: &Self) -> Option<String> {
+        let (h, h0) = (&self.head, &first.head);
+        (h.batch != h0.batch || h.free_dofs != h0.free_dofs || h.l_rows != h0.l_rows)
+            .then(|| "made with another batch size or stiffness".into())
+    }
 }
 
-/// Joins the shards `parts` (any order) into one complete file at `out`, equal byte for byte to
-/// the unsharded precompute. Refuses parts made for another mesh, material or selection, and a
-/// missing, repeated or overlapping part ([`CacheError::Mismatch`]); checks every batch's
-/// checksum while copying. Compressed (version 4) parts are merged by [`hier::merge`].
-pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeInfo, CacheError> {
-    if parts.first().is_some_and(|p| hier::is_compressed(p)) {
-        let (h, bytes) = hier::merge(parts, out)?;
-        return Ok(MergeInfo {
-            rows: h.rows as usize,
-            cols: h.cols as usize,
-            bytes,
-            tolerance: Some(h.opts.tolerance),
-        });
-    }
+/// Joins the dense shards `parts` (any order) into one complete file at `out`, equal byte for
+/// byte to the unsharded precompute ([`format::check_merge`] checks that they belong
+/// together); checks every batch's checksum while copying. Returns the merged file's header
+/// and length.
+pub fn merge(parts: &[PathBuf], out: &Path) -> Result<(Header, u64), CacheError> {
     let mut opened = parts
         .iter()
         .map(|p| Part::open(p))
         .collect::<Result<Vec<_>, _>>()?;
-    let Some(first) = opened.first() else {
-        return Err(CacheError::Mismatch {
-            path: out.to_path_buf(),
-            msg: "no parts given".into(),
-        });
-    };
-    let (h0, rows0, cols0) = (first.head.clone(), first.rows.clone(), first.cols.clone());
-    for p in &opened {
-        let h = &p.head;
-        let bad = |msg: String| {
-            Err(CacheError::Mismatch {
-                path: p.path.clone(),
-                msg,
-            })
-        };
-        if h.key != h0.key || h.n_nodes != h0.n_nodes || p.rows != rows0 || p.cols != cols0 {
-            return bad(format!(
-                "made for another mesh, material or selection than {} (key {:016x}, not {:016x})",
-                parts[0].display(),
-                h.key,
-                h0.key
-            ));
-        }
-        if h.batch != h0.batch || h.free_dofs != h0.free_dofs || h.l_rows != h0.l_rows {
-            return bad("made with another batch size or stiffness".into());
-        }
-    }
-    for p in &opened {
-        let h = &p.head;
-        let bad = |msg: String| {
-            Err(CacheError::Mismatch {
-                path: p.path.clone(),
-                msg,
-            })
-        };
-        if h.shard_count as usize != parts.len() {
-            return bad(format!(
-                "is part {} of {}, but {} parts were given",
-                h.shard_index,
-                h.shard_count,
-                parts.len()
-            ));
-        }
-    }
-    opened.sort_by_key(|p| p.head.shard_index);
-    let runs: Vec<runs::PartRun<'_>> = opened
-        .iter()
-        .map(|p| runs::PartRun {
-            path: &p.path,
-            shard_index: p.head.shard_index,
-            begin: p.head.col_begin,
-            end: p.head.col_end,
-        })
-        .collect();
-    runs::check_runs(&runs, h0.cols, "columns")?;
-    let residual = opened
-        .iter()
-        .map(|p| f64::from_bits(p.head.residual_bits))
-        .fold(0.0f64, f64::max);
+    let residual = format::check_merge(
+        &mut opened,
+        parts,
+        out,
+        "columns",
+        "mesh, material or selection",
+    )?;
+    let first = &opened[0];
+    let (h0, rows0, cols0) = (first.head.clone(), &first.rows, &first.cols);
     let head = Header {
         shard_index: 1,
         shard_count: 1,
@@ -1088,7 +870,7 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeInfo, CacheError> {
         residual_bits: residual.to_bits(),
         ..h0
     };
-    let w = Writer::create(out, head, &rows0, &cols0)?;
+    let w = Writer::create(out, head.clone(), rows0, cols0)?;
     let mut buf = Vec::new();
     let mut b = 0;
     for p in &opened {
@@ -1099,62 +881,10 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeInfo, CacheError> {
         }
     }
     let bytes = w.finish()?;
-    Ok(MergeInfo {
-        rows: rows0.len(),
-        cols: cols0.len(),
-        bytes,
-        tolerance: None,
-    })
+    Ok((head, bytes))
 }
 
 /// The batch range of shard `index` (1-based) of `count` over `batches` batches.
 pub(crate) fn shard_batches(batches: usize, index: usize, count: usize) -> std::ops::Range<usize> {
     (batches * (index - 1) / count)..(batches * index / count)
-}
-
-/// Loads the compliance from `path` if it is valid for this mesh and selection; otherwise
-/// computes it and (re)writes the file. Never uses a stale, truncated or corrupt file; a file
-/// that cannot be written never throws the computed compliance away
-/// ([`CacheOutcome::NotSaved`]).
-pub fn load_or_compute(
-    path: &Path,
-    mesh: &Mesh,
-    sel: &Selection,
-) -> Result<(Compliance, CacheOutcome), crate::Error> {
-    load_or_compute_with(path, mesh, sel, None)
-}
-
-/// As [`load_or_compute`]; with `compression`, `L` is stored hierarchically to its tolerance:
-/// a compressed (version 4) file with [`key_hier`]'s key is loaded, or the compliance is
-/// computed with [`Compliance::compute_hier`] and saved as one. `None`: the dense cache.
-pub fn load_or_compute_with(
-    path: &Path,
-    mesh: &Mesh,
-    sel: &Selection,
-    compression: Option<&HOptions>,
-) -> Result<(Compliance, CacheOutcome), crate::Error> {
-    if let Some(opts) = compression {
-        let k = key_hier(mesh, sel, opts);
-        return match load(path, k, mesh.nodes.len()) {
-            Ok(c) => Ok((c, CacheOutcome::Hit)),
-            Err(why) => {
-                let c = Compliance::compute_hier(mesh, sel, opts, &mut |_, _| {})?;
-                match save(path, &c, k, mesh.nodes.len()) {
-                    Ok(()) => Ok((c, CacheOutcome::Recomputed(why))),
-                    Err(e) => Ok((c, CacheOutcome::NotSaved(why, e))),
-                }
-            }
-        };
-    }
-    let k = key(mesh, sel);
-    match load(path, k, mesh.nodes.len()) {
-        Ok(c) => Ok((c, CacheOutcome::Hit)),
-        Err(why) => {
-            let c = Compliance::compute(mesh, sel)?;
-            match save(path, &c, k, mesh.nodes.len()) {
-                Ok(()) => Ok((c, CacheOutcome::Recomputed(why))),
-                Err(e) => Ok((c, CacheOutcome::NotSaved(why, e))),
-            }
-        }
-    }
 }
