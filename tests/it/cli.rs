@@ -459,11 +459,54 @@ fn bad_view_environment_variables_name_the_variable() {
     }
 }
 
-/// The examples (built by `cargo test --all-targets` or `cargo build --examples`) print their
-/// usage and exit 2 on missing or bad arguments instead of panicking on `args[1]`.
+/// The examples that run without arguments, each with what it does then: they are run with a
+/// bad option instead. Every other file in `examples/` needs its input and is run bare.
+const EXAMPLES_RUN_BARE: &[(&str, &str)] = &[
+    (
+        "embed",
+        "renders to target/embed.png (README: `cargo run --example embed`)",
+    ),
+    ("udp_device", "presses through 127.0.0.1:47800 for 3 s"),
+];
+
+/// The example names: every `examples/NAME.rs` and `examples/NAME/main.rs`.
+fn example_names() -> Vec<String> {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
+    let mut names: Vec<String> = std::fs::read_dir(&dir)
+        .expect("examples/")
+        .filter_map(|e| {
+            let p = e.ok()?.path();
+            if p.is_dir() {
+                p.join("main.rs")
+                    .exists()
+                    .then(|| p.file_name()?.to_str().map(String::from))?
+            } else if p.extension()? == "rs" {
+                p.file_stem()?.to_str().map(String::from)
+            } else {
+                None
+            }
+        })
+        .collect();
+    names.sort();
+    names
+}
+
+/// Every example (found in `examples/`, so a new one cannot escape) prints its usage and exits 2
+/// on missing or bad arguments instead of panicking on `args[1]`: run bare (or, for those that
+/// run without arguments, [`EXAMPLES_RUN_BARE`], with an unknown option), and with a few bad
+/// arguments. The binaries are built by `cargo test --all-targets` or `cargo build --examples`;
+/// one not built is skipped with a note.
 #[test]
 fn examples_print_their_usage_on_missing_arguments() {
-    // target/<profile>/deps/cli-HASH → target/<profile>/examples/NAME
+    let names = example_names();
+    for (name, _) in EXAMPLES_RUN_BARE {
+        assert!(
+            names.iter().any(|n| n == name),
+            "{name} is not in examples/"
+        );
+    }
+    assert!(names.len() >= 7, "{names:?}");
+    // target/<profile>/deps/it-HASH → target/<profile>/examples/NAME
     let exe = std::env::current_exe().unwrap();
     let Some(examples) = exe
         .parent()
@@ -473,11 +516,23 @@ fn examples_print_their_usage_on_missing_arguments() {
         eprintln!("skipped: no examples directory next to {}", exe.display());
         return;
     };
-    let cases: &[(&str, &[&str])] = &[
-        ("frame_cost", &[]),
-        ("frame_cost", &["cube", "axb"]),
+    let mut cases: Vec<(String, Vec<&str>)> = names
+        .iter()
+        .map(|n| {
+            let bare = !EXAMPLES_RUN_BARE.iter().any(|(b, _)| b == n);
+            (
+                n.clone(),
+                if bare {
+                    vec![]
+                } else {
+                    vec!["--no-such-option"]
+                },
+            )
+        })
+        .collect();
+    for (name, args) in [
+        ("frame_cost", &["cube", "axb"][..]),
         ("frame_cost", &["cube", "640x480", "extra"]),
-        ("precompute_phases", &[]),
         ("precompute_phases", &["cube", "furlong"]),
         ("precompute_phases", &["cube", "mm", "nonsense"]),
         ("precompute_phases", &["cube", "mm", "frontal", "0"]),
