@@ -14,6 +14,7 @@ use crate::units::{LengthUnit, Material};
 use crate::Error;
 
 pub mod file;
+mod schema;
 mod world;
 pub use file::{SceneSource, BUNDLED_SCENES};
 pub use world::{CutRegion, DeviceSpec, FingerSpec, HapticSettings, Object, World};
