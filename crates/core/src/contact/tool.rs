@@ -103,7 +103,7 @@ pub fn check_length(
     extent_m: f64,
     zero_ok: bool,
 ) -> Result<(), ContactError> {
-    if (zero_ok && length_m == 0.0) || !(length_m < MIN_LENGTH_FRACTION * extent_m) {
+    if (zero_ok && length_m == 0.0) || length_m >= MIN_LENGTH_FRACTION * extent_m {
         Ok(())
     } else {
         Err(ContactError::TooShort {
