@@ -13,7 +13,7 @@ use glam::DVec3;
 use std::path::{Path, PathBuf};
 use toml::Spanned;
 
-use super::schema::{toml_error, BallToml, FileToml, LimitsToml, TouchableToml};
+use super::schema::{line_of, toml_error, BallToml, FileToml, LimitsToml, TouchableToml};
 use super::world::{DeviceSpec, FingerSpec, HapticSettings, Object, World};
 use super::{load_mesh, Body, LoadOptions};
 use crate::compliance::{Compliance, NodeSet, Selection};
@@ -138,11 +138,6 @@ pub(crate) const MAX_KEYFRAME_SECONDS: f64 = 1e6;
 /// Whether every component of `v` is finite and at most [`MAX_COORDINATE`] in magnitude.
 fn coordinates_ok(v: &[f64]) -> bool {
     v.iter().all(|x| x.is_finite() && x.abs() <= MAX_COORDINATE)
-}
-
-/// The 1-based line of a byte offset in `text`.
-pub(super) fn line_of(text: &str, offset: usize) -> usize {
-    text[..offset.min(text.len())].matches('\n').count() + 1
 }
 
 fn unit_of(s: &str) -> Option<LengthUnit> {

@@ -269,11 +269,16 @@ pub(super) fn toml_error(label: &str, text: &str, e: &toml::de::Error) -> Error 
     Error::Body(match key {
         Some(k) if !message.contains(&format!("`{k}`")) => format!(
             "{label}: line {}, column {column}, key `{k}`: {message}",
-            super::file::line_of(text, start)
+            line_of(text, start)
         ),
         _ => format!(
             "{label}: line {}, column {column}: {message}",
-            super::file::line_of(text, start)
+            line_of(text, start)
         ),
     })
+}
+
+/// The 1-based line of a byte offset in `text`.
+pub(super) fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
 }
