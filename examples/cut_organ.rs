@@ -5,6 +5,8 @@
 //! cheap). Measurement for docs/measurements/2026-12-04-cutting.md.
 //!
 //! `cargo run --release --example cut_organ -- out/organ17k.msh [CX,CY,CZ] [RADIUS_MM] [TOUCH_MM] [RANK]`
+//!
+//! Missing or bad arguments: the usage on stderr, exit status 2.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -15,29 +17,61 @@ use touchfem::cut::Cut;
 use touchfem::mesh::units::LengthUnit;
 use touchfem::scene::{load_mesh, LoadOptions};
 
+const USAGE: &str = "usage: cut_organ MESH [CX,CY,CZ] [RADIUS_MM] [TOUCH_MM] [RANK]   \
+     (MESH: an organ mesh in mm, e.g. out/organ17k.msh from scripts/make_organ.py; \
+     defaults 0,0,60 15 40 160)";
+
+/// Prints `error: {msg}` and the usage to stderr and exits with status 2 (bad input).
+fn usage_error(msg: &str) -> ! {
+    eprintln!("error: {msg}");
+    eprintln!("{USAGE}");
+    std::process::exit(2)
+}
+
+/// A positive, finite number for argument `what`.
+fn positive(s: &str, what: &str) -> f64 {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => v,
+        _ => usage_error(&format!("{what} '{s}' is not a positive number")),
+    }
+}
+
 fn parse3(s: &str) -> DVec3 {
-    let v: Vec<f64> = s.split(',').map(|x| x.parse().expect("a number")).collect();
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .unwrap_or_default();
+    if v.len() != 3 || v.iter().any(|x| !x.is_finite()) {
+        usage_error(&format!("centre '{s}' is not CX,CY,CZ"));
+    }
     DVec3::new(v[0], v[1], v[2])
 }
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let path = args
-        .get(1)
-        .map(String::as_str)
-        .unwrap_or("out/organ17k.msh");
+    if args.len() < 2 || args.len() > 6 || args.iter().skip(1).any(|a| a.starts_with('-')) {
+        usage_error("expected MESH [CX,CY,CZ] [RADIUS_MM] [TOUCH_MM] [RANK]");
+    }
+    let path = args[1].as_str();
     let centre = args
         .get(2)
         .map_or(DVec3::new(0.0, 0.0, 60.0), |s| parse3(s))
         * 1e-3;
-    let radius = args.get(3).map_or(15.0, |s| s.parse().unwrap()) * 1e-3;
-    let touch = args.get(4).map_or(40.0, |s| s.parse().unwrap()) * 1e-3;
-    let fold_rank: usize = args.get(5).map_or(160, |s| s.parse().unwrap());
+    let radius = args.get(3).map_or(15.0, |s| positive(s, "RADIUS_MM")) * 1e-3;
+    let touch = args.get(4).map_or(40.0, |s| positive(s, "TOUCH_MM")) * 1e-3;
+    let fold_rank: usize = args.get(5).map_or(160, |s| match s.parse() {
+        Ok(r) if r > 0 => r,
+        _ => usage_error(&format!("RANK '{s}' is not a positive whole number")),
+    });
     let opts = LoadOptions {
         unit: Some(LengthUnit::Millimetre),
         ..Default::default()
     };
-    let (mesh, _) = load_mesh(path, &opts).expect("the organ mesh");
+    let (mesh, _) = load_mesh(path, &opts).unwrap_or_else(|e| {
+        eprintln!("error: {path}: {e}");
+        std::process::exit(2)
+    });
     // The cuttable ball: tets whose centroid is inside; touchable: its free nodes and the
     // free surface nodes within `touch` of the centre (what a scene would name).
     let ball: Vec<usize> = (0..mesh.tets.len())

@@ -6,6 +6,8 @@
 //! Measurement for docs/measurements/2026-12-04-hierarchical.md.
 //!
 //! `cargo run --release --example hier_organ -- out/organ46k.msh [EPS] [SAMPLE] [--no-dense]`
+//!
+//! Missing or bad arguments: the usage on stderr, exit status 2.
 
 use std::time::Instant;
 
@@ -14,20 +16,46 @@ use touchfem::compliance::{Compliance, Selection};
 use touchfem::mesh::units::LengthUnit;
 use touchfem::scene::{load_mesh, Body, LoadOptions};
 
+const USAGE: &str = "usage: hier_organ MESH [EPS] [SAMPLE] [--no-dense]   \
+     (MESH: an organ mesh in mm, e.g. out/organ46k.msh from scripts/make_organ.py; \
+     EPS in (0, 1), default 1e-3; SAMPLE columns checked, default 300)";
+
+/// Prints `error: {msg}` and the usage to stderr and exits with status 2 (bad input).
+fn usage_error(msg: &str) -> ! {
+    eprintln!("error: {msg}");
+    eprintln!("{USAGE}");
+    std::process::exit(2)
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let path = args
-        .get(1)
-        .map(String::as_str)
-        .unwrap_or("out/organ46k.msh");
-    let eps: f64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(1e-3);
-    let sample: usize = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(300);
     let dense = !args.iter().any(|a| a == "--no-dense");
+    let rest: Vec<&str> = args
+        .iter()
+        .skip(1)
+        .map(String::as_str)
+        .filter(|a| *a != "--no-dense")
+        .collect();
+    if rest.is_empty() || rest.len() > 3 || rest.iter().any(|a| a.starts_with('-')) {
+        usage_error("expected MESH [EPS] [SAMPLE] [--no-dense]");
+    }
+    let path = rest[0];
+    let eps: f64 = rest.get(1).map_or(1e-3, |s| match s.parse::<f64>() {
+        Ok(e) if e > 0.0 && e < 1.0 => e,
+        _ => usage_error(&format!("EPS '{s}' is not in (0, 1)")),
+    });
+    let sample: usize = rest.get(2).map_or(300, |s| match s.parse() {
+        Ok(n) if n > 0 => n,
+        _ => usage_error(&format!("SAMPLE '{s}' is not a positive whole number")),
+    });
     let opts = LoadOptions {
         unit: Some(LengthUnit::Millimetre),
         ..Default::default()
     };
-    let (mesh, _) = load_mesh(path, &opts).expect("the organ mesh");
+    let (mesh, _) = load_mesh(path, &opts).unwrap_or_else(|e| {
+        eprintln!("error: {path}: {e}");
+        std::process::exit(2)
+    });
     let (row, hc) =
         touchfem_lab::hmatrix_study::sampled_row(path, &mesh, eps, sample).expect("hierarchical");
     let h = hc.hier().expect("hierarchical");

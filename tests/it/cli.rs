@@ -459,11 +459,54 @@ fn bad_view_environment_variables_name_the_variable() {
     }
 }
 
-/// The examples (built by `cargo test --all-targets` or `cargo build --examples`) print their
-/// usage and exit 2 on missing or bad arguments instead of panicking on `args[1]`.
+/// The examples that run without arguments, each with what it does then: they are run with a
+/// bad option instead. Every other file in `examples/` needs its input and is run bare.
+const EXAMPLES_RUN_BARE: &[(&str, &str)] = &[
+    (
+        "embed",
+        "renders to target/embed.png (README: `cargo run --example embed`)",
+    ),
+    ("udp_device", "presses through 127.0.0.1:47800 for 3 s"),
+];
+
+/// The example names: every `examples/NAME.rs` and `examples/NAME/main.rs`.
+fn example_names() -> Vec<String> {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
+    let mut names: Vec<String> = std::fs::read_dir(&dir)
+        .expect("examples/")
+        .filter_map(|e| {
+            let p = e.ok()?.path();
+            if p.is_dir() {
+                p.join("main.rs")
+                    .exists()
+                    .then(|| p.file_name()?.to_str().map(String::from))?
+            } else if p.extension()? == "rs" {
+                p.file_stem()?.to_str().map(String::from)
+            } else {
+                None
+            }
+        })
+        .collect();
+    names.sort();
+    names
+}
+
+/// Every example (found in `examples/`, so a new one cannot escape) prints its usage and exits 2
+/// on missing or bad arguments instead of panicking on `args[1]`: run bare (or, for those that
+/// run without arguments, [`EXAMPLES_RUN_BARE`], with an unknown option), and with a few bad
+/// arguments. The binaries are built by `cargo test --all-targets` or `cargo build --examples`;
+/// one not built is skipped with a note.
 #[test]
 fn examples_print_their_usage_on_missing_arguments() {
-    // target/<profile>/deps/cli-HASH → target/<profile>/examples/NAME
+    let names = example_names();
+    for (name, _) in EXAMPLES_RUN_BARE {
+        assert!(
+            names.iter().any(|n| n == name),
+            "{name} is not in examples/"
+        );
+    }
+    assert!(names.len() >= 7, "{names:?}");
+    // target/<profile>/deps/it-HASH → target/<profile>/examples/NAME
     let exe = std::env::current_exe().unwrap();
     let Some(examples) = exe
         .parent()
@@ -473,19 +516,38 @@ fn examples_print_their_usage_on_missing_arguments() {
         eprintln!("skipped: no examples directory next to {}", exe.display());
         return;
     };
-    let cases: &[(&str, &[&str])] = &[
-        ("frame_cost", &[]),
-        ("frame_cost", &["cube", "axb"]),
+    let mut cases: Vec<(String, Vec<&str>)> = names
+        .iter()
+        .map(|n| {
+            let bare = !EXAMPLES_RUN_BARE.iter().any(|(b, _)| b == n);
+            (
+                n.clone(),
+                if bare {
+                    vec![]
+                } else {
+                    vec!["--no-such-option"]
+                },
+            )
+        })
+        .collect();
+    for (name, args) in [
+        ("frame_cost", &["cube", "axb"][..]),
         ("frame_cost", &["cube", "640x480", "extra"]),
-        ("precompute_phases", &[]),
         ("precompute_phases", &["cube", "furlong"]),
         ("precompute_phases", &["cube", "mm", "nonsense"]),
         ("precompute_phases", &["cube", "mm", "frontal", "0"]),
         ("embed", &["a.png", "b.png"]),
         ("embed", &["--help"]),
-    ];
+        ("cut_organ", &["cube", "1,2"]),
+        ("cut_organ", &["cube", "0,0,60", "-3"]),
+        ("hier_organ", &["cube", "2"]),
+        ("hier_organ", &["cube", "1e-3", "many"]),
+        ("locking_free_cost", &["--help"]),
+    ] {
+        cases.push((name.to_string(), args.to_vec()));
+    }
     let mut ran = 0;
-    for (name, args) in cases {
+    for (name, args) in &cases {
         let bin = examples.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
         if !bin.exists() {
             eprintln!(
@@ -494,7 +556,7 @@ fn examples_print_their_usage_on_missing_arguments() {
             );
             continue;
         }
-        let out = Command::new(&bin).args(*args).output().expect("runs");
+        let out = Command::new(&bin).args(args).output().expect("runs");
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{name} {args:?}: {err}");
         assert!(err.contains("usage"), "{name} {args:?}: {err}");
@@ -631,4 +693,130 @@ fn the_formulation_flag_selects_the_stiffness() {
         err.contains("--poisson") && err.contains("incompressible"),
         "{err}"
     );
+}
+
+/// What the help and the docs say follows the code: `demo --help` names every bundled scene
+/// (listed from `BUNDLED_SCENES`), as do the CLI reference and the commands guide; `serve
+/// --help` points to `docs/contracts.md`, which the repository has, restating each contract;
+/// `docs/README.md` names both cache formats and the session versions.
+#[test]
+fn help_and_docs_name_what_the_code_does() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let read = |p: &str| std::fs::read_to_string(root.join(p)).unwrap();
+    let names: Vec<&str> = touchfem::scene::BUNDLED_SCENES
+        .iter()
+        .map(|(n, _)| *n)
+        .collect();
+    assert!(names.len() >= 6, "{names:?}");
+    let (code, help, err) = touchfem(&["demo", "--help"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(help.contains(&names.join(", ")), "{help}");
+    let cli = read("docs/reference/cli.md");
+    let listed = names
+        .iter()
+        .map(|n| format!("`{n}`"))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let cli_flat = cli.replace('\n', " ");
+    assert!(cli_flat.contains(&listed), "cli.md lacks {listed}");
+    let guide = read("docs/guide/commands.md");
+    assert!(
+        guide.contains(&format!("every bundled scene: {}", names.join(", "))),
+        "commands.md lacks {names:?}"
+    );
+    let (code, help, err) = touchfem(&["serve", "--help"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        help.contains("docs/contracts.md") && !help.contains("CONTRACTS.md"),
+        "{help}"
+    );
+    let contracts = read("docs/contracts.md");
+    for section in [
+        "## Command line",
+        "## Scene files (TOML)",
+        "## The Haply Inverse3 (planned, not yet implemented)",
+        "## The web page (planned, not yet implemented)",
+        "## UDP device protocol, version 1",
+        "## Errors and exit status",
+        "## Environment",
+    ] {
+        assert!(contracts.contains(section), "contracts.md lacks {section}");
+    }
+    assert!(contracts.contains("(2 for bad input)"));
+    let readme = read("docs/README.md");
+    for want in ["format 3", "format 4", "version 2, and 3", "contracts.md"] {
+        assert!(readme.contains(want), "docs/README.md lacks {want}");
+    }
+}
+
+/// `demo` writes its report (the per-scene haptic line, the objects' rows, where the JSON
+/// went) to stdout, as every other command writes its result; stderr keeps warnings only.
+#[test]
+fn demo_writes_its_report_to_stdout() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args(["demo", "fig1", "--seconds", "0.2", "--out"])
+        .arg(dir.path())
+        .env("TOUCHFEM_CACHE_DIR", "")
+        .env(
+            "WGPU_BACKEND",
+            std::env::var("WGPU_BACKEND").unwrap_or("vulkan".into()),
+        )
+        .output()
+        .unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    assert!(
+        stdout.contains("fig1   haptic ")
+            && stdout.contains(" nodes ")
+            && stdout.contains("report: "),
+        "stdout: {stdout}"
+    );
+    assert!(
+        !stderr.contains("report:") && !stderr.contains(" haptic "),
+        "stderr: {stderr}"
+    );
+    assert!(dir.path().join("report.json").exists());
+}
+
+/// The window's status overlay: a notice (the `B` key on a scene with nothing to cut) reads
+/// `warning: …` and, at 800 pixels, ends before the legend in the other corner instead of
+/// running under it; a narrow window cuts it with `…`.
+#[test]
+fn the_window_warning_is_prefixed_and_clears_the_legend() {
+    use touchfem::render::{legend_image, LegendSpec};
+    use touchfem_app::window::status_overlay;
+    let [w, h] = [800u32, 600u32];
+    let legend = legend_image(&LegendSpec {
+        bar_px: LegendSpec::bar_for(h),
+        displacement: Some((0.01, 0.002)),
+        arrow_m_per_n: Some(0.01),
+        force_n: None,
+    })
+    .unwrap();
+    let legend_w = legend.width();
+    assert!(legend_w > 50 && legend_w < 400, "{legend_w}");
+    let status = "|F|  0.00 N  haptic 1000 Hz  frame  16.7 ms ( 60 fps)";
+    let notice = "blade: no object in this scene is cuttable";
+    let shown = status_overlay(status, Some(notice), w, legend_w);
+    assert_eq!(shown, format!("warning: {notice}"));
+    // DejaVu Sans Mono at 15 px: 9.03 px a character, a 4 px pad each side, 8 px from the
+    // left edge; the legend 8 px from the right.
+    let right = 8.0 + 8.0 + shown.chars().count() as f64 * 15.0 * 1233.0 / 2048.0;
+    assert!(
+        right + 8.0 <= (w - 8 - legend_w) as f64,
+        "{right} vs legend at {}",
+        w - 8 - legend_w
+    );
+    assert_eq!(status_overlay(status, None, w, legend_w), status);
+    let narrow = status_overlay(status, Some(notice), 480, legend_w);
+    assert!(
+        narrow.starts_with("warning: ") && narrow.ends_with('…'),
+        "{narrow}"
+    );
+    let right = 16.0 + narrow.chars().count() as f64 * 15.0 * 1233.0 / 2048.0;
+    assert!(right + 8.0 <= (480 - 8 - legend_w) as f64, "{narrow}");
 }

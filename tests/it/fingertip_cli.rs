@@ -386,3 +386,201 @@ fn poke_without_the_new_flags_is_unchanged() {
         "{out}"
     );
 }
+
+/// One rule for every length a user gives (`Tool::check_fits` and `check_length`): a tool's
+/// size (`--sphere`, `--depth`, a scene's `tool`) and a finger's motion (`--push`, `--slide`,
+/// unless zero) is at least 1e-6 of the object's size, and a sphere is no larger than the
+/// object. The same typed error, exit 2, whether the value is 1e-300 or underflows to 0 m
+/// converting from mm; a huge value's message stays short.
+#[test]
+fn one_rule_for_every_length_a_user_gives() {
+    const CUT: [&str; 2] = ["--cut", "5,15,30:25,15,30"];
+    let poke = |extra: &[&str]| {
+        let mut a = vec!["poke", "cube", "--at", "15,15,30", "--push", "0,0,-1"];
+        a.extend_from_slice(extra);
+        a.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    let too_short: Vec<(Vec<String>, &str)> = vec![
+        (
+            poke(&[CUT[0], CUT[1], "--depth", "1e-300"]),
+            "--depth 1e-300: blade depth",
+        ),
+        (
+            poke(&[CUT[0], CUT[1], "--depth", "5e-324"]),
+            "--depth 5e-324: blade depth 0 m",
+        ),
+        (
+            poke(&["--sphere", "5e-324"]),
+            "--sphere 5e-324: sphere radius 0 m",
+        ),
+        (
+            poke(&["--sphere", "1e-300"]),
+            "--sphere 1e-300: sphere radius 1e-303 m",
+        ),
+        (
+            ["info", "cube", "--sphere", "5e-324"]
+                .map(String::from)
+                .to_vec(),
+            "--sphere 5e-324: sphere radius 0 m",
+        ),
+        (
+            ["poke", "cube", "--at", "15,15,30", "--push", "0,0,-1e-300"]
+                .map(String::from)
+                .to_vec(),
+            "--push 0,0,-1e-300: push 1e-303 m",
+        ),
+        (
+            poke(&["--slide", "5e-324,0,0"]),
+            "--slide 5e-324,0,0: slide 0 m",
+        ),
+        (
+            ["view", "cube", "--sphere", "5e-324"]
+                .map(String::from)
+                .to_vec(),
+            "--sphere 5e-324: sphere radius 0 m",
+        ),
+    ];
+    for (args, want) in &too_short {
+        let a: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (code, _, err) = touchfem(&a);
+        assert_eq!(code, 2, "{a:?}: {err}");
+        assert!(
+            err.starts_with("error: ") && err.lines().count() == 1,
+            "{err}"
+        );
+        assert!(
+            err.contains(want)
+                && err.contains(
+                    "is shorter than 5.196e-8 m, the smallest length touchfem resolves on this \
+                     object (1e-6 of its 0.05196 m across)"
+                ),
+            "{a:?}: {err}"
+        );
+    }
+    // 1 µm is a length the cube resolves, and a motion of zero is allowed.
+    let (code, out, err) = touchfem(
+        &poke(&[CUT[0], CUT[1], "--depth", "1e-3", "--json"])
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    assert_eq!(code, 0, "{err}");
+    let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    assert!(v["tets_removed"].as_u64().is_some(), "{v}");
+    assert_eq!(v["blade"]["depth_m"].as_f64(), Some(1e-6));
+    let v = json(&["poke", "cube", "--at", "15,15,30", "--push", "0,0,0"]);
+    assert_eq!(vec3(&v["force"]), [0.0; 3]);
+    // Too large: short messages, whatever the number (no 309-digit radius).
+    for (args, want) in [
+        (
+            &["info", "cube", "--sphere", "1e308"][..],
+            "sphere radius 1e308 must be a positive, finite length of at most 1e9",
+        ),
+        (
+            &[
+                "poke", "cube", "--at", "15,15,30", "--push", "0,0,-1", "--sphere", "1e9",
+            ],
+            "--sphere 1e9: sphere radius 1e6 m is larger than the object (0.05196 m across)",
+        ),
+        (
+            &[
+                "poke", "cube", "--at", "15,15,30", "--push", "0,0,-1", "--sphere", "1e308",
+            ],
+            "sphere radius 1e308 must be a positive, finite length of at most 1e9",
+        ),
+        (
+            &[
+                "poke", "cube", "--at", "15,15,30", "--push", "0,0,-1", "--young", "1e300",
+            ],
+            "1e300 is outside (0, 10000000000000]",
+        ),
+    ] {
+        let (code, _, err) = touchfem(args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.contains(want), "{args:?}: {err}");
+        assert!(err.len() < 300, "{args:?}: {} bytes: {err}", err.len());
+    }
+}
+
+/// `view` checks `--sphere` as `poke`, `info` and a scene's `tool` do (it used to start with
+/// `view cube --sphere 1e9` and flatten a face), before any window opens; on a mesh the
+/// pointer becomes the sphere.
+#[test]
+fn view_checks_its_sphere_as_every_command_does() {
+    for (scene, r, want) in [
+        (
+            "cube",
+            "1e9",
+            "--sphere 1e9: sphere radius 1e6 m is larger than the object (0.05196 m across)",
+        ),
+        (
+            "cube",
+            "52",
+            "--sphere 52: sphere radius 0.052 m is larger than the object (0.05196 m across)",
+        ),
+        (
+            "cube",
+            "1e-300",
+            "--sphere 1e-300: sphere radius 1e-303 m is shorter than 5.196e-8 m",
+        ),
+        (
+            "palpate",
+            "1e9",
+            "--sphere 1e9: sphere radius 1e6 m is larger than the object (0.07483 m across)",
+        ),
+        (
+            "palpate",
+            "1e-300",
+            "--sphere 1e-300: sphere radius 1e-303 m is shorter than 7.483e-8 m",
+        ),
+    ] {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
+            .args(["view", scene, "--sphere", r])
+            .env("TOUCHFEM_CACHE_DIR", "")
+            .env("TOUCHFEM_VIEW_SECONDS", "0")
+            .env_remove("DISPLAY")
+            .env_remove("WAYLAND_DISPLAY")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{scene} {r}: {err}");
+        assert!(err.contains(want), "{scene} {r}: {err}");
+    }
+    use touchfem_app::window::cli::load_with_pointer_as;
+    let w = load_with_pointer_as("cube", None, Some(8.0)).unwrap();
+    assert_eq!(w.fingers.len(), 1);
+    assert_eq!(w.fingers[0].tool.radius(), Some(0.008));
+}
+
+/// The window's `|F|` ([`touchfem_app::window::force_readout`]) reads the force of a scripted
+/// fingertip that presses, not only the pointer's: `view palpate` read 0.00 N while its
+/// fingertip visibly pressed, because the readout was the pointer finger's, which touched
+/// nothing. Here the palpate fingertip is driven to its press (3 mm into the top face) with
+/// the pointer lifted.
+#[test]
+fn the_force_readout_is_the_pressing_fingers() {
+    use glam::DVec3;
+    use touchfem::runtime::{HapticWorld, WorldSample};
+    use touchfem_app::window::cli::load_with_pointer;
+    let w = load_with_pointer("palpate", None).unwrap();
+    assert_eq!(w.fingers.len(), 2, "the fingertip and the pointer");
+    let mut hw = HapticWorld::new(&w);
+    let mut sample = WorldSample::default();
+    let mut f = [DVec3::ZERO; 2];
+    // The script's first second: from 34 mm down to 25 mm (its centre), 8 mm radius.
+    for k in 0..=1000 {
+        let z = 34.0 - 9.0 * (k as f64 / 1000.0);
+        let tip = DVec3::new(-24.0, 0.0, z) * 1e-3;
+        hw.step(&[tip, DVec3::NAN], &mut f, &mut sample);
+    }
+    let tip = sample.fingers()[0].force.length();
+    let pointer = sample.fingers()[1].force.length();
+    assert!(tip > 0.05 && tip < 8.5, "the fingertip presses: {tip} N");
+    assert_eq!(pointer, 0.0);
+    assert_eq!(touchfem_app::window::force_readout(&sample), tip);
+    // Nothing touching: 0.
+    assert_eq!(
+        touchfem_app::window::force_readout(&WorldSample::default()),
+        0.0
+    );
+}

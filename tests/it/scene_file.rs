@@ -678,3 +678,160 @@ fn the_compression_key_stores_l_hierarchically() {
         "the scene hash must see the compression"
     );
 }
+
+/// A value of the wrong form names the forms the key accepts (not serde's "untagged enum
+/// TouchableToml" or "struct FrictionToml"), and a table is a table only: serde's derived
+/// structs also take an array of their fields (`friction = [0.6, 0.4]`), a form the schema
+/// does not document, so it is refused with the documented one.
+#[test]
+fn a_value_of_the_wrong_form_names_the_forms_the_key_takes() {
+    let obj = "[[object]]\nmesh = \"cube\"\n";
+    let finger = "[[object]]\nmesh = \"cube\"\n[[finger]]\ndevice = \"udp\"\n";
+    let cases: &[(String, &[&str])] = &[
+        (
+            format!("{obj}cuttable = 42\n"),
+            &[
+                "line 3, column 12, key `cuttable`",
+                "\"all\", a group's name, or a ball { center = [x, y, z], radius = r }",
+            ],
+        ),
+        (
+            format!("{obj}touchable = [1, 2]\n"),
+            &[
+                "line 3, column 13, key `touchable`",
+                "\"all\", a group's name, or a ball",
+            ],
+        ),
+        (
+            format!("{obj}friction = [0.6, 0.4]\n"),
+            &[
+                "line 3, column 12, key `friction`",
+                "friction = { static = MS, dynamic = MD }",
+            ],
+        ),
+        (
+            format!("{obj}friction = 0.6\n"),
+            &[
+                "line 3",
+                "key `friction`",
+                "friction = { static = MS, dynamic = MD }",
+            ],
+        ),
+        (
+            format!("{obj}compression = [1e-3]\n"),
+            &[
+                "line 3",
+                "key `compression`",
+                "compression = { tolerance = EPS }",
+            ],
+        ),
+        (
+            format!("{finger}tool = [8.0]\n"),
+            &["line 5", "key `tool`", "tool = { sphere = R }"],
+        ),
+        (
+            format!("{finger}limits = 42\n"),
+            &["line 5", "key `limits`", "a preset's name"],
+        ),
+        (
+            format!("{obj}region = [3]\n"),
+            &["line 3", "an `[[object.region]]` table"],
+        ),
+    ];
+    for (text, wants) in cases {
+        let e = err(text);
+        for w in *wants {
+            assert!(e.contains(w), "error for\n{text}\nlacks '{w}':\n{e}");
+        }
+        for internal in ["untagged", "Toml", "struct "] {
+            assert!(
+                !e.contains(internal),
+                "names serde's internals ({internal}): {e}"
+            );
+        }
+        assert_eq!(e.lines().count(), 1, "one line: {e}");
+    }
+    // The documented form still loads.
+    let w = load(
+        &format!("{obj}friction = {{ static = 0.6, dynamic = 0.4 }}\n"),
+        std::path::Path::new("."),
+    )
+    .unwrap();
+    let f = w.objects[0].friction.unwrap();
+    assert_eq!((f.static_mu, f.dynamic_mu), (0.6, 0.4));
+}
+
+/// A TOML syntax or type error is one line, `FILE: line L, column C[, key `K`]: MESSAGE`, like
+/// the scene's other errors (the `toml` crate's own text spans five); the command prints it as
+/// one `error:` line and exits 2.
+#[test]
+fn toml_errors_are_one_line() {
+    for (text, want) in [
+        ("[[object]\nmesh = \"cube\"\n", "t.toml: line 1, column "),
+        (
+            "[[object]]\nmesh = \"cube\"\nyoung = \n",
+            "t.toml: line 3, column ",
+        ),
+        ("unit = 'mm\n", "t.toml: line 1, column "),
+        (
+            "[[object]]\nmesh = \"cube\"\ncolour = 1\n",
+            "t.toml: line 3, column 1: unknown field `colour`",
+        ),
+    ] {
+        let e = err(text);
+        assert!(e.starts_with(want), "{text:?}: {e}");
+        assert_eq!(e.lines().count(), 1, "{text:?}: {e}");
+        assert!(!e.contains("TOML parse error") && !e.contains(" | "), "{e}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("bad.toml");
+    std::fs::write(&f, "[[object]]\nmesh = \"cube\"\ncuttable = 42\n").unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args(["demo", f.to_str().unwrap(), "--seconds", "0.1"])
+        .env("TOUCHFEM_CACHE_DIR", "")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.starts_with("error: ")
+            && stderr.contains("bad.toml: line 3, column 12, key `cuttable`"),
+        "{stderr}"
+    );
+}
+
+/// A scene's tool keeps the one rule for a user's lengths (`Tool::check_fits`, as `--sphere`
+/// and `--depth`): at least 1e-6 of the object's size, and a sphere no larger than the object;
+/// a radius that underflows converting to metres is too short, not a sign error.
+#[test]
+fn a_scene_tool_keeps_the_rule_for_lengths() {
+    let scene = |tool: &str| {
+        format!(
+            "unit = \"mm\"\n[[object]]\nmesh = \"cube\"\n[[finger]]\ndevice = \"pointer\"\ntool = {tool}\n"
+        )
+    };
+    for tool in [
+        "{ sphere = 1e-300 }",
+        "{ sphere = 5e-324 }",
+        "{ blade = 1e-300 }",
+        "{ blade = 5e-324 }",
+        "{ sphere = 1e-5 }",
+    ] {
+        let e = err(&scene(tool));
+        assert!(
+            e.contains("line 6")
+                && e.contains("is shorter than")
+                && e.contains("1e-6 of its 0.05196 m across"),
+            "{tool}: {e}"
+        );
+    }
+    let e = err(&scene("{ sphere = 1e8 }"));
+    assert!(
+        e.contains("sphere radius 1e5 m is larger than the object (0.05196 m across)"),
+        "{e}"
+    );
+    for ok in ["{ sphere = 1e-4 }", "{ blade = 1e-4 }", "{ sphere = 51 }"] {
+        load(&scene(ok), std::path::Path::new(".")).unwrap_or_else(|e| panic!("{ok}: {e}"));
+    }
+}

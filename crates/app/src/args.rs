@@ -45,7 +45,8 @@ pub enum Command {
     /// The main job: scenes headless (the bundled ones by default) with the 1 kHz haptic loop
     /// and the visual loop; frames, GIF, force traces, the session and the paper's Table 2.
     Demo(DemoArgs),
-    /// Run the haptic loop for fingers driven over UDP (the protocol in CONTRACTS.md).
+    /// Run the haptic loop for fingers driven over UDP (the protocol: docs/contracts.md and
+    /// docs/reference/udp-protocol.md).
     Serve(ServeArgs),
     /// Run a recorded session's finger positions through the haptic path again and compare
     /// the forces with the recorded ones.
@@ -86,6 +87,23 @@ pub struct PrecomputeArgs {
     /// Print one JSON object (`seconds`, `rows`, `cols`, `bytes`, `tolerance`, ...).
     #[arg(long)]
     pub json: bool,
+}
+
+/// The bundled scenes' names, as `demo` runs them when none is named: `fig1, fig2, …`.
+pub fn bundled_scene_names() -> String {
+    touchfem_core::scene::BUNDLED_SCENES
+        .iter()
+        .map(|(n, _)| *n)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// `demo SCENE...`'s help, the bundled scenes listed from the code.
+fn demo_scenes_help() -> String {
+    format!(
+        "Scene files or bundled scene names ({}); none: every bundled scene, in that order",
+        bundled_scene_names()
+    )
 }
 
 /// Parses "I/N" (1 ≤ I ≤ N ≤ 65536) into a shard index and count.
@@ -226,7 +244,8 @@ pub struct ReplayArgs {
 /// `touchfem demo` flags.
 #[derive(Args, Debug)]
 pub struct DemoArgs {
-    /// Scene files or bundled scene names (fig1, fig2, pinch); none: every bundled scene.
+    /// Scene files or bundled scene names; none: every bundled scene.
+    #[arg(value_name = "SCENE", help = demo_scenes_help())]
     pub scenes: Vec<String>,
     /// Seconds of haptic + visual loop per scene, in (0, 3600] (scripted paths are stretched
     /// to fit).
@@ -426,32 +445,119 @@ pub struct ToolArgs {
     pub friction: Option<Friction>,
 }
 
-/// `--sphere R`: a finite radius > 0 (mesh units; whether it fits the object is checked once
-/// the mesh is loaded, [`check_sphere_fits`]).
+/// A number a user gave, for a message: as written when it is short (`52`, `0.5`), else in
+/// shortest scientific form (`1e9`, `5e-324`), never hundreds of digits.
+pub fn show_value(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+/// `--sphere R`: a finite radius > 0, at most [`MAX_COORDINATE`] (mesh units; whether it fits
+/// the object is checked once the mesh is loaded, [`check_tool`]).
 pub fn parse_sphere(s: &str) -> Result<f64, String> {
-    let r: f64 = s
+    parse_length(s, "sphere radius")
+}
+
+/// A tool's size on the command line (`--sphere R`, `--depth D`): a finite number > 0 and at
+/// most [`MAX_COORDINATE`] (mesh units). The floor relative to the object
+/// ([`touchfem_core::contact::MIN_LENGTH_FRACTION`]) is checked once the mesh is loaded.
+fn parse_length(s: &str, what: &str) -> Result<f64, String> {
+    let v: f64 = s
         .trim()
         .parse()
         .map_err(|e| format!("'{s}' is not a number: {e}"))?;
-    Tool::sphere(r).map_err(|e| e.to_string())?;
-    Ok(r)
+    if !(v.is_finite() && v > 0.0 && v <= MAX_COORDINATE) {
+        return Err(format!(
+            "{what} {} must be a positive, finite length of at most {MAX_COORDINATE:e}",
+            show_value(v)
+        ));
+    }
+    Ok(v)
+}
+
+/// Checks a tool flag (`flag` and the value `given` in mesh units; the tool in metres) against
+/// the objects it may touch (their bounding-box diagonals, m): the one rule for a user's
+/// lengths, [`Tool::check_fits`], as a scene's `tool` is checked; it passes when it holds for
+/// one object. A positive value that underflows to 0 m is too short, not a sign error.
+pub fn check_tool(
+    flag: &str,
+    given: f64,
+    tool: Tool,
+    extents_m: &[f64],
+) -> Result<(), crate::error::Error> {
+    let mut first = None;
+    for &x in extents_m {
+        match tool.check_fits(x) {
+            Ok(()) => return Ok(()),
+            Err(e) => {
+                first.get_or_insert(e);
+            }
+        }
+    }
+    match first {
+        Some(e) => Err(crate::error::Error::Input(format!(
+            "{flag} {}: {e}",
+            show_value(given)
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// The bounding-box diagonal of a mesh, m.
+pub fn extent_m(mesh: &Mesh) -> f64 {
+    let (lo, hi) = mesh.bounds();
+    lo.distance(hi)
 }
 
 /// Checks a `--sphere R` (mesh units) against the loaded mesh (metres, `unit` its file's
-/// unit): a sphere larger than the object's bounding-box diagonal is an error naming the flag.
+/// unit) by [`check_tool`]; returns the radius in metres.
 pub fn check_sphere_fits(
     r: f64,
     mesh: &Mesh,
     unit: LengthUnit,
 ) -> Result<f64, crate::error::Error> {
-    let bad = |e: touchfem_core::contact::ContactError| {
-        crate::error::Error::Input(format!("--sphere {r}: {e}"))
-    };
     let r_m = r * unit.to_metres();
-    let tool = Tool::sphere(r_m).map_err(bad)?;
-    let (lo, hi) = mesh.bounds();
-    tool.check_fits(lo.distance(hi)).map_err(bad)?;
+    check_tool(
+        "--sphere",
+        r,
+        Tool::Sphere { radius_m: r_m },
+        &[extent_m(mesh)],
+    )?;
     Ok(r_m)
+}
+
+/// Checks a finger's motion flag (`--push`, `--slide`; `given` in mesh units) against the
+/// loaded mesh: zero, or at least [`touchfem_core::contact::MIN_LENGTH_FRACTION`] of the
+/// object's size (the rule of [`check_tool`]); a non-zero motion that underflows to 0 m is
+/// too short.
+pub fn check_motion(
+    flag: &str,
+    given: DVec3,
+    mesh: &Mesh,
+    unit: LengthUnit,
+) -> Result<(), crate::error::Error> {
+    let what = flag.trim_start_matches('-');
+    let what: &'static str = if what == "slide" { "slide" } else { "push" };
+    // |v| scaled by its largest component: a motion of 1e-300 mm does not square to 0.
+    let v = given * unit.to_metres();
+    let big = v.abs().max_element();
+    let length_m = if big > 0.0 {
+        big * (v / big).length()
+    } else {
+        0.0
+    };
+    touchfem_core::contact::check_length(what, length_m, extent_m(mesh), given == DVec3::ZERO)
+        .map_err(|e| {
+            crate::error::Error::Input(format!(
+                "{flag} {},{},{}: {e}",
+                show_value(given.x),
+                show_value(given.y),
+                show_value(given.z)
+            ))
+        })
 }
 
 /// `--friction MS,MD`: static and dynamic Coulomb coefficients, finite, >= 0, MD <= MS.
@@ -513,7 +619,7 @@ fn parse_bounded(s: &str, lo: f64, hi: f64, lo_open: bool) -> Result<f64, String
     let above = if lo_open { v > lo } else { v >= lo };
     if !(v.is_finite() && above && v <= hi) {
         let open = if lo_open { '(' } else { '[' };
-        return Err(format!("{v} is outside {open}{lo}, {hi}]"));
+        return Err(format!("{} is outside {open}{lo}, {hi}]", show_value(v)));
     }
     Ok(v)
 }
@@ -578,16 +684,10 @@ pub fn parse_segment(s: &str) -> Result<(DVec3, DVec3), String> {
     Ok((parse_vec3(a)?, parse_vec3(b)?))
 }
 
-/// A blade's depth: a positive, finite length.
+/// A blade's depth: a positive, finite length of at most [`MAX_COORDINATE`] (mesh units; its
+/// floor is checked against the mesh, [`check_tool`]).
 pub fn parse_depth(s: &str) -> Result<f64, String> {
-    let d: f64 = s
-        .trim()
-        .parse()
-        .map_err(|e| format!("'{s}' is not a number: {e}"))?;
-    if !(d.is_finite() && d > 0.0 && d <= MAX_COORDINATE) {
-        return Err(format!("'{s}' must be a positive, finite depth"));
-    }
-    Ok(d)
+    parse_length(s, "blade depth")
 }
 
 /// Parses a compression tolerance: a number strictly between 0 and 1.

@@ -455,11 +455,7 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
         if touchfem_core::scene::SceneSource::find(spec)?.is_none() {
             return Err(Error::Body(format!(
                 "'{spec}' is neither a bundled scene ({}) nor a .toml scene file",
-                touchfem_core::scene::BUNDLED_SCENES
-                    .iter()
-                    .map(|(n, _)| *n)
-                    .collect::<Vec<_>>()
-                    .join(", ")
+                bundled_scene_names()
             )));
         }
         worlds.push(touchfem_core::scene::World::load(spec, "script")?);
@@ -510,7 +506,7 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
         if let Some(r) = rows.first() {
             floors.push(r.floor.clone());
             haptics.push(r.haptic.clone());
-            eprintln!(
+            println!(
                 "{:<6} haptic {:.1} Hz, p99.9 period error {:.1} µs, {} missed (floor: {:.1} µs, {} missed)",
                 world.name,
                 r.haptic.haptic_rate_hz,
@@ -521,7 +517,7 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
             );
         }
         for r in &rows {
-            eprintln!(
+            println!(
                 "  {:<8} nodes {:>5}  rows {:>5} cols {:>5}  force {:>6.2} µs  displacement {:>8.1} µs ({})  draw {:>6.1} Hz  max contacts {}",
                 r.name, r.nodes, r.rows, r.cols, r.force_us_median, r.displacement_us_median,
                 r.displacement_backend, r.draw_hz, r.max_contacts
@@ -544,7 +540,7 @@ fn demo(a: &DemoArgs) -> Result<(), Error> {
         path: path.clone(),
         source,
     })?;
-    eprintln!("report: {}", path.display());
+    println!("report: {}", path.display());
     Ok(())
 }
 
@@ -744,6 +740,10 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
         Some(r) => Some(check_sphere_fits(r, &mesh, unit)?),
         None => None,
     };
+    check_motion("--push", a.push, &mesh, unit)?;
+    if let Some(d) = a.slide {
+        check_motion("--slide", d, &mesh, unit)?;
+    }
     let sel = Selection::default();
     let compliance = match &a.cache {
         Some(path) => {
@@ -1007,6 +1007,9 @@ fn poke_cut(a: &PokeArgs, seg: (DVec3, DVec3), depth: f64) -> Result<(), Error> 
     }
     let (mesh, unit) = a.load.load(&a.mesh)?;
     let s = unit.to_metres();
+    let blade = touchfem_core::contact::Tool::Blade { depth_m: depth * s };
+    check_tool("--depth", depth, blade, &[extent_m(&mesh)])?;
+    check_motion("--push", a.push, &mesh, unit)?;
     let surface = touchfem_core::contact::Surface::new(&mesh);
     let (t1, p1) = surface.closest_global(seg.0 * s);
     let (_, p2) = surface.closest_global(seg.1 * s);

@@ -462,18 +462,6 @@ impl<'a> App<'a> {
         }
     }
 
-    /// The pointer finger's |F| (N) as the haptic loop last sent it.
-    fn pointer_force(&self, sample: &touchfem_core::runtime::WorldSample) -> f64 {
-        match &self.pointer {
-            Some(p) => p.force().length(),
-            None => sample
-                .fingers()
-                .iter()
-                .map(|f| f.force.length())
-                .fold(0.0, f64::max),
-        }
-    }
-
     fn redraw(&mut self, el: &ActiveEventLoop) -> Result<(), ViewError> {
         if self.status.done.load(Ordering::SeqCst) {
             if self.status.panicked.load(Ordering::SeqCst) {
@@ -488,7 +476,7 @@ impl<'a> App<'a> {
         }
         let t0 = Instant::now();
         let sample = *self.reader.read();
-        let force = self.pointer_force(&sample);
+        let force = super::force_readout(&sample);
         let marks = touchfem_gpu::visual::SampleMarks::of(&sample, self.arrow_m_per_n)
             .with_tools(self.world);
         let touching = sample.fingers().iter().any(|f| f.object.is_some());
@@ -511,15 +499,12 @@ impl<'a> App<'a> {
             if let Some(d) = self.pointer.as_ref().and_then(PointerRoute::blade_depth_m) {
                 text.push_str(&format!("  blade {:.1} mm", d * 1e3));
             }
-            if let Some((msg, _)) = self
+            let notice = self
                 .notice
                 .as_ref()
                 .filter(|(_, t)| t.elapsed() < NOTICE_FOR)
-            {
-                text.push_str("  ");
-                text.push_str(msg);
-            }
-            text
+                .map(|(msg, _)| msg.clone());
+            (text, notice)
         });
         let camera = self.orbit.camera();
         let Some(g) = self.gfx.as_mut() else {
@@ -556,7 +541,7 @@ impl<'a> App<'a> {
                         g.edges[o] = Edges::new(&g.device, d);
                         g.cuts[o] = Some(body);
                     }
-                    Err(e) => log::warn!("cannot draw the cut of '{}': {e}", obj.name),
+                    Err(e) => log::warn!("warning: cannot draw the cut of '{}': {e}", obj.name),
                 }
             }
         }
@@ -568,9 +553,15 @@ impl<'a> App<'a> {
             };
             d.set_forces(&g.queue, &f[..n])?;
         }
-        if let Some(text) = &status_text {
-            g.overlay.set_text(&g.device, &g.queue, text);
-            g.window.set_title(&format!("{} | {text}", self.opts.title));
+        if let Some((text, notice)) = &status_text {
+            let legend_w = g.legend.image_size().map_or(0, |s| s[0]);
+            let shown = super::status_overlay(text, notice.as_deref(), self.size[0], legend_w);
+            g.overlay.set_text(&g.device, &g.queue, &shown);
+            let warning = notice
+                .as_ref()
+                .map_or(String::new(), |n| format!("  warning: {n}"));
+            g.window
+                .set_title(&format!("{} | {text}{warning}", self.opts.title));
             self.stats.last_status = Some(Instant::now());
         }
         let frame_tex = match g.surface.get_current_texture() {
@@ -713,7 +704,7 @@ impl<'a> App<'a> {
     }
 
     fn notify(&mut self, msg: String) {
-        log::warn!("{msg}");
+        log::warn!("warning: {msg}");
         self.notice = Some((msg, Instant::now()));
         self.stats.last_status = None;
     }

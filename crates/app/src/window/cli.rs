@@ -74,13 +74,26 @@ pub fn load_with_pointer_as(
     cache: Option<&Path>,
     sphere: Option<f64>,
 ) -> Result<World, Error> {
-    if let Some(r) = sphere {
-        touchfem_core::contact::Tool::sphere(r)
-            .map_err(|e| Error::Input(format!("--sphere {r}: {e}")))?;
-    }
-    let mut src =
-        SceneSource::find(spec)?.unwrap_or_else(|| SceneSource::for_mesh(spec, "pointer"));
+    let scene = SceneSource::find(spec)?;
+    let mesh = scene.is_none();
+    let mut src = scene.unwrap_or_else(|| SceneSource::for_mesh(spec, "pointer"));
     let world = World::from_source_holding(&src, cache, Hold::Live)?;
+    if let Some(r) = sphere {
+        // The one check of `poke`, `info` and a scene's `tool`, against this scene's objects.
+        let radius_m = r * world.unit.to_metres();
+        let extents: Vec<f64> = world
+            .objects
+            .iter()
+            .map(|o| crate::args::extent_m(&o.body.mesh))
+            .collect();
+        let tool = touchfem_core::contact::Tool::Sphere { radius_m };
+        crate::args::check_tool("--sphere", r, tool, &extents)?;
+        if mesh {
+            // A mesh's one finger is the pointer: it becomes the sphere.
+            src.text.push_str(&format!("tool = {{ sphere = {r:?} }}\n"));
+            return Ok(World::from_source_holding(&src, cache, Hold::Live)?);
+        }
+    }
     let pointer = world
         .fingers
         .iter()
@@ -115,13 +128,6 @@ pub fn load_with_pointer_as(
     // wrote (or, with the cache off, computes it again). A text that cannot take one more
     // `[[finger]]` table (an inline `finger = [...]` array) is shown as it is.
     src.text.push_str(&extra);
-    if pointer.is_none() {
-        if let Some(r) = sphere {
-            // A bad radius for this scene (a sphere larger than the object) is an error.
-            return World::from_source_holding(&src, cache, Hold::Live)
-                .map_err(|e| Error::Input(format!("--sphere {r}: {e}")));
-        }
-    }
     Ok(World::from_source_holding(&src, cache, Hold::Live).unwrap_or(world))
 }
 

@@ -24,10 +24,12 @@
 //!   top just under the surface there (`max(0.2 mm, 0.5 % of the scene diagonal)`), and dragging
 //!   slides it in the plane tangent to the surface at that point, following the pointer: the
 //!   blade, hanging its depth below, cuts what it sweeps in the cuttable region (no force).
-//!   Without a cuttable object the status line says so for 3 s (and a warning is logged) and
+//!   Without a cuttable object the status line shows `warning: …` in its place for 3 s
+//!   ([`status_overlay`], cut short of the legend; the title and the log carry it whole) and
 //!   nothing changes. The status line shows `blade D mm` while it is on.
 //! * The status line (an overlay and the window title, which always contains `touchfem`): the
-//!   pointer finger's |F| in N, the haptic rate, the frame time. Updated 4 times a second.
+//!   largest |F| sent to a finger in N ([`force_readout`]: the pointer's, or a scripted
+//!   finger's while it presses), the haptic rate, the frame time. Updated 4 times a second.
 //!
 //! Present mode Fifo; a redraw is requested after every frame. On CPU adapters (lavapipe) the
 //! frame is drawn without MSAA ([`live_samples`](touchfem_gpu::render::live_samples)).
@@ -40,7 +42,7 @@
 //!   "touching", "blade", "tets_removed"}` (`frames`, `haptic_missed`: so far; `blade`: blade
 //!   mode on; `tets_removed`: tets the cuts removed so far, every object; `frame_ms_median`: median time between
 //!   presented frames over that second;
-//!   `force_n`: the largest |F| of the pointer finger over that second), and a final line with
+//!   `force_n`: the largest [`force_readout`] over that second), and a final line with
 //!   `"summary": true`;
 //! * `TOUCHFEM_VIEW_SAMPLES=1|4`: override the MSAA sample count (another value is an error
 //!   naming the variable).
@@ -62,6 +64,42 @@ use touchfem_core::runtime::{LiveStatus, SampleReader};
 use touchfem_core::scene::World;
 use touchfem_gpu::render::RenderError;
 use touchfem_gpu::GpuError;
+
+/// The status line's `|F|`, N: the largest force the haptic loop last sent to any finger, the
+/// pointer's or the scene's own (a scripted fingertip's whole contact force), so that a press
+/// the window shows is never read as 0 N because the pointer is not the finger pressing.
+pub fn force_readout(sample: &touchfem_core::runtime::WorldSample) -> f64 {
+    sample
+        .fingers()
+        .iter()
+        .map(|f| f.force.length())
+        .filter(|f| f.is_finite())
+        .fold(0.0, f64::max)
+}
+
+/// A character's advance in the status overlay, pixels: DejaVu Sans Mono (monospaced, 1233
+/// of 2048 units an em) at the overlay's 15 pixels.
+const STATUS_CHAR_PX: f32 = 15.0 * 1233.0 / 2048.0;
+
+/// The status overlay's text in a window `width_px` wide whose legend (top right) is
+/// `legend_px` wide: the status line, or, while a notice is up, `warning: NOTICE` in its place
+/// (the window title keeps both). Cut with `…` so that it ends at least 8 pixels before the
+/// legend: both overlays sit 8 pixels from their edge, and the text has a 4-pixel pad each side.
+pub fn status_overlay(status: &str, notice: Option<&str>, width_px: u32, legend_px: u32) -> String {
+    let text = match notice {
+        Some(n) => format!("warning: {n}"),
+        None => status.to_string(),
+    };
+    let free = width_px as f32 - 8.0 - legend_px as f32 - 8.0 - 8.0 - 2.0 * 4.0;
+    let fit = (free / STATUS_CHAR_PX).floor().max(1.0) as usize;
+    if text.chars().count() <= fit {
+        text
+    } else {
+        let mut cut: String = text.chars().take(fit - 1).collect();
+        cut.push('…');
+        cut
+    }
+}
 
 /// How to open the window.
 #[derive(Clone, Debug)]

@@ -20,7 +20,7 @@ mod sphere;
 mod tool;
 pub use friction::StickSlip;
 pub use sphere::{Budget, Patch, PatchNode, PatchReport, Sphere, MAX_PATCH};
-pub use tool::{ContactError, Friction, Tool};
+pub use tool::{check_length, show_length, ContactError, Friction, Tool, MIN_LENGTH_FRACTION};
 
 /// Where on its triangle the proxy is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -8,16 +8,37 @@ use thiserror::Error;
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum ContactError {
     /// A sphere's radius that is not a positive finite length.
-    #[error("sphere radius {0} must be a positive, finite length")]
+    #[error("sphere radius {} must be a positive, finite length", show_length(*.0))]
     Radius(f64),
     /// A blade's depth that is not a positive finite length.
-    #[error("blade depth {0} must be a positive, finite length")]
+    #[error("blade depth {} must be a positive, finite length", show_length(*.0))]
     Depth(f64),
     /// A sphere larger than the object it is meant to touch.
-    #[error("sphere radius {radius_m} m is larger than the object ({extent_m} m across)")]
+    #[error(
+        "sphere radius {} m is larger than the object ({} m across)",
+        show_length(*radius_m),
+        show_length(*extent_m)
+    )]
     RadiusTooLarge {
         /// The radius, m.
         radius_m: f64,
+        /// The object's bounding-box diagonal, m.
+        extent_m: f64,
+    },
+    /// A length the user gave (a tool's size, a finger's motion) that is not zero but shorter
+    /// than [`MIN_LENGTH_FRACTION`] of the object's size: below what the object resolves.
+    #[error(
+        "{what} {} m is shorter than {} m, the smallest length touchfem resolves on this object \
+         ({MIN_LENGTH_FRACTION:e} of its {} m across)",
+        show_length(*length_m),
+        show_length(MIN_LENGTH_FRACTION * *extent_m),
+        show_length(*extent_m)
+    )]
+    TooShort {
+        /// What the length is (`sphere radius`, `blade depth`, `push`, `slide`).
+        what: &'static str,
+        /// The length, m (0 when the value underflowed converting to metres).
+        length_m: f64,
         /// The object's bounding-box diagonal, m.
         extent_m: f64,
     },
@@ -37,6 +58,60 @@ pub enum ContactError {
         /// μ_d.
         dynamic_mu: f64,
     },
+}
+
+/// The smallest length a user may give, as a fraction of the object's size (its bounding-box
+/// diagonal): a tool's size (a sphere's radius, a blade's depth) and a finger's motion, unless
+/// the motion is zero. `1e-6` is about 16 times the resolution of an `f32` vertex position
+/// (2⁻²⁴ ≈ 6·10⁻⁸ of the coordinates' magnitude): a shorter length cannot be told from none on
+/// the GPU, and a blade or sphere that small cuts or presses as a point would.
+pub const MIN_LENGTH_FRACTION: f64 = 1e-6;
+
+/// A length in metres for a message: four significant digits, scientific below `1e-3` and
+/// from `1e5` (never hundreds of digits).
+pub fn show_length(m: f64) -> String {
+    if !m.is_finite() || m == 0.0 {
+        return format!("{m}");
+    }
+    let e = m.abs().log10().floor();
+    if (-3.0..5.0).contains(&e) {
+        let decimals = (3.0 - e).max(0.0) as usize;
+        let s = format!("{m:.decimals$}");
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s
+        }
+    } else {
+        let s = format!("{m:.3e}");
+        match s.split_once('e') {
+            Some((mant, exp)) if mant.contains('.') => {
+                format!("{}e{exp}", mant.trim_end_matches('0').trim_end_matches('.'))
+            }
+            _ => s,
+        }
+    }
+}
+
+/// Checks a length the user gave against the object (bounding-box diagonal `extent_m`): zero
+/// (allowed when `zero_ok`, a motion) or at least [`MIN_LENGTH_FRACTION`] of the object's size.
+/// The one rule for every user length: `--sphere`, `--depth`, `--push`, `--slide` and a scene's
+/// `tool`.
+pub fn check_length(
+    what: &'static str,
+    length_m: f64,
+    extent_m: f64,
+    zero_ok: bool,
+) -> Result<(), ContactError> {
+    if (zero_ok && length_m == 0.0) || length_m >= MIN_LENGTH_FRACTION * extent_m {
+        Ok(())
+    } else {
+        Err(ContactError::TooShort {
+            what,
+            length_m,
+            extent_m,
+        })
+    }
 }
 
 /// What a finger touches with.
@@ -95,14 +170,17 @@ impl Tool {
         }
     }
 
-    /// Checks the tool against the object it will touch: a sphere must not be larger than the
-    /// object's bounding-box diagonal `extent_m`.
+    /// Checks the tool against the object it will touch (its bounding-box diagonal
+    /// `extent_m`): a sphere's radius and a blade's depth are at least [`MIN_LENGTH_FRACTION`]
+    /// of it ([`check_length`]), and a sphere is not larger than the object.
     pub fn check_fits(&self, extent_m: f64) -> Result<(), ContactError> {
         match *self {
             Tool::Sphere { radius_m } if radius_m > extent_m => {
                 Err(ContactError::RadiusTooLarge { radius_m, extent_m })
             }
-            _ => Ok(()),
+            Tool::Sphere { radius_m } => check_length("sphere radius", radius_m, extent_m, false),
+            Tool::Blade { depth_m } => check_length("blade depth", depth_m, extent_m, false),
+            Tool::Point => Ok(()),
         }
     }
 }

@@ -10,10 +10,10 @@
 //! the computed compliance.
 
 use glam::DVec3;
-use serde::Deserialize;
 use std::path::{Path, PathBuf};
 use toml::Spanned;
 
+use super::schema::{line_of, toml_error, BallToml, FileToml, LimitsToml, TouchableToml};
 use super::world::{DeviceSpec, FingerSpec, HapticSettings, Object, World};
 use super::{load_mesh, Body, LoadOptions};
 use crate::compliance::hmatrix::HOptions;
@@ -35,121 +35,6 @@ pub const BUNDLED_SCENES: &[(&str, &str)] = &[
     ("incision", include_str!("../../../../scenes/incision.toml")),
 ];
 
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct FileToml {
-    #[serde(default)]
-    unit: Option<Spanned<String>>,
-    #[serde(default)]
-    object: Vec<Spanned<ObjectToml>>,
-    #[serde(default)]
-    finger: Vec<Spanned<FingerToml>>,
-    #[serde(default)]
-    haptics: Option<HapticsToml>,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ObjectToml {
-    name: Option<String>,
-    mesh: Spanned<String>,
-    mesh_unit: Option<Spanned<String>>,
-    young: Option<Spanned<f64>>,
-    poisson: Option<Spanned<f64>>,
-    formulation: Option<Spanned<String>>,
-    fixed: Option<Spanned<String>>,
-    touchable: Option<Spanned<TouchableToml>>,
-    offset: Option<Spanned<[f64; 3]>>,
-    friction: Option<Spanned<FrictionToml>>,
-    cuttable: Option<Spanned<TouchableToml>>,
-    compression: Option<Spanned<CompressionToml>>,
-    #[serde(default)]
-    region: Vec<Spanned<RegionToml>>,
-}
-
-/// `compression = { tolerance = 1e-3 }`.
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct CompressionToml {
-    tolerance: f64,
-}
-
-/// `friction = { static = 0.6, dynamic = 0.4 }`.
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct FrictionToml {
-    #[serde(rename = "static")]
-    static_mu: f64,
-    dynamic: f64,
-}
-
-/// `tool = { sphere = R }` (R in the scene's unit).
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ToolToml {
-    sphere: Option<f64>,
-    blade: Option<f64>,
-}
-
-/// `[[object.region]]`: the tets of a physical volume group, of another material.
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RegionToml {
-    group: Spanned<String>,
-    young: Spanned<f64>,
-    poisson: Option<Spanned<f64>>,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(untagged)]
-enum TouchableToml {
-    Name(String),
-    Ball(BallToml),
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct BallToml {
-    center: [f64; 3],
-    radius: f64,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct FingerToml {
-    device: Spanned<String>,
-    path: Option<Spanned<Vec<[f64; 4]>>>,
-    model: Option<Spanned<String>>,
-    limits: Option<Spanned<LimitsToml>>,
-    tool: Option<Spanned<ToolToml>>,
-}
-
-/// A finger's device limits: a preset's name, or the numbers (SI, the unit in each key).
-#[derive(Debug, Deserialize)]
-#[serde(untagged)]
-enum LimitsToml {
-    Preset(String),
-    Numbers(LimitNumbersToml),
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct LimitNumbersToml {
-    name: Option<String>,
-    max_force_n: f64,
-    max_continuous_force_n: Option<f64>,
-    max_stiffness_n_per_m: f64,
-    max_damping_ns_per_m: f64,
-    workspace_radius_m: f64,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct HapticsToml {
-    rate_hz: Option<Spanned<f64>>,
-    max_force_n: Option<Spanned<f64>>,
-}
-
 /// Where a scene comes from: its name, text and the directory relative paths start from.
 #[derive(Clone, Debug)]
 pub struct SceneSource {
@@ -164,8 +49,8 @@ pub struct SceneSource {
 }
 
 impl SceneSource {
-    /// A bundled scene (`fig1`, `fig2`, `pinch`, `palpate`) or a scene file; `None` if `spec` is neither a
-    /// bundled name nor a `.toml` path.
+    /// A bundled scene (one of [`BUNDLED_SCENES`]) or a scene file; `None` if `spec` is neither
+    /// a bundled name nor a `.toml` path.
     pub fn find(spec: &str) -> Result<Option<SceneSource>, Error> {
         if let Some((name, text)) = BUNDLED_SCENES.iter().find(|(n, _)| *n == spec) {
             return Ok(Some(SceneSource {
@@ -254,11 +139,6 @@ pub(crate) const MAX_KEYFRAME_SECONDS: f64 = 1e6;
 /// Whether every component of `v` is finite and at most [`MAX_COORDINATE`] in magnitude.
 fn coordinates_ok(v: &[f64]) -> bool {
     v.iter().all(|x| x.is_finite() && x.abs() <= MAX_COORDINATE)
-}
-
-/// The 1-based line of a byte offset in `text`.
-fn line_of(text: &str, offset: usize) -> usize {
-    text[..offset.min(text.len())].matches('\n').count() + 1
 }
 
 fn unit_of(s: &str) -> Option<LengthUnit> {
@@ -352,8 +232,7 @@ impl World {
                 line_of(text, span.start)
             ))
         };
-        let file: FileToml = toml::from_str(text)
-            .map_err(|e| Error::Body(format!("{}: {}", src.label, e.to_string().trim_end())))?;
+        let file: FileToml = toml::from_str(text).map_err(|e| toml_error(&src.label, text, &e))?;
         let unit = match &file.unit {
             None => LengthUnit::Metre,
             Some(u) => unit_of(u.get_ref()).ok_or_else(|| {
@@ -782,25 +661,27 @@ impl World {
                 None => crate::contact::Tool::Point,
                 Some(t) => {
                     let span = t.span();
-                    match (t.get_ref().sphere, t.get_ref().blade) {
-                        (Some(r), None) => {
-                            let tool = crate::contact::Tool::sphere(r * s)
-                                .map_err(|e| at(span.clone(), "tool.sphere", e.to_string()))?;
-                            if let Some(e) = objects
-                                .iter()
-                                .map(|o: &Object| {
-                                    let (lo, hi) = o.body.mesh.bounds();
-                                    tool.check_fits(lo.distance(hi))
-                                })
-                                .reduce(|a, b| if a.is_ok() || b.is_ok() { Ok(()) } else { a })
-                                .and_then(|r| r.err())
-                            {
-                                return Err(at(span, "tool.sphere", e.to_string()));
-                            }
-                            tool
+                    use crate::contact::Tool;
+                    // A positive length that underflows to 0 m is too short (checked below),
+                    // not a sign error.
+                    let positive = |v: f64| v.is_finite() && v > 0.0;
+                    let (key, tool) = match (t.get_ref().sphere, t.get_ref().blade) {
+                        (Some(r), None) if positive(r) => {
+                            ("tool.sphere", Tool::Sphere { radius_m: r * s })
                         }
-                        (None, Some(d)) => crate::contact::Tool::blade(d * s)
-                            .map_err(|e| at(span, "tool.blade", e.to_string()))?,
+                        (Some(r), None) => (
+                            "tool.sphere",
+                            Tool::sphere(r * s)
+                                .map_err(|e| at(span.clone(), "tool.sphere", e.to_string()))?,
+                        ),
+                        (None, Some(d)) if positive(d) => {
+                            ("tool.blade", Tool::Blade { depth_m: d * s })
+                        }
+                        (None, Some(d)) => (
+                            "tool.blade",
+                            Tool::blade(d * s)
+                                .map_err(|e| at(span.clone(), "tool.blade", e.to_string()))?,
+                        ),
                         _ => {
                             return Err(at(
                                 span,
@@ -808,7 +689,21 @@ impl World {
                                 "give exactly one of `sphere = R` or `blade = DEPTH`".into(),
                             ))
                         }
+                    };
+                    // The one rule for a user's lengths (`Tool::check_fits`): it holds for
+                    // one of the objects at least.
+                    if let Some(e) = objects
+                        .iter()
+                        .map(|o: &Object| {
+                            let (lo, hi) = o.body.mesh.bounds();
+                            tool.check_fits(lo.distance(hi))
+                        })
+                        .reduce(|a, b| if a.is_ok() || b.is_ok() { Ok(()) } else { a })
+                        .and_then(|r| r.err())
+                    {
+                        return Err(at(span, key, e.to_string()));
                     }
+                    tool
                 }
             };
             fingers.push(FingerSpec {

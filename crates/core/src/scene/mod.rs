@@ -14,6 +14,7 @@ use crate::mesh::{self, Mesh, MeshError};
 use crate::Error;
 
 pub mod file;
+mod schema;
 mod world;
 pub use file::{SceneSource, BUNDLED_SCENES};
 pub use world::{CutRegion, DeviceSpec, FingerSpec, HapticSettings, Object, World};
