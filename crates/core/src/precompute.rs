@@ -13,8 +13,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use crate::cache::{self, CacheError, Header, Writer};
-use crate::compliance::{ColumnPlan, Compliance, HierParts, PhaseTimes, Selection, BATCH_COLS};
 use crate::compliance::hmatrix::{HMatrix, HOptions};
+use crate::compliance::{ColumnPlan, Compliance, HierParts, PhaseTimes, Selection, BATCH_COLS};
 use crate::{Error, Mesh};
 
 /// Where a precompute writes.

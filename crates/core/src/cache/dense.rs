@@ -15,8 +15,8 @@ use super::error::CacheError;
 use super::format::{
     self, range_inconsistency, u32_at, u64_at, Common, Shard, Source, BYTES_NAME, DENSE_VERSION,
 };
-use crate::compliance::{Compliance, BATCH_COLS};
 use crate::compliance::near::NearBlocks;
+use crate::compliance::{Compliance, BATCH_COLS};
 
 const HEADER: usize = 72;
 

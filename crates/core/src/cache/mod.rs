@@ -55,8 +55,8 @@ pub use dense::{Header, Part};
 pub use error::CacheError;
 pub use key::{key, key_hier};
 
-use crate::compliance::{Compliance, Selection};
 use crate::compliance::hmatrix::HOptions;
+use crate::compliance::{Compliance, Selection};
 use crate::mesh::Mesh;
 
 /// What happened when loading through the cache.
