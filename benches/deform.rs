@@ -25,7 +25,7 @@ use touchfem::compliance::Compliance;
 use touchfem::gpu::{Deformer, DeformerOptions, Gpu, LStorage, OutputTarget};
 use touchfem::mesh::units::Material;
 use touchfem::mesh::{cube_with, Mesh};
-use touchfem::threads::VisualPlacement;
+use touchfem::runtime::VisualPlacement;
 use touchfem::wgpu;
 
 struct Rng(u64);
@@ -163,7 +163,7 @@ fn floor(gpu: &Gpu, rows: u32, upload: bool, dispatches: u32) -> impl FnMut() + 
 /// (`threads`); and on CPU adapters also lavapipe pinned (`pinned`): created while this thread
 /// is pinned to one core, so the driver's queue thread starts there too, with
 /// `LP_NUM_THREADS=0` (llvmpipe runs compute on that queue thread, no worker pool) — the
-/// demo's setting (`touchfem::threads`). Both live in this process, so every number below
+/// demo's setting (`touchfem::runtime::VisualPlacement`). Both live in this process, so every number below
 /// comes from one run; this thread is pinned while it measures `pinned` and free otherwise.
 struct Contexts {
     threads: Gpu,

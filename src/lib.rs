@@ -3,21 +3,23 @@
 //! Touch and see soft objects in real time: the method of Hirota & Kaneko, *Representation of
 //! Soft Objects in Virtual Environment*. A linear tetrahedral FEM object's compliance `L = K⁻¹`
 //! is precomputed once for the displayed rows and touchable columns; the finger's displacement is
-//! turned into an equivalent nodal force with 3×3 blocks `L_ii⁻¹` (so `L` never changes); the
-//! haptic loop runs that small solve at 1 kHz on the CPU, and the visual loop computes
-//! `u = L·F` over the active columns on the GPU, straight into a vertex buffer.
+//! turned into an equivalent nodal force with 3×3 blocks `L_ii⁻¹`; the haptic loop runs that
+//! small solve at 1 kHz on the CPU, and the visual loop computes `u = L·F` over the active
+//! columns on the GPU, straight into a vertex buffer. `L` changes only when an object is cut,
+//! by an exact low-rank correction folded in off the haptic thread.
 //!
-//! This crate is the one to depend on. It re-exports the engine (`touchfem-core`: every module
-//! at the top level, no GPU) and, with the default `gpu` feature, the GPU pass and renderer
-//! (`touchfem-gpu`) as [`gpu`], [`render`] and [`visual`]. The `app` feature adds the `touchfem`
-//! program.
+//! This crate is the one to depend on. It re-exports the engine's rooms (`touchfem-core`, no
+//! GPU) by name — [`mesh`], [`fem`], [`compliance`], [`cache`], [`precompute`], [`contact`],
+//! [`devices`], [`cut`], [`scene`], [`haptic`], [`runtime`], [`limits`] — and, with the default
+//! `gpu` feature, the GPU pass and renderer (`touchfem-gpu`) as [`gpu`], [`render`] and
+//! [`visual`]. The `app` feature adds the `touchfem` program.
 //!
 //! ```no_run
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! // A scene with the paper's cube and a scripted finger, its compliance precomputed.
 //! let world = touchfem::scene::World::load_with("fig1", "script", None)?;
-//! let mut haptic = touchfem::runtime::HapticWorld::new(&world);
-//! let mut sample = touchfem::runtime::WorldSample::default();
+//! let mut haptic = touchfem::haptic::HapticWorld::new(&world);
+//! let mut sample = touchfem::haptic::WorldSample::default();
 //! let mut force = [glam::DVec3::ZERO; 1];
 //! haptic.step(&[glam::DVec3::new(0.015, 0.015, 0.028)], &mut force, &mut sample);
 //! assert!(force[0].length() <= world.haptics.max_force_n);
@@ -25,7 +27,11 @@
 //! # }
 //! ```
 
-pub use touchfem_core::*;
+pub use touchfem_core::{
+    cache, compliance, contact, cut, devices, fem, haptic, limits, mesh, precompute, runtime,
+    scene,
+};
+pub use touchfem_core::{Error, Formulation, LengthUnit, Material, Mesh, MeshError, RawMesh};
 
 /// The GPU pass ([`gpu::Deformer`]), its headless context ([`gpu::Gpu`]) and `wgpu` itself.
 #[cfg(feature = "gpu")]

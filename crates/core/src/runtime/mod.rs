@@ -14,4 +14,5 @@ pub use crate::haptic::{
     sample_channel, FingerView, HapticWorld, LiveStatus, SampleReader, SampleWriter, WorldSample,
     MAX_OBJECTS,
 };
+pub use crate::threads::VisualPlacement;
 pub use run::{join_haptic, run_haptic, DoneGuard, HapticRun};
