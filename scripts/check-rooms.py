@@ -7,10 +7,11 @@ module under src) must land in R or a room below it. A path to
 a name that the root re-exports (`crate::Error`, `crate::Mesh`) lands in the room that defines
 it. Comments (doc links included) and a file's unit tests (`#[cfg(test)] mod …` at its end) are
 not imports. Prints each upward import and their count; exits 1 if there is any that is not in
-ALLOWED.
+ALLOWED. Also checks that no library file (crates/*/src, src) is over 1,200 lines.
 
 Usage: scripts/check-rooms.py
 """
+import glob
 import importlib.util
 import os
 import re
@@ -119,7 +120,30 @@ def main():
         print(f"  up: {rel} ({here}) -> {path} ({there}){note}")
     print(f"{len(problems)} upward import(s) in crates/core/src ({bad} not allowed)")
     print("rooms, bottom first: " + " < ".join(ORDER))
-    return 1 if bad or unknown else 0
+    long_files = too_long()
+    return 1 if bad or unknown or long_files else 0
+
+
+# No library file (crates/*/src, src) over this many lines.
+MAX_LINES = 1200
+
+
+def too_long():
+    """Prints each library file over MAX_LINES lines and the longest one; returns their count."""
+    root = os.path.join(HERE, "..")
+    files = glob.glob(os.path.join(root, "crates", "*", "src", "**", "*.rs"), recursive=True)
+    files += glob.glob(os.path.join(root, "src", "**", "*.rs"), recursive=True)
+    sizes = []
+    for f in files:
+        with open(f, encoding="utf-8") as fh:
+            sizes.append((sum(1 for _ in fh), os.path.relpath(f, root)))
+    sizes.sort(reverse=True)
+    over = [(n, f) for n, f in sizes if n > MAX_LINES]
+    for n, f in over:
+        print(f"  too long: {f} has {n} lines (at most {MAX_LINES})")
+    if sizes:
+        print(f"longest library file: {sizes[0][1]} ({sizes[0][0]} lines); {len(over)} over {MAX_LINES}")
+    return len(over)
 
 
 if __name__ == "__main__":
