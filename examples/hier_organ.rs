@@ -1,4 +1,4 @@
-//! The hierarchical compliance on a large organ (issue 29): an organ mesh from
+//! The hierarchical compliance on a large organ: an organ mesh from
 //! `scripts/make_organ.py` (mm), its whole free surface touchable. Builds the hierarchical `L`
 //! from the factor's solves (timed), checks point loads against an independent precompute of
 //! a sample of columns, and, unless `--no-dense`, computes the dense `L` in the same run (timed)

@@ -1,4 +1,4 @@
-//! The hierarchical compliance against the dense one it compresses (issue 29): the global
+//! The hierarchical compliance against the dense one it compresses: the global
 //! Frobenius bound, point loads, storage, the exact near field, typed errors.
 
 use std::sync::OnceLock;

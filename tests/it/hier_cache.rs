@@ -1,4 +1,4 @@
-//! The compressed cache format (version 4, issue 29): a hierarchical compliance saved and
+//! The compressed cache format (version 4): a hierarchical compliance saved and
 //! loaded bit for bit, shards merged byte for byte, and every kind of hostile file refused
 //! with a typed error.
 

@@ -1,4 +1,4 @@
-//! The hierarchical compliance, measured (issue 29, first step): for a mesh and a tolerance ε,
+//! The hierarchical compliance, measured: for a mesh and a tolerance ε,
 //! the storage of `HMatrix` against the dense `L`, its global error, the point-load
 //! displacement errors (every touchable column, each axis, against the dense `L`; the loads
 //! nearest the clamps apart), and the CPU matvec time for one finger's 9 active columns against

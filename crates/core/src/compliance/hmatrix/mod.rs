@@ -1,5 +1,5 @@
 //! A hierarchical compliance: `L` stored as a block partition whose far blocks are low-rank
-//! factors truncated to a chosen tolerance and whose near blocks are dense (issue 29).
+//! factors truncated to a chosen tolerance and whose near blocks are dense.
 //!
 //! # Construction
 //! * **Cluster trees** over the row nodes and the column nodes, a node's 3 DOFs together: the
