@@ -181,6 +181,7 @@ impl Gpu {
     /// `LP_NUM_THREADS=0` before the first context is created.
     ///
     /// [`VisualPlacement::enter_visual`]: touchfem_core::threads::VisualPlacement::enter_visual
+    #[cfg(not(target_arch = "wasm32"))]
     pub fn new_headless_placed(
         placement: &touchfem_core::threads::VisualPlacement,
     ) -> Result<Gpu, GpuError> {
