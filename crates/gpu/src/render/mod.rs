@@ -49,8 +49,8 @@ pub use legend::{
 };
 pub use overlay::{Anchor, Overlay};
 pub use pick::{pick, Hit};
-use pipelines::{attachments, check_size, ArrowInstance, Attachments, CameraGpu, SphereInstance};
 
+use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 use std::path::Path;
 use thiserror::Error;
@@ -346,6 +346,35 @@ pub(crate) fn render_image(
     Renderer::new(&gpu.device, size)?.render(&gpu.device, &gpu.queue, scene)
 }
 
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct CameraGpu {
+    view_proj: [[f32; 4]; 4],
+    eye: [f32; 4],
+    light_dir: [f32; 4],
+    base_color: [f32; 4],
+    line_color: [f32; 4],
+    /// The drawn object's offset in the scene (xyz, m); zero for the spheres.
+    offset: [f32; 4],
+    /// x: 1 / the colour map's full scale (1/m), 0: plain.
+    colormap: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct ArrowInstance {
+    base_len: [f32; 4],
+    dir_radius: [f32; 4],
+    color: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct SphereInstance {
+    center_radius: [f32; 4],
+    color: [f32; 4],
+}
+
 /// The surface edges of a [`Deformer`]'s triangles as a line-list index buffer, for the
 /// wireframe overlay. Build once per deformer and keep it with the frame loop.
 #[derive(Debug)]
@@ -433,6 +462,13 @@ pub(crate) fn union_bounds(objects: &[FrameObject<'_>]) -> (DVec3, DVec3) {
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
         |(lo, hi), o| (lo.min(o.bounds.0 + o.offset), hi.max(o.bounds.1 + o.offset)),
     )
+}
+
+/// Colour (multisampled) and depth attachments of one size.
+#[derive(Debug)]
+struct Attachments {
+    msaa: Option<wgpu::TextureView>,
+    depth: wgpu::TextureView,
 }
 
 /// A reusable renderer for one image size, sample count and colour format on one device.
@@ -968,6 +1004,41 @@ impl Renderer {
             o.record(&mut pass);
         }
         Ok(())
+    }
+}
+
+/// An error unless `size` is a non-empty image the device can hold.
+fn check_size(device: &wgpu::Device, size: [u32; 2]) -> Result<(), RenderError> {
+    let max = device.limits().max_texture_dimension_2d;
+    if size[0] == 0 || size[1] == 0 || size[0] > max || size[1] > max {
+        return Err(RenderError::BadSize(size, max));
+    }
+    Ok(())
+}
+
+/// The attachments of `size` for `options`.
+fn attachments(device: &wgpu::Device, size: [u32; 2], options: RenderOptions) -> Attachments {
+    let texture = |label, format| {
+        device
+            .create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d {
+                    width: size[0],
+                    height: size[1],
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: options.samples,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+                view_formats: &[],
+            })
+            .create_view(&Default::default())
+    };
+    Attachments {
+        msaa: (options.samples > 1).then(|| texture("touchfem msaa", options.format)),
+        depth: texture("touchfem depth", DEPTH_FORMAT),
     }
 }
 

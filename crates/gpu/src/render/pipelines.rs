@@ -1,51 +1,14 @@
-//! The [`Renderer`]'s pipelines and fixed buffers (built once by
-//! [`Renderer::with_options`]), the per-draw GPU records they read, the attachments, and the
-//! marker meshes (spheres and arrows).
+//! The [`Renderer`]'s pipelines and fixed buffers, built once by [`Renderer::with_options`],
+//! and the marker meshes (spheres and arrows).
 
-use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
 use super::{
-    legend, RenderError, RenderOptions, Renderer, DEPTH_FORMAT, MAX_ARROWS, MAX_FRAME_OBJECTS,
-    MAX_SPHERES, RENDER_WGSL, UNIFORM_STRIDE,
+    attachments, check_size, legend, ArrowInstance, CameraGpu, RenderError, RenderOptions,
+    Renderer, SphereInstance, DEPTH_FORMAT, MAX_ARROWS, MAX_FRAME_OBJECTS, MAX_SPHERES,
+    RENDER_WGSL, UNIFORM_STRIDE,
 };
 use crate::input::Vertex;
-
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Pod, Zeroable)]
-pub(super) struct CameraGpu {
-    pub view_proj: [[f32; 4]; 4],
-    pub eye: [f32; 4],
-    pub light_dir: [f32; 4],
-    pub base_color: [f32; 4],
-    pub line_color: [f32; 4],
-    /// The drawn object's offset in the scene (xyz, m); zero for the spheres.
-    pub offset: [f32; 4],
-    /// x: 1 / the colour map's full scale (1/m), 0: plain.
-    pub colormap: [f32; 4],
-}
-
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub(super) struct ArrowInstance {
-    pub base_len: [f32; 4],
-    pub dir_radius: [f32; 4],
-    pub color: [f32; 4],
-}
-
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub(super) struct SphereInstance {
-    pub center_radius: [f32; 4],
-    pub color: [f32; 4],
-}
-
-/// Colour (multisampled) and depth attachments of one size.
-#[derive(Debug)]
-pub(super) struct Attachments {
-    pub msaa: Option<wgpu::TextureView>,
-    pub depth: wgpu::TextureView,
-}
 
 impl Renderer {
     /// Builds the pipelines for `size` (width, height), `options.samples` MSAA samples and
@@ -337,45 +300,6 @@ impl Renderer {
             attachments: attachments(device, size, options),
             offscreen: std::sync::Mutex::new(()),
         })
-    }
-}
-
-/// An error unless `size` is a non-empty image the device can hold.
-pub(super) fn check_size(device: &wgpu::Device, size: [u32; 2]) -> Result<(), RenderError> {
-    let max = device.limits().max_texture_dimension_2d;
-    if size[0] == 0 || size[1] == 0 || size[0] > max || size[1] > max {
-        return Err(RenderError::BadSize(size, max));
-    }
-    Ok(())
-}
-
-/// The attachments of `size` for `options`.
-pub(super) fn attachments(
-    device: &wgpu::Device,
-    size: [u32; 2],
-    options: RenderOptions,
-) -> Attachments {
-    let texture = |label, format| {
-        device
-            .create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: wgpu::Extent3d {
-                    width: size[0],
-                    height: size[1],
-                    depth_or_array_layers: 1,
-                },
-                mip_level_count: 1,
-                sample_count: options.samples,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
-                view_formats: &[],
-            })
-            .create_view(&Default::default())
-    };
-    Attachments {
-        msaa: (options.samples > 1).then(|| texture("touchfem msaa", options.format)),
-        depth: texture("touchfem depth", DEPTH_FORMAT),
     }
 }
 
