@@ -174,7 +174,7 @@ fn row_segments(h: &HMatrix) -> Vec<u32> {
 /// bytes a block, 4 bytes an entry of the leaf × segment table), the per-frame work buffer (16
 /// bytes a low-rank block, 8 a rank) and the per-frame uniform windows (64 KiB each, as many
 /// as the largest frame can need). A split over several buffers adds at most 16 bytes a
-/// buffer; [`Deformer::l_bytes`](crate::Deformer::l_bytes) is the exact figure. No GPU needed.
+/// buffer; [`DeformerStats::l_bytes`](crate::DeformerStats::l_bytes) is the exact figure. No GPU needed.
 pub fn hier_gpu_bytes(h: &HMatrix, f16: bool) -> u64 {
     let n = unique_values(h) as u64;
     let values = if f16 { (2 * n).div_ceil(4) * 4 } else { 4 * n };

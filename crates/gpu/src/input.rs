@@ -262,7 +262,7 @@ pub struct DeformerOptions {
     pub storage: LStorage,
     /// Never pass the active list as immediates, even where the device has
     /// [`wgpu::Features::IMMEDIATES`] (the texture layout uses them by default; see
-    /// [`Deformer::uses_immediates`](crate::Deformer::uses_immediates)).
+    /// [`DeformerStats::uses_immediates`](crate::DeformerStats::uses_immediates)).
     pub no_immediates: bool,
 }
 
