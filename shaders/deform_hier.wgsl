@@ -1,4 +1,4 @@
-// touchfem deformation from a hierarchical L (issue 29): u = L_H·F over the active columns, where
+// touchfem deformation from a hierarchical L: u = L_H·F over the active columns, where
 // L_H is a block partition of dense near blocks and low-rank far blocks U·Vᵀ. Used by
 // `touchfem::gpu::Deformer` for a hierarchical compliance; its normal pass is deform.wgsl's.
 //
