@@ -85,8 +85,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     )?;
     println!(
         "deformer: {:?} layout, immediates: {}",
-        deformer.storage(),
-        deformer.uses_immediates()
+        deformer.stats().storage,
+        deformer.stats().uses_immediates
     );
     // Push the top-centre node 5 mm down: F = L_ii⁻¹·u (eq. 7).
     let top = DVec3::new(0.015, 0.015, 0.03);

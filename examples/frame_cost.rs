@@ -96,7 +96,7 @@ fn main() {
         "rows {} triangles {} ({} smooth) edges {}",
         c.rows().len(),
         o.body.mesh.surface.len(),
-        d.smooth_triangles(),
+        d.stats().smooth_triangles,
         edges.index_count() / 2
     );
     let time = |label: &str, f: &dyn Fn(&mut wgpu::CommandEncoder)| {

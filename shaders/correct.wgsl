@@ -12,14 +12,15 @@
 // This file is completed by a prelude defining store_texture(r, p): nothing (storage-buffer
 // layout) or a store into the deformed-position texture the texture layout's normal pass reads.
 
+// The deformer's frame (frame.wgsl, put before this file by the host) and the correction's
+// rank.
 struct Params {
-    // Rows that hold L (the first ones).
-    l_rows: u32,
+    frame: Frame,
     // Columns of U (the correction's rank) over four, rounded up.
     rank4: u32,
-    // Output: first f32 word of vertex 0 in `out`, and the vertex stride in f32 words.
-    out_offset: u32,
-    out_stride: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 // Word of a vertex that receives |u| (the deformer's own Vertex layout: 3); 0xffffffff: none.
@@ -38,14 +39,14 @@ override DISPLACEMENT_WORD: u32 = 0xffffffffu;
 @compute @workgroup_size(64)
 fn correct(@builtin(global_invocation_id) gid: vec3<u32>) {
     let r = gid.x;
-    if r >= params.l_rows {
+    if r >= params.frame.l_rows {
         return;
     }
-    let o = params.out_offset + r * params.out_stride;
+    let o = params.frame.out_offset + r * params.frame.out_stride;
     let x0 = rest[r].xyz;
     var p = x0;
     if dead[r] == 0u {
-        let n = params.l_rows;
+        let n = params.frame.l_rows;
         var u = vec3<f32>(0.0);
         for (var q = 0u; q < params.rank4; q += 1u) {
             let w = weights[q];

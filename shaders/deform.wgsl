@@ -8,20 +8,7 @@
 // active columns (chunk 0 always, it starts from the rest pose); later chunks accumulate.
 // All counts come from uniforms: nothing relies on arrayLength (VERTEX buffers are padded).
 
-struct Frame {
-    // Displayed vertices (rows of L).
-    n_rows: u32,
-    // Output: first f32 word of vertex 0 in `out`, and the vertex stride in f32 words.
-    out_offset: u32,
-    out_stride: u32,
-    // Normal's first word relative to the vertex start; 0xffffffff: no normals written.
-    normal_offset: u32,
-    // Rows that hold L (R' ≤ n_rows): the first ones.
-    l_rows: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
-}
+// `Frame` (the uniform at binding 0) is frame.wgsl's, put before this file by the host.
 
 // One active column of the force boundary condition: F_c (newtons) and c, local to its chunk.
 struct Active {

@@ -1,4 +1,4 @@
-// touchfem deformation from a hierarchical L (issue 29): u = L_H·F over the active columns, where
+// touchfem deformation from a hierarchical L: u = L_H·F over the active columns, where
 // L_H is a block partition of dense near blocks and low-rank far blocks U·Vᵀ. Used by
 // `touchfem::gpu::Deformer` for a hierarchical compliance; its normal pass is deform.wgsl's.
 //
@@ -25,19 +25,10 @@
 // A frame whose tables exceed one 64 KiB window is dispatched once per window, each adding
 // to the last.
 
-struct Frame {
-    // Displayed vertices (output rows).
-    n_rows: u32,
-    // Output: first f32 word of vertex 0 in `out`, and the vertex stride in f32 words.
-    out_offset: u32,
-    out_stride: u32,
-    // Normal's first word relative to the vertex start (deform.wgsl's normal pass reads it).
-    normal_offset: u32,
-    // Rows that hold L (the row positions of the cluster tree).
-    l_rows: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
+// The deformer's frame (frame.wgsl, put before this file by the host) and, after it, where
+// the tables start.
+struct HierFrame {
+    base: Frame,
     // Word offsets in `idx` of row_perm (then each row position's segment), of the block table
     // (7 words a block: row start, m, column start, n with the transposed flag in bit 31, rank,
     // buffer, first value) and of the leaf × segment table (an index into the leaf's hits);
@@ -74,7 +65,7 @@ override DISPLACEMENT_WORD: u32 = 0xffffffffu;
 // f32 values; the half-float variant reads u32 words holding two halves each.
 alias Word = f32;
 
-@group(0) @binding(0) var<uniform> frame: Frame;
+@group(0) @binding(0) var<uniform> frame: HierFrame;
 @group(0) @binding(1) var<uniform> params: Params;
 // Rest positions (4 words a row, f32 bits), row_perm, segments, the block table and the leaf ×
 // segment table.
@@ -159,16 +150,16 @@ fn add(h: Hit, r: u32) -> vec3<f32> {
 @compute @workgroup_size(64)
 fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
     let t = gid.x;
-    if t >= frame.n_rows {
+    if t >= frame.base.n_rows {
         return;
     }
     let head = tab[0];
     var u = vec3<f32>(0.0);
     var r = t;
-    if t < frame.l_rows {
+    if t < frame.base.l_rows {
         let p = t;
         r = idx[frame.perm_off + p];
-        let seg = idx[frame.perm_off + frame.l_rows + p];
+        let seg = idx[frame.perm_off + frame.base.l_rows + p];
         for (var q = 0u; q < head.x; q += 1u) {
             let leaf = tab[1u + q];
             // The row's hit in this leaf: the leaf × segment table at the row's segment.
@@ -180,7 +171,7 @@ fn deform(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let s = 4u * r;
     let rest = vec3<f32>(bitcast<f32>(idx[s]), bitcast<f32>(idx[s + 1u]), bitcast<f32>(idx[s + 2u]));
-    let o = frame.out_offset + r * frame.out_stride;
+    let o = frame.base.out_offset + r * frame.base.out_stride;
     // The first window starts from the rest position, later ones add to it.
     let before = vec3<f32>(out[o], out[o + 1u], out[o + 2u]);
     let x = select(before, rest, head.y == 1u) + u;

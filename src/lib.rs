@@ -11,8 +11,8 @@
 //! This crate is the one to depend on. It re-exports the engine's rooms (`touchfem-core`, no
 //! GPU) by name — [`mesh`], [`fem`], [`compliance`], [`cache`], [`precompute`], [`contact`],
 //! [`devices`], [`cut`], [`scene`], [`haptic`], [`runtime`], [`limits`] — and, with the default
-//! `gpu` feature, the GPU pass and renderer (`touchfem-gpu`) as [`gpu`], [`render`] and
-//! [`visual`]. The `app` feature adds the `touchfem` program.
+//! `gpu` feature, the GPU pass and renderer (`touchfem-gpu`) as [`gpu`] and [`render`]. The
+//! `app` feature adds the `touchfem` program and its visual loop, [`visual`].
 //!
 //! ```no_run
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -28,20 +28,20 @@
 //! ```
 
 pub use touchfem_core::{
-    cache, compliance, contact, cut, devices, fem, haptic, limits, mesh, precompute, runtime,
-    scene,
+    cache, compliance, contact, cut, devices, fem, haptic, limits, mesh, precompute, runtime, scene,
 };
 pub use touchfem_core::{Error, Formulation, LengthUnit, Material, Mesh, MeshError, RawMesh};
 
+/// The visual loop's displacement update from a haptic sample (GPU, CPU fallback), and the
+/// cut bodies it follows: orchestration over the runtime, part of the program (`app`).
+#[cfg(feature = "app")]
+pub use touchfem_app::visual;
 /// The GPU pass ([`gpu::Deformer`]), its headless context ([`gpu::Gpu`]) and `wgpu` itself.
 #[cfg(feature = "gpu")]
 pub use touchfem_gpu as gpu;
 /// The offscreen renderer.
 #[cfg(feature = "gpu")]
 pub use touchfem_gpu::render;
-/// The visual loop's displacement update from a haptic sample (GPU, CPU fallback).
-#[cfg(feature = "gpu")]
-pub use touchfem_gpu::visual;
 /// The wgpu this crate was built with.
 #[cfg(feature = "gpu")]
 pub use touchfem_gpu::wgpu;

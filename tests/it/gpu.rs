@@ -137,7 +137,7 @@ fn new_deformer(c: &Compliance, mesh: &Mesh, opts: &DeformerOptions) -> Deformer
     let d =
         Deformer::new(&g.device, &g.queue, c, &mesh.nodes, &mesh.surface, opts).expect("deformer");
     if opts.storage != LStorage::Auto {
-        assert_eq!(d.storage(), opts.storage);
+        assert_eq!(d.stats().storage, opts.storage);
     }
     d
 }
@@ -177,7 +177,7 @@ fn cube_rest_pose_with_no_active_columns() {
     for storage in LAYOUTS {
         let d = new_deformer(&k.c, &k.mesh, &layout(storage));
         assert_eq!(d.vertex_count() as usize, k.c.rows().len());
-        assert_eq!(d.chunk_count(), 1);
+        assert_eq!(d.stats().chunks, 1);
         let umax = check(&k.c, &k.mesh.nodes, &[], &d, true);
         assert_eq!(umax, 0.0);
     }
@@ -298,8 +298,8 @@ fn forced_split_across_chunks_matches() {
         ..Default::default()
     };
     let buffers = new_deformer(&k.c, &k.mesh, &opts);
-    assert_eq!(buffers.columns_per_chunk(), Some(10));
-    assert_eq!(buffers.chunk_count(), nc.div_ceil(10));
+    assert_eq!(buffers.stats().columns_per_chunk, Some(10));
+    assert_eq!(buffers.stats().chunks, nc.div_ceil(10));
     // Texture layers of 2 rows of 1024 texels (16 B each); L has 3·C·R' texels.
     let opts = DeformerOptions {
         max_binding_bytes: Some(16 * 1024 * 2 + 100),
@@ -308,9 +308,9 @@ fn forced_split_across_chunks_matches() {
     };
     let texture = new_deformer(&k.c, &k.mesh, &opts);
     let texels = 3 * nc * nr as usize;
-    assert_eq!(texture.columns_per_chunk(), None);
-    assert_eq!(texture.chunk_count(), texels.div_ceil(1024).div_ceil(2));
-    assert!(texture.chunk_count() >= 5);
+    assert_eq!(texture.stats().columns_per_chunk, None);
+    assert_eq!(texture.stats().chunks, texels.div_ceil(1024).div_ceil(2));
+    assert!(texture.stats().chunks >= 5);
     for mut d in [buffers, texture] {
         let mut rng = Rng(11);
         // Forces only in a later chunk (chunk 0 still starts from rest), then in every chunk,
@@ -493,14 +493,14 @@ fn large_random_compliance_needs_the_split() {
     let lim = g.device.limits();
     let max = lim.max_storage_buffer_binding_size.min(lim.max_buffer_size);
     let cpc = (max / (36 * R as u64)) as usize;
-    assert_eq!(d.columns_per_chunk(), Some(cpc));
-    assert_eq!(d.chunk_count(), C.div_ceil(cpc));
+    assert_eq!(d.stats().columns_per_chunk, Some(cpc));
+    assert_eq!(d.stats().chunks, C.div_ceil(cpc));
     if max < bytes {
-        assert!(d.chunk_count() >= 2);
+        assert!(d.stats().chunks >= 2);
     }
     eprintln!(
         "{} chunks of {} columns; uploaded in {:?}",
-        d.chunk_count(),
+        d.stats().chunks,
         cpc,
         t0.elapsed()
     );
@@ -565,7 +565,7 @@ fn auto_layout_is_the_texture_on_cpu_adapters_only() {
     } else {
         LStorage::Buffers
     };
-    assert_eq!(d.storage(), want);
+    assert_eq!(d.stats().storage, want);
 }
 
 /// The two layouts against each other on a rectangular random compliance (rows ≠ columns, a
@@ -635,7 +635,7 @@ fn limited_devices_get_typed_errors_or_the_buffer_layout() {
     let r = new(&device, &queue, LStorage::Texture);
     assert!(matches!(r, Err(GpuError::Unsupported(_))), "{r:?}");
     let d = new(&device, &queue, LStorage::Auto).expect("Auto falls back");
-    assert_eq!(d.storage(), LStorage::Buffers);
+    assert_eq!(d.stats().storage, LStorage::Buffers);
     let (device, queue) = device_with(wgpu::Limits {
         max_uniform_buffer_binding_size: 8 << 10,
         ..adapter.limits()
@@ -661,7 +661,7 @@ fn immediates_and_uniform_list_agree() {
     let has = g.device.features().contains(wgpu::Features::IMMEDIATES);
     let mut with = new_deformer(&k.c, &k.mesh, &layout(LStorage::Texture));
     assert_eq!(
-        with.uses_immediates(),
+        with.stats().uses_immediates,
         has,
         "Gpu::new requests IMMEDIATES where offered"
     );
@@ -674,8 +674,12 @@ fn immediates_and_uniform_list_agree() {
             ..Default::default()
         },
     );
-    assert!(!without.uses_immediates());
-    assert!(!new_deformer(&k.c, &k.mesh, &layout(LStorage::Buffers)).uses_immediates());
+    assert!(!without.stats().uses_immediates);
+    assert!(
+        !new_deformer(&k.c, &k.mesh, &layout(LStorage::Buffers))
+            .stats()
+            .uses_immediates
+    );
     let mut rng = Rng(11);
     let inline = touchfem::gpu::INLINE_ACTIVE;
     // Every inline count (each has its own specialised pipeline), and switches both ways.

@@ -152,7 +152,7 @@ fn correction_matches_displace(mesh: &Mesh, at: DVec3, first: &[usize], more: &[
                 .unwrap();
             let k = carried.correction().unwrap();
             d.set_correction(&g.device, &g.queue, Some(k)).unwrap();
-            assert_eq!(d.correction_rank(), k.rank);
+            assert_eq!(d.stats().correction_rank, k.rank);
             ranks.push(k.rank);
             // The weights follow the forces set before the correction; set them again anyway.
             d.set_forces(&g.queue, &forces).unwrap();
@@ -180,7 +180,7 @@ fn correction_matches_displace(mesh: &Mesh, at: DVec3, first: &[usize], more: &[
         assert!(ranks[1] > ranks[0], "{ranks:?}");
         // Without the correction, the uncut pass again.
         d.set_correction(&g.device, &g.queue, None).unwrap();
-        assert_eq!(d.correction_rank(), 0);
+        assert_eq!(d.stats().correction_rank, 0);
         let (pos, _) = run(&d);
         assert_eq!(pos, uncut);
     }
@@ -228,7 +228,7 @@ fn a_correction_that_does_not_fit_is_refused_and_changes_nothing() {
         Err(GpuError::BadInput(m)) => assert!(m.contains("rank 1"), "{m}"),
         other => panic!("{other:?}"),
     }
-    assert_eq!(d.correction_rank(), 0);
+    assert_eq!(d.stats().correction_rank, 0);
     // Triangles on a node that is not a displayed row: refused, the surface kept.
     let interior = (0..mesh.nodes.len() as u32)
         .find(|&v| base.row_of(v).is_none())
@@ -342,7 +342,7 @@ fn the_opened_incision_is_drawn_with_outward_normals() {
              {uncut_us:.0} µs uncut, {cut_us:.0} µs with the correction ({} forces)",
             body.triangles.len(),
             before / 3,
-            d.correction_rank(),
+            d.stats().correction_rank,
             forces.len()
         );
         assert!(new_faces > 10, "{new_faces}");
@@ -357,7 +357,7 @@ fn the_opened_incision_is_drawn_with_outward_normals() {
 /// holds the cut body. Returns the image and the camera.
 fn incision_frame(cut: bool) -> (image::RgbaImage, touchfem::render::Camera) {
     use touchfem::render::{Camera, Coloring, Edges, Frame, FrameObject, Renderer};
-    use touchfem::visual::{frame_objects, SampleMarks, Visual};
+    use touchfem_app::visual::{frame_objects, SampleMarks, Visual};
     let g = gpu();
     let inc = incision();
     let w = &inc.world;
@@ -374,7 +374,7 @@ fn incision_frame(cut: bool) -> (image::RgbaImage, touchfem::render::Camera) {
     let ds = visual.deformers().unwrap();
     if cut {
         assert_eq!(ds[0].index_count() as usize, 3 * inc.body.triangles.len());
-        assert_eq!(ds[0].correction_rank(), inc.body.report.rank);
+        assert_eq!(ds[0].stats().correction_rank, inc.body.report.rank);
     }
     let edges: Vec<Edges> = ds.iter().map(|d| Edges::new(&g.device, d)).collect();
     let objects: Vec<FrameObject<'_>> = frame_objects(w, ds, &edges);
@@ -472,7 +472,7 @@ fn cube_world(young: f64) -> World {
 /// as a cut folded into `L` would be).
 #[test]
 fn the_visual_path_follows_a_feed_and_uploads_a_new_l() {
-    use touchfem::visual::Visual;
+    use touchfem_app::visual::Visual;
     let g = gpu();
     let w = cube_world(5.0e4);
     let other = cube_world(1.0e5);

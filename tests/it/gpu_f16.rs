@@ -15,7 +15,7 @@ fn rel_error(g: &Gpu, mesh: &Mesh, c: &Compliance, storage: LStorage, cols: &[u3
     };
     let mut d =
         Deformer::new(&g.device, &g.queue, c, &mesh.nodes, &mesh.surface, &opts).expect("deformer");
-    assert_eq!(d.storage(), storage);
+    assert_eq!(d.stats().storage, storage);
     // Forces of 50 .. 250 mN in mixed directions on the given columns (displacements of
     // millimetres, so that the f32 rounding of the rest positions stays below 1e-6 of them).
     let forces: Vec<(u32, DVec3)> = cols

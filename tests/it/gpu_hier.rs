@@ -174,9 +174,9 @@ fn hier_positions_match_the_cpu_product() {
     for (name, c) in [("1e-3", &m.h3), ("1e-6", &m.h6)] {
         let h = hmat(c);
         let mut d = deformer(c, &DeformerOptions::default()).expect("deformer");
-        assert_eq!(d.storage(), LStorage::Hier);
-        assert_eq!(d.chunk_count(), 1);
-        assert_eq!(d.l_bytes(), hier_gpu_bytes(h, false));
+        assert_eq!(d.stats().storage, LStorage::Hier);
+        assert_eq!(d.stats().chunks, 1);
+        assert_eq!(d.stats().l_bytes, hier_gpu_bytes(h, false));
         // The rest pose first.
         let [e0, u0, x0] = frame(c, &mut d, &[], false);
         assert_eq!(u0, 0.0);
@@ -192,7 +192,7 @@ fn hier_positions_match_the_cpu_product() {
             );
             assert!(umax > 1e-5, "{case}: max|u| {umax:e}");
             assert!(err <= tol, "ε {name}, {case}: error {err:e} > {tol:e}");
-            let windows = d.frame_windows().expect("hierarchical");
+            let windows = d.stats().frame_windows.expect("hierarchical");
             if case == "every column" {
                 assert!(windows >= 2, "{case}: {windows} window(s)");
             } else if case == "one column" {
@@ -225,12 +225,12 @@ fn hier_values_split_over_several_buffers_match() {
         ..Default::default()
     };
     let mut d = deformer(c, &opts).expect("deformer");
-    let n = d.chunk_count();
+    let n = d.stats().chunks;
     println!("values {total} bytes, cap {cap}: {n} buffers");
     assert!((3..=HIER_VALUE_BINDINGS).contains(&n), "{n} buffers");
     // Only the per-buffer padding beside the one-buffer figure.
     let one = hier_gpu_bytes(h, false);
-    assert!(d.l_bytes() >= one && d.l_bytes() <= one + 16 * n as u64);
+    assert!(d.stats().l_bytes >= one && d.stats().l_bytes <= one + 16 * n as u64);
     for (case, cols) in cases(c) {
         let [err, umax, xmax] = frame(c, &mut d, &forces_on(&cols), false);
         println!("split, {case}: max error {:.2e}·max|u|", err / umax);
@@ -248,8 +248,8 @@ fn hier_half_floats_stay_within_2e_3() {
         ..Default::default()
     };
     let mut d16 = deformer(c, &opts).expect("f16 deformer");
-    assert_eq!(d16.storage(), LStorage::HierF16);
-    assert_eq!(d16.l_bytes(), hier_gpu_bytes(h, true));
+    assert_eq!(d16.stats().storage, LStorage::HierF16);
+    assert_eq!(d16.stats().l_bytes, hier_gpu_bytes(h, true));
     // A half-float option for a dense layout asks for half floats here too.
     let d = deformer(
         c,
@@ -259,7 +259,7 @@ fn hier_half_floats_stay_within_2e_3() {
         },
     )
     .expect("deformer");
-    assert_eq!(d.storage(), LStorage::HierF16);
+    assert_eq!(d.stats().storage, LStorage::HierF16);
     let mut d32 = deformer(c, &DeformerOptions::default()).expect("f32 deformer");
     for (case, cols) in cases(c) {
         let f = forces_on(&cols);
@@ -287,7 +287,7 @@ fn hier_stores_less_than_the_dense_l() {
         },
     )
     .expect("dense deformer");
-    assert_eq!(dense.l_bytes(), dense_f32);
+    assert_eq!(dense.stats().l_bytes, dense_f32);
     for (name, c) in [("1e-3", &m.h3), ("1e-6", &m.h6)] {
         let h = hmat(c);
         let (b32, b16) = (hier_gpu_bytes(h, false), hier_gpu_bytes(h, true));
@@ -340,7 +340,7 @@ fn hier_bad_cases_are_typed_errors() {
     let r = d.set_correction(&g.device, &g.queue, Some(&Correction::default()));
     assert!(matches!(r, Err(GpuError::Unsupported(_))), "{r:?}");
     assert!(d.set_correction(&g.device, &g.queue, None).is_ok());
-    assert_eq!(d.correction_rank(), 0);
+    assert_eq!(d.stats().correction_rank, 0);
     // The hierarchical layout asked for with a dense L.
     let r = deformer(
         &m.dense,
@@ -418,7 +418,7 @@ fn frame_time() {
 #[test]
 fn visual_path_draws_a_hierarchical_compliance() {
     use touchfem::runtime::WorldSample;
-    use touchfem::visual::Visual;
+    use touchfem_app::visual::Visual;
     let g = gpu();
     let mut w = crate::common::world_from_text(
         "unit = \"mm\"\n[[object]]\nmesh = \"cube\"\n[[finger]]\ndevice = \"pointer\"\n",
@@ -455,7 +455,7 @@ fn visual_path_draws_a_hierarchical_compliance() {
     visual.update(&sample);
     assert_eq!(visual.backend(), "gpu", "{:?}", visual.failure());
     let d = &visual.deformers().expect("gpu")[0];
-    assert_eq!(d.storage(), LStorage::Hier);
+    assert_eq!(d.stats().storage, LStorage::Hier);
     let pos = d.read_back(&g.device, &g.queue).expect("read back").0;
     let err = c
         .rows()

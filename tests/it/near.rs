@@ -132,7 +132,7 @@ fn the_deformer_reads_the_cache_file_into_the_same_vertices() {
                 },
             )
             .expect("deformer");
-            assert_eq!(auto16.storage(), LStorage::TextureF16);
+            assert_eq!(auto16.stats().storage, LStorage::TextureF16);
         }
         assert_eq!(out[0].0, out[1].0, "{storage:?} positions");
         assert_eq!(out[0].1, out[1].1, "{storage:?} normals");

@@ -15,7 +15,7 @@ use touchfem::runtime::{
     join_haptic, run_haptic, sample_channel, DoneGuard, HapticWorld, LiveStatus, WorldSample,
 };
 use touchfem::scene::World;
-use touchfem::visual::Visual;
+use touchfem_app::visual::Visual;
 
 fn world(toml: &str) -> World {
     crate::common::world_from_text(toml).unwrap()

@@ -1,8 +1,8 @@
 //! # touchfem-app
 //!
 //! The `touchfem` program: its command line ([`args`], [`cli`]), the bundled demo ([`demo`]),
-//! the interactive window ([`window`]), `precompute` with its progress bar ([`precompute`]) and
-//! the VTK output ([`vtu`]). It is the edge of the workspace: environment variables are read and
+//! the interactive window ([`window`]), the visual path both draw from ([`visual`]), `precompute`
+//! with its progress bar ([`precompute`]) and the VTK output ([`vtu`]). It is the edge of the workspace: environment variables are read and
 //! things are printed here, and the libraries' log records are written to stderr.
 
 pub mod args;
@@ -10,6 +10,7 @@ pub mod cli;
 pub mod demo;
 pub mod error;
 pub mod precompute;
+pub mod visual;
 pub mod vtu;
 pub mod window;
 

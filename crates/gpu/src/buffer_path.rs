@@ -1,23 +1,23 @@
 //! The storage-buffer layout of `L` (`shaders/deform.wgsl`): the f32 column-major `L` split by
 //! column nodes into storage buffers no larger than the device's binding limit; one dispatch
-//! per buffer with active columns, then the normal pass over a vertex → triangle CSR list.
+//! per buffer with active columns (the normal pass is [`crate::surface`]'s).
 //! The natural layout for hardware GPUs (neighbouring invocations read neighbouring words).
 
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
-use crate::bind::{buffer, compute_pipeline, specialised_pipeline, storage_entry, uniform_entry};
+use crate::bind::{buffer, specialised_pipeline, storage_entry, uniform_entry};
 use crate::context::GpuError;
 use crate::input::{Shared, MAX_ACTIVE, WORKGROUP};
-use crate::shaders::DEFORM_WGSL;
+use crate::shaders::{deform_source, DEFORM_WGSL};
 
-/// `shaders/deform.wgsl` with `L` read as half floats, two per `u32` word
+/// `shaders/deform.wgsl` (after `frame.wgsl`) with `L` read as half floats, two per `u32` word
 /// ([`crate::LStorage::BuffersF16`]).
-pub fn deform_f16_wgsl() -> String {
+pub(crate) fn deform_f16_wgsl() -> String {
     const F32_DECL: &str = "var<storage, read> l: array<f32>;";
     const F32_LOAD: &str = "return vec3<f32>(l[i], l[i + 1u], l[i + 2u]);";
     assert!(DEFORM_WGSL.contains(F32_DECL) && DEFORM_WGSL.contains(F32_LOAD));
-    DEFORM_WGSL
+    deform_source()
         .replace(F32_DECL, "var<storage, read> l: array<u32>;")
         .replace(
             F32_LOAD,
@@ -32,7 +32,7 @@ pub fn deform_f16_wgsl() -> String {
 
 /// `values` as IEEE binary16, packed two per little-endian `u32` (the first in the low half),
 /// zero-padded to a whole word.
-pub fn pack_f16(values: &[f32]) -> Vec<u32> {
+pub(crate) fn pack_f16(values: &[f32]) -> Vec<u32> {
     values
         .chunks(2)
         .map(|p| {
@@ -84,14 +84,10 @@ pub(super) struct BufferPath {
     chunk_params: wgpu::Buffer,
     active: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
-    /// What group 0 is built from, kept to rebuild it when the triangles change.
-    layout0: wgpu::BindGroupLayout,
     frame_buf: wgpu::Buffer,
-    rest_buf: wgpu::Buffer,
-    out: (wgpu::Buffer, u64, u64),
-    n_rows: usize,
+    /// The shader module (its `normals` entry is the normal pass's).
+    module: wgpu::ShaderModule,
     deform: wgpu::ComputePipeline,
-    normals: wgpu::ComputePipeline,
     scratch: Vec<ActiveGpu>,
     first: Vec<u32>,
 }
@@ -100,10 +96,7 @@ impl BufferPath {
     pub(super) fn new(sh: &Shared<'_>) -> Result<BufferPath, GpuError> {
         let (device, queue, nr, nc) = (sh.device, sh.queue, sh.nr, sh.nc);
         let limits = device.limits();
-        let adj = adjacency(nr, sh.tris);
         sh.check("rest positions", 16 * nr as u64)?;
-        sh.check("triangle list", 4 * sh.index_words)?;
-        sh.check("vertex-triangle adjacency", 4 * adj.len() as u64)?;
 
         // f32: 9R' floats per column node; f16: 9R' halves (+ a pad half per chunk).
         let bytes_per_col = if sh.half { 18 } else { 36 } * sh.nl.max(1) as u64;
@@ -155,8 +148,6 @@ impl BufferPath {
                 uniform_entry(1),
                 storage_entry(2, true),
                 storage_entry(3, false),
-                storage_entry(4, true),
-                storage_entry(5, true),
             ],
         });
         let layout1 = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -164,16 +155,21 @@ impl BufferPath {
             entries: &[uniform_entry(0), storage_entry(1, true)],
         });
         let (out, out_start, out_size) = sh.out;
-        let out = (out.clone(), out_start, out_size);
-        let bind_group = group0(
-            device,
-            &layout0,
-            [&frame_buf, &active, &rest_buf],
-            nr,
-            &out,
-            (sh.index_buffer, sh.index_words),
-            &adj,
-        );
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("touchfem deform group 0"),
+            layout: &layout0,
+            entries: &[
+                buffer(
+                    0,
+                    &frame_buf,
+                    0,
+                    std::mem::size_of::<crate::input::FrameGpu>() as u64,
+                ),
+                buffer(1, &active, 0, active.size()),
+                buffer(2, &rest_buf, 0, 16 * nr as u64),
+                buffer(3, out, out_start, out_size),
+            ],
+        });
 
         let mut chunks = Vec::with_capacity(n_chunks);
         let col_len = 9 * sh.nl;
@@ -225,7 +221,7 @@ impl BufferPath {
         let source = if sh.half {
             deform_f16_wgsl().into()
         } else {
-            DEFORM_WGSL.into()
+            deform_source().into()
         };
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("touchfem deform.wgsl"),
@@ -241,11 +237,7 @@ impl BufferPath {
             chunk_params,
             active,
             bind_group,
-            layout0: layout0.clone(),
             frame_buf,
-            rest_buf,
-            out,
-            n_rows: nr,
             // The deformer's own `Vertex`es carry |u| in position.w (word 3).
             deform: specialised_pipeline(
                 device,
@@ -259,7 +251,7 @@ impl BufferPath {
                     &[]
                 },
             ),
-            normals: compute_pipeline(device, &module, "normals", &[&layout0], 0),
+            module,
             scratch: Vec::with_capacity(MAX_ACTIVE),
         })
     }
@@ -320,35 +312,6 @@ impl BufferPath {
         }
     }
 
-    /// Records the normal pass.
-    pub(super) fn record_normals(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32) {
-        pass.set_pipeline(&self.normals);
-        pass.set_bind_group(0, &self.bind_group, &[]);
-        pass.dispatch_workgroups(n_rows.div_ceil(WORKGROUP), 1, 1);
-    }
-
-    /// Takes new triangles (row indices, checked; `index_buffer` holds them as `index_words`
-    /// words): rebuilds the vertex → triangle list and the bindings that read them.
-    pub(super) fn set_triangles(
-        &mut self,
-        device: &wgpu::Device,
-        tris: &[[u32; 3]],
-        index: (&wgpu::Buffer, u64),
-        max_binding: u64,
-    ) -> Result<(), GpuError> {
-        let adj = checked_adjacency(self.n_rows, tris, index.1, max_binding)?;
-        self.bind_group = group0(
-            device,
-            &self.layout0,
-            [&self.frame_buf, &self.active, &self.rest_buf],
-            self.n_rows,
-            &self.out,
-            index,
-            &adj,
-        );
-        Ok(())
-    }
-
     /// Whether `L` is stored as half floats.
     pub(super) fn half(&self) -> bool {
         self.half
@@ -366,76 +329,14 @@ impl BufferPath {
     pub(super) fn l_bytes(&self) -> u64 {
         self.chunks.iter().map(|c| c.l.size()).sum()
     }
-}
 
-/// [`adjacency`] for new triangles (`index_words` words in the index buffer), each binding
-/// checked against `max_binding` bytes.
-pub(crate) fn checked_adjacency(
-    nr: usize,
-    tris: &[[u32; 3]],
-    index_words: u64,
-    max_binding: u64,
-) -> Result<Vec<u32>, GpuError> {
-    let adj = adjacency(nr, tris);
-    for (what, bytes) in [
-        ("triangle list", 4 * index_words),
-        ("vertex-triangle adjacency", 4 * adj.len() as u64),
-    ] {
-        if bytes > max_binding {
-            return Err(GpuError::BufferTooLarge {
-                what,
-                bytes,
-                limit: max_binding,
-            });
-        }
+    /// The shader module (the normal pass's `normals` entry).
+    pub(super) fn module(&self) -> &wgpu::ShaderModule {
+        &self.module
     }
-    Ok(adj)
-}
 
-/// The normal pass's adjacency: offsets[0..=nr], then each vertex's triangle fans
-/// ([`vertex_fans`](touchfem_core::mesh::vertex_fans): its neighbours, each chain begun by
-/// `FAN_START`), in one list. One position load per neighbour instead of three corners and
-/// three positions per triangle.
-pub(crate) fn adjacency(nr: usize, tris: &[[u32; 3]]) -> Vec<u32> {
-    let (ranges, list) = touchfem_core::mesh::vertex_fans(nr, tris, false);
-    let mut adj = Vec::with_capacity(nr + 1 + list.len());
-    adj.extend(ranges.iter().map(|r| r[0]));
-    adj.push(list.len() as u32);
-    adj.extend_from_slice(&list);
-    adj
-}
-
-/// Group 0 of both passes: frame, active list and rest positions (`b`), the output, the
-/// triangles and their adjacency (uploaded here).
-fn group0(
-    device: &wgpu::Device,
-    layout: &wgpu::BindGroupLayout,
-    b: [&wgpu::Buffer; 3],
-    nr: usize,
-    out: &(wgpu::Buffer, u64, u64),
-    index: (&wgpu::Buffer, u64),
-    adj: &[u32],
-) -> wgpu::BindGroup {
-    let adj_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some("touchfem vertex-triangle CSR"),
-        contents: bytemuck::cast_slice(adj),
-        usage: wgpu::BufferUsages::STORAGE,
-    });
-    device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("touchfem deform group 0"),
-        layout,
-        entries: &[
-            buffer(
-                0,
-                b[0],
-                0,
-                std::mem::size_of::<crate::input::FrameGpu>() as u64,
-            ),
-            buffer(1, b[1], 0, b[1].size()),
-            buffer(2, b[2], 0, 16 * nr as u64),
-            buffer(3, &out.0, out.1, out.2),
-            buffer(4, index.0, 0, 4 * index.1),
-            buffer(5, &adj_buf, 0, 4 * adj.len() as u64),
-        ],
-    })
+    /// The frame uniform.
+    pub(super) fn frame(&self) -> &wgpu::Buffer {
+        &self.frame_buf
+    }
 }

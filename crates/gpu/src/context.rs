@@ -65,14 +65,15 @@ pub enum GpuError {
     /// The caller-supplied output target is unusable.
     #[error("invalid output target: {0}")]
     BadOutput(String),
-    /// Reading a buffer back failed.
+    /// Reading a buffer back failed: why (waiting for the GPU, mapping the buffer, or an output
+    /// buffer without `COPY_SRC`).
     #[error("GPU readback failed: {0}")]
-    Readback(#[from] ReadbackError),
+    Readback(String),
 }
 
-/// Why reading a buffer back from the GPU failed.
+/// Why reading a buffer back from the GPU failed (carried as [`GpuError::Readback`]'s text).
 #[derive(Debug, Error)]
-pub enum ReadbackError {
+pub(crate) enum ReadbackError {
     /// Waiting for the GPU failed (device lost, timeout).
     #[error("waiting for the GPU: {0}")]
     Poll(#[from] wgpu::PollError),
@@ -88,6 +89,18 @@ pub enum ReadbackError {
     /// The output buffer cannot be copied from.
     #[error("the output buffer's usage lacks COPY_SRC")]
     NotCopySource,
+}
+
+impl ReadbackError {
+    /// As a [`GpuError::Readback`].
+    pub(crate) fn into_gpu(self) -> GpuError {
+        GpuError::Readback(self.to_string())
+    }
+}
+
+/// `e` as a [`GpuError::Readback`].
+fn readback(e: impl Into<ReadbackError>) -> GpuError {
+    e.into().into_gpu()
 }
 
 /// Which adapter [`Gpu::new`] picks.
@@ -168,6 +181,7 @@ impl Gpu {
     /// `LP_NUM_THREADS=0` before the first context is created.
     ///
     /// [`VisualPlacement::enter_visual`]: touchfem_core::threads::VisualPlacement::enter_visual
+    #[cfg(not(target_arch = "wasm32"))]
     pub fn new_headless_placed(
         placement: &touchfem_core::threads::VisualPlacement,
     ) -> Result<Gpu, GpuError> {
@@ -275,14 +289,9 @@ pub(crate) fn map_read(device: &wgpu::Device, staging: &wgpu::Buffer) -> Result<
     });
     device
         .poll(wgpu::PollType::wait_indefinitely())
-        .map_err(ReadbackError::from)?;
-    rx.recv()
-        .map_err(ReadbackError::from)?
-        .map_err(ReadbackError::from)?;
-    let bytes = staging
-        .get_mapped_range(..)
-        .map_err(ReadbackError::from)?
-        .to_vec();
+        .map_err(readback)?;
+    rx.recv().map_err(readback)?.map_err(readback)?;
+    let bytes = staging.get_mapped_range(..).map_err(readback)?.to_vec();
     staging.unmap();
     Ok(bytes)
 }

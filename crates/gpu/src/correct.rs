@@ -11,12 +11,12 @@ use wgpu::util::DeviceExt;
 
 use crate::bind::{buffer, specialised_pipeline, storage_entry, uniform_entry};
 use crate::context::GpuError;
-use crate::input::WORKGROUP;
+use crate::input::{FrameGpu, WORKGROUP};
 use crate::shaders::correct_source;
 use touchfem_core::compliance::correction::Correction;
 
 /// Largest rank the GPU pass carries (the weights' uniform array, `shaders/correct.wgsl`).
-pub const MAX_CORRECTION_RANK: usize = 4096;
+pub(crate) const MAX_CORRECTION_RANK: usize = 4096;
 
 /// Bytes of the weights' uniform binding.
 const WEIGHT_BYTES: u64 = 4 * MAX_CORRECTION_RANK as u64;
@@ -24,20 +24,22 @@ const WEIGHT_BYTES: u64 = 4 * MAX_CORRECTION_RANK as u64;
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 struct ParamsGpu {
-    l_rows: u32,
+    frame: FrameGpu,
     rank4: u32,
-    out_offset: u32,
-    out_stride: u32,
+    _pad: [u32; 3],
 }
+
+/// Byte offset of `rank4` in [`ParamsGpu`].
+const RANK4_OFFSET: u64 = std::mem::size_of::<FrameGpu>() as u64;
 
 /// Where the correction pass writes: the deformer's output binding, and for the texture layout
 /// the deformed-position texture its normal pass reads.
 pub(crate) struct CorrectionTarget<'a> {
     /// Output buffer, binding start and size in bytes.
     pub out: (&'a wgpu::Buffer, u64, u64),
-    /// First f32 word of vertex 0 inside the binding, and the stride in words.
-    pub out_word: u32,
-    pub stride_words: u32,
+    /// The deformer's frame (first word of vertex 0 inside the binding, the stride in words,
+    /// the rows that hold `L`).
+    pub frame: FrameGpu,
     /// The output is the deformer's own `Vertex` layout (|u| in word 3).
     pub vertex_layout: bool,
     /// The texture layout's deformed positions (`None` for the storage-buffer layout).
@@ -141,10 +143,9 @@ impl CorrectionPass {
         let params = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("touchfem correction params"),
             contents: bytemuck::bytes_of(&ParamsGpu {
-                l_rows: l_rows as u32,
+                frame: t.frame,
                 rank4: 0,
-                out_offset: t.out_word,
-                out_stride: t.stride_words,
+                _pad: [0; 3],
             }),
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
         });
@@ -286,10 +287,8 @@ impl CorrectionPass {
         if !dead.is_empty() {
             queue.write_buffer(&self.dead, 0, bytemuck::cast_slice(&dead));
         }
-        let mut p = [0u32; 2];
-        p[0] = self.l_rows as u32;
-        p[1] = (rank4 / 4) as u32;
-        queue.write_buffer(&self.params, 0, bytemuck::cast_slice(&p));
+        let rank4_vec4s = (rank4 / 4) as u32;
+        queue.write_buffer(&self.params, RANK4_OFFSET, bytemuck::bytes_of(&rank4_vec4s));
         self.weights_of = Correction {
             rank,
             v_cols: k.v_cols.clone(),

@@ -11,8 +11,10 @@ use crate::input::{
     DeformerInput, DeformerOptions, FrameGpu, LData, LStorage, OutputTarget, Shared, Vertex,
     MAX_ACTIVE, NO_NORMALS, VERTEX_STRIDE, WORKGROUP,
 };
+use crate::surface::{NormalPass, NormalsIo, Surface};
 use crate::texture_path::TexturePath;
 use touchfem_core::compliance::correction::Correction;
+use touchfem_core::compliance::Compliance;
 
 enum Path {
     Buffers(BufferPath),
@@ -27,7 +29,7 @@ enum Path {
 /// ([`LData::Hier`]) in its compressed form ([`LStorage::Hier`]). Per frame,
 /// [`set_forces`](Self::set_forces) writes only the active columns and forces (16 bytes each,
 /// plus a 16-byte record per `L` buffer, or the 4-byte count for the texture layout — nothing
-/// at all for a short list passed as immediates, see [`uses_immediates`](Self::uses_immediates));
+/// at all for a short list passed as immediates, see [`DeformerStats::uses_immediates`]);
 /// [`encode`](Self::encode) records one compute pass into the caller's encoder: the
 /// deformation dispatch(es), then the normal pass, which gathers over precomputed per-vertex
 /// adjacency (incident triangles, or triangle fans in the texture layout; WGSL has no float
@@ -43,24 +45,21 @@ pub struct Deformer {
     path: Path,
     target: OutputTarget,
     write_normals: bool,
-    index_buffer: wgpu::Buffer,
-    triangles: Vec<[u32; 3]>,
-    /// For each mesh node up to the largest row's, its row or `u32::MAX`.
-    row_of: Vec<u32>,
+    /// The surface drawn and shaded, and its normal pass.
+    surface: Surface,
+    normals: NormalPass,
     /// Rest positions per row (the correction pass puts pinned rows back there).
     rest_rows: Vec<[f32; 4]>,
-    /// The output binding: start and size in bytes, vertex 0's word and the stride in words.
-    out_binding: (u64, u64, u32, u32),
+    /// The output binding: start and size in bytes.
+    out_binding: (u64, u64),
+    /// The frame uniform every layout starts from (the correction pass's too).
+    frame: FrameGpu,
     vertex_layout: bool,
     max_binding: u64,
     /// The cut's correction, once one was set.
     correction: Option<CorrectionPass>,
     /// This frame's forces (the correction's weights are recomputed from them when it changes).
     forces: Vec<(u32, [f32; 3])>,
-    /// Bumped by each [`set_triangles`](Self::set_triangles).
-    surface_generation: u64,
-    /// Leading triangles without a crease ([`smooth_triangles`](Self::smooth_triangles)).
-    smooth: u32,
 }
 
 impl std::fmt::Debug for Deformer {
@@ -68,8 +67,7 @@ impl std::fmt::Debug for Deformer {
         f.debug_struct("Deformer")
             .field("n_rows", &self.n_rows)
             .field("n_cols", &self.n_cols)
-            .field("storage", &self.storage())
-            .field("chunks", &self.chunk_count())
+            .field("stats", &self.stats())
             .field("target", &self.target)
             .finish_non_exhaustive()
     }
@@ -141,21 +139,8 @@ impl Deformer {
             rest_rows.push([p.x as f32, p.y as f32, p.z as f32, 1.0]);
         }
 
-        // Triangles in row indices.
-        let max_node = input.rows.iter().copied().max().unwrap_or(0) as usize;
-        let mut row_of = vec![u32::MAX; max_node + 1];
-        for (i, &node) in input.rows.iter().enumerate() {
-            row_of[node as usize] = i as u32;
-        }
-        let tris = rows_of_triangles(&row_of, triangles)?;
-        // Triangles without a crease first (a renderer shades them more cheaply), each part in
-        // the given order.
-        let smooth = smooth_mask(&rest_rows, &tris);
-        let n_smooth = smooth.iter().filter(|&&s| s).count() as u32;
-        let tris: Vec<[u32; 3]> = (tris.iter().zip(&smooth).filter(|p| *p.1))
-            .chain(tris.iter().zip(&smooth).filter(|p| !*p.1))
-            .map(|p| *p.0)
-            .collect();
+        // The surface, in row indices (an error names a node that is not a row).
+        let surface = Surface::new(device, input.rows, &rest_rows, triangles)?;
 
         // Output target.
         let target = match &options.output {
@@ -200,8 +185,14 @@ impl Deformer {
             out_size = VERTEX_STRIDE * nr as u64;
         }
 
-        let (index_buffer, index_words) = index_buffer(device, &tris);
-
+        let frame = FrameGpu {
+            n_rows: nr as u32,
+            out_offset: out_word,
+            out_stride: (target.stride / 4) as u32,
+            normal_offset: normal_word,
+            l_rows: nl as u32,
+            _pad: [0; 3],
+        };
         let shared = Shared {
             half: matches!(
                 options.storage,
@@ -214,17 +205,7 @@ impl Deformer {
             nl,
             nc,
             rest_rows: &rest_rows,
-            tris: &tris,
-            index_buffer: &index_buffer,
-            index_words,
-            frame: FrameGpu {
-                n_rows: nr as u32,
-                out_offset: out_word,
-                out_stride: (target.stride / 4) as u32,
-                normal_offset: normal_word,
-                l_rows: nl as u32,
-                _pad: [0; 3],
-            },
+            frame,
             out: (&target.buffer, out_start, out_size),
             max_chunk,
             max_binding,
@@ -291,6 +272,31 @@ impl Deformer {
             Path::Buffers(BufferPath::new(&shared)?)
         };
 
+        let normals = NormalPass::new(
+            device,
+            queue,
+            &NormalsIo {
+                module: match &path {
+                    Path::Buffers(p) => p.module(),
+                    Path::Texture(p) => p.module(),
+                    Path::Hier(p) => p.normals_module(),
+                },
+                frame: match &path {
+                    Path::Buffers(p) => p.frame(),
+                    Path::Texture(p) => p.frame(),
+                    Path::Hier(p) => p.frame(),
+                },
+                out: (&target.buffer, out_start, out_size),
+                positions: match &path {
+                    Path::Texture(p) => Some(p.positions()),
+                    Path::Buffers(_) | Path::Hier(_) => None,
+                },
+                n_rows: nr,
+                max_binding,
+            },
+            &surface,
+        )?;
+
         let mut d = Deformer {
             n_rows: nr as u32,
             n_cols: nc,
@@ -298,22 +304,15 @@ impl Deformer {
             path,
             write_normals: target.normal_offset.is_some(),
             target,
-            index_buffer,
-            triangles: tris,
-            row_of,
+            surface,
+            normals,
             rest_rows,
-            out_binding: (
-                out_start,
-                out_size,
-                out_word,
-                (options.output.as_ref().map_or(VERTEX_STRIDE, |t| t.stride) / 4) as u32,
-            ),
+            out_binding: (out_start, out_size),
+            frame,
             vertex_layout,
             max_binding,
             correction: None,
             forces: Vec::with_capacity(MAX_ACTIVE),
-            surface_generation: 0,
-            smooth: n_smooth,
         };
         d.set_forces(queue, &[])?;
         Ok(d)
@@ -321,7 +320,7 @@ impl Deformer {
 
     /// Sets this frame's force boundary condition: `(column index, force in newtons)` pairs.
     /// Columns may repeat (their forces add). Writes `16·forces.len()` bytes plus 16 bytes per
-    /// chunk, or nothing when the list fits the immediates ([`uses_immediates`](Self::uses_immediates));
+    /// chunk, or nothing when the list fits the immediates ([`DeformerStats::uses_immediates`]);
     /// takes effect for the next [`encode`](Self::encode)d pass submitted after it.
     ///
     /// Errors (and then changes nothing): more than [`MAX_ACTIVE`] entries, a column out of
@@ -372,7 +371,7 @@ impl Deformer {
     ///
     /// Errors (and then changes nothing): a correction whose sizes do not fit this deformer's
     /// rows and columns ([`GpuError::BadInput`]), a rank above
-    /// [`MAX_CORRECTION_RANK`](crate::MAX_CORRECTION_RANK) or `U` larger than a storage binding
+    /// 4,096 or `U` larger than a storage binding
     /// ([`GpuError::BufferTooLarge`]; draw that cut with the CPU's `displace`).
     pub fn set_correction(
         &mut self,
@@ -408,7 +407,7 @@ impl Deformer {
         }
         crate::correct::check_size(nl, r, self.max_binding)?;
         if self.correction.is_none() {
-            let (start, size, word, stride) = self.out_binding;
+            let (start, size) = self.out_binding;
             let positions = match &self.path {
                 Path::Buffers(_) | Path::Hier(_) => None,
                 Path::Texture(p) => Some(p.positions()),
@@ -417,8 +416,7 @@ impl Deformer {
                 device,
                 &CorrectionTarget {
                     out: (&self.target.buffer, start, size),
-                    out_word: word,
-                    stride_words: stride,
+                    frame: self.frame,
                     vertex_layout: self.vertex_layout,
                     positions,
                     rest_rows: &self.rest_rows[..nl],
@@ -430,12 +428,6 @@ impl Deformer {
         c.set(device, queue, k, self.max_binding)?;
         c.set_forces(queue, &self.forces);
         Ok(())
-    }
-
-    /// The rank of the correction carried ([`set_correction`](Self::set_correction)); 0 when
-    /// none.
-    pub fn correction_rank(&self) -> usize {
-        self.correction.as_ref().map_or(0, |c| c.rank())
     }
 
     /// Replaces the surface drawn and shaded: `triangles` as **mesh node** indices,
@@ -454,48 +446,21 @@ impl Deformer {
         queue: &wgpu::Queue,
         triangles: &[[u32; 3]],
     ) -> Result<(), GpuError> {
-        let tris = rows_of_triangles(&self.row_of, triangles)?;
-        let (index_buffer, words) = index_buffer(device, &tris);
-        match &mut self.path {
-            Path::Buffers(p) => {
-                p.set_triangles(device, &tris, (&index_buffer, words), self.max_binding)?
-            }
-            Path::Texture(p) => p.set_triangles(device, queue, &tris)?,
-            Path::Hier(p) => {
-                p.set_triangles(device, &tris, (&index_buffer, words), self.max_binding)?
-            }
-        }
-        self.index_buffer = index_buffer;
-        self.triangles = tris;
-        self.surface_generation += 1;
-        // A cut's faces meet the surface at an edge: shaded as creases, in the given order.
-        self.smooth = 0;
+        self.surface
+            .set_triangles(device, queue, &mut self.normals, triangles)?;
         Ok(())
-    }
-
-    /// How many triangles, first in [`triangles`](Self::triangles) and the index buffer, have
-    /// no crease: at rest each of their vertices' normals is within about 8° (cosine 0.99) of
-    /// theirs. [`new`](Self::new) puts them first (the rest keep their order after them); after
-    /// [`set_triangles`](Self::set_triangles) there are none. A renderer shades these with their
-    /// vertex normals alone and the others with their facet normals at creases (found per
-    /// pixel, most of a software rasteriser's fragment cost).
-    pub fn smooth_triangles(&self) -> u32 {
-        self.smooth
     }
 
     /// How many times [`set_triangles`](Self::set_triangles) replaced the surface (0 after
     /// [`new`](Self::new)): what a renderer compares to know when to rebuild what it derived
     /// from [`triangles`](Self::triangles) (e.g. its wireframe).
     pub fn surface_generation(&self) -> u64 {
-        self.surface_generation
+        self.surface.generation()
     }
 
     /// The vertex (row) index of mesh node `node`, if it is displayed.
     pub fn row_of(&self, node: u32) -> Option<u32> {
-        self.row_of
-            .get(node as usize)
-            .copied()
-            .filter(|&r| r != u32::MAX)
+        self.surface.row_of(node)
     }
 
     /// Records the deformation and normal passes (one compute pass) into `encoder`. Draw from
@@ -517,11 +482,7 @@ impl Deformer {
             c.record(&mut pass);
         }
         if self.write_normals {
-            match &self.path {
-                Path::Buffers(p) => p.record_normals(&mut pass, self.n_rows),
-                Path::Texture(p) => p.record_normals(&mut pass, self.n_rows),
-                Path::Hier(p) => p.record_normals(&mut pass, self.n_rows),
-            }
+            self.normals.record(&mut pass, self.n_rows);
         }
     }
 
@@ -539,19 +500,19 @@ impl Deformer {
     /// The surface triangles in vertex (row) indices, `u32`, usage `INDEX | STORAGE`; draw
     /// [`index_count`](Self::index_count) indices.
     pub fn index_buffer(&self) -> &wgpu::Buffer {
-        &self.index_buffer
+        self.surface.index_buffer()
     }
 
     /// Number of indices in [`index_buffer`](Self::index_buffer) (3 per triangle).
     pub fn index_count(&self) -> u32 {
-        3 * self.triangles.len() as u32
+        3 * self.surface.triangles().len() as u32
     }
 
     /// The surface triangles in vertex (row) indices (CPU copy), in the index buffer's order:
     /// after [`new`](Self::new) those without a crease first
-    /// ([`smooth_triangles`](Self::smooth_triangles)).
+    /// ([`DeformerStats::smooth_triangles`]).
     pub fn triangles(&self) -> &[[u32; 3]] {
-        &self.triangles
+        self.surface.triangles()
     }
 
     /// Number of displayed vertices R.
@@ -559,8 +520,43 @@ impl Deformer {
         self.n_rows
     }
 
-    /// The layout `L` is stored in ([`LStorage::Auto`] and [`LStorage::AutoF16`] resolved).
-    pub fn storage(&self) -> LStorage {
+    /// What the deformer holds and how it runs: its layout of `L`, chunks and bytes, the last
+    /// frame's windows, the correction's rank, the smooth triangles. For tools, tests and
+    /// reports; nothing here is needed to drive the pass.
+    pub fn stats(&self) -> DeformerStats {
+        let (chunks, columns_per_chunk, l_bytes, frame_windows) = match &self.path {
+            Path::Buffers(p) => (p.chunk_count(), Some(p.cols_per_chunk()), p.l_bytes(), None),
+            Path::Texture(p) => (p.layer_count(), None, p.l_bytes(), None),
+            Path::Hier(p) => (
+                p.value_buffers(),
+                None,
+                p.l_bytes(),
+                Some(p.frame_windows()),
+            ),
+        };
+        DeformerStats {
+            storage: self.storage(),
+            uses_immediates: match &self.path {
+                Path::Buffers(_) | Path::Hier(_) => false,
+                Path::Texture(p) => p.uses_immediates(),
+            },
+            chunks,
+            columns_per_chunk,
+            l_bytes,
+            frame_windows,
+            correction_rank: self.correction.as_ref().map_or(0, |c| c.rank()),
+            smooth_triangles: self.surface.smooth(),
+        }
+    }
+
+    /// Leading triangles without a crease ([`DeformerStats::smooth_triangles`]), for the
+    /// renderer's draw.
+    pub(crate) fn smooth_triangles(&self) -> u32 {
+        self.surface.smooth()
+    }
+
+    /// The layout `L` is stored in.
+    fn storage(&self) -> LStorage {
         match self.path {
             Path::Buffers(ref b) if b.half() => LStorage::BuffersF16,
             Path::Buffers(_) => LStorage::Buffers,
@@ -568,59 +564,6 @@ impl Deformer {
             Path::Texture(_) => LStorage::Texture,
             Path::Hier(ref h) if h.half() => LStorage::HierF16,
             Path::Hier(_) => LStorage::Hier,
-        }
-    }
-
-    /// Whether the active list travels as immediates (Vulkan push constants): the texture
-    /// layout on a device with [`wgpu::Features::IMMEDIATES`] and 128 bytes of them, unless
-    /// [`DeformerOptions::no_immediates`]. Then a frame with at most
-    /// [`INLINE_ACTIVE`](crate::shaders::INLINE_ACTIVE) entries (two contact triangles' nodes) uploads
-    /// nothing; [`set_forces`](Self::set_forces) keeps the list for the next
-    /// [`encode`](Self::encode).
-    pub fn uses_immediates(&self) -> bool {
-        match &self.path {
-            Path::Buffers(_) | Path::Hier(_) => false,
-            Path::Texture(p) => p.uses_immediates(),
-        }
-    }
-
-    /// Number of storage buffers ([`LStorage::Buffers`], or the values of [`LStorage::Hier`])
-    /// or texture array layers ([`LStorage::Texture`]) `L` is split into.
-    pub fn chunk_count(&self) -> usize {
-        match &self.path {
-            Path::Buffers(p) => p.chunk_count(),
-            Path::Texture(p) => p.layer_count(),
-            Path::Hier(p) => p.value_buffers(),
-        }
-    }
-
-    /// Bytes the GPU holds for `L`: the storage buffers or the texture, and for
-    /// [`LStorage::Hier`] its values, tables and per-frame work buffer (what
-    /// [`hier_gpu_bytes`](crate::hier_gpu_bytes) estimates without a GPU).
-    pub fn l_bytes(&self) -> u64 {
-        match &self.path {
-            Path::Buffers(p) => p.l_bytes(),
-            Path::Texture(p) => p.l_bytes(),
-            Path::Hier(p) => p.l_bytes(),
-        }
-    }
-
-    /// For [`LStorage::Hier`], the uniform windows the last [`set_forces`](Self::set_forces)
-    /// laid its tables out in (one a dispatch of the row pass; more than one only when many
-    /// column leaves are active); `None` for the dense layouts.
-    pub fn frame_windows(&self) -> Option<usize> {
-        match &self.path {
-            Path::Hier(p) => Some(p.frame_windows()),
-            Path::Buffers(_) | Path::Texture(_) => None,
-        }
-    }
-
-    /// Column nodes per storage buffer ([`LStorage::Buffers`]); `None` for the texture layout,
-    /// which splits `L` by texel rows instead, and for the hierarchical one (by blocks).
-    pub fn columns_per_chunk(&self) -> Option<usize> {
-        match &self.path {
-            Path::Buffers(p) => Some(p.cols_per_chunk()),
-            Path::Texture(_) | Path::Hier(_) => None,
         }
     }
 
@@ -634,7 +577,7 @@ impl Deformer {
     ) -> Result<(Vec<[f32; 3]>, Option<Vec<[f32; 3]>>), GpuError> {
         let t = &self.target;
         if !t.buffer.usage().contains(wgpu::BufferUsages::COPY_SRC) {
-            return Err(crate::context::ReadbackError::NotCopySource.into());
+            return Err(crate::context::ReadbackError::NotCopySource.into_gpu());
         }
         let n = u64::from(self.n_rows);
         let end = t.offset + (n - 1) * t.stride + t.normal_offset.unwrap_or(0) + 12;
@@ -655,37 +598,85 @@ impl Deformer {
     }
 }
 
-/// `triangles` (mesh nodes) in row indices, through `row_of` (per node, its row or
-/// `u32::MAX`); an error names the first node that is not a displayed row.
-fn rows_of_triangles(row_of: &[u32], triangles: &[[u32; 3]]) -> Result<Vec<[u32; 3]>, GpuError> {
-    let mut tris = Vec::with_capacity(triangles.len());
-    for (t, tri) in triangles.iter().enumerate() {
-        let mut out = [0u32; 3];
-        for (k, &node) in tri.iter().enumerate() {
-            out[k] = row_of.get(node as usize).copied().unwrap_or(u32::MAX);
-            if out[k] == u32::MAX {
-                return Err(GpuError::BadInput(format!(
-                    "triangle {t} {tri:?} uses node {node}, which is not a displayed row"
-                )));
-            }
-        }
-        tris.push(out);
-    }
-    Ok(tris)
+/// What a [`Deformer`] holds and how it runs ([`Deformer::stats`]): diagnostics for tools,
+/// tests and reports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DeformerStats {
+    /// The layout `L` is stored in ([`LStorage::Auto`] and [`LStorage::AutoF16`] resolved).
+    pub storage: LStorage,
+    /// Whether the active list travels as immediates (Vulkan push constants): the texture
+    /// layout on a device with [`wgpu::Features::IMMEDIATES`] and 128 bytes of them, unless
+    /// [`DeformerOptions::no_immediates`]. Then a frame with at most
+    /// [`INLINE_ACTIVE`](crate::INLINE_ACTIVE) entries (two contact triangles' nodes) uploads
+    /// nothing; [`Deformer::set_forces`] keeps the list for the next [`Deformer::encode`].
+    pub uses_immediates: bool,
+    /// Number of storage buffers ([`LStorage::Buffers`], or the values of [`LStorage::Hier`])
+    /// or texture array layers ([`LStorage::Texture`]) `L` is split into.
+    pub chunks: usize,
+    /// Column nodes per storage buffer ([`LStorage::Buffers`]); `None` for the texture layout,
+    /// which splits `L` by texel rows instead, and for the hierarchical one (by blocks).
+    pub columns_per_chunk: Option<usize>,
+    /// Bytes the GPU holds for `L`: the storage buffers or the texture, and for
+    /// [`LStorage::Hier`] its values, tables and per-frame work buffer (what
+    /// [`hier_gpu_bytes`](crate::hier_gpu_bytes) estimates without a GPU).
+    pub l_bytes: u64,
+    /// For [`LStorage::Hier`], the uniform windows the last [`Deformer::set_forces`] laid its
+    /// tables out in (one a dispatch of the row pass; more than one only when many column
+    /// leaves are active); `None` for the dense layouts.
+    pub frame_windows: Option<usize>,
+    /// The rank of the correction carried ([`Deformer::set_correction`]); 0 when none.
+    pub correction_rank: usize,
+    /// How many triangles, first in [`Deformer::triangles`] and the index buffer, have no
+    /// crease: at rest each of their vertices' normals is within about 8° (cosine 0.99) of
+    /// theirs. [`Deformer::new`] puts them first (the rest keep their order after them); after
+    /// [`Deformer::set_triangles`] there are none. A renderer shades these with their vertex
+    /// normals alone and the others with their facet normals at creases (found per pixel, most
+    /// of a software rasteriser's fragment cost).
+    pub smooth_triangles: u32,
 }
 
-/// The triangles' index buffer (`STORAGE | INDEX`, padded to at least 4 words) and how many
-/// words of it to bind.
-fn index_buffer(device: &wgpu::Device, tris: &[[u32; 3]]) -> (wgpu::Buffer, u64) {
-    let mut words: Vec<u32> = tris.iter().flatten().copied().collect();
-    let n = words.len().max(1);
-    words.resize(n.max(4), 0);
-    let b = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some("touchfem triangles"),
-        contents: bytemuck::cast_slice(&words),
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDEX,
-    });
-    (b, words.len() as u64)
+/// Puts a cut body on `deformer`, which was built from `uploaded` for an object whose rest mesh
+/// is `mesh`: `L` again (a new [`Deformer`] with `options`) when the body's `compliance` does
+/// not hold the `L` uploaded ([`Compliance::shares_l`]: a cut folded into a new `L`), then its
+/// correction and its opened surface `triangles` (mesh nodes). Triangles whose nodes are not
+/// displayed rows (a cut beyond the `cuttable` region's nodes) are left out with a warning. The
+/// caller rebuilds what it derived from the deformer's triangles (its wireframe). On an error
+/// the deformer may hold part of the body: draw from the CPU's `displace` then.
+#[allow(clippy::too_many_arguments)]
+pub fn install_cut(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    deformer: &mut Deformer,
+    uploaded: &Compliance,
+    compliance: &Compliance,
+    triangles: &[[u32; 3]],
+    mesh: &touchfem_core::Mesh,
+    options: &DeformerOptions,
+) -> Result<(), GpuError> {
+    if !compliance.shares_l(uploaded) {
+        log::info!("a cut body holds a new L; uploading it");
+        *deformer = Deformer::new(
+            device,
+            queue,
+            compliance,
+            &mesh.nodes,
+            &mesh.surface,
+            options,
+        )?;
+    }
+    let (drawn, left_out): (Vec<[u32; 3]>, Vec<[u32; 3]>) = triangles
+        .iter()
+        .partition(|t| t.iter().all(|&v| deformer.row_of(v).is_some()));
+    if !left_out.is_empty() {
+        log::warn!(
+            "{} of the cut surface's {} triangles use nodes that are not displayed rows; \
+             they are not drawn",
+            left_out.len(),
+            triangles.len()
+        );
+    }
+    deformer.set_triangles(device, queue, &drawn)?;
+    deformer.set_correction(device, queue, compliance.correction())
 }
 
 /// Checks an output target; returns (binding start, binding size, word offset of vertex 0
@@ -737,37 +728,6 @@ fn validate_target(
     ))
 }
 
-/// Cosine of the largest angle between a triangle's and its vertices' normals on a surface
-/// without creases: render.wgsl's `fs_surface` shades with the vertex normal alone from this
-/// cosine on.
-pub(crate) const CREASE_COS: f64 = 0.99;
-
-/// Per triangle, whether it has no crease: its normal within acos([`CREASE_COS`]) of each of
-/// its vertices' area-weighted normals (`rest`: positions per row; `tris`: row indices). A
-/// degenerate triangle has a crease.
-pub(crate) fn smooth_mask(rest: &[[f32; 4]], tris: &[[u32; 3]]) -> Vec<bool> {
-    let at = |r: u32| {
-        let p = rest[r as usize];
-        DVec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
-    };
-    let face = |t: &[u32; 3]| (at(t[1]) - at(t[0])).cross(at(t[2]) - at(t[0]));
-    let mut vn = vec![DVec3::ZERO; rest.len()];
-    for t in tris {
-        let n = face(t);
-        for &v in t {
-            vn[v as usize] += n;
-        }
-    }
-    tris.iter()
-        .map(|t| {
-            let n = face(t).normalize_or_zero();
-            n != DVec3::ZERO
-                && t.iter()
-                    .all(|&v| n.dot(vn[v as usize].normalize_or_zero()) >= CREASE_COS)
-        })
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use crate::input::{LData, LStorage};
@@ -810,83 +770,5 @@ mod tests {
         assert_eq!(a.f16_scale(), 0.5);
         assert_eq!(a.f16_scale(), touchfem_core::compliance::f16_scale(&l32));
         assert_eq!(LData::F64(&[]).f16_scale(), 1.0);
-    }
-
-    /// The unit sphere subdivided `levels` times from an octahedron: positions and
-    /// counter-clockwise triangles.
-    fn sphere(levels: u32) -> (Vec<[f32; 4]>, Vec<[u32; 3]>) {
-        let mut p: Vec<glam::DVec3> = [
-            [1., 0., 0.],
-            [-1., 0., 0.],
-            [0., 1., 0.],
-            [0., -1., 0.],
-            [0., 0., 1.],
-            [0., 0., -1.],
-        ]
-        .map(glam::DVec3::from)
-        .to_vec();
-        let mut t: Vec<[u32; 3]> = vec![
-            [0, 2, 4],
-            [2, 1, 4],
-            [1, 3, 4],
-            [3, 0, 4],
-            [2, 0, 5],
-            [1, 2, 5],
-            [3, 1, 5],
-            [0, 3, 5],
-        ];
-        for _ in 0..levels {
-            let mut mid = std::collections::HashMap::new();
-            let mut next = Vec::new();
-            for &[a, b, c] in &t {
-                let mut m = |i: u32, j: u32| {
-                    *mid.entry((i.min(j), i.max(j))).or_insert_with(|| {
-                        p.push((p[i as usize] + p[j as usize]).normalize());
-                        p.len() as u32 - 1
-                    })
-                };
-                let (ab, bc, ca) = (m(a, b), m(b, c), m(c, a));
-                next.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
-            }
-            t = next;
-        }
-        let rest = p
-            .iter()
-            .map(|v| [v.x as f32, v.y as f32, v.z as f32, 1.0])
-            .collect();
-        (rest, t)
-    }
-
-    #[test]
-    fn creases_are_told_from_smooth_surfaces() {
-        let smooth = |r: &[[f32; 4]], t: &[[u32; 3]]| {
-            super::smooth_mask(r, t).iter().filter(|&&s| s).count()
-        };
-        // An octahedron's edges are creases, and a coarse sphere's (its facets 20° apart); a
-        // finely subdivided sphere has none, however it is scaled.
-        let (rest, t) = sphere(0);
-        assert_eq!(smooth(&rest, &t), 0);
-        let (rest, t) = sphere(1);
-        assert_eq!(smooth(&rest, &t), 0);
-        let (rest, t) = sphere(4);
-        assert_eq!(smooth(&rest, &t), t.len());
-        let big: Vec<[f32; 4]> = rest
-            .iter()
-            .map(|v| [v[0] * 80.0, v[1] * 80.0, v[2] * 80.0, 1.0])
-            .collect();
-        assert_eq!(smooth(&big, &t), t.len());
-        // A sharp spike pulled out of the fine sphere: the triangles around it and their
-        // neighbours (whose vertex normals it bends) are creased, the rest stay smooth.
-        let mut spiked = rest.clone();
-        spiked[0] = [3.0, 0.0, 0.0, 1.0];
-        let around = t.iter().filter(|tri| tri.contains(&0)).count();
-        let n = smooth(&spiked, &t);
-        assert!(
-            n < t.len() - around && n > t.len() * 9 / 10,
-            "{n} of {}",
-            t.len()
-        );
-        // A degenerate triangle is shaded as a crease.
-        assert_eq!(smooth(&rest, &[[0, 0, 1]]), 0);
     }
 }

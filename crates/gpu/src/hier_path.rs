@@ -1,4 +1,4 @@
-//! The hierarchical layout of `L` (`shaders/deform_hier.wgsl`, issue 29): an [`HMatrix`]'s
+//! The hierarchical layout of `L` (`shaders/deform_hier.wgsl`): an [`HMatrix`]'s
 //! compressed form on the GPU — its values (dense near blocks, low-rank factors of far blocks)
 //! in f32 or half floats, split over up to [`HIER_VALUE_BINDINGS`] storage buffers with whole
 //! blocks in each, and its tables (row permutation, block table, per column leaf its blocks by
@@ -7,17 +7,17 @@
 //! as a matrix with its base and strides, and its coefficients: a dense block's active
 //! columns and forces, a low-rank block's `z_b`) in a uniform window (no read-back). One
 //! dispatch computes `z_b = V_bᵀ·f` for the low-rank hits, a copy puts them in the window,
-//! one dispatch a window computes `u` per row along a single code path, and deform.wgsl's
-//! normal pass follows.
+//! one dispatch a window computes `u` per row along a single code path, and the storage-buffer
+//! normal pass ([`crate::surface`], deform.wgsl's) follows.
 
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
 use crate::bind::{buffer, compute_pipeline, specialised_pipeline, storage_entry, uniform_entry};
-use crate::buffer_path::{adjacency, checked_adjacency, pack_f16};
+use crate::buffer_path::pack_f16;
 use crate::context::GpuError;
 use crate::input::{FrameGpu, Shared, MAX_ACTIVE, WORKGROUP};
-use crate::shaders::{DEFORM_HIER_WGSL, DEFORM_WGSL};
+use crate::shaders::{deform_source, with_frame, DEFORM_HIER_WGSL};
 use touchfem_core::compliance::hmatrix::{BlockInfo, HMatrix};
 
 /// Storage bindings the values may be split over (`deform_hier.wgsl`'s `v0` … `v4`): with
@@ -77,7 +77,7 @@ pub(crate) fn deform_hier_wgsl(buffers: usize, half: bool) -> String {
             format!("            z += reduce{k}(base, rs, cs, l, a0, a1, col_start, b.buf);\n")
         })
         .collect();
-    out = out.replace(MORE_ADD, &adds).replace(MORE_REDUCE, &reduces);
+    out = with_frame(&out.replace(MORE_ADD, &adds).replace(MORE_REDUCE, &reduces));
     if half {
         out = out.replace(F32_WORD, "alias Word = u32;");
         for k in 0..buffers {
@@ -174,7 +174,7 @@ fn row_segments(h: &HMatrix) -> Vec<u32> {
 /// bytes a block, 4 bytes an entry of the leaf × segment table), the per-frame work buffer (16
 /// bytes a low-rank block, 8 a rank) and the per-frame uniform windows (64 KiB each, as many
 /// as the largest frame can need). A split over several buffers adds at most 16 bytes a
-/// buffer; [`Deformer::l_bytes`](crate::Deformer::l_bytes) is the exact figure. No GPU needed.
+/// buffer; [`DeformerStats::l_bytes`](crate::DeformerStats::l_bytes) is the exact figure. No GPU needed.
 pub fn hier_gpu_bytes(h: &HMatrix, f16: bool) -> u64 {
     let n = unique_values(h) as u64;
     let values = if f16 { (2 * n).div_ceil(4) * 4 } else { 4 * n };
@@ -324,15 +324,12 @@ pub(super) struct HierPath {
     /// Word offset of the `(l, z_l)` pairs in `work`.
     z_off: u32,
     frame_buf: wgpu::Buffer,
-    out: (wgpu::Buffer, u64, u64),
-    n_rows: usize,
     group0: wgpu::BindGroup,
     values_group: wgpu::BindGroup,
-    normals_layout: wgpu::BindGroupLayout,
-    normals_group: wgpu::BindGroup,
+    /// `deform.wgsl`, whose `normals` entry is the normal pass's.
+    normals_module: wgpu::ShaderModule,
     reduce: wgpu::ComputePipeline,
     deform: wgpu::ComputePipeline,
-    normals: wgpu::ComputePipeline,
     max_groups: u32,
     /// This frame's active entries by column position (position, scaled force).
     active: Vec<(u32, [f32; 3])>,
@@ -389,9 +386,6 @@ impl HierPath {
                 limit: limits.max_uniform_buffer_binding_size,
             });
         }
-        let adj = adjacency(nr, sh.tris);
-        sh.check("triangle list", 4 * sh.index_words)?;
-        sh.check("vertex-triangle adjacency", 4 * adj.len() as u64)?;
 
         let info: Vec<BlockInfo> = h.blocks().collect();
         let (place, lens) = place_blocks(h, sh.half, sh.max_chunk)?;
@@ -612,19 +606,7 @@ impl HierPath {
             label: Some("touchfem hierarchical values"),
             entries: &value_entries,
         });
-        // deform.wgsl's normal pass reads its frame (the first 32 bytes of ours), the output,
-        // the triangles and their adjacency.
-        let normals_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("touchfem hierarchical normals"),
-            entries: &[
-                uniform_entry(0),
-                storage_entry(3, false),
-                storage_entry(4, true),
-                storage_entry(5, true),
-            ],
-        });
         let (out, out_start, out_size) = sh.out;
-        let out = (out.clone(), out_start, out_size);
         let frame_bytes = std::mem::size_of::<HierFrameGpu>() as u64;
         let group0 = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("touchfem hierarchical group 0"),
@@ -633,7 +615,7 @@ impl HierPath {
                 buffer(0, &frame_buf, 0, frame_bytes),
                 buffer(1, &params, 0, PARAMS_BYTES),
                 buffer(2, &idx_buf, 0, 4 * idx.len() as u64),
-                buffer(3, &out.0, out.1, out.2),
+                buffer(3, out, out_start, out_size),
                 buffer(4, &work, 0, 4 * work_words),
                 buffer(5, &tab_buf, 0, WINDOW_BYTES),
             ],
@@ -649,15 +631,6 @@ impl HierPath {
             layout: &layout1,
             entries: &value_bindings,
         });
-        let normals_group = normals_group(
-            device,
-            &normals_layout,
-            &frame_buf,
-            &out,
-            (sh.index_buffer, sh.index_words),
-            &adj,
-        );
-
         let source = deform_hier_wgsl(values.len(), sh.half).into();
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("touchfem deform_hier.wgsl"),
@@ -665,7 +638,7 @@ impl HierPath {
         });
         let normals_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("touchfem deform.wgsl (normals)"),
-            source: wgpu::ShaderSource::Wgsl(DEFORM_WGSL.into()),
+            source: wgpu::ShaderSource::Wgsl(deform_source().into()),
         });
         // The deformer's own `Vertex`es carry |u| in position.w (word 3).
         let with_word = [("DISPLACEMENT_WORD", 3.0)];
@@ -691,11 +664,9 @@ impl HierPath {
             work,
             z_off: 4 * n_lr,
             frame_buf,
-            out,
-            n_rows: nr,
             group0,
             values_group,
-            normals_group,
+            normals_module,
             reduce: compute_pipeline(device, &module, "reduce", &[&layout0, &layout1], 0),
             deform: specialised_pipeline(
                 device,
@@ -705,8 +676,6 @@ impl HierPath {
                 0,
                 constants,
             ),
-            normals: compute_pipeline(device, &normals_module, "normals", &[&normals_layout], 0),
-            normals_layout,
             max_groups: limits.max_compute_workgroups_per_dimension,
             active: Vec::with_capacity(MAX_ACTIVE),
             head: Vec::with_capacity(MAX_ACTIVE + 1),
@@ -901,33 +870,6 @@ impl HierPath {
         }
     }
 
-    /// Records the normal pass.
-    pub(super) fn record_normals(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32) {
-        pass.set_pipeline(&self.normals);
-        pass.set_bind_group(0, &self.normals_group, &[]);
-        pass.dispatch_workgroups(n_rows.div_ceil(WORKGROUP), 1, 1);
-    }
-
-    /// Takes new triangles (row indices, checked): rebuilds the normal pass's adjacency.
-    pub(super) fn set_triangles(
-        &mut self,
-        device: &wgpu::Device,
-        tris: &[[u32; 3]],
-        index: (&wgpu::Buffer, u64),
-        max_binding: u64,
-    ) -> Result<(), GpuError> {
-        let adj = checked_adjacency(self.n_rows, tris, index.1, max_binding)?;
-        self.normals_group = normals_group(
-            device,
-            &self.normals_layout,
-            &self.frame_buf,
-            &self.out,
-            index,
-            &adj,
-        );
-        Ok(())
-    }
-
     /// Whether the values are half floats.
     pub(super) fn half(&self) -> bool {
         self.half
@@ -947,30 +889,14 @@ impl HierPath {
     pub(super) fn l_bytes(&self) -> u64 {
         self.l_bytes
     }
-}
 
-/// The normal pass's group: frame, output, triangles and their adjacency (uploaded here).
-fn normals_group(
-    device: &wgpu::Device,
-    layout: &wgpu::BindGroupLayout,
-    frame: &wgpu::Buffer,
-    out: &(wgpu::Buffer, u64, u64),
-    index: (&wgpu::Buffer, u64),
-    adj: &[u32],
-) -> wgpu::BindGroup {
-    let adj_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some("touchfem vertex-triangle CSR"),
-        contents: bytemuck::cast_slice(adj),
-        usage: wgpu::BufferUsages::STORAGE,
-    });
-    device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("touchfem hierarchical normals"),
-        layout,
-        entries: &[
-            buffer(0, frame, 0, frame.size()),
-            buffer(3, &out.0, out.1, out.2),
-            buffer(4, index.0, 0, 4 * index.1),
-            buffer(5, &adj_buf, 0, 4 * adj.len() as u64),
-        ],
-    })
+    /// `deform.wgsl`'s module (the normal pass's `normals` entry).
+    pub(super) fn normals_module(&self) -> &wgpu::ShaderModule {
+        &self.normals_module
+    }
+
+    /// The frame uniform (its first 32 bytes are the normal pass's frame).
+    pub(super) fn frame(&self) -> &wgpu::Buffer {
+        &self.frame_buf
+    }
 }

@@ -262,7 +262,7 @@ pub struct DeformerOptions {
     pub storage: LStorage,
     /// Never pass the active list as immediates, even where the device has
     /// [`wgpu::Features::IMMEDIATES`] (the texture layout uses them by default; see
-    /// [`Deformer::uses_immediates`](crate::Deformer::uses_immediates)).
+    /// [`DeformerStats::uses_immediates`](crate::DeformerStats::uses_immediates)).
     pub no_immediates: bool,
 }
 
@@ -291,11 +291,6 @@ pub(crate) struct Shared<'a> {
     pub nc: usize,
     /// Rest positions per row, metres, `w = 1`.
     pub rest_rows: &'a [[f32; 4]],
-    /// Surface triangles in row indices.
-    pub tris: &'a [[u32; 3]],
-    /// The triangles as `u32` words (`STORAGE | INDEX`), and how many words to bind.
-    pub index_buffer: &'a wgpu::Buffer,
-    pub index_words: u64,
     pub frame: FrameGpu,
     /// Output buffer, binding start and size in bytes.
     pub out: (&'a wgpu::Buffer, u64, u64),

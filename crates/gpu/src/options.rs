@@ -3,6 +3,6 @@
 //! and `WGPU_POWER_PREF` are read by wgpu).
 
 /// The value of environment variable `name`, if set and UTF-8.
-pub fn var(name: &str) -> Option<String> {
+pub(crate) fn var(name: &str) -> Option<String> {
     std::env::var(name).ok()
 }

@@ -1,12 +1,27 @@
 //! The WGSL sources of the passes (`shaders/` at the workspace root) and the limits they are
-//! written for.
+//! written for. `deform.wgsl`, `deform_hier.wgsl` and `correct.wgsl` share one `Frame` uniform
+//! struct, written once in `frame.wgsl` and put before each of them here ([`with_frame`]).
 
-/// The WGSL source of the deformation and normal passes, storage-buffer layout
-/// (`shaders/deform.wgsl`).
+/// The `Frame` uniform struct (`shaders/frame.wgsl`; the Rust side is
+/// [`FrameGpu`](crate::input::FrameGpu)).
+pub(crate) const FRAME_WGSL: &str = include_str!("../../../shaders/frame.wgsl");
+
+/// `body` with [`FRAME_WGSL`] before it.
+pub(crate) fn with_frame(body: &str) -> String {
+    format!("{FRAME_WGSL}\n{body}")
+}
+
+/// The complete storage-buffer layout shader: [`DEFORM_WGSL`] after [`FRAME_WGSL`].
+pub(crate) fn deform_source() -> String {
+    with_frame(DEFORM_WGSL)
+}
+
+/// The WGSL body of the deformation and normal passes, storage-buffer layout
+/// (`shaders/deform.wgsl`); complete it with [`deform_source`].
 pub(crate) const DEFORM_WGSL: &str = include_str!("../../../shaders/deform.wgsl");
 
-/// The WGSL source of the deformation pass from a hierarchical `L`
-/// (`shaders/deform_hier.wgsl`).
+/// The WGSL body of the deformation pass from a hierarchical `L`
+/// (`shaders/deform_hier.wgsl`); completed by `hier_path::deform_hier_wgsl`.
 pub(crate) const DEFORM_HIER_WGSL: &str = include_str!("../../../shaders/deform_hier.wgsl");
 
 /// The WGSL body of the deformation and normal passes, texture layout
@@ -68,7 +83,7 @@ pub(crate) fn deform_texture_source(immediates: bool, vertex_layout: bool, half:
 /// [`correct_source`].
 pub(crate) const CORRECT_WGSL: &str = include_str!("../../../shaders/correct.wgsl");
 
-/// The complete correction shader: [`CORRECT_WGSL`] with `store_texture` storing each corrected
+/// The complete correction shader: [`CORRECT_WGSL`] after [`FRAME_WGSL`], with `store_texture` storing each corrected
 /// position into the texture layout's deformed-position texture (`positions`, binding 6, read by
 /// its normal pass) or doing nothing (the storage-buffer layout's normals read `out`).
 pub(crate) fn correct_source(positions: bool) -> String {
@@ -80,5 +95,5 @@ pub(crate) fn correct_source(positions: bool) -> String {
     } else {
         "fn store_texture(r: u32, p: vec3<f32>) {}\n"
     };
-    format!("{CORRECT_WGSL}\n{store}")
+    with_frame(&format!("{CORRECT_WGSL}\n{store}"))
 }

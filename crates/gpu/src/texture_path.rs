@@ -1,7 +1,7 @@
 //! The texture layout of `L` (`shaders/deform_texture.wgsl`): `L`, the rest pose, the deformed
 //! positions and the surface adjacency live in read-only storage textures read with
-//! `textureLoad`; one dispatch for `u = L·F`, one for the normals (a gather over triangle
-//! fans, one position load per neighbour). The active list's length, and the list itself when
+//! `textureLoad`; one dispatch for `u = L·F`, one for the normals ([`crate::surface`]'s
+//! texture variant: a gather over triangle fans, one position load per neighbour). The active list's length, and the list itself when
 //! short, travel as immediates where the device has them, so a one-finger frame uploads
 //! nothing.
 //!
@@ -51,17 +51,12 @@ pub(super) struct TexturePath {
     l_bytes: u64,
     active: wgpu::Buffer,
     deform_group: wgpu::BindGroup,
-    normals_group: wgpu::BindGroup,
-    /// What the normal pass's group is built from, kept to rebuild it when the triangles
-    /// change.
-    normals_layout: wgpu::BindGroupLayout,
-    out: (wgpu::Buffer, u64, u64),
     pos_view: wgpu::TextureView,
-    n_rows: usize,
+    /// The shader module (its `normals` entry is the normal pass's).
+    module: wgpu::ShaderModule,
     /// The deformation pipeline; with immediates one per inline entry count
     /// (0..=[`INLINE_ACTIVE`]) and a last one for uploaded lists.
     deform: Vec<wgpu::ComputePipeline>,
-    normals: wgpu::ComputePipeline,
     /// The pass parameters (`n_active` changes per frame).
     frame: wgpu::Buffer,
     /// One `[fx, fy, fz, col]` per entry (bit patterns).
@@ -84,62 +79,9 @@ fn extent_2d(n: u64) -> (u32, u32) {
     (n.min(W) as u32, n.div_ceil(W) as u32)
 }
 
-/// Fan slots per vertex: two texels of four `u32`.
-const FAN_SLOTS: usize = 8;
-
-/// Marks the last slot of a vertex whose fan has more than [`FAN_SLOTS`] entries: the rest
-/// of the slot is the texel where the fan continues.
-const FAN_MORE: u32 = 1 << 30;
-
-/// The normal pass's adjacency: vertex `v`'s triangle fans ([`touchfem_core::mesh::vertex_fans`]) in
-/// texels `2v` and `2v + 1`, [`FAN_SLOTS`] `u32` slots, read without a count: fixed,
-/// straight-line work per vertex, which llvmpipe runs much faster than a loop whose trip count
-/// differs between lanes. Short fans are padded with `FAN_START | v` — the vertex itself
-/// starting a chain, which adds nothing to the normal. A longer fan (valence 8 and up; 1.5 % of
-/// the mouse's vertices) keeps its first 7 entries and ends in `FAN_MORE | t`: at texel `t`
-/// (after the `2R` fixed texels) a count `k`, then the remaining `k` entries.
-fn fan_slots(nr: usize, tris: &[[u32; 3]]) -> Result<Vec<u32>, GpuError> {
-    let (ranges, list) = touchfem_core::mesh::vertex_fans(nr, tris, false);
-    let start = touchfem_core::mesh::FAN_START;
-    if nr as u64 >= u64::from(FAN_MORE) {
-        return Err(GpuError::BadInput(format!(
-            "{nr} displayed vertices; the texture layout's normal pass takes at most {FAN_MORE}"
-        )));
-    }
-    let mut slots = vec![0u32; FAN_SLOTS * nr];
-    let mut extra: Vec<u32> = Vec::new();
-    for (v, &[first, count]) in ranges.iter().enumerate() {
-        let e = &list[first as usize..(first + count) as usize];
-        let s = &mut slots[FAN_SLOTS * v..FAN_SLOTS * (v + 1)];
-        if e.len() <= FAN_SLOTS {
-            for (k, slot) in s.iter_mut().enumerate() {
-                *slot = e.get(k).copied().unwrap_or(start | v as u32);
-            }
-            continue;
-        }
-        let texel = 2 * nr + extra.len() / 4;
-        if texel as u64 >= u64::from(FAN_MORE) {
-            return Err(GpuError::BadInput(format!(
-                "the triangle fans need {texel} texels; at most {FAN_MORE} are supported"
-            )));
-        }
-        s[..FAN_SLOTS - 1].copy_from_slice(&e[..FAN_SLOTS - 1]);
-        s[FAN_SLOTS - 1] = FAN_MORE | texel as u32;
-        let rest = &e[FAN_SLOTS - 1..];
-        extra.push(rest.len() as u32);
-        extra.extend_from_slice(rest);
-        extra.resize(extra.len().next_multiple_of(4), start);
-    }
-    slots.extend(extra);
-    if slots.is_empty() {
-        slots.resize(4, start);
-    }
-    Ok(slots)
-}
-
 /// A 2D texture of `n` texels from `data` (texels of the format's size), zero-padded, `W`
 /// texels a row.
-fn texture_2d(
+pub(crate) fn texture_2d(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
     what: &'static str,
@@ -181,27 +123,6 @@ fn texture_2d(
     ))
 }
 
-/// The normal pass's bindings: the frame, the output, the deformed positions and the fans.
-fn normals_group(
-    device: &wgpu::Device,
-    layout: &wgpu::BindGroupLayout,
-    frame: &wgpu::Buffer,
-    out: (&wgpu::Buffer, u64, u64),
-    pos_view: &wgpu::TextureView,
-    fan_view: &wgpu::TextureView,
-) -> wgpu::BindGroup {
-    device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("touchfem normals (texture)"),
-        layout,
-        entries: &[
-            buffer(0, frame, 0, 32),
-            buffer(2, out.0, out.1, out.2),
-            view(6, pos_view),
-            view(8, fan_view),
-        ],
-    })
-}
-
 impl TexturePath {
     pub(super) fn new(sh: &Shared<'_>) -> Result<TexturePath, GpuError> {
         let (device, queue, nr, nc) = (sh.device, sh.queue, sh.nr as u64, sh.nc as u64);
@@ -218,16 +139,6 @@ impl TexturePath {
         let rest_bytes: &[u8] = bytemuck::cast_slice(sh.rest_rows);
         let rest = texture_2d("touchfem rest positions", rgba, tb, nr, rest_bytes)?;
         let pos = texture_2d("touchfem deformed positions", rgba, tb, nr, rest_bytes)?;
-
-        // Per vertex, its triangle fans in two texels of 4 slots (see `fan_slots`).
-        let fans = fan_slots(sh.nr, sh.tris)?;
-        let fan_tex = texture_2d(
-            "touchfem vertex fans",
-            wgpu::TextureFormat::Rgba32Uint,
-            tb,
-            fans.len() as u64 / 4,
-            bytemuck::cast_slice(&fans),
-        )?;
 
         // L: texel t = (3c + b)·R + r, W texels a row, 2^log_h rows a layer; four f32 (16
         // bytes) or, with half floats, four f16 (8 bytes) a texel.
@@ -373,22 +284,12 @@ impl TexturePath {
                 storage_texture_entry(5, write, rgba, d2),
             ],
         });
-        let normals_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("touchfem normals (texture)"),
-            entries: &[
-                uniform_entry(0),
-                storage_entry(2, false),
-                storage_texture_entry(6, read, rgba, d2),
-                storage_texture_entry(8, read, wgpu::TextureFormat::Rgba32Uint, d2),
-            ],
-        });
         let l_view = l_tex.create_view(&wgpu::TextureViewDescriptor {
             dimension: Some(wgpu::TextureViewDimension::D2Array),
             ..Default::default()
         });
         let v = |t: &wgpu::Texture| t.create_view(&Default::default());
         let (rest_view, pos_view) = (v(&rest), v(&pos));
-        let fan_view = v(&fan_tex);
         let (out, out_start, out_size) = sh.out;
         let deform_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("touchfem deform (texture)"),
@@ -402,14 +303,6 @@ impl TexturePath {
                 view(5, &pos_view),
             ],
         });
-        let normals_group = normals_group(
-            device,
-            &normals_layout,
-            &frame_buf,
-            (out, out_start, out_size),
-            &pos_view,
-            &fan_view,
-        );
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("touchfem deform_texture.wgsl"),
             source: wgpu::ShaderSource::Wgsl(
@@ -444,14 +337,10 @@ impl TexturePath {
                     0,
                 )]
             },
-            normals: compute_pipeline(device, &module, "normals", &[&normals_layout], 0),
             deform_group,
-            normals_group,
-            normals_layout,
-            out: (out.clone(), out_start, out_size),
             pos_view,
-            n_rows: sh.nr,
             frame: frame_buf,
+            module,
             scratch: Vec::with_capacity(MAX_ACTIVE),
             immediates: sh.immediates.then_some([0; IMMEDIATE_WORDS]),
             force_scale,
@@ -520,47 +409,9 @@ impl TexturePath {
         pass.dispatch_workgroups(groups, 1, 1);
     }
 
-    /// Records the normal pass.
-    pub(super) fn record_normals(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32) {
-        pass.set_pipeline(&self.normals);
-        pass.set_bind_group(0, &self.normals_group, &[]);
-        pass.dispatch_workgroups(n_rows.div_ceil(WORKGROUP), 1, 1);
-    }
-
     /// The deformed positions the normal pass reads (the correction pass writes them too).
     pub(super) fn positions(&self) -> &wgpu::TextureView {
         &self.pos_view
-    }
-
-    /// Takes new triangles (row indices, checked): rebuilds the fan texture and the normal
-    /// pass's bindings.
-    pub(super) fn set_triangles(
-        &mut self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-        tris: &[[u32; 3]],
-    ) -> Result<(), GpuError> {
-        let fans = fan_slots(self.n_rows, tris)?;
-        let fan_tex = texture_2d(
-            device,
-            queue,
-            "touchfem vertex fans",
-            wgpu::TextureFormat::Rgba32Uint,
-            wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_DST,
-            fans.len() as u64 / 4,
-            bytemuck::cast_slice(&fans),
-        )?;
-        let fan_view = fan_tex.create_view(&Default::default());
-        let (b, start, size) = &self.out;
-        self.normals_group = normals_group(
-            device,
-            &self.normals_layout,
-            &self.frame,
-            (b, *start, *size),
-            &self.pos_view,
-            &fan_view,
-        );
-        Ok(())
     }
 
     pub(super) fn layer_count(&self) -> usize {
@@ -571,49 +422,14 @@ impl TexturePath {
     pub(super) fn l_bytes(&self) -> u64 {
         self.l_bytes
     }
-}
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use touchfem_core::mesh::FAN_START;
+    /// The shader module (the normal pass's `normals` entry).
+    pub(super) fn module(&self) -> &wgpu::ShaderModule {
+        &self.module
+    }
 
-    /// Decoding the slots as the shader does visits each vertex's fan entries in order: up to
-    /// 8 inline, padding that restarts a chain at the vertex itself, or 7 inline and the rest
-    /// behind `FAN_MORE`.
-    #[test]
-    fn fan_slots_round_trip() {
-        // A cone of 12 triangles (apex fan of 13 entries), a lone triangle, an unused vertex.
-        let mut tris: Vec<[u32; 3]> = (0..12).map(|k| [0, 1 + k, 1 + (k + 1) % 12]).collect();
-        tris.push([13, 14, 15]);
-        let n = 17;
-        let slots = fan_slots(n, &tris).unwrap();
-        let (ranges, list) = touchfem_core::mesh::vertex_fans(n, &tris, false);
-        for v in 0..n {
-            let s = &slots[8 * v..8 * v + 8];
-            let mut seen: Vec<u32> = s[..7].to_vec();
-            if s[7] & FAN_MORE != 0 {
-                let t = (s[7] & !FAN_MORE) as usize;
-                let k = slots[4 * t] as usize;
-                seen.extend_from_slice(&slots[4 * t + 1..4 * t + 1 + k]);
-            } else {
-                seen.push(s[7]);
-            }
-            let [f, c] = ranges[v];
-            let want = &list[f as usize..(f + c) as usize];
-            assert_eq!(&seen[..want.len()], want, "vertex {v}");
-            assert!(
-                seen[want.len()..]
-                    .iter()
-                    .all(|&e| e == FAN_START | v as u32),
-                "vertex {v}: padding"
-            );
-        }
-        assert_eq!(
-            slots[7],
-            FAN_MORE | (2 * n as u32),
-            "the apex continues after the fixed texels"
-        );
-        assert_eq!(slots[8 * n], 13 - 7, "with the 6 entries left");
+    /// The frame uniform.
+    pub(super) fn frame(&self) -> &wgpu::Buffer {
+        &self.frame
     }
 }

@@ -215,12 +215,13 @@ pub fn rows(gpu: Option<&touchfem_gpu::Gpu>, quick: bool) -> Result<Vec<CutRow>,
                     )?;
                     crate::tradeoff::gpu_frame(g, &mut d, &forces)?;
                     let t = Instant::now();
-                    touchfem_gpu::visual::install_cut(
+                    touchfem_gpu::install_cut(
                         &g.device,
                         &g.queue,
                         &mut d,
                         &obj.body.compliance,
-                        &body,
+                        &body.compliance,
+                        &body.triangles,
                         mesh,
                         &opts,
                     )?;

@@ -16,6 +16,7 @@ use std::sync::atomic::{AtomicU8, Ordering};
 use std::time::Instant;
 
 use crate::error::Error;
+use crate::visual::Visual;
 use touchfem_core::contact::force::MAX_FINGERS;
 use touchfem_core::devices::{HapticDevice, KeyframePath};
 use touchfem_core::runtime::pacer::run_floor;
@@ -25,7 +26,6 @@ use touchfem_core::runtime::{
     WorldSample,
 };
 use touchfem_core::scene::{DeviceSpec, World};
-use touchfem_gpu::visual::Visual;
 use touchfem_gpu::Gpu;
 
 /// One object's row of the paper's Table 2.
@@ -289,7 +289,7 @@ fn draw(
         return Ok(None);
     };
     // `Visual::update` ran the deformation passes for this sample: not again here.
-    let objects: Vec<_> = touchfem_gpu::visual::frame_objects(world, deformers, edges)
+    let objects: Vec<_> = crate::visual::frame_objects(world, deformers, edges)
         .into_iter()
         .map(|o| touchfem_gpu::render::FrameObject {
             deformed: true,
@@ -301,8 +301,7 @@ fn draw(
     let [w, h] = renderer.size();
     let n_edges: u64 = edges.iter().map(|e| u64::from(e.index_count() / 2)).sum();
     let wireframe = n_edges <= u64::from(w) * u64::from(h) / 8;
-    let marks =
-        touchfem_gpu::visual::SampleMarks::of(sample, style.arrow_m_per_n).with_tools(world);
+    let marks = crate::visual::SampleMarks::of(sample, style.arrow_m_per_n).with_tools(world);
     let n_f = marks.n;
     let (lo, hi) = world.bounds();
     let frame = touchfem_gpu::render::Frame {

@@ -15,6 +15,7 @@ use winit::window::{Window, WindowId};
 
 use super::blade::PointerRoute;
 use super::{ViewError, WindowOptions, WindowSummary};
+use crate::visual::{CutFollower, GpuTarget};
 use touchfem_core::runtime::{LiveStatus, SampleReader};
 use touchfem_core::scene::World;
 use touchfem_gpu::render::{
@@ -54,9 +55,8 @@ struct Gfx {
     deformers: Vec<Deformer>,
     edges: Vec<Edges>,
     deformer_options: DeformerOptions,
-    /// Each object's cut body drawn (`None`: uncut), and the cutter feed's generation seen.
-    cuts: Vec<Option<Arc<touchfem_core::runtime::cutting::CutBody>>>,
-    cuts_seen: u64,
+    /// Each object's cut body drawn, followed from the cutter's feed.
+    cuts: CutFollower,
     /// The first error the device reported (validation, out of memory, lost).
     device_error: Arc<Mutex<Option<String>>>,
 }
@@ -431,11 +431,10 @@ impl<'a> App<'a> {
             renderer,
             overlay,
             legend,
-            cuts: vec![None; deformers.len()],
+            cuts: CutFollower::new(deformers.len()),
             deformers,
             edges,
             deformer_options,
-            cuts_seen: 0,
             device_error,
         })
     }
@@ -477,8 +476,8 @@ impl<'a> App<'a> {
         let t0 = Instant::now();
         let sample = *self.reader.read();
         let force = super::force_readout(&sample);
-        let marks = touchfem_gpu::visual::SampleMarks::of(&sample, self.arrow_m_per_n)
-            .with_tools(self.world);
+        let marks =
+            crate::visual::SampleMarks::of(&sample, self.arrow_m_per_n).with_tools(self.world);
         let touching = sample.fingers().iter().any(|f| f.object.is_some());
         let coloring = self.coloring();
         let status_due = self
@@ -513,36 +512,23 @@ impl<'a> App<'a> {
         if let Some(e) = g.device_error.lock().ok().and_then(|mut s| s.take()) {
             return Err(ViewError::Device(e));
         }
-        let cuts = self.status.cuts.generation.load(Ordering::Acquire);
-        if cuts != g.cuts_seen {
-            // The cutter's thread made new cut bodies: draw them.
-            g.cuts_seen = cuts;
-            for (o, body) in self.status.cuts.latest() {
-                let (Some(obj), Some(d)) = (self.world.objects.get(o), g.deformers.get_mut(o))
-                else {
-                    continue;
-                };
-                if g.cuts[o].as_ref().is_some_and(|b| Arc::ptr_eq(b, &body)) {
-                    continue;
-                }
-                let uploaded = g.cuts[o]
-                    .as_ref()
-                    .map_or(&obj.body.compliance, |b| &b.compliance);
-                match touchfem_gpu::visual::install_cut(
-                    &g.device,
-                    &g.queue,
-                    d,
-                    uploaded,
-                    &body,
-                    &obj.body.mesh,
-                    &g.deformer_options,
-                ) {
-                    Ok(()) => {
-                        g.edges[o] = Edges::new(&g.device, d);
-                        g.cuts[o] = Some(body);
-                    }
-                    Err(e) => log::warn!("warning: cannot draw the cut of '{}': {e}", obj.name),
-                }
+        // The cutter's thread made new cut bodies: draw them.
+        let (changed, failure) = g.cuts.take(
+            &self.status.cuts,
+            self.world,
+            Some(GpuTarget {
+                device: &g.device,
+                queue: &g.queue,
+                deformers: &mut g.deformers,
+                options: &g.deformer_options,
+            }),
+        );
+        if let Some(e) = failure {
+            log::warn!("{e}");
+        }
+        for o in changed {
+            if let (Some(e), Some(d)) = (g.edges.get_mut(o), g.deformers.get(o)) {
+                *e = Edges::new(&g.device, d);
             }
         }
         for (o, d) in g.deformers.iter_mut().enumerate() {
@@ -591,7 +577,7 @@ impl<'a> App<'a> {
             }
         };
         let view = frame_tex.texture.create_view(&Default::default());
-        let objects = touchfem_gpu::visual::frame_objects(self.world, &g.deformers, &g.edges);
+        let objects = crate::visual::frame_objects(self.world, &g.deformers, &g.edges);
         let n_f = marks.n;
         let frame = Frame {
             objects: &objects,

@@ -3,27 +3,138 @@
 //! timeout) or is lost mid-run is dropped for the rest of the run with one warning; the visual
 //! loop goes on with the CPU product, and the haptic loop, on its own core, never notices.
 //!
-//! **Cuts.** Given the cutter's feed ([`Visual::follow_cuts`]), each update first takes every
-//! object's newest [`CutBody`] when the feed's generation moved: the GPU pass then carries its
-//! correction and draws its opened surface, the CPU product reads its compliance; a body whose
-//! `L` is not the one on the GPU (a cut folded into a new `L`) has its `L` uploaded again.
+//! **Cuts.** [`CutFollower`] is the one place a cut body is taken from the cutter's feed and put
+//! on the GPU, for the demo's [`Visual`] ([`Visual::follow_cuts`]) and the window alike: when the
+//! feed's generation moved, each object's newest [`CutBody`] is installed
+//! ([`touchfem_gpu::install_cut`]: the GPU pass then carries its correction and draws its opened
+//! surface; a body whose `L` is not the one on the GPU, a cut folded into a new `L`, has its `L`
+//! uploaded again), and the CPU product reads its compliance.
+//!
+//! Orchestration over the engine's runtime (its [`World`], [`WorldSample`] and [`CutFeed`]),
+//! kept out of the embeddable `touchfem-gpu`.
 
 use glam::DVec3;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use crate::context::Gpu;
-use crate::deform::Deformer;
-use crate::input::DeformerOptions;
 use touchfem_core::compliance::Compliance;
 use touchfem_core::contact::force::MAX_FINGERS;
 use touchfem_core::runtime::cutting::{CutBody, CutFeed};
 use touchfem_core::runtime::WorldSample;
 use touchfem_core::scene::World;
+use touchfem_gpu::render::{Edges, ForceArrow, FrameObject};
+use touchfem_gpu::{install_cut, Deformer, DeformerOptions, Gpu, LStorage};
 
 /// How long the visual loop waits for one GPU update before it gives the GPU up.
 pub const GPU_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// The cut bodies a visual path draws, followed from the cutter's feed: the one cut install of
+/// the demo's [`Visual`] and the window.
+#[derive(Debug)]
+pub struct CutFollower {
+    /// The feed's generation last read.
+    seen: u64,
+    /// Each object's cut body in use (`None`: uncut).
+    bodies: Vec<Option<Arc<CutBody>>>,
+}
+
+/// Where [`CutFollower::take`] puts the cut bodies on the GPU: the device, its queue, the
+/// deformers (one per object, built from the scene's compliances) and their options.
+pub struct GpuTarget<'a> {
+    /// The device the deformers live on.
+    pub device: &'a wgpu::Device,
+    /// Its queue.
+    pub queue: &'a wgpu::Queue,
+    /// One deformer per object.
+    pub deformers: &'a mut [Deformer],
+    /// What a deformer is rebuilt with when a cut brings a new `L`.
+    pub options: &'a DeformerOptions,
+}
+
+impl CutFollower {
+    /// A follower for a scene of `objects` objects, all uncut.
+    pub fn new(objects: usize) -> CutFollower {
+        CutFollower {
+            seen: u64::MAX,
+            bodies: vec![None; objects],
+        }
+    }
+
+    /// Object `o`'s cut body in use, if it was cut.
+    pub fn body(&self, o: usize) -> Option<&Arc<CutBody>> {
+        self.bodies.get(o)?.as_ref()
+    }
+
+    /// Takes `feed`'s newest cut bodies if its generation moved (a lock, only then). Each body
+    /// new to its object is put on the object's deformer when `gpu` is given
+    /// ([`install_cut`], from the compliance uploaded so far) and becomes the object's body.
+    /// A body for an object the scene lacks, or one that displays other rows than the scene,
+    /// is left out with a warning. Returns the objects whose body changed, and the first GPU
+    /// error (after which no more bodies go to the GPU: draw from the CPU's `displace`).
+    pub fn take(
+        &mut self,
+        feed: &CutFeed,
+        world: &World,
+        mut gpu: Option<GpuTarget<'_>>,
+    ) -> (Vec<usize>, Option<String>) {
+        let mut changed = Vec::new();
+        let mut failure = None;
+        let now = feed.generation.load(Ordering::Acquire);
+        if now == self.seen {
+            return (changed, failure);
+        }
+        self.seen = now;
+        for (o, body) in feed.latest() {
+            if o >= self.bodies.len() || o >= world.objects.len() {
+                log::warn!(
+                    "a cut body for object {o}, but the scene has {}",
+                    world.objects.len()
+                );
+                continue;
+            }
+            if self.bodies[o]
+                .as_ref()
+                .is_some_and(|b| Arc::ptr_eq(b, &body))
+            {
+                continue;
+            }
+            let obj = &world.objects[o];
+            if body.compliance.rows() != obj.body.compliance.rows() {
+                log::warn!(
+                    "a cut body of '{}' displays other rows than the scene; not drawn",
+                    obj.name
+                );
+                continue;
+            }
+            if let Some(g) = gpu.as_mut().filter(|_| failure.is_none()) {
+                let uploaded = self.bodies[o]
+                    .as_ref()
+                    .map_or(&obj.body.compliance, |b| &b.compliance);
+                let installed = match g.deformers.get_mut(o) {
+                    Some(d) => install_cut(
+                        g.device,
+                        g.queue,
+                        d,
+                        uploaded,
+                        &body.compliance,
+                        &body.triangles,
+                        &obj.body.mesh,
+                        g.options,
+                    )
+                    .map_err(|e| e.to_string()),
+                    None => Err("no deformer".into()),
+                };
+                if let Err(e) = installed {
+                    failure = Some(format!("cannot draw the cut of '{}': {e}", obj.name));
+                }
+            }
+            self.bodies[o] = Some(body);
+            changed.push(o);
+        }
+        (changed, failure)
+    }
+}
 
 /// The displacement update of every object of a scene.
 pub struct Visual<'a> {
@@ -34,10 +145,10 @@ pub struct Visual<'a> {
     failure: Option<String>,
     timeout: Duration,
     options: DeformerOptions,
-    /// The cutter's feed, once followed, and its generation last read.
-    feed: Option<(Arc<CutFeed>, u64)>,
-    /// Each object's cut body in use (`None`: uncut).
-    cuts: Vec<Option<Arc<CutBody>>>,
+    /// The cutter's feed, once followed.
+    feed: Option<Arc<CutFeed>>,
+    /// Each object's cut body in use.
+    cuts: CutFollower,
     /// Bumped whenever an object's drawn surface or deformer changes.
     surface_generation: u64,
 }
@@ -59,11 +170,11 @@ impl<'a> Visual<'a> {
             timeout: GPU_TIMEOUT,
             options: DeformerOptions::default(),
             feed: None,
-            cuts: vec![None; world.objects.len()],
+            cuts: CutFollower::new(world.objects.len()),
             surface_generation: 0,
         };
         if let Some(g) = gpu {
-            let options = match crate::LStorage::from_env() {
+            let options = match LStorage::from_env() {
                 Ok(storage) => DeformerOptions {
                     storage,
                     ..Default::default()
@@ -98,13 +209,13 @@ impl<'a> Visual<'a> {
     /// Follows the cutter's feed (e.g. [`LiveStatus::cuts`](touchfem_core::runtime::LiveStatus)):
     /// from the next [`update`](Self::update), each object is drawn from its newest cut body.
     pub fn follow_cuts(&mut self, feed: Arc<CutFeed>) {
-        self.feed = Some((feed, u64::MAX));
+        self.feed = Some(feed);
     }
 
     /// Object `o`'s cut body in use, if it was cut: its `triangles` are the surface to draw
     /// with [`cpu_displacement`](Self::cpu_displacement) when the GPU is not in use.
     pub fn cut_body(&self, o: usize) -> Option<&Arc<CutBody>> {
-        self.cuts.get(o)?.as_ref()
+        self.cuts.body(o)
     }
 
     /// Bumped each time an object's drawn surface or deformer changes (a cut taken): what a
@@ -115,70 +226,31 @@ impl<'a> Visual<'a> {
 
     /// The compliance object `o` is displaced with: its cut body's, or the scene's.
     pub fn compliance(&self, o: usize) -> &Compliance {
-        match self.cuts.get(o).and_then(|c| c.as_ref()) {
+        match self.cuts.body(o) {
             Some(b) => &b.compliance,
             None => &self.world.objects[o].body.compliance,
         }
     }
 
-    /// Takes the feed's newest cut bodies if its generation moved (a lock, only then).
+    /// Takes the feed's newest cut bodies ([`CutFollower::take`]).
     fn take_cuts(&mut self) {
-        let Some((feed, seen)) = &mut self.feed else {
+        let Some(feed) = &self.feed else {
             return;
         };
-        let now = feed.generation.load(Ordering::Acquire);
-        if now == *seen {
-            return;
-        }
-        *seen = now;
-        let latest = feed.latest();
-        for (o, body) in latest {
-            if o >= self.cuts.len() {
-                log::warn!(
-                    "a cut body for object {o}, but the scene has {}",
-                    self.cuts.len()
-                );
-                continue;
-            }
-            if self.cuts[o].as_ref().is_some_and(|b| Arc::ptr_eq(b, &body)) {
-                continue;
-            }
-            if body.compliance.rows() != self.world.objects[o].body.compliance.rows() {
-                log::warn!(
-                    "a cut body of '{}' displays other rows than the scene; not drawn",
-                    self.world.objects[o].name
-                );
-                continue;
-            }
-            if self.gpu_ok() {
-                if let Err(why) = self.install_gpu(o, &body) {
-                    self.give_up(why);
-                }
-            }
-            self.cuts[o] = Some(body);
-            self.surface_generation += 1;
-        }
-    }
-
-    /// Puts object `o`'s cut body on its deformer ([`install_cut`]).
-    fn install_gpu(&mut self, o: usize, body: &CutBody) -> Result<(), String> {
-        let g = self.gpu.expect("checked");
-        let world = self.world;
-        let obj = &world.objects[o];
-        let uploaded = match self.cuts[o].as_ref() {
-            Some(b) => &b.compliance,
-            None => &obj.body.compliance,
+        let gpu = match self.gpu {
+            Some(g) if self.failure.is_none() => Some(GpuTarget {
+                device: &g.device,
+                queue: &g.queue,
+                deformers: &mut self.deformers,
+                options: &self.options,
+            }),
+            _ => None,
         };
-        install_cut(
-            &g.device,
-            &g.queue,
-            &mut self.deformers[o],
-            uploaded,
-            body,
-            &obj.body.mesh,
-            &self.options,
-        )
-        .map_err(|e| format!("cannot draw the cut of '{}': {e}", obj.name))
+        let (changed, failure) = self.cuts.take(feed, self.world, gpu);
+        if let Some(why) = failure {
+            self.give_up(why);
+        }
+        self.surface_generation += changed.len() as u64;
     }
 
     /// Sets how long one GPU update may take before the GPU is given up.
@@ -238,7 +310,7 @@ impl<'a> Visual<'a> {
             // An object whose L stayed in its cache file keeps its last shape. A cut body's
             // compliance carries its correction: `displace` adds it; a hierarchical one's
             // `displace` is its compressed product.
-            let c = match self.cuts[o].as_ref() {
+            let c = match self.cuts.body(o) {
                 Some(b) => &b.compliance,
                 None => &self.world.objects[o].body.compliance,
             };
@@ -268,49 +340,6 @@ impl<'a> Visual<'a> {
     }
 }
 
-/// Puts a cut body on `deformer`, which was built from `uploaded` for an object whose rest mesh
-/// is `mesh`: `L` again (a new [`Deformer`] with `options`) when the body's is not the one
-/// uploaded ([`Compliance::shares_l`]: a cut folded into a new `L`), then the body's correction
-/// and its opened surface. Triangles whose nodes are not displayed rows (a cut beyond the
-/// `cuttable` region's nodes) are left out with a warning. The caller rebuilds what it derived
-/// from the deformer's triangles (its wireframe). On an error the deformer may hold part of
-/// the body: draw from the CPU's `displace` then.
-pub fn install_cut(
-    device: &wgpu::Device,
-    queue: &wgpu::Queue,
-    deformer: &mut Deformer,
-    uploaded: &Compliance,
-    body: &CutBody,
-    mesh: &touchfem_core::Mesh,
-    options: &DeformerOptions,
-) -> Result<(), crate::GpuError> {
-    if !body.compliance.shares_l(uploaded) {
-        log::info!("a cut body holds a new L; uploading it");
-        *deformer = Deformer::new(
-            device,
-            queue,
-            &body.compliance,
-            &mesh.nodes,
-            &mesh.surface,
-            options,
-        )?;
-    }
-    let (drawn, left_out): (Vec<[u32; 3]>, Vec<[u32; 3]>) = body
-        .triangles
-        .iter()
-        .partition(|t| t.iter().all(|&v| deformer.row_of(v).is_some()));
-    if !left_out.is_empty() {
-        log::warn!(
-            "{} of the cut surface's {} triangles use nodes that are not displayed rows; \
-             they are not drawn",
-            left_out.len(),
-            body.triangles.len()
-        );
-    }
-    deformer.set_triangles(device, queue, &drawn)?;
-    deformer.set_correction(device, queue, body.compliance.correction())
-}
-
 /// What a frame shows of a haptic sample besides the objects: each finger, its god-object and
 /// its force arrow (`NaN` where a finger has no valid position or touches nothing, which the
 /// renderer skips). With [`frame_objects`], the one place a frame is built from a sample.
@@ -324,7 +353,7 @@ pub struct SampleMarks {
     /// Each finger's sphere radius, m (0 for a point): set by [`SampleMarks::with_tools`].
     pub radii: [f64; MAX_FINGERS],
     /// Force arrows from the god-objects of the touching fingers.
-    pub arrows: [crate::render::ForceArrow; MAX_FINGERS],
+    pub arrows: [ForceArrow; MAX_FINGERS],
     /// Fingers in the sample.
     pub n: usize,
 }
@@ -332,7 +361,7 @@ pub struct SampleMarks {
 impl SampleMarks {
     /// The marks of `sample`, arrows `m_per_n` metres long per newton.
     pub fn of(sample: &WorldSample, m_per_n: f64) -> SampleMarks {
-        let none = crate::render::ForceArrow {
+        let none = ForceArrow {
             at: DVec3::NAN,
             force_n: DVec3::ZERO,
             m_per_n,
@@ -369,14 +398,14 @@ impl SampleMarks {
 pub fn frame_objects<'a>(
     world: &World,
     deformers: &'a [Deformer],
-    edges: &'a [crate::render::Edges],
-) -> Vec<crate::render::FrameObject<'a>> {
+    edges: &'a [Edges],
+) -> Vec<FrameObject<'a>> {
     world
         .objects
         .iter()
         .zip(deformers)
         .enumerate()
-        .map(|(i, (o, d))| crate::render::FrameObject {
+        .map(|(i, (o, d))| FrameObject {
             deformer: d,
             offset: o.offset,
             bounds: o.body.mesh.bounds(),
