@@ -1,4 +1,4 @@
-//! The GPU pass from a hierarchical `L` ([`LStorage::Hier`], issue 29): read-back positions
+//! The GPU pass from a hierarchical `L` ([`LStorage::Hier`]): read-back positions
 //! against the CPU's [`HMatrix::displace`] (f64) on the mouse, with the values in one buffer,
 //! split over several, and in half floats; typed errors. Needs an adapter (lavapipe works).
 //!

@@ -1,4 +1,4 @@
-//! What a [`crate::Deformer`] is given and what it hands its two layouts: the validated input
+//! What a [`crate::Deformer`] is given and what it hands its layouts of `L` (buffers, textures, hierarchical): the validated input
 //! ([`DeformerInput`], [`LData`]), the options, the vertex format, and the per-frame uniforms.
 
 use bytemuck::{Pod, Zeroable};
@@ -266,7 +266,8 @@ pub struct DeformerOptions {
     pub no_immediates: bool,
 }
 
-/// The fixed part of the pass parameters, common to both layouts.
+/// The fixed part of the pass parameters (`shaders/frame.wgsl`'s `Frame`), shared by the
+/// buffer and hierarchical layouts and the correction pass.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub(crate) struct FrameGpu {
