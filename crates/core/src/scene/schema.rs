@@ -266,6 +266,12 @@ pub(super) fn toml_error(label: &str, text: &str, e: &toml::de::Error) -> Error 
         let k = name[from..].trim_matches('"');
         (!k.is_empty()).then(|| k.to_string())
     });
+    // Inside an inline table (`tool = { sphere = "x" }`), the key's full path: `tool.sphere`.
+    let key = key.map(|k| {
+        let mut path = open_tables(before);
+        path.push(k);
+        path.join(".")
+    });
     Error::Body(match key {
         Some(k) if !message.contains(&format!("`{k}`")) => format!(
             "{label}: line {}, column {column}, key `{k}`: {message}",
@@ -276,6 +282,35 @@ pub(super) fn toml_error(label: &str, text: &str, e: &toml::de::Error) -> Error 
             line_of(text, start)
         ),
     })
+}
+
+/// The keys of the inline tables still open at the end of `line` (`a = { b = { c` → `a`, `b`),
+/// quoted strings skipped.
+fn open_tables(line: &str) -> Vec<String> {
+    let (mut open, mut segment, mut quote) = (Vec::new(), 0, None);
+    for (i, c) in line.char_indices() {
+        if let Some(q) = quote {
+            if c == q {
+                quote = None;
+            }
+            continue;
+        }
+        match c {
+            '"' | '\'' => quote = Some(c),
+            '{' => {
+                let key = line[segment..i].rsplit_once('=').map_or("", |(k, _)| k);
+                open.push(key.trim().trim_matches('"').to_string());
+                segment = i + 1;
+            }
+            '}' => {
+                open.pop();
+                segment = i + 1;
+            }
+            ',' => segment = i + 1,
+            _ => {}
+        }
+    }
+    open.into_iter().filter(|k| !k.is_empty()).collect()
 }
 
 /// The 1-based line of a byte offset in `text`.
