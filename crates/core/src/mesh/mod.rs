@@ -384,36 +384,12 @@ impl Mesh {
         let surface_nodes = (0..nodes.len() as u32)
             .filter(|&i| on_surface[i as usize])
             .collect();
-        let groups = raw
-            .node_groups
-            .into_iter()
-            .map(|(name, ids)| {
-                let mut v: Vec<u32> = ids
-                    .into_iter()
-                    .filter(|&i| i < n_in && remap[i] != u32::MAX)
-                    .map(|i| remap[i])
-                    .collect();
-                v.sort_unstable();
-                v.dedup();
-                (name, v)
-            })
-            .collect();
+        let groups = remap_groups(raw.node_groups, |i| {
+            (i < n_in && remap[i] != u32::MAX).then(|| remap[i])
+        });
         // Tets keep their index (reoriented in place, none dropped): only range and order.
         let n_tets = tets.len();
-        let tet_groups = raw
-            .tet_groups
-            .into_iter()
-            .map(|(name, ids)| {
-                let mut v: Vec<u32> = ids
-                    .into_iter()
-                    .filter(|&i| i < n_tets)
-                    .map(|i| i as u32)
-                    .collect();
-                v.sort_unstable();
-                v.dedup();
-                (name, v)
-            })
-            .collect();
+        let tet_groups = remap_groups(raw.tet_groups, |i| (i < n_tets).then_some(i as u32));
         Ok(Mesh {
             fixed: vec![false; nodes.len()],
             nodes,
@@ -691,6 +667,23 @@ pub struct Table1 {
     pub young_pa: f64,
     /// Poisson's ratio.
     pub poisson: f64,
+}
+
+/// A file's groups with each id mapped through `map` (`None` drops it), sorted and without
+/// repeats.
+fn remap_groups(
+    groups: BTreeMap<String, Vec<usize>>,
+    map: impl Fn(usize) -> Option<u32>,
+) -> BTreeMap<String, Vec<u32>> {
+    groups
+        .into_iter()
+        .map(|(name, ids)| {
+            let mut v: Vec<u32> = ids.into_iter().filter_map(&map).collect();
+            v.sort_unstable();
+            v.dedup();
+            (name, v)
+        })
+        .collect()
 }
 
 /// Extracts the outward boundary triangles of positively oriented tets and checks that the
