@@ -130,7 +130,10 @@ pub(crate) fn picture_scales(world: &World, samples: usize) -> Result<PictureSca
             o.body.compliance.displace(run.s.bc(k).entries(), &mut u[k]);
             max_u = u[k].iter().map(|v| v.length()).fold(max_u, f64::max);
         }
-        max_f = run.f[..run.n].iter().map(|v| v.length()).fold(max_f, f64::max);
+        max_f = run.f[..run.n]
+            .iter()
+            .map(|v| v.length())
+            .fold(max_f, f64::max);
     }
     let (lo, hi) = world.bounds();
     let diag = (hi - lo).length();
@@ -268,7 +271,8 @@ impl<'w> ScriptedRun<'w> {
 
     /// One haptic step from where the fingers are.
     fn step(&mut self) {
-        self.hw.step(&self.pos[..self.n], &mut self.f[..self.n], &mut self.s);
+        self.hw
+            .step(&self.pos[..self.n], &mut self.f[..self.n], &mut self.s);
     }
 }
 

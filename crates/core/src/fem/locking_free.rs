@@ -1111,7 +1111,10 @@ mod tests {
             let mut m = cube_with([2; 3], [30.0; 3], material(0.5)).expect("mesh");
             m.formulation = f;
             assert!(
-                matches!(Stiffness::assemble(&m), Err(FemError::Material(MaterialError::Incompressible))),
+                matches!(
+                    Stiffness::assemble(&m),
+                    Err(FemError::Material(MaterialError::Incompressible))
+                ),
                 "{f}"
             );
             assert!(
@@ -1122,7 +1125,10 @@ mod tests {
                 "{f}"
             );
             for s in ALL {
-                assert!(matches!(stiffness(&m, s), Err(FemError::Material(MaterialError::Incompressible))));
+                assert!(matches!(
+                    stiffness(&m, s),
+                    Err(FemError::Material(MaterialError::Incompressible))
+                ));
             }
             m.material.poisson = 0.499_999;
             assert!(Stiffness::assemble(&m).is_ok(), "{f}");
