@@ -169,3 +169,11 @@ pub fn cpu_normals(x: &[glam::DVec3], tris: &[[u32; 3]]) -> Vec<glam::DVec3> {
     }
     n.iter().map(|v| v.normalize_or_zero()).collect()
 }
+
+/// The paper's poke on the bundled cube, `poke cube --at 15,15,30 --push 0,0,-5`, followed by
+/// `extra`.
+pub fn poke_cube<'a>(extra: &[&'a str]) -> Vec<&'a str> {
+    let mut args = vec!["poke", "cube", "--at", "15,15,30", "--push", "0,0,-5"];
+    args.extend_from_slice(extra);
+    args
+}

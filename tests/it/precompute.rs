@@ -570,17 +570,11 @@ fn a_crafted_header_whose_sizes_wrap_is_a_typed_error_before_any_allocation() {
         err.starts_with("error:") && err.contains("wrap.tfc"),
         "{err}"
     );
-    let o = touchfem(&[
-        "poke",
-        "cube",
-        "--at",
-        "15,15,30",
-        "--push",
-        "0,0,-5",
+    let o = touchfem(&crate::common::poke_cube(&[
         "--json",
         "--cache",
         bad.to_str().unwrap(),
-    ]);
+    ]));
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(0), "{err}");
     assert!(err.contains("corrupt"), "{err}");
