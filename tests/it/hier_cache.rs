@@ -181,6 +181,17 @@ fn tmp(name: &str) -> (tempfile::TempDir, PathBuf) {
     (d, p)
 }
 
+/// `touchfem precompute OBJECT --tolerance 1e-3 --out FILE` (asserted to succeed) into a
+/// temporary folder: the folder and FILE.
+fn cli_compressed(object: &str) -> (tempfile::TempDir, PathBuf) {
+    let (dir, file) = tmp(&format!("{object}.tfc"));
+    let f = file.to_str().unwrap();
+    let (code, _, err) =
+        crate::common::touchfem_status(&["precompute", object, "--tolerance", "1e-3", "--out", f]);
+    assert_eq!(code, 0, "{err}");
+    (dir, file)
+}
+
 /// Re-seals the header checksum and the file checksum after an edit of the header (so that a
 /// crafted header passes both).
 fn seal(b: &mut [u8]) {
@@ -763,11 +774,8 @@ fn cli_precompute_with_a_tolerance() {
 #[test]
 fn poke_reads_a_compressed_cache() {
     use crate::common::touchfem_status;
-    let (_dir, file) = tmp("poke.tfc");
+    let (_dir, file) = cli_compressed("mouse");
     let f = file.to_str().unwrap();
-    let (code, _, err) =
-        touchfem_status(&["precompute", "mouse", "--tolerance", "1e-3", "--out", f]);
-    assert_eq!(code, 0, "{err}");
     let poke = [
         "poke", "mouse", "--at", "0,0,100", "--push", "0,0,-5", "--json",
     ];
@@ -970,15 +978,10 @@ fn caches_load_from_bytes() {
 #[test]
 fn cli_poke_keeps_a_damaged_compressed_cache_and_names_a_crafted_tolerance() {
     use crate::common::touchfem_status;
-    let (_dir, file) = tmp("cube.tfc");
+    let (_dir, file) = cli_compressed("cube");
     let f = file.to_str().unwrap();
-    let (code, _, err) =
-        touchfem_status(&["precompute", "cube", "--tolerance", "1e-3", "--out", f]);
-    assert_eq!(code, 0, "{err}");
     let good = std::fs::read(&file).unwrap();
-    let poke = [
-        "poke", "cube", "--at", "15,15,30", "--push", "0,0,-5", "--json", "--cache", f,
-    ];
+    let poke = crate::common::poke_cube(&["--json", "--cache", f]);
     let mut b = good.clone();
     b[70] ^= 1;
     std::fs::write(&file, &b).unwrap();
