@@ -177,3 +177,25 @@ pub fn poke_cube<'a>(extra: &[&'a str]) -> Vec<&'a str> {
     args.extend_from_slice(extra);
     args
 }
+
+/// A proptest runner for `cases` cases from a fixed ChaCha seed (the same cases every run),
+/// writing no regression files.
+pub fn fuzz_runner(cases: u32) -> proptest::test_runner::TestRunner {
+    use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
+    let config = Config {
+        cases,
+        failure_persistence: None,
+        rng_algorithm: RngAlgorithm::ChaCha,
+        ..Config::default()
+    };
+    TestRunner::new_with_rng(config, TestRng::deterministic_rng(RngAlgorithm::ChaCha))
+}
+
+/// `TOUCHFEM_FUZZ_CASES` when set (`TOUCHFEM_FUZZ_CASES=N` runs a deeper search than CI's few
+/// seconds), else `default`.
+pub fn fuzz_cases(default: u32) -> u32 {
+    std::env::var("TOUCHFEM_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}

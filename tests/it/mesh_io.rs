@@ -833,24 +833,13 @@ fn number_tokens(bytes: &[u8]) -> Vec<std::ops::Range<usize>> {
 #[test]
 fn fuzzed_mesh_files_with_huge_counts_never_panic() {
     use proptest::prelude::*;
-    use proptest::test_runner::{Config, RngAlgorithm, TestCaseError, TestRng, TestRunner};
+    use proptest::test_runner::TestCaseError;
     use std::cell::Cell;
     let fixtures: Vec<Vec<u8>> = ALL_FIXTURES
         .iter()
         .map(|n| std::fs::read(data(n)).unwrap())
         .collect();
-    let mut runner = TestRunner::new_with_rng(
-        Config {
-            // TOUCHFEM_FUZZ_CASES=N runs more (a deeper search than CI's few seconds).
-            cases: std::env::var("TOUCHFEM_FUZZ_CASES")
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(3000),
-            failure_persistence: None,
-            ..Config::default()
-        },
-        TestRng::deterministic_rng(RngAlgorithm::ChaCha),
-    );
+    let mut runner = crate::common::fuzz_runner(crate::common::fuzz_cases(3000));
     let (ran, ok, err) = (Cell::new(0u32), Cell::new(0u32), Cell::new(0u32));
     let strategy = (
         0..ALL_FIXTURES.len(),

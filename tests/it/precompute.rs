@@ -656,7 +656,6 @@ fn rechecksum(b: &mut Vec<u8>) -> bool {
 
 #[test]
 fn fuzzed_cache_files_give_typed_errors_or_valid_loads_never_a_panic() {
-    use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
     let dir = tempfile::tempdir().unwrap();
     let m = cube();
     let sel = Selection::default();
@@ -669,14 +668,7 @@ fn fuzzed_cache_files_give_typed_errors_or_valid_loads_never_a_panic() {
         std::fs::read(&parts[0]).unwrap(),
         std::fs::read(&parts[1]).unwrap(),
     ];
-    let config = Config {
-        cases: 512,
-        failure_persistence: None,
-        rng_algorithm: RngAlgorithm::ChaCha,
-        ..Config::default()
-    };
-    let mut runner =
-        TestRunner::new_with_rng(config, TestRng::deterministic_rng(RngAlgorithm::ChaCha));
+    let mut runner = crate::common::fuzz_runner(512);
     let counts = std::cell::RefCell::new(std::collections::BTreeMap::<String, usize>::new());
     let extremes = [
         0u64,
