@@ -563,20 +563,7 @@ fn nan_and_inf_reach_validation() {
 // Robustness: truncations, garbage and mutations never panic
 // ---------------------------------------------------------------------------------------------
 
-/// A small deterministic xorshift generator.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-}
+use crate::common::Xorshift as Rng;
 
 /// Parses `bytes` as the fixture `name` would be (for TetGen, as the `.node` with the real
 /// `.ele`, or the real `.node` with these bytes as `.ele`); a panic fails the test with the input.

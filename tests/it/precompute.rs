@@ -583,20 +583,9 @@ fn a_crafted_header_whose_sizes_wrap_is_a_typed_error_before_any_allocation() {
     assert!(cache::load(&bad, key, 125).is_ok(), "rewritten");
 }
 
-/// An xorshift generator for the fuzz cases' choices (the cases themselves come from
-/// proptest's deterministic ChaCha runner).
-struct Bits(u64);
-impl Bits {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-}
+// An xorshift generator for the fuzz cases' choices (the cases themselves come from
+// proptest's deterministic ChaCha runner).
+use crate::common::Xorshift as Bits;
 
 /// The layout a (possibly mutated) header implies, computed as the format says, or `None` if
 /// it overflows or is absurd: (lists bytes, L bytes, held batches).

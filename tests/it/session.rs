@@ -569,13 +569,8 @@ fn fuzzed_session_files_give_typed_errors_or_valid_replays_never_a_panic() {
             ),
             |(kind, seed, noise)| {
                 case.set(case.get() + 1);
-                let mut x = seed | 1;
-                let mut next = move |n: usize| {
-                    x ^= x << 13;
-                    x ^= x >> 7;
-                    x ^= x << 17;
-                    (x % n.max(1) as u64) as usize
-                };
+                let mut x = crate::common::Xorshift(seed | 1);
+                let mut next = move |n: usize| x.below(n);
                 let mut b = good.clone();
                 match kind {
                     // Bytes flipped anywhere.

@@ -85,6 +85,12 @@ fn free_display() -> u32 {
         .expect("a free X display number")
 }
 
+/// Moves the pointer to (`x`, `y`) in window `win`'s pixels.
+fn mouse_to(display: &str, win: &str, x: impl ToString, y: impl ToString) {
+    let (x, y) = (x.to_string(), y.to_string());
+    xdotool(display, &["mousemove", "--window", win, &x, &y]);
+}
+
 fn xdotool(display: &str, args: &[&str]) -> String {
     let out = Command::new("xdotool")
         .args(args)
@@ -297,14 +303,12 @@ fn view_window_presses_the_cube_with_the_pointer() {
         .project(DVec3::new(0.015, 0.015, 0.03), SIZE)
         .expect("the top face is in view");
     let (px, py) = (px.round() as u32, py.round() as u32);
-    let (xs, ys) = (px.to_string(), py.to_string());
-    xdotool(&display, &["mousemove", "--window", &win, &xs, &ys]);
+    mouse_to(&display, &win, px, py);
     std::thread::sleep(Duration::from_millis(200));
     xdotool(&display, &["mousedown", "1"]);
     for step in 1..=6 {
         std::thread::sleep(Duration::from_millis(100));
-        let y = (py + 20 * step).to_string();
-        xdotool(&display, &["mousemove", "--window", &win, &xs, &y]);
+        mouse_to(&display, &win, px, py + 20 * step);
     }
     std::thread::sleep(Duration::from_millis(1500));
     let during = capture(&display, &win, &dir.join("during.png"));
@@ -824,31 +828,13 @@ fn view_window_b_turns_the_pointer_into_a_blade() {
     };
     let drag = || {
         let (x, y) = at(-25.0);
-        xdotool(
-            &display,
-            &[
-                "mousemove",
-                "--window",
-                &win,
-                &x.to_string(),
-                &y.to_string(),
-            ],
-        );
+        mouse_to(&display, &win, x, y);
         std::thread::sleep(Duration::from_millis(200));
         xdotool(&display, &["mousedown", "1"]);
         for step in 1..=20 {
             std::thread::sleep(Duration::from_millis(60));
             let (x, y) = at(-25.0 + f64::from(step));
-            xdotool(
-                &display,
-                &[
-                    "mousemove",
-                    "--window",
-                    &win,
-                    &x.to_string(),
-                    &y.to_string(),
-                ],
-            );
+            mouse_to(&display, &win, x, y);
         }
         std::thread::sleep(Duration::from_millis(300));
         xdotool(&display, &["mouseup", "1"]);
