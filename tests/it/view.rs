@@ -180,6 +180,18 @@ fn start_xvfb() -> (KillOnDrop, String) {
     (xvfb, display)
 }
 
+/// Focuses `win` and presses Esc (keys go to the focused window; there is no window manager
+/// to focus it), waits up to `timeout` for `view` to quit, and asserts that it succeeded.
+fn quit_on_escape(display: &str, win: &str, xvfb: &mut Child, view: &mut Child, timeout: Duration) {
+    xdotool(display, &["windowfocus", "--sync", win]);
+    xdotool(display, &["key", "Escape"]);
+    wait_until("touchfem view to quit on Esc", timeout, xvfb, || {
+        matches!(view.try_wait(), Ok(Some(_)))
+    });
+    let status = view.wait().unwrap();
+    assert!(status.success(), "touchfem view exited with {status}");
+}
+
 fn wait_until(what: &str, timeout: Duration, child: &mut Child, mut ok: impl FnMut() -> bool) {
     let t0 = Instant::now();
     while !ok() {
@@ -338,16 +350,13 @@ fn view_window_presses_the_cube_with_the_pointer() {
 
     // Esc quits (keys go to the focused window; there is no window manager to focus it);
     // then the log has a summary.
-    xdotool(&display, &["windowfocus", "--sync", &win]);
-    xdotool(&display, &["key", "Escape"]);
-    wait_until(
-        "touchfem view to quit on Esc",
-        Duration::from_secs(20),
+    quit_on_escape(
+        &display,
+        &win,
         &mut xvfb.0,
-        || matches!(view.0.try_wait(), Ok(Some(_))),
+        &mut view.0,
+        Duration::from_secs(20),
     );
-    let status = view.0.wait().unwrap();
-    assert!(status.success(), "touchfem view exited with {status}");
     let lines = read_log(&log);
     let max_force = lines
         .iter()
@@ -881,16 +890,13 @@ fn view_window_b_turns_the_pointer_into_a_blade() {
     let removed = tets(&lines);
     let _ = capture(&display, &win, &dir.join("cut.png"));
 
-    xdotool(&display, &["windowfocus", "--sync", &win]);
-    xdotool(&display, &["key", "Escape"]);
-    wait_until(
-        "touchfem view to quit on Esc",
-        Duration::from_secs(30),
+    quit_on_escape(
+        &display,
+        &win,
         &mut xvfb.0,
-        || matches!(view.0.try_wait(), Ok(Some(_))),
+        &mut view.0,
+        Duration::from_secs(30),
     );
-    let status = view.0.wait().unwrap();
-    assert!(status.success(), "touchfem view exited with {status}");
     let out = std::fs::read_to_string(&stdout_path).unwrap();
     eprintln!("{out}log: {removed} tets removed, the point pressed {pressed:.3} N");
     let cut: usize = out
