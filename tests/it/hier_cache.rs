@@ -314,31 +314,27 @@ fn mismatched_merges_are_refused() {
         ),
         "part 2 twice",
     );
-    // Part 3 made with another tolerance (and so another key).
-    let mut b = std::fs::read(&f.shards[2]).unwrap();
-    b[64..72].copy_from_slice(&1e-2f64.to_bits().to_le_bytes());
-    seal(&mut b);
+    // Part 3 with its header edited (and resealed): refused as `what`.
     let (_e, other) = tmp("other.tfc");
-    std::fs::write(&other, &b).unwrap();
-    mismatch(
-        cache::merge(
-            &[f.shards[0].clone(), f.shards[1].clone(), other.clone()],
-            &out,
-        ),
+    let edited_part_3 = |edit: &dyn Fn(&mut Vec<u8>), what: &str| {
+        let mut b = std::fs::read(&f.shards[2]).unwrap();
+        edit(&mut b);
+        seal(&mut b);
+        std::fs::write(&other, &b).unwrap();
+        mismatch(
+            cache::merge(
+                &[f.shards[0].clone(), f.shards[1].clone(), other.clone()],
+                &out,
+            ),
+            what,
+        );
+    };
+    // Made with another tolerance (and so another key).
+    edited_part_3(
+        &|b| b[64..72].copy_from_slice(&1e-2f64.to_bits().to_le_bytes()),
         "another tolerance",
     );
-    // Another key.
-    let mut b = std::fs::read(&f.shards[2]).unwrap();
-    b[32] ^= 1;
-    seal(&mut b);
-    std::fs::write(&other, &b).unwrap();
-    mismatch(
-        cache::merge(
-            &[f.shards[0].clone(), f.shards[1].clone(), other.clone()],
-            &out,
-        ),
-        "another key",
-    );
+    edited_part_3(&|b| b[32] ^= 1, "another key");
     // The complete file given as a part of three.
     mismatch(
         cache::merge(
