@@ -8,6 +8,7 @@ use touchfem::cache::{self, CacheError, CacheOutcome};
 use touchfem::compliance::{Compliance, Selection};
 use touchfem::fem::FemError;
 use touchfem::mesh::cube;
+use touchfem::mesh::units::MaterialError;
 use touchfem::{Formulation, LengthUnit, Material, Mesh, MeshError, RawMesh};
 
 fn two_tets() -> RawMesh {
@@ -235,7 +236,7 @@ fn bad_material_and_selection() {
         assert!(
             matches!(
                 Compliance::compute(&m, &Selection::default()),
-                Err(FemError::BadMaterial(_))
+                Err(FemError::Material(MaterialError::BadMaterial(_)))
             ),
             "E={e} ν={nu}"
         );
@@ -248,7 +249,7 @@ fn bad_material_and_selection() {
         assert!(
             matches!(
                 Compliance::compute(&m, &Selection::default()),
-                Err(FemError::Incompressible)
+                Err(FemError::Material(MaterialError::Incompressible))
             ),
             "{f}"
         );

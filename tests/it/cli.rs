@@ -52,17 +52,11 @@ fn info_cube_json_is_table_1() {
 fn poke_top_centre_matches_eq_7_and_writes_a_vtu() {
     let dir = tempfile::tempdir().unwrap();
     let vtu = dir.path().join("poke.vtu");
-    let (code, out, err) = touchfem(&[
-        "poke",
-        "cube",
-        "--at",
-        "15,15,30",
-        "--push",
-        "0,0,-5",
+    let (code, out, err) = touchfem(&crate::common::poke_cube(&[
         "--json",
         "--vtu",
         vtu.to_str().unwrap(),
-    ]);
+    ]));
     assert_eq!(code, 0, "{err}");
     let v = json(&out);
     let f = numbers(&v["force"]);
@@ -338,16 +332,7 @@ fn adapter_errors_still_reach_stderr() {
     let dir = tempfile::tempdir().unwrap();
     let png = dir.path().join("x.png");
     let (code, _, err) = touchfem_headless(
-        &[
-            "poke",
-            "cube",
-            "--at",
-            "15,15,30",
-            "--push",
-            "0,0,-5",
-            "--png",
-            png.to_str().unwrap(),
-        ],
+        &crate::common::poke_cube(&["--png", png.to_str().unwrap()]),
         &[("WGPU_ADAPTER_NAME", "no-such-adapter-anywhere")],
     );
     assert_ne!(code, 0);
@@ -635,19 +620,13 @@ fn a_tiny_poke_has_readable_picture_labels() {
 #[test]
 fn the_formulation_flag_selects_the_stiffness() {
     let force = |f: &str| {
-        let (code, out, err) = touchfem(&[
-            "poke",
-            "cube",
-            "--at",
-            "15,15,30",
-            "--push",
-            "0,0,-5",
+        let (code, out, err) = touchfem(&crate::common::poke_cube(&[
             "--poisson",
             "0.4999",
             "--formulation",
             f,
             "--json",
-        ]);
+        ]));
         assert_eq!(code, 0, "{err}");
         numbers(&json(&out)["force"])
             .iter()
@@ -663,31 +642,13 @@ fn the_formulation_flag_selects_the_stiffness() {
     let (code, out, err) = touchfem(&["info", "cube", "--formulation", "locking-free", "--json"]);
     assert_eq!(code, 0, "{err}");
     assert_eq!(json(&out)["formulation"], "locking-free");
-    let (code, _, err) = touchfem(&[
-        "poke",
-        "cube",
-        "--at",
-        "15,15,30",
-        "--push",
-        "0,0,-5",
-        "--formulation",
-        "mixed",
-    ]);
+    let (code, _, err) = touchfem(&crate::common::poke_cube(&["--formulation", "mixed"]));
     assert_eq!(code, 2);
     assert!(
         err.contains("--formulation") && err.contains("locking-free"),
         "{err}"
     );
-    let (code, _, err) = touchfem(&[
-        "poke",
-        "cube",
-        "--at",
-        "15,15,30",
-        "--push",
-        "0,0,-5",
-        "--poisson",
-        "0.5",
-    ]);
+    let (code, _, err) = touchfem(&crate::common::poke_cube(&["--poisson", "0.5"]));
     assert_eq!(code, 2);
     assert!(
         err.contains("--poisson") && err.contains("incompressible"),

@@ -169,3 +169,50 @@ pub fn cpu_normals(x: &[glam::DVec3], tris: &[[u32; 3]]) -> Vec<glam::DVec3> {
     }
     n.iter().map(|v| v.normalize_or_zero()).collect()
 }
+
+/// The paper's poke on the bundled cube, `poke cube --at 15,15,30 --push 0,0,-5`, followed by
+/// `extra`.
+pub fn poke_cube<'a>(extra: &[&'a str]) -> Vec<&'a str> {
+    let mut args = vec!["poke", "cube", "--at", "15,15,30", "--push", "0,0,-5"];
+    args.extend_from_slice(extra);
+    args
+}
+
+/// A proptest runner for `cases` cases from a fixed ChaCha seed (the same cases every run),
+/// writing no regression files.
+pub fn fuzz_runner(cases: u32) -> proptest::test_runner::TestRunner {
+    use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
+    let config = Config {
+        cases,
+        failure_persistence: None,
+        rng_algorithm: RngAlgorithm::ChaCha,
+        ..Config::default()
+    };
+    TestRunner::new_with_rng(config, TestRng::deterministic_rng(RngAlgorithm::ChaCha))
+}
+
+/// `TOUCHFEM_FUZZ_CASES` when set (`TOUCHFEM_FUZZ_CASES=N` runs a deeper search than CI's few
+/// seconds), else `default`.
+pub fn fuzz_cases(default: u32) -> u32 {
+    std::env::var("TOUCHFEM_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+/// A small deterministic xorshift generator (seed it with a nonzero value).
+pub struct Xorshift(pub u64);
+
+impl Xorshift {
+    /// The next 64 bits.
+    pub fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+    /// A number in `0..n` (0 when `n` is 0).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next() % n.max(1) as u64) as usize
+    }
+}

@@ -367,16 +367,7 @@ fn poke_without_the_new_flags_is_unchanged() {
     assert_eq!(v["paper_exact_difference"].as_f64().unwrap(), 0.0);
     assert_eq!(v["model"], "paper");
     assert!(v.get("trace").is_none() && v.get("friction").is_none());
-    let z = json(&[
-        "poke",
-        "cube",
-        "--at",
-        "15,15,30",
-        "--push",
-        "0,0,-5",
-        "--friction",
-        "0,0",
-    ]);
+    let z = json(&crate::common::poke_cube(&["--friction", "0,0"]));
     assert_eq!(z["force"], v["force"]);
     // The text output names the finger.
     let (code, out, err) = touchfem(&with(&TOP, &["--sphere", "8"]));

@@ -181,6 +181,17 @@ fn tmp(name: &str) -> (tempfile::TempDir, PathBuf) {
     (d, p)
 }
 
+/// `touchfem precompute OBJECT --tolerance 1e-3 --out FILE` (asserted to succeed) into a
+/// temporary folder: the folder and FILE.
+fn cli_compressed(object: &str) -> (tempfile::TempDir, PathBuf) {
+    let (dir, file) = tmp(&format!("{object}.tfc"));
+    let f = file.to_str().unwrap();
+    let (code, _, err) =
+        crate::common::touchfem_status(&["precompute", object, "--tolerance", "1e-3", "--out", f]);
+    assert_eq!(code, 0, "{err}");
+    (dir, file)
+}
+
 /// Re-seals the header checksum and the file checksum after an edit of the header (so that a
 /// crafted header passes both).
 fn seal(b: &mut [u8]) {
@@ -303,31 +314,27 @@ fn mismatched_merges_are_refused() {
         ),
         "part 2 twice",
     );
-    // Part 3 made with another tolerance (and so another key).
-    let mut b = std::fs::read(&f.shards[2]).unwrap();
-    b[64..72].copy_from_slice(&1e-2f64.to_bits().to_le_bytes());
-    seal(&mut b);
+    // Part 3 with its header edited (and resealed): refused as `what`.
     let (_e, other) = tmp("other.tfc");
-    std::fs::write(&other, &b).unwrap();
-    mismatch(
-        cache::merge(
-            &[f.shards[0].clone(), f.shards[1].clone(), other.clone()],
-            &out,
-        ),
+    let edited_part_3 = |edit: &dyn Fn(&mut Vec<u8>), what: &str| {
+        let mut b = std::fs::read(&f.shards[2]).unwrap();
+        edit(&mut b);
+        seal(&mut b);
+        std::fs::write(&other, &b).unwrap();
+        mismatch(
+            cache::merge(
+                &[f.shards[0].clone(), f.shards[1].clone(), other.clone()],
+                &out,
+            ),
+            what,
+        );
+    };
+    // Made with another tolerance (and so another key).
+    edited_part_3(
+        &|b| b[64..72].copy_from_slice(&1e-2f64.to_bits().to_le_bytes()),
         "another tolerance",
     );
-    // Another key.
-    let mut b = std::fs::read(&f.shards[2]).unwrap();
-    b[32] ^= 1;
-    seal(&mut b);
-    std::fs::write(&other, &b).unwrap();
-    mismatch(
-        cache::merge(
-            &[f.shards[0].clone(), f.shards[1].clone(), other.clone()],
-            &out,
-        ),
-        "another key",
-    );
+    edited_part_3(&|b| b[32] ^= 1, "another key");
     // The complete file given as a part of three.
     mismatch(
         cache::merge(
@@ -763,11 +770,8 @@ fn cli_precompute_with_a_tolerance() {
 #[test]
 fn poke_reads_a_compressed_cache() {
     use crate::common::touchfem_status;
-    let (_dir, file) = tmp("poke.tfc");
+    let (_dir, file) = cli_compressed("mouse");
     let f = file.to_str().unwrap();
-    let (code, _, err) =
-        touchfem_status(&["precompute", "mouse", "--tolerance", "1e-3", "--out", f]);
-    assert_eq!(code, 0, "{err}");
     let poke = [
         "poke", "mouse", "--at", "0,0,100", "--push", "0,0,-5", "--json",
     ];
@@ -970,15 +974,10 @@ fn caches_load_from_bytes() {
 #[test]
 fn cli_poke_keeps_a_damaged_compressed_cache_and_names_a_crafted_tolerance() {
     use crate::common::touchfem_status;
-    let (_dir, file) = tmp("cube.tfc");
+    let (_dir, file) = cli_compressed("cube");
     let f = file.to_str().unwrap();
-    let (code, _, err) =
-        touchfem_status(&["precompute", "cube", "--tolerance", "1e-3", "--out", f]);
-    assert_eq!(code, 0, "{err}");
     let good = std::fs::read(&file).unwrap();
-    let poke = [
-        "poke", "cube", "--at", "15,15,30", "--push", "0,0,-5", "--json", "--cache", f,
-    ];
+    let poke = crate::common::poke_cube(&["--json", "--cache", f]);
     let mut b = good.clone();
     b[70] ^= 1;
     std::fs::write(&file, &b).unwrap();

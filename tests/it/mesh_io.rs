@@ -563,20 +563,7 @@ fn nan_and_inf_reach_validation() {
 // Robustness: truncations, garbage and mutations never panic
 // ---------------------------------------------------------------------------------------------
 
-/// A small deterministic xorshift generator.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-}
+use crate::common::Xorshift as Rng;
 
 /// Parses `bytes` as the fixture `name` would be (for TetGen, as the `.node` with the real
 /// `.ele`, or the real `.node` with these bytes as `.ele`); a panic fails the test with the input.
@@ -833,24 +820,13 @@ fn number_tokens(bytes: &[u8]) -> Vec<std::ops::Range<usize>> {
 #[test]
 fn fuzzed_mesh_files_with_huge_counts_never_panic() {
     use proptest::prelude::*;
-    use proptest::test_runner::{Config, RngAlgorithm, TestCaseError, TestRng, TestRunner};
+    use proptest::test_runner::TestCaseError;
     use std::cell::Cell;
     let fixtures: Vec<Vec<u8>> = ALL_FIXTURES
         .iter()
         .map(|n| std::fs::read(data(n)).unwrap())
         .collect();
-    let mut runner = TestRunner::new_with_rng(
-        Config {
-            // TOUCHFEM_FUZZ_CASES=N runs more (a deeper search than CI's few seconds).
-            cases: std::env::var("TOUCHFEM_FUZZ_CASES")
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(3000),
-            failure_persistence: None,
-            ..Config::default()
-        },
-        TestRng::deterministic_rng(RngAlgorithm::ChaCha),
-    );
+    let mut runner = crate::common::fuzz_runner(crate::common::fuzz_cases(3000));
     let (ran, ok, err) = (Cell::new(0u32), Cell::new(0u32), Cell::new(0u32));
     let strategy = (
         0..ALL_FIXTURES.len(),

@@ -570,17 +570,11 @@ fn a_crafted_header_whose_sizes_wrap_is_a_typed_error_before_any_allocation() {
         err.starts_with("error:") && err.contains("wrap.tfc"),
         "{err}"
     );
-    let o = touchfem(&[
-        "poke",
-        "cube",
-        "--at",
-        "15,15,30",
-        "--push",
-        "0,0,-5",
+    let o = touchfem(&crate::common::poke_cube(&[
         "--json",
         "--cache",
         bad.to_str().unwrap(),
-    ]);
+    ]));
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(0), "{err}");
     assert!(err.contains("corrupt"), "{err}");
@@ -589,20 +583,9 @@ fn a_crafted_header_whose_sizes_wrap_is_a_typed_error_before_any_allocation() {
     assert!(cache::load(&bad, key, 125).is_ok(), "rewritten");
 }
 
-/// An xorshift generator for the fuzz cases' choices (the cases themselves come from
-/// proptest's deterministic ChaCha runner).
-struct Bits(u64);
-impl Bits {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-}
+// An xorshift generator for the fuzz cases' choices (the cases themselves come from
+// proptest's deterministic ChaCha runner).
+use crate::common::Xorshift as Bits;
 
 /// The layout a (possibly mutated) header implies, computed as the format says, or `None` if
 /// it overflows or is absurd: (lists bytes, L bytes, held batches).
@@ -662,7 +645,6 @@ fn rechecksum(b: &mut Vec<u8>) -> bool {
 
 #[test]
 fn fuzzed_cache_files_give_typed_errors_or_valid_loads_never_a_panic() {
-    use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
     let dir = tempfile::tempdir().unwrap();
     let m = cube();
     let sel = Selection::default();
@@ -675,14 +657,7 @@ fn fuzzed_cache_files_give_typed_errors_or_valid_loads_never_a_panic() {
         std::fs::read(&parts[0]).unwrap(),
         std::fs::read(&parts[1]).unwrap(),
     ];
-    let config = Config {
-        cases: 512,
-        failure_persistence: None,
-        rng_algorithm: RngAlgorithm::ChaCha,
-        ..Config::default()
-    };
-    let mut runner =
-        TestRunner::new_with_rng(config, TestRng::deterministic_rng(RngAlgorithm::ChaCha));
+    let mut runner = crate::common::fuzz_runner(512);
     let counts = std::cell::RefCell::new(std::collections::BTreeMap::<String, usize>::new());
     let extremes = [
         0u64,

@@ -478,7 +478,7 @@ const MESH_FILE_SCENE: &str = "unit = \"mm\"\n\n[[object]]\nmesh = \"m.msh\"\nme
 /// file's bytes flipped. Nothing panics; every error is one non-empty line naming the file.
 #[test]
 fn fuzzed_scene_files_never_panic() {
-    use proptest::test_runner::{Config, RngAlgorithm, TestCaseError, TestRng, TestRunner};
+    use proptest::test_runner::TestCaseError;
     use std::cell::Cell;
     use std::panic::{catch_unwind, AssertUnwindSafe};
     let dir = tempfile::tempdir().unwrap();
@@ -492,19 +492,7 @@ fn fuzzed_scene_files_never_panic() {
         .collect();
     bases.push(MESH_FILE_SCENE);
     let n_bases = bases.len();
-    // TOUCHFEM_FUZZ_CASES=N runs more (a deeper search than CI's few seconds).
-    let cases = std::env::var("TOUCHFEM_FUZZ_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(1000);
-    let mut runner = TestRunner::new_with_rng(
-        Config {
-            cases,
-            failure_persistence: None,
-            ..Config::default()
-        },
-        TestRng::deterministic_rng(RngAlgorithm::ChaCha),
-    );
+    let mut runner = crate::common::fuzz_runner(crate::common::fuzz_cases(1000));
     let (ran, ok, err) = (Cell::new(0u32), Cell::new(0u32), Cell::new(0u32));
     let strategy = (
         0..n_bases,

@@ -532,7 +532,7 @@ fn a_failed_serve_recording_keeps_the_report() {
 
 #[test]
 fn fuzzed_session_files_give_typed_errors_or_valid_replays_never_a_panic() {
-    use proptest::test_runner::{Config, RngAlgorithm, TestCaseError, TestRng, TestRunner};
+    use proptest::test_runner::TestCaseError;
     let dir = tempfile::tempdir().unwrap();
     let good = std::fs::read(committed()).unwrap();
     let body_at = good.len() - 1000 * 48;
@@ -540,14 +540,7 @@ fn fuzzed_session_files_give_typed_errors_or_valid_replays_never_a_panic() {
         serde_json::from_slice(&good[12..body_at - 1]).expect("the header line");
     let src = touchfem::scene::SceneSource::find("fig1").unwrap().unwrap();
     let world = touchfem::scene::World::from_source_with(&src, None).unwrap();
-    let config = Config {
-        cases: 400,
-        failure_persistence: None,
-        rng_algorithm: RngAlgorithm::ChaCha,
-        ..Config::default()
-    };
-    let mut runner =
-        TestRunner::new_with_rng(config, TestRng::deterministic_rng(RngAlgorithm::ChaCha));
+    let mut runner = crate::common::fuzz_runner(400);
     let counts = std::cell::RefCell::new(std::collections::BTreeMap::<String, usize>::new());
     let case = std::cell::Cell::new(0usize);
     let keys: Vec<String> = header.as_object().unwrap().keys().cloned().collect();
@@ -576,13 +569,8 @@ fn fuzzed_session_files_give_typed_errors_or_valid_replays_never_a_panic() {
             ),
             |(kind, seed, noise)| {
                 case.set(case.get() + 1);
-                let mut x = seed | 1;
-                let mut next = move |n: usize| {
-                    x ^= x << 13;
-                    x ^= x >> 7;
-                    x ^= x << 17;
-                    (x % n.max(1) as u64) as usize
-                };
+                let mut x = crate::common::Xorshift(seed | 1);
+                let mut next = move |n: usize| x.below(n);
                 let mut b = good.clone();
                 match kind {
                     // Bytes flipped anywhere.

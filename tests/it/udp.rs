@@ -785,7 +785,6 @@ fn a_junk_flood_causes_no_stale_period() {
 #[test]
 fn fuzzed_datagrams_over_the_wire_keep_forces_finite_and_bounded() {
     use proptest::prelude::*;
-    use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
     let w = bounded_world(0.25, "");
     let mut got = Vec::new();
     let cases = 3000u32;
@@ -794,14 +793,7 @@ fn fuzzed_datagrams_over_the_wire_keep_forces_finite_and_bounded() {
         let fuzz = UdpSocket::bind("127.0.0.1:0").unwrap();
         let rx = collect_behind(&sock, None, Duration::from_millis(300));
         let fuzz_rx = collect_behind(&fuzz, None, Duration::from_millis(300));
-        let mut runner = TestRunner::new_with_rng(
-            Config {
-                cases,
-                failure_persistence: None,
-                ..Config::default()
-            },
-            TestRng::deterministic_rng(RngAlgorithm::ChaCha),
-        );
+        let mut runner = crate::common::fuzz_runner(cases);
         let seq = std::cell::Cell::new(1u32);
         let k = std::cell::Cell::new(0u32);
         let strategy = (

@@ -85,6 +85,12 @@ fn free_display() -> u32 {
         .expect("a free X display number")
 }
 
+/// Moves the pointer to (`x`, `y`) in window `win`'s pixels.
+fn mouse_to(display: &str, win: &str, x: impl ToString, y: impl ToString) {
+    let (x, y) = (x.to_string(), y.to_string());
+    xdotool(display, &["mousemove", "--window", win, &x, &y]);
+}
+
 fn xdotool(display: &str, args: &[&str]) -> String {
     let out = Command::new("xdotool")
         .args(args)
@@ -172,6 +178,18 @@ fn start_xvfb() -> (KillOnDrop, String) {
         || socket.exists(),
     );
     (xvfb, display)
+}
+
+/// Focuses `win` and presses Esc (keys go to the focused window; there is no window manager
+/// to focus it), waits up to `timeout` for `view` to quit, and asserts that it succeeded.
+fn quit_on_escape(display: &str, win: &str, xvfb: &mut Child, view: &mut Child, timeout: Duration) {
+    xdotool(display, &["windowfocus", "--sync", win]);
+    xdotool(display, &["key", "Escape"]);
+    wait_until("touchfem view to quit on Esc", timeout, xvfb, || {
+        matches!(view.try_wait(), Ok(Some(_)))
+    });
+    let status = view.wait().unwrap();
+    assert!(status.success(), "touchfem view exited with {status}");
 }
 
 fn wait_until(what: &str, timeout: Duration, child: &mut Child, mut ok: impl FnMut() -> bool) {
@@ -297,14 +315,12 @@ fn view_window_presses_the_cube_with_the_pointer() {
         .project(DVec3::new(0.015, 0.015, 0.03), SIZE)
         .expect("the top face is in view");
     let (px, py) = (px.round() as u32, py.round() as u32);
-    let (xs, ys) = (px.to_string(), py.to_string());
-    xdotool(&display, &["mousemove", "--window", &win, &xs, &ys]);
+    mouse_to(&display, &win, px, py);
     std::thread::sleep(Duration::from_millis(200));
     xdotool(&display, &["mousedown", "1"]);
     for step in 1..=6 {
         std::thread::sleep(Duration::from_millis(100));
-        let y = (py + 20 * step).to_string();
-        xdotool(&display, &["mousemove", "--window", &win, &xs, &y]);
+        mouse_to(&display, &win, px, py + 20 * step);
     }
     std::thread::sleep(Duration::from_millis(1500));
     let during = capture(&display, &win, &dir.join("during.png"));
@@ -334,16 +350,13 @@ fn view_window_presses_the_cube_with_the_pointer() {
 
     // Esc quits (keys go to the focused window; there is no window manager to focus it);
     // then the log has a summary.
-    xdotool(&display, &["windowfocus", "--sync", &win]);
-    xdotool(&display, &["key", "Escape"]);
-    wait_until(
-        "touchfem view to quit on Esc",
-        Duration::from_secs(20),
+    quit_on_escape(
+        &display,
+        &win,
         &mut xvfb.0,
-        || matches!(view.0.try_wait(), Ok(Some(_))),
+        &mut view.0,
+        Duration::from_secs(20),
     );
-    let status = view.0.wait().unwrap();
-    assert!(status.success(), "touchfem view exited with {status}");
     let lines = read_log(&log);
     let max_force = lines
         .iter()
@@ -824,31 +837,13 @@ fn view_window_b_turns_the_pointer_into_a_blade() {
     };
     let drag = || {
         let (x, y) = at(-25.0);
-        xdotool(
-            &display,
-            &[
-                "mousemove",
-                "--window",
-                &win,
-                &x.to_string(),
-                &y.to_string(),
-            ],
-        );
+        mouse_to(&display, &win, x, y);
         std::thread::sleep(Duration::from_millis(200));
         xdotool(&display, &["mousedown", "1"]);
         for step in 1..=20 {
             std::thread::sleep(Duration::from_millis(60));
             let (x, y) = at(-25.0 + f64::from(step));
-            xdotool(
-                &display,
-                &[
-                    "mousemove",
-                    "--window",
-                    &win,
-                    &x.to_string(),
-                    &y.to_string(),
-                ],
-            );
+            mouse_to(&display, &win, x, y);
         }
         std::thread::sleep(Duration::from_millis(300));
         xdotool(&display, &["mouseup", "1"]);
@@ -895,16 +890,13 @@ fn view_window_b_turns_the_pointer_into_a_blade() {
     let removed = tets(&lines);
     let _ = capture(&display, &win, &dir.join("cut.png"));
 
-    xdotool(&display, &["windowfocus", "--sync", &win]);
-    xdotool(&display, &["key", "Escape"]);
-    wait_until(
-        "touchfem view to quit on Esc",
-        Duration::from_secs(30),
+    quit_on_escape(
+        &display,
+        &win,
         &mut xvfb.0,
-        || matches!(view.0.try_wait(), Ok(Some(_))),
+        &mut view.0,
+        Duration::from_secs(30),
     );
-    let status = view.0.wait().unwrap();
-    assert!(status.success(), "touchfem view exited with {status}");
     let out = std::fs::read_to_string(&stdout_path).unwrap();
     eprintln!("{out}log: {removed} tets removed, the point pressed {pressed:.3} N");
     let cut: usize = out

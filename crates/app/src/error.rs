@@ -9,13 +9,8 @@ pub enum Error {
     /// The engine's error.
     #[error(transparent)]
     Core(#[from] touchfem_core::Error),
-    /// The GPU pass's error.
-    #[error(transparent)]
-    Gpu(#[from] touchfem_gpu::GpuError),
-    /// The renderer's error.
-    #[error(transparent)]
-    Render(#[from] touchfem_gpu::render::RenderError),
-    /// A study's error (`bench`).
+    /// A study's error (`bench`), and the GPU pass's and the renderer's, which the lab's
+    /// error wraps.
     #[error(transparent)]
     Lab(#[from] touchfem_lab::Error),
     /// The window's error (`view`, `serve --view`).
@@ -42,3 +37,16 @@ pub enum Error {
 
 // The engine's domain errors convert through `touchfem_core::Error`.
 touchfem_core::from_domain_errors!(Error::Core);
+
+// The GPU pass's and the renderer's errors convert through `touchfem_lab::Error`, which wraps
+// them transparently (the message is theirs).
+impl From<touchfem_gpu::GpuError> for Error {
+    fn from(e: touchfem_gpu::GpuError) -> Error {
+        Error::Lab(e.into())
+    }
+}
+impl From<touchfem_gpu::render::RenderError> for Error {
+    fn from(e: touchfem_gpu::render::RenderError) -> Error {
+        Error::Lab(e.into())
+    }
+}

@@ -339,9 +339,10 @@ pub fn scene_objects(spec: &str) -> Result<SceneObjects, crate::error::Error> {
     Ok((rows, table, scenes))
 }
 
-/// The GPU pass's rows for one mesh, for both layouts of `L` (`gpu-f32-texture`,
-/// `gpu-f32-buffers`): `set_forces` + `encode` + submit + wait, and the error of the read-back
-/// positions against the f64 CPU product, relative to max |u|.
+/// The GPU pass's rows for one mesh, for each layout of `L` (`gpu-f32-texture`,
+/// `gpu-f32-buffers`, `gpu-f16-buffers`, `gpu-f16-texture`): `set_forces` + `encode` + submit +
+/// wait, and the error of the read-back positions against the f64 CPU product, relative to
+/// max |u|.
 pub fn gpu_rows(
     name: &str,
     scene: &Body,
@@ -357,85 +358,69 @@ pub fn gpu_rows(
         ("gpu-f16-buffers", LStorage::BuffersF16),
         ("gpu-f16-texture", LStorage::TextureF16),
     ] {
-        rows.extend(gpu_layout_rows(
-            method, storage, name, scene, gpu, active, reps,
-        )?);
-    }
-    Ok(rows)
-}
-
-fn gpu_layout_rows(
-    method: &str,
-    storage: touchfem_gpu::LStorage,
-    name: &str,
-    scene: &Body,
-    gpu: &touchfem_gpu::Gpu,
-    active: &[usize],
-    reps: usize,
-) -> Result<Vec<Row>, crate::error::Error> {
-    let c = &scene.compliance;
-    let mut d = touchfem_gpu::Deformer::new(
-        &gpu.device,
-        &gpu.queue,
-        c,
-        &scene.mesh.nodes,
-        &scene.mesh.surface,
-        &touchfem_gpu::DeformerOptions {
-            storage,
-            ..Default::default()
-        },
-    )?;
-    let mut rows = Vec::new();
-    let mut seen = Vec::new();
-    for &k in active {
-        let forces = spread_forces(c, k);
-        if seen.contains(&forces.len()) {
-            continue;
-        }
-        seen.push(forces.len());
-        let f32s: Vec<(u32, [f32; 3])> = forces
-            .iter()
-            .map(|&(col, f)| (col, f.as_vec3().to_array()))
-            .collect();
-        let mut failed = None;
-        // Frames for about 0.3 s (at least 5, at most 2000, fewer with --quick), after a few
-        // warm-up frames: each frame is timed on its own, so the median is a typical frame's.
-        let mut frame_us = 0.0;
-        let mut reps = reps;
-        for warm in 0..3 {
-            let s = Instant::now();
-            gpu_frame(gpu, &mut d, &f32s)?;
-            if warm == 2 {
-                frame_us = s.elapsed().as_secs_f64() * 1e6;
+        let c = &scene.compliance;
+        let mut d = touchfem_gpu::Deformer::new(
+            &gpu.device,
+            &gpu.queue,
+            c,
+            &scene.mesh.nodes,
+            &scene.mesh.surface,
+            &touchfem_gpu::DeformerOptions {
+                storage,
+                ..Default::default()
+            },
+        )?;
+        let mut seen = Vec::new();
+        for &k in active {
+            let forces = spread_forces(c, k);
+            if seen.contains(&forces.len()) {
+                continue;
             }
-        }
-        if reps >= 200 {
-            reps = ((0.3e6 / frame_us.max(1.0)) as usize).clamp(5, 2000);
-        }
-        let t = median_us(reps.clamp(5, 2000), || {
-            if let Err(e) = gpu_frame(gpu, &mut d, &f32s) {
-                failed = Some(e);
+            seen.push(forces.len());
+            let f32s: Vec<(u32, [f32; 3])> = forces
+                .iter()
+                .map(|&(col, f)| (col, f.as_vec3().to_array()))
+                .collect();
+            let mut failed = None;
+            // Frames for about 0.3 s (at least 5, at most 2000, fewer with --quick), after a few
+            // warm-up frames: each frame is timed on its own, so the median is a typical frame's.
+            let mut frame_us = 0.0;
+            let mut reps = reps;
+            for warm in 0..3 {
+                let s = Instant::now();
+                gpu_frame(gpu, &mut d, &f32s)?;
+                if warm == 2 {
+                    frame_us = s.elapsed().as_secs_f64() * 1e6;
+                }
             }
-        });
-        if let Some(e) = failed {
-            return Err(e);
+            if reps >= 200 {
+                reps = ((0.3e6 / frame_us.max(1.0)) as usize).clamp(5, 2000);
+            }
+            let t = median_us(reps.clamp(5, 2000), || {
+                if let Err(e) = gpu_frame(gpu, &mut d, &f32s) {
+                    failed = Some(e);
+                }
+            });
+            if let Some(e) = failed {
+                return Err(e);
+            }
+            let (pos, _) = d.read_back(&gpu.device, &gpu.queue)?;
+            let mut reference = vec![DVec3::ZERO; c.rows().len()];
+            c.displace(&forces, &mut reference);
+            let got: Vec<DVec3> = pos
+                .iter()
+                .zip(c.rows())
+                .map(|(p, &node)| glam::Vec3::from(*p).as_dvec3() - scene.mesh.nodes[node as usize])
+                .collect();
+            rows.push(Row {
+                method: method.into(),
+                mesh: name.into(),
+                nodes: scene.mesh.nodes.len(),
+                active_columns: forces.len(),
+                time_us: t,
+                rel_error: rel_err(&got, &reference),
+            });
         }
-        let (pos, _) = d.read_back(&gpu.device, &gpu.queue)?;
-        let mut reference = vec![DVec3::ZERO; c.rows().len()];
-        c.displace(&forces, &mut reference);
-        let got: Vec<DVec3> = pos
-            .iter()
-            .zip(c.rows())
-            .map(|(p, &node)| glam::Vec3::from(*p).as_dvec3() - scene.mesh.nodes[node as usize])
-            .collect();
-        rows.push(Row {
-            method: method.into(),
-            mesh: name.into(),
-            nodes: scene.mesh.nodes.len(),
-            active_columns: forces.len(),
-            time_us: t,
-            rel_error: rel_err(&got, &reference),
-        });
     }
     Ok(rows)
 }

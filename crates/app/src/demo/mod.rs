@@ -116,12 +116,7 @@ pub(crate) struct PictureScales {
 /// Previews a scene's scripted run — `samples` instants of its paths through the haptic path,
 /// `u = L·F` on the CPU (f64) for every object — for the scales its frames share.
 pub(crate) fn picture_scales(world: &World, samples: usize) -> Result<PictureScales, Error> {
-    let mut devs = scripted_devices(world, 1.0)?;
-    let n = devs.len().min(MAX_FINGERS);
-    let mut hw = HapticWorld::new(world);
-    let mut s = WorldSample::default();
-    let mut pos = [DVec3::ZERO; MAX_FINGERS];
-    let mut f = [DVec3::ZERO; MAX_FINGERS];
+    let mut run = ScriptedRun::new(world)?;
     let mut u: Vec<Vec<DVec3>> = world
         .objects
         .iter()
@@ -129,16 +124,16 @@ pub(crate) fn picture_scales(world: &World, samples: usize) -> Result<PictureSca
         .collect();
     let (mut max_u, mut max_f) = (0.0f64, 0.0f64);
     for i in 0..=samples {
-        let t = i as f64 / samples.max(1) as f64;
-        for (p, d) in pos.iter_mut().zip(devs.iter_mut()) {
-            *p = d.position(t);
-        }
-        hw.step(&pos[..n], &mut f[..n], &mut s);
+        run.place(i as f64 / samples.max(1) as f64);
+        run.step();
         for (k, o) in world.objects.iter().enumerate() {
-            o.body.compliance.displace(s.bc(k).entries(), &mut u[k]);
+            o.body.compliance.displace(run.s.bc(k).entries(), &mut u[k]);
             max_u = u[k].iter().map(|v| v.length()).fold(max_u, f64::max);
         }
-        max_f = f[..n].iter().map(|v| v.length()).fold(max_f, f64::max);
+        max_f = run.f[..run.n]
+            .iter()
+            .map(|v| v.length())
+            .fold(max_f, f64::max);
     }
     let (lo, hi) = world.bounds();
     let diag = (hi - lo).length();
@@ -243,24 +238,54 @@ pub(crate) fn scripted_devices(
         .collect())
 }
 
-/// Median haptic step (µs) of a scene over its scripted paths, outside the loop.
-pub(crate) fn step_median(world: &World, samples: usize) -> Result<f64, Error> {
-    let mut devs = scripted_devices(world, 1.0)?;
-    let n = devs.len().min(MAX_FINGERS);
-    let mut hw = HapticWorld::new(world);
-    let mut s = WorldSample::default();
-    let mut pos = [DVec3::ZERO; MAX_FINGERS];
-    let mut f = [DVec3::ZERO; MAX_FINGERS];
-    let mut times = Vec::with_capacity(samples);
-    for i in 0..samples {
-        let t = i as f64 / samples as f64;
-        for (p, d) in pos.iter_mut().zip(devs.iter_mut()) {
+/// A scene's scripted fingers stepped through the haptic path outside the loop: what the
+/// preview and the step timing share.
+struct ScriptedRun<'w> {
+    devs: Vec<Box<dyn HapticDevice>>,
+    n: usize,
+    hw: HapticWorld<'w>,
+    s: WorldSample,
+    pos: [DVec3; MAX_FINGERS],
+    f: [DVec3; MAX_FINGERS],
+}
+
+impl<'w> ScriptedRun<'w> {
+    fn new(world: &'w World) -> Result<ScriptedRun<'w>, Error> {
+        let devs = scripted_devices(world, 1.0)?;
+        Ok(ScriptedRun {
+            n: devs.len().min(MAX_FINGERS),
+            devs,
+            hw: HapticWorld::new(world),
+            s: WorldSample::default(),
+            pos: [DVec3::ZERO; MAX_FINGERS],
+            f: [DVec3::ZERO; MAX_FINGERS],
+        })
+    }
+
+    /// Moves every finger to where its path is at `t` (0 to 1).
+    fn place(&mut self, t: f64) {
+        for (p, d) in self.pos.iter_mut().zip(self.devs.iter_mut()) {
             *p = d.position(t);
         }
+    }
+
+    /// One haptic step from where the fingers are.
+    fn step(&mut self) {
+        self.hw
+            .step(&self.pos[..self.n], &mut self.f[..self.n], &mut self.s);
+    }
+}
+
+/// Median haptic step (µs) of a scene over its scripted paths, outside the loop.
+pub(crate) fn step_median(world: &World, samples: usize) -> Result<f64, Error> {
+    let mut run = ScriptedRun::new(world)?;
+    let mut times = Vec::with_capacity(samples);
+    for i in 0..samples {
+        run.place(i as f64 / samples as f64);
         let t0 = Instant::now();
-        hw.step(&pos[..n], &mut f[..n], &mut s);
+        run.step();
         times.push(t0.elapsed().as_secs_f64() * 1e6);
-        std::hint::black_box(&s);
+        std::hint::black_box(&run.s);
     }
     times.sort_by(|a, b| a.total_cmp(b));
     Ok(percentile(&times, 0.5))

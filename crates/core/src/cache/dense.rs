@@ -13,7 +13,8 @@ use xxhash_rust::xxh3::{xxh3_64, Xxh3};
 use super::atomic::{sync_dir, unique_tmp};
 use super::error::CacheError;
 use super::format::{
-    self, range_inconsistency, u32_at, u64_at, Common, Shard, Source, BYTES_NAME, DENSE_VERSION,
+    self, common_fields, range_inconsistency, u32_at, u64_at, Common, Shard, Source, BYTES_NAME,
+    DENSE_VERSION,
 };
 use crate::compliance::near::NearBlocks;
 use crate::compliance::{Compliance, BATCH_COLS};
@@ -65,33 +66,20 @@ impl Header {
 
     /// The fields shared with the compressed format.
     fn common(&self) -> Common {
-        Common {
-            n_nodes: self.n_nodes,
-            rows: self.rows,
-            cols: self.cols,
-            key: self.key,
-            shard_index: self.shard_index,
-            shard_count: self.shard_count,
-        }
+        common_fields!(of self)
     }
 
     /// Parses a header whose magic, version and precision are right (no size is checked).
     fn parse(b: &[u8; HEADER]) -> Result<Header, String> {
         let c = Common::read(b, DENSE_VERSION, "dense")?;
-        Ok(Header {
-            n_nodes: c.n_nodes,
-            rows: c.rows,
-            cols: c.cols,
+        Ok(common_fields!(c => Header {
             batch: u32_at(b, 28),
-            key: c.key,
-            shard_index: c.shard_index,
-            shard_count: c.shard_count,
             col_begin: u32_at(b, 48),
             col_end: u32_at(b, 52),
             free_dofs: u32_at(b, 56),
             l_rows: u32_at(b, 60),
             residual_bits: u64_at(b, 64),
-        })
+        }))
     }
 
     fn held_batches(&self) -> usize {

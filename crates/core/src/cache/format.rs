@@ -156,6 +156,36 @@ impl Common {
     }
 }
 
+/// The shared fields between [`Common`] and a format's header, whose fields of the same names
+/// hold them: `common_fields!(of HEADER)` is its [`Common`]; `common_fields!(COMMON => Header {
+/// rest })` a `Header` of those fields and the rest.
+macro_rules! common_fields {
+    (of $h:expr) => {{
+        let h = $h;
+        $crate::cache::format::Common {
+            n_nodes: h.n_nodes,
+            rows: h.rows,
+            cols: h.cols,
+            key: h.key,
+            shard_index: h.shard_index,
+            shard_count: h.shard_count,
+        }
+    }};
+    ($c:expr => $header:ident { $($rest:tt)* }) => {{
+        let c: $crate::cache::format::Common = $c;
+        $header {
+            n_nodes: c.n_nodes,
+            rows: c.rows,
+            cols: c.cols,
+            key: c.key,
+            shard_index: c.shard_index,
+            shard_count: c.shard_count,
+            $($rest)*
+        }
+    }};
+}
+pub(crate) use common_fields;
+
 /// What is wrong with a run `begin..end` of `total` (`what`: "columns" or "panels").
 pub(crate) fn range_inconsistency(begin: u32, end: u32, total: u32, what: &str) -> Option<String> {
     (begin > end || end > total).then(|| format!("{what} {begin}..{end} of {total}"))

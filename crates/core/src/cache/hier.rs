@@ -55,7 +55,8 @@ use xxhash_rust::xxh3::{xxh3_64, Xxh3};
 use super::atomic::AtomicFile;
 use super::error::CacheError;
 use super::format::{
-    self, f64_at, range_inconsistency, u32_at, u64_at, Common, Shard, BYTES_NAME, HIER_VERSION,
+    self, common_fields, f64_at, range_inconsistency, u32_at, u64_at, Common, Shard, BYTES_NAME,
+    HIER_VERSION,
 };
 use crate::compliance::hmatrix::{HMatrix, HOptions, HPlan, Panel};
 use crate::compliance::{Compliance, HierParts};
@@ -122,28 +123,15 @@ impl Header {
 
     /// The fields shared with the dense format.
     fn common(&self) -> Common {
-        Common {
-            n_nodes: self.n_nodes,
-            rows: self.rows,
-            cols: self.cols,
-            key: self.key,
-            shard_index: self.shard_index,
-            shard_count: self.shard_count,
-        }
+        common_fields!(of self)
     }
 
     /// Parses a header whose magic, version and precision are right (its checksum is not
     /// checked here).
     fn parse(b: &[u8; HEADER]) -> Result<Header, String> {
         let c = Common::read(b, FORMAT_VERSION, "compressed")?;
-        Ok(Header {
-            n_nodes: c.n_nodes,
-            rows: c.rows,
-            cols: c.cols,
+        Ok(common_fields!(c => Header {
             l_rows: u32_at(b, 28),
-            key: c.key,
-            shard_index: c.shard_index,
-            shard_count: c.shard_count,
             panels: u32_at(b, 48),
             panel_begin: u32_at(b, 52),
             panel_end: u32_at(b, 56),
@@ -155,7 +143,7 @@ impl Header {
                 panel_size: u32_at(b, 84) as usize,
             },
             residual: f64::from_bits(u64_at(b, 88)),
-        })
+        }))
     }
 
     /// What is wrong with the header's sizes, if anything.

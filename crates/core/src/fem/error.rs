@@ -5,19 +5,10 @@ use thiserror::Error;
 /// Errors from building or factorising the stiffness.
 #[derive(Debug, Error)]
 pub enum FemError {
-    /// E or ν out of range.
-    #[error("bad material: {0}")]
-    BadMaterial(String),
-    /// ν = 0.5 exactly: the bulk modulus is infinite, and a displacement-only `K` cannot hold
-    /// it; the locking-free formulation's mixed system would lose the compressibility that
-    /// makes its pressure block negative definite, which its factorisation without pivoting
-    /// relies on, so both formulations refuse it.
-    #[error(
-        "Poisson's ratio 0.5 (exactly incompressible) has an infinite bulk modulus: no \
-         displacement-only stiffness holds it; use 0.4999 with formulation \"locking-free\" \
-         (the standard formulation locks there)"
-    )]
-    Incompressible,
+    /// A material that cannot be used: E or ν out of range, or ν = 0.5 exactly (the same
+    /// error, and message, as the mesh's check gives).
+    #[error(transparent)]
+    Material(#[from] crate::mesh::units::MaterialError),
     /// No node is clamped: the stiffness is singular (six rigid-body modes).
     #[error(
         "no node is fixed: the object can move freely and its stiffness is singular \
@@ -53,13 +44,4 @@ pub enum FemError {
     /// A touchable node is clamped, or a node index is out of range.
     #[error("bad node selection: {0}")]
     BadSelection(String),
-}
-
-impl From<crate::mesh::units::MaterialError> for FemError {
-    fn from(e: crate::mesh::units::MaterialError) -> FemError {
-        match e {
-            crate::mesh::units::MaterialError::BadMaterial(m) => FemError::BadMaterial(m),
-            crate::mesh::units::MaterialError::Incompressible => FemError::Incompressible,
-        }
-    }
 }

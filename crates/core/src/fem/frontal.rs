@@ -480,45 +480,31 @@ impl Worker {
         let negative = sh.negative.get(b0..b0 + ns).filter(|n| n.contains(&true));
         // The diagonal block: G₁₁ G₁₁ᵀ, or for a mixed system's front L₁₁ D L₁₁ᵀ in the
         // signed form G₁₁ Σ G₁₁ᵀ.
+        // The one numeric step, written once for both of faer's dense factorisations.
+        macro_rules! numeric {
+            ($kind:ident) => {
+                |(scratch, l11)| {
+                    use faer::linalg::cholesky::$kind::factor;
+                    reserve(
+                        scratch,
+                        factor::cholesky_in_place_scratch::<f64>(ns, par, Default::default()),
+                    );
+                    factor::cholesky_in_place(
+                        l11.rb_mut(),
+                        Default::default(),
+                        par,
+                        faer::dyn_stack::MemStack::new(scratch),
+                        Default::default(),
+                    )?;
+                    Ok(())
+                }
+            };
+        }
         llt_else_ldlt(
             negative.is_some(),
             &mut (&mut self.scratch, l11.rb_mut()),
-            |(scratch, l11)| {
-                reserve(
-                    scratch,
-                    faer::linalg::cholesky::llt::factor::cholesky_in_place_scratch::<f64>(
-                        ns,
-                        par,
-                        Default::default(),
-                    ),
-                );
-                faer::linalg::cholesky::llt::factor::cholesky_in_place(
-                    l11.rb_mut(),
-                    Default::default(),
-                    par,
-                    faer::dyn_stack::MemStack::new(scratch),
-                    Default::default(),
-                )?;
-                Ok(())
-            },
-            |(scratch, l11)| {
-                reserve(
-                    scratch,
-                    faer::linalg::cholesky::ldlt::factor::cholesky_in_place_scratch::<f64>(
-                        ns,
-                        par,
-                        Default::default(),
-                    ),
-                );
-                faer::linalg::cholesky::ldlt::factor::cholesky_in_place(
-                    l11.rb_mut(),
-                    Default::default(),
-                    par,
-                    faer::dyn_stack::MemStack::new(scratch),
-                    Default::default(),
-                )?;
-                Ok(())
-            },
+            numeric!(llt),
+            numeric!(ldlt),
             singular,
         )?;
         if let Some(negative) = negative {

@@ -335,7 +335,7 @@ pub(crate) fn blocks(mesh: &Mesh, smoothing: Smoothing, skip_fixed: bool) -> Blo
 /// `mesh.formulation` says), assembled; for the stabilised ones
 /// ([`Smoothing::is_stabilised`]), whose condensed stiffness is dense, their mixed system
 /// ([`mixed`]), which solves to the same displacements.
-/// Checks the materials (ν = 0.5 exactly is [`FemError::Incompressible`]) and the clamps as
+/// Checks the materials (ν = 0.5 exactly is [`MaterialError::Incompressible`](crate::mesh::units::MaterialError::Incompressible)) and the clamps as
 /// [`Stiffness::assemble`] does.
 pub fn stiffness(mesh: &Mesh, smoothing: Smoothing) -> Result<Stiffness, FemError> {
     if smoothing.is_stabilised() {
@@ -549,7 +549,7 @@ pub(crate) fn wanted(mesh: &Mesh) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::units::{LengthUnit, Material};
+    use crate::mesh::units::{LengthUnit, Material, MaterialError};
     use crate::mesh::{cube_with, grid_raw};
     use faer::Mat;
     use nalgebra::{DMatrix, DVector};
@@ -1111,18 +1111,24 @@ mod tests {
             let mut m = cube_with([2; 3], [30.0; 3], material(0.5)).expect("mesh");
             m.formulation = f;
             assert!(
-                matches!(Stiffness::assemble(&m), Err(FemError::Incompressible)),
+                matches!(
+                    Stiffness::assemble(&m),
+                    Err(FemError::Material(MaterialError::Incompressible))
+                ),
                 "{f}"
             );
             assert!(
                 matches!(
                     super::mixed(&m, Smoothing::CHOSEN),
-                    Err(FemError::Incompressible)
+                    Err(FemError::Material(MaterialError::Incompressible))
                 ),
                 "{f}"
             );
             for s in ALL {
-                assert!(matches!(stiffness(&m, s), Err(FemError::Incompressible)));
+                assert!(matches!(
+                    stiffness(&m, s),
+                    Err(FemError::Material(MaterialError::Incompressible))
+                ));
             }
             m.material.poisson = 0.499_999;
             assert!(Stiffness::assemble(&m).is_ok(), "{f}");

@@ -581,41 +581,31 @@ impl Stiffness {
             }
         };
         let negative = self.negative_columns(&symbolic);
+        // The one numeric step, written once for both of faer's factorisations.
+        macro_rules! numeric {
+            ($scratch:ident, $factor:ident) => {
+                |values| {
+                    let mut buf =
+                        MemBuffer::try_new(symbolic.$scratch::<f64>(par, Default::default()))
+                            .map_err(|e| fact_err(&e))?;
+                    symbolic.$factor::<f64>(
+                        values,
+                        self.k.as_ref(),
+                        Side::Lower,
+                        Default::default(),
+                        par,
+                        MemStack::new(&mut buf),
+                        Default::default(),
+                    )?;
+                    Ok(())
+                }
+            };
+        }
         llt_else_ldlt(
             !negative.is_empty(),
             &mut values,
-            |values| {
-                let mut buf = MemBuffer::try_new(
-                    symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
-                )
-                .map_err(|e| fact_err(&e))?;
-                symbolic.factorize_numeric_llt::<f64>(
-                    values,
-                    self.k.as_ref(),
-                    Side::Lower,
-                    Default::default(),
-                    par,
-                    MemStack::new(&mut buf),
-                    Default::default(),
-                )?;
-                Ok(())
-            },
-            |values| {
-                let mut buf = MemBuffer::try_new(
-                    symbolic.factorize_numeric_ldlt_scratch::<f64>(par, Default::default()),
-                )
-                .map_err(|e| fact_err(&e))?;
-                symbolic.factorize_numeric_ldlt::<f64>(
-                    values,
-                    self.k.as_ref(),
-                    Side::Lower,
-                    Default::default(),
-                    par,
-                    MemStack::new(&mut buf),
-                    Default::default(),
-                )?;
-                Ok(())
-            },
+            numeric!(factorize_numeric_llt_scratch, factorize_numeric_llt),
+            numeric!(factorize_numeric_ldlt_scratch, factorize_numeric_ldlt),
             singular,
         )?;
         if !negative.is_empty() {

@@ -384,36 +384,12 @@ impl Mesh {
         let surface_nodes = (0..nodes.len() as u32)
             .filter(|&i| on_surface[i as usize])
             .collect();
-        let groups = raw
-            .node_groups
-            .into_iter()
-            .map(|(name, ids)| {
-                let mut v: Vec<u32> = ids
-                    .into_iter()
-                    .filter(|&i| i < n_in && remap[i] != u32::MAX)
-                    .map(|i| remap[i])
-                    .collect();
-                v.sort_unstable();
-                v.dedup();
-                (name, v)
-            })
-            .collect();
+        let groups = remap_groups(raw.node_groups, |i| {
+            (i < n_in && remap[i] != u32::MAX).then(|| remap[i])
+        });
         // Tets keep their index (reoriented in place, none dropped): only range and order.
         let n_tets = tets.len();
-        let tet_groups = raw
-            .tet_groups
-            .into_iter()
-            .map(|(name, ids)| {
-                let mut v: Vec<u32> = ids
-                    .into_iter()
-                    .filter(|&i| i < n_tets)
-                    .map(|i| i as u32)
-                    .collect();
-                v.sort_unstable();
-                v.dedup();
-                (name, v)
-            })
-            .collect();
+        let tet_groups = remap_groups(raw.tet_groups, |i| (i < n_tets).then_some(i as u32));
         Ok(Mesh {
             fixed: vec![false; nodes.len()],
             nodes,
@@ -489,26 +465,10 @@ impl Mesh {
     /// cut faces included), sorted. Unlike a loaded mesh's, it is not checked to be a closed
     /// 2-manifold: a cut may leave two tets touching along an edge.
     pub fn open_surface(&self, removed: &[bool]) -> Vec<[u32; 3]> {
-        let mut faces: HashMap<[u32; 3], (u32, [u32; 3])> =
-            HashMap::with_capacity(self.tets.len() * 4);
-        for (k, t) in self.tets.iter().enumerate() {
-            if removed.get(k).copied().unwrap_or(false) {
-                continue;
-            }
-            for lf in TET_FACES {
-                let f = [t[lf[0]], t[lf[1]], t[lf[2]]];
-                let mut key = f;
-                key.sort_unstable();
-                faces.entry(key).or_insert((0, f)).0 += 1;
-            }
-        }
-        let mut surface: Vec<[u32; 3]> = faces
-            .into_values()
-            .filter(|(c, _)| *c == 1)
-            .map(|(_, f)| f)
-            .collect();
-        surface.sort_unstable();
-        surface
+        let kept = (self.tets.iter().enumerate())
+            .filter(|&(k, _)| !removed.get(k).copied().unwrap_or(false))
+            .map(|(_, t)| t);
+        single_faces(kept, self.tets.len()).0
     }
 
     /// The region index of each tet: 0 for the base material, k + 1 for `regions[k]`.
@@ -693,11 +653,32 @@ pub struct Table1 {
     pub poisson: f64,
 }
 
-/// Extracts the outward boundary triangles of positively oriented tets and checks that the
-/// boundary is a closed 2-manifold (every face in at most two tets, every boundary edge in
-/// exactly two boundary triangles, used once in each direction).
-fn boundary(tets: &[[u32; 4]]) -> Result<Vec<[u32; 3]>, MeshError> {
-    let mut faces: HashMap<[u32; 3], (u32, [u32; 3])> = HashMap::with_capacity(tets.len() * 4);
+/// A file's groups with each id mapped through `map` (`None` drops it), sorted and without
+/// repeats.
+fn remap_groups(
+    groups: BTreeMap<String, Vec<usize>>,
+    map: impl Fn(usize) -> Option<u32>,
+) -> BTreeMap<String, Vec<u32>> {
+    groups
+        .into_iter()
+        .map(|(name, ids)| {
+            let mut v: Vec<u32> = ids.into_iter().filter_map(&map).collect();
+            v.sort_unstable();
+            v.dedup();
+            (name, v)
+        })
+        .collect()
+}
+
+/// The faces that exactly one of `tets` (`n` of them at most) holds, as that tet holds them
+/// (outward for a positively oriented tet), sorted; and the first face (its vertices sorted),
+/// in the tets' order, that more than two tets hold.
+fn single_faces<'a>(
+    tets: impl Iterator<Item = &'a [u32; 4]>,
+    n: usize,
+) -> (Vec<[u32; 3]>, Option<[u32; 3]>) {
+    let mut faces: HashMap<[u32; 3], (u32, [u32; 3])> = HashMap::with_capacity(n * 4);
+    let mut shared = None;
     for t in tets {
         for lf in TET_FACES {
             let f = [t[lf[0]], t[lf[1]], t[lf[2]]];
@@ -705,10 +686,8 @@ fn boundary(tets: &[[u32; 4]]) -> Result<Vec<[u32; 3]>, MeshError> {
             key.sort_unstable();
             let e = faces.entry(key).or_insert((0, f));
             e.0 += 1;
-            if e.0 > 2 {
-                return Err(MeshError::NonManifold {
-                    what: format!("face {key:?} is shared by more than two tets"),
-                });
+            if e.0 > 2 && shared.is_none() {
+                shared = Some(key);
             }
         }
     }
@@ -718,6 +697,19 @@ fn boundary(tets: &[[u32; 4]]) -> Result<Vec<[u32; 3]>, MeshError> {
         .map(|(_, f)| f)
         .collect();
     surface.sort_unstable();
+    (surface, shared)
+}
+
+/// Extracts the outward boundary triangles of positively oriented tets and checks that the
+/// boundary is a closed 2-manifold (every face in at most two tets, every boundary edge in
+/// exactly two boundary triangles, used once in each direction).
+fn boundary(tets: &[[u32; 4]]) -> Result<Vec<[u32; 3]>, MeshError> {
+    let (surface, shared) = single_faces(tets.iter(), tets.len());
+    if let Some(key) = shared {
+        return Err(MeshError::NonManifold {
+            what: format!("face {key:?} is shared by more than two tets"),
+        });
+    }
     let mut edges: HashMap<(u32, u32), i32> = HashMap::with_capacity(surface.len() * 2);
     for f in &surface {
         for k in 0..3 {

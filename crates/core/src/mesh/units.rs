@@ -5,15 +5,17 @@ use std::fmt;
 use std::str::FromStr;
 use thiserror::Error;
 
-/// Why a material cannot be used (the FEM room turns it into its own error with the same
-/// message).
+/// Why a material cannot be used (the FEM room wraps it as
+/// [`FemError::Material`](crate::fem::FemError::Material)).
 #[derive(Debug, Error)]
 pub enum MaterialError {
     /// E or ν out of range.
     #[error("bad material: {0}")]
     BadMaterial(String),
-    /// ν = 0.5 exactly: the bulk modulus is infinite (see
-    /// [`FemError::Incompressible`](crate::fem::FemError::Incompressible)).
+    /// ν = 0.5 exactly: the bulk modulus is infinite, and a displacement-only `K` cannot hold
+    /// it; the locking-free formulation's mixed system would lose the compressibility that
+    /// makes its pressure block negative definite, which its factorisation without pivoting
+    /// relies on, so both formulations refuse it.
     #[error(
         "Poisson's ratio 0.5 (exactly incompressible) has an infinite bulk modulus: no \
          displacement-only stiffness holds it; use 0.4999 with formulation \"locking-free\" \

@@ -378,10 +378,7 @@ impl World {
             let (mut mesh, _) = load_mesh(&path, &opts).map_err(|e| {
                 let key = match &e {
                     Error::Mesh(crate::MeshError::MissingGroup { .. }) => "fixed",
-                    Error::Fem(
-                        crate::fem::FemError::BadMaterial(..)
-                        | crate::fem::FemError::Incompressible,
-                    ) => {
+                    Error::Fem(crate::fem::FemError::Material(_)) => {
                         if key_span("poisson").is_some() {
                             "poisson"
                         } else {

@@ -82,13 +82,12 @@ pub(super) enum TouchableToml {
 
 impl<'de> Deserialize<'de> for TouchableToml {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        d.deserialize_any(NameOr::<BallToml>::new(
+        NameOr::read(
+            d,
             "\"all\", a group's name, or a ball { center = [x, y, z], radius = r }",
-        ))
-        .map(|v| match v {
-            Ok(name) => TouchableToml::Name(name),
-            Err(ball) => TouchableToml::Ball(ball),
-        })
+            TouchableToml::Name,
+            TouchableToml::Ball,
+        )
     }
 }
 
@@ -101,11 +100,25 @@ pub(super) struct NameOr<T> {
 }
 
 impl<T> NameOr<T> {
-    fn new(expected: &'static str) -> Self {
-        NameOr {
+    /// Reads a string or a table of `T` from `d` (`expected` names both forms), made into a
+    /// `V` by `name` or by `table`.
+    fn read<'de, D: serde::Deserializer<'de>, V>(
+        d: D,
+        expected: &'static str,
+        name: impl FnOnce(String) -> V,
+        table: impl FnOnce(T) -> V,
+    ) -> Result<V, D::Error>
+    where
+        T: Deserialize<'de>,
+    {
+        let v = d.deserialize_any(NameOr {
             expected,
             table: std::marker::PhantomData,
-        }
+        })?;
+        Ok(match v {
+            Ok(s) => name(s),
+            Err(t) => table(t),
+        })
     }
 }
 
@@ -158,32 +171,24 @@ impl<'de, T: Deserialize<'de> + TableForm> Deserialize<'de> for Table<T> {
     }
 }
 
-impl TableForm for ObjectToml {
-    const FORM: &'static str = "an `[[object]]` table";
+/// `impl TableForm` for each table type, with its documented form.
+macro_rules! table_forms {
+    ($($t:ty => $form:literal,)*) => {
+        $(impl TableForm for $t {
+            const FORM: &'static str = $form;
+        })*
+    };
 }
-impl TableForm for FingerToml {
-    const FORM: &'static str = "a `[[finger]]` table";
-}
-impl TableForm for HapticsToml {
-    const FORM: &'static str = "a `[haptics]` table";
-}
-impl TableForm for RegionToml {
-    const FORM: &'static str = "an `[[object.region]]` table (group, young, poisson)";
-}
-impl TableForm for FrictionToml {
-    const FORM: &'static str = "a table `friction = { static = MS, dynamic = MD }`";
-}
-impl TableForm for CompressionToml {
-    const FORM: &'static str = "a table `compression = { tolerance = EPS }`";
-}
-impl TableForm for ToolToml {
-    const FORM: &'static str = "a table `tool = { sphere = R }` or `tool = { blade = DEPTH }`";
-}
-impl TableForm for BallToml {
-    const FORM: &'static str = "a ball { center = [x, y, z], radius = r }";
-}
-impl TableForm for LimitNumbersToml {
-    const FORM: &'static str = "a table of limits (max_force_n, max_stiffness_n_per_m, …)";
+table_forms! {
+    ObjectToml => "an `[[object]]` table",
+    FingerToml => "a `[[finger]]` table",
+    HapticsToml => "a `[haptics]` table",
+    RegionToml => "an `[[object.region]]` table (group, young, poisson)",
+    FrictionToml => "a table `friction = { static = MS, dynamic = MD }`",
+    CompressionToml => "a table `compression = { tolerance = EPS }`",
+    ToolToml => "a table `tool = { sphere = R }` or `tool = { blade = DEPTH }`",
+    BallToml => "a ball { center = [x, y, z], radius = r }",
+    LimitNumbersToml => "a table of limits (max_force_n, max_stiffness_n_per_m, …)",
 }
 
 #[derive(Debug, Deserialize)]
@@ -212,14 +217,13 @@ pub(super) enum LimitsToml {
 
 impl<'de> Deserialize<'de> for LimitsToml {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        d.deserialize_any(NameOr::<LimitNumbersToml>::new(
+        NameOr::read(
+            d,
             "a preset's name (\"falcon\", …) or a table of limits \
              { max_force_n, max_stiffness_n_per_m, max_damping_ns_per_m, workspace_radius_m, … }",
-        ))
-        .map(|v| match v {
-            Ok(name) => LimitsToml::Preset(name),
-            Err(numbers) => LimitsToml::Numbers(numbers),
-        })
+            LimitsToml::Preset,
+            LimitsToml::Numbers,
+        )
     }
 }
 
