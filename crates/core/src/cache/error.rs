@@ -3,9 +3,9 @@
 use std::path::PathBuf;
 use thiserror::Error;
 
+use crate::compliance::hmatrix::HOptions;
 use crate::compliance::ComplianceError;
 use crate::fem::FemError;
-use crate::compliance::hmatrix::HOptions;
 
 /// Why a cache file was not used.
 #[derive(Debug, Error)]

@@ -3,8 +3,8 @@
 
 use xxhash_rust::xxh3::Xxh3;
 
-use crate::compliance::Selection;
 use crate::compliance::hmatrix::HOptions;
+use crate::compliance::Selection;
 use crate::mesh::Mesh;
 
 /// Version of what [`key`] hashes (not of the file layout, which the header's version names):

@@ -49,14 +49,15 @@ mod key;
 mod runs;
 
 pub use atomic::write_atomic;
+#[cfg(feature = "native")]
 pub(crate) use atomic::AtomicFile;
 pub(crate) use dense::{load_near_part, shard_batches, Writer};
 pub use dense::{Header, Part};
 pub use error::CacheError;
 pub use key::{key, key_hier};
 
-use crate::compliance::{Compliance, Selection};
 use crate::compliance::hmatrix::HOptions;
+use crate::compliance::{Compliance, Selection};
 use crate::mesh::Mesh;
 
 /// What happened when loading through the cache.
