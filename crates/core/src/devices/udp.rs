@@ -219,8 +219,8 @@ pub struct ForcePacket {
     pub flags: [u32; MAX_FINGERS],
 }
 
-#[cfg(feature = "native")]
 /// Encodes a force packet into `out`; returns its length.
+#[cfg_attr(not(feature = "native"), allow(dead_code))]
 pub(crate) fn encode_force(seq: u32, forces: &[DVec3], flags: &[u32], out: &mut [u8]) -> usize {
     let n = forces.len();
     out[..4].copy_from_slice(FORCE_MAGIC);

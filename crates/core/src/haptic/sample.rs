@@ -127,7 +127,7 @@ impl LiveStatus {
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "native"))]
 mod tests {
     use super::*;
 
