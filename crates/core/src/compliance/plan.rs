@@ -68,6 +68,7 @@ pub(crate) fn ordering() -> crate::fem::Ordering {
 
 /// Bytes of Cholesky factor above which the precompute keeps it in a file (see
 /// [`factor_store`]).
+#[cfg(feature = "native")]
 pub(crate) const FACTOR_FILE_ABOVE: usize = 256 << 20;
 
 /// Where the precompute keeps its Cholesky factor, by the environment variable
@@ -75,6 +76,7 @@ pub(crate) const FACTOR_FILE_ABOVE: usize = 256 << 20;
 /// multifrontal factorisation of [`crate::fem::frontal`]), or, unset or anything else, `file`
 /// for factors above [`FACTOR_FILE_ABOVE`]. The file is unlinked at once and lives in the
 /// cache directory ([`crate::options::cache_dir`]), or the system's temporary one.
+#[cfg(feature = "native")]
 pub(crate) fn factor_store() -> crate::fem::FactorStore {
     use crate::fem::FactorStore;
     let dir = crate::options::cache_dir()
@@ -90,6 +92,13 @@ pub(crate) fn factor_store() -> crate::fem::FactorStore {
             above: FACTOR_FILE_ABOVE,
         },
     }
+}
+
+/// Where the precompute keeps its Cholesky factor without the `native` feature: on the heap
+/// (there are no files, and `std::env::temp_dir` panics on `wasm32-unknown-unknown`).
+#[cfg(not(feature = "native"))]
+pub(crate) fn factor_store() -> crate::fem::FactorStore {
+    crate::fem::FactorStore::Heap
 }
 
 /// The factorised stiffness and the resolved selection, ready to solve column batches.
