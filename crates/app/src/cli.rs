@@ -749,9 +749,7 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
         Some(path) => {
             // `--tolerance`, else a compressed file's own options: a compressed cache is read
             // as a dense one is, kept compressed when recomputed, and never rewritten dense.
-            let compression = a
-                .tolerance
-                .map(touchfem_core::compliance::hmatrix::HOptions::new);
+            let compression = a.tolerance.map(touchfem_core::compliance::hmatrix::HOptions::new);
             let (c, outcome) = touchfem_core::cache::load_or_compute_file(
                 path,
                 &mesh,
