@@ -19,6 +19,13 @@
 //!   `touchfem-gpu` crate's.
 
 //!
+//! ## Features
+//!
+//! `native` (default): threads, files written or mapped in place, sockets, the clock, the
+//! environment, METIS and faer's rayon. Without it the engine is the pure, single-threaded
+//! core that builds for `wasm32-unknown-unknown`: mesh, FEM, compliance, contact, cut,
+//! hierarchical `L`, caches read from bytes and the haptic step (docs/guide/wasm.md).
+//!
 //! ## Rooms
 //!
 //! The root holds only the rooms of the engine, and every `use crate::…` points down this
@@ -26,7 +33,8 @@
 //!
 //! 1. [`limits`]: the fixed capacities (fingers, objects, patch nodes);
 //! 2. [`options`]: the environment variables, the only reader of the environment;
-//! 3. [`threads`]: CPU placement and priorities of the native threads;
+//! 3. [`threads`]: CPU placement and priorities of the native threads, the parallel solves
+//!    fan-out and the phase stopwatch (sequential and zero without `native`);
 //! 4. [`mesh`]: the tetrahedral mesh, its readers and [`mesh::units`] (materials, lengths);
 //! 5. [`fem`]: the stiffness `K`, its one factorisation, the frontal factor, the Gram
 //!    products and the locking-free formulation;

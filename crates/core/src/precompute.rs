@@ -8,9 +8,9 @@
 //! and destination) in, an [`Outcome`] (the file, its key, the figures, and the hierarchical
 //! `L` written) out.
 
+use crate::threads::Stopwatch;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Instant;
 
 use crate::cache::{self, CacheError, Header, Writer};
 use crate::compliance::hmatrix::{HMatrix, HOptions};
@@ -202,7 +202,7 @@ fn hier_to_file(
     shard: (usize, usize),
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<(Report, HierParts), Error> {
-    let t0 = Instant::now();
+    let t0 = Stopwatch::start();
     if shard.0 == 0 || shard.0 > shard.1 {
         return Err(Error::Input(format!(
             "shard {} of {}: expected 1 <= I <= N",
@@ -218,7 +218,7 @@ fn hier_to_file(
         shard,
         progress,
     )?;
-    let ts = Instant::now();
+    let ts = Stopwatch::start();
     let bytes = cache::hier::write_parts(out, &parts, key, mesh.nodes.len(), shard)?;
     let mut phases = parts.stats.phases.clone();
     phases.sync_s = ts.elapsed().as_secs_f64();
@@ -251,7 +251,7 @@ pub fn precompute_until(
     progress: &mut dyn FnMut(usize, usize),
     stop: &(dyn Fn(usize) -> bool + Sync),
 ) -> Result<Report, Error> {
-    let t0 = Instant::now();
+    let t0 = Stopwatch::start();
     let key = cache::key(mesh, sel);
     let mut plan = ColumnPlan::new(mesh, sel)?;
     let nc = plan.cols.len();
@@ -323,7 +323,7 @@ pub fn precompute_until(
                         .0;
                 }
                 drop(g);
-                let tm = Instant::now();
+                let tm = Stopwatch::start();
                 let r = plan
                     .mirror(b, data, &mut |q, r0, out| {
                         writer.read_column(q - base, r0, out)
@@ -364,7 +364,7 @@ pub fn precompute_until(
         });
     }
     progress(total, total);
-    let ts = Instant::now();
+    let ts = Stopwatch::start();
     let bytes = writer.finish()?;
     let sync_s = ts.elapsed().as_secs_f64();
     let mut phases = plan.phases.clone();

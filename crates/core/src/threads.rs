@@ -9,10 +9,102 @@
 //! steady 17 µs with both threads on one core. Threads inherit the affinity of the thread that
 //! creates them, so [`VisualPlacement`] pins the visual thread *before* the GPU context is
 //! created (the driver's threads start on that core too) and gives the haptic loop another.
+//!
+//! Without the `native` feature (the engine built for `wasm32-unknown-unknown`) there are no
+//! threads and no clock: [`available`] is 1, [`fan_out`] runs every part on the calling thread,
+//! one after another, and a [`Stopwatch`] reads zero. The solves' bits never depend on how many
+//! threads share the work (the columns sit on a fixed grid), so the results are the same.
+
+/// How many threads the parallel solves may use: the machine's cores (1 where unknown) with
+/// the `native` feature, 1 without.
+pub fn available() -> usize {
+    #[cfg(feature = "native")]
+    {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    }
+    #[cfg(not(feature = "native"))]
+    {
+        1
+    }
+}
+
+/// faer's parallelism for the factorisation's big dense fronts: every core (rayon) with the
+/// `native` feature, sequential without.
+pub fn faer_par() -> faer::Par {
+    #[cfg(feature = "native")]
+    {
+        faer::Par::rayon(0)
+    }
+    #[cfg(not(feature = "native"))]
+    {
+        faer::Par::Seq
+    }
+}
+
+/// Runs `rest(i)` for each `i` in `1..parts` on its own scoped thread, then `first` on the
+/// calling thread, and returns their results in the order `first`, `rest(1)`, `rest(2)`, …
+/// (`Err` with the payload for a part that panicked). Without the `native` feature every part
+/// runs on the calling thread, in that order.
+pub fn fan_out<T: Send>(
+    parts: usize,
+    first: impl FnOnce() -> T,
+    rest: impl Fn(usize) -> T + Sync,
+) -> Vec<std::thread::Result<T>> {
+    #[cfg(feature = "native")]
+    {
+        std::thread::scope(|sc| {
+            let rest = &rest;
+            let handles: Vec<_> = (1..parts).map(|i| sc.spawn(move || rest(i))).collect();
+            let mut out = Vec::with_capacity(parts.max(1));
+            out.push(Ok(first()));
+            out.extend(handles.into_iter().map(|h| h.join()));
+            out
+        })
+    }
+    #[cfg(not(feature = "native"))]
+    {
+        let mut out = Vec::with_capacity(parts.max(1));
+        out.push(Ok(first()));
+        out.extend((1..parts).map(|i| Ok(rest(i))));
+        out
+    }
+}
+
+/// A phase timer for the precompute's figures. With the `native` feature it reads the
+/// monotonic clock; without, it reads zero: `std::time::Instant::now` panics on
+/// `wasm32-unknown-unknown`, and the timings are only reported, never used to decide anything,
+/// so an embedder that wants them times the call itself (e.g. `performance.now()`).
+#[derive(Clone, Copy, Debug)]
+pub struct Stopwatch {
+    #[cfg(feature = "native")]
+    start: std::time::Instant,
+}
+
+impl Stopwatch {
+    /// A stopwatch started now.
+    pub fn start() -> Stopwatch {
+        Stopwatch {
+            #[cfg(feature = "native")]
+            start: std::time::Instant::now(),
+        }
+    }
+
+    /// The time since [`Stopwatch::start`] (zero without the `native` feature).
+    pub fn elapsed(&self) -> std::time::Duration {
+        #[cfg(feature = "native")]
+        {
+            self.start.elapsed()
+        }
+        #[cfg(not(feature = "native"))]
+        {
+            std::time::Duration::ZERO
+        }
+    }
+}
 
 /// The cores the calling thread may run on (empty where unknown or unsupported).
 pub(crate) fn current_cpus() -> Vec<usize> {
-    #[cfg(target_os = "linux")]
+    #[cfg(all(feature = "native", target_os = "linux"))]
     {
         // SAFETY: `set` is a plain bit set, fully initialised by CPU_ZERO; the call writes at
         // most `size_of::<cpu_set_t>()` bytes into it.
@@ -27,7 +119,7 @@ pub(crate) fn current_cpus() -> Vec<usize> {
                 .collect()
         }
     }
-    #[cfg(not(target_os = "linux"))]
+    #[cfg(not(all(feature = "native", target_os = "linux")))]
     {
         Vec::new()
     }
@@ -36,7 +128,7 @@ pub(crate) fn current_cpus() -> Vec<usize> {
 /// Restricts the calling thread to `cpus`. Returns false (and changes nothing) where that is
 /// not permitted, not supported, or `cpus` is empty or out of range.
 pub(crate) fn pin_current_thread(cpus: &[usize]) -> bool {
-    #[cfg(target_os = "linux")]
+    #[cfg(all(feature = "native", target_os = "linux"))]
     {
         if cpus.is_empty() || cpus.iter().any(|&c| c >= libc::CPU_SETSIZE as usize) {
             return false;
@@ -51,7 +143,7 @@ pub(crate) fn pin_current_thread(cpus: &[usize]) -> bool {
             libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) == 0
         }
     }
-    #[cfg(not(target_os = "linux"))]
+    #[cfg(not(all(feature = "native", target_os = "linux")))]
     {
         let _ = cpus;
         false
@@ -104,7 +196,7 @@ impl VisualPlacement {
     }
 }
 
-#[cfg(all(test, target_os = "linux"))]
+#[cfg(all(test, feature = "native", target_os = "linux"))]
 mod tests {
     use super::*;
 
@@ -157,12 +249,12 @@ pub fn try_realtime_priority() -> bool {
 /// (where there are others). What the cutter's thread does first. Returns whether the
 /// scheduling class was changed.
 pub fn become_background_worker(haptic_cpus: &[usize]) -> bool {
-    let n = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let n = available();
     let others: Vec<usize> = (0..n).filter(|c| !haptic_cpus.contains(c)).collect();
     if !others.is_empty() && !haptic_cpus.is_empty() {
         pin_current_thread(&others);
     }
-    #[cfg(target_os = "linux")]
+    #[cfg(all(feature = "native", target_os = "linux"))]
     {
         // SAFETY: plain FFI call on the current thread with a fully initialised parameter
         // (priority 0 is the only one SCHED_OTHER takes).
@@ -171,7 +263,7 @@ pub fn become_background_worker(haptic_cpus: &[usize]) -> bool {
             libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_OTHER, &param) == 0
         }
     }
-    #[cfg(not(target_os = "linux"))]
+    #[cfg(not(all(feature = "native", target_os = "linux")))]
     {
         false
     }
@@ -184,7 +276,7 @@ pub fn cpus_of_current_thread() -> Vec<usize> {
 
 /// [`try_realtime_priority`] at `SCHED_FIFO` priority `priority` (1–99).
 pub(crate) fn try_realtime_priority_at(priority: i32) -> bool {
-    #[cfg(target_os = "linux")]
+    #[cfg(all(feature = "native", target_os = "linux"))]
     {
         // SAFETY: plain FFI calls on the current thread with a fully initialised parameter.
         unsafe {
@@ -194,7 +286,7 @@ pub(crate) fn try_realtime_priority_at(priority: i32) -> bool {
             libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) == 0
         }
     }
-    #[cfg(not(target_os = "linux"))]
+    #[cfg(not(all(feature = "native", target_os = "linux")))]
     {
         let _ = priority;
         false

@@ -8,11 +8,19 @@ pub(crate) fn unique_tmp(path: &Path) -> std::path::PathBuf {
     use std::sync::atomic::{AtomicU64, Ordering};
     static N: AtomicU64 = AtomicU64::new(0);
     let n = N.fetch_add(1, Ordering::Relaxed);
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.subsec_nanos());
+    // No clock and no process id without `native` (both panic on wasm32-unknown-unknown):
+    // the counter alone.
+    #[cfg(feature = "native")]
+    let (pid, nanos) = (
+        std::process::id(),
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.subsec_nanos()),
+    );
+    #[cfg(not(feature = "native"))]
+    let (pid, nanos) = (0u32, 0u32);
     let mut name = path.file_name().unwrap_or_default().to_os_string();
-    name.push(format!(".{}.{n}.{nanos:08x}.tmp", std::process::id()));
+    name.push(format!(".{pid}.{n}.{nanos:08x}.tmp"));
     path.with_file_name(name)
 }
 

@@ -170,7 +170,7 @@ pub(crate) struct Writer {
 /// that the final sync of a multi-gigabyte file finds little left to write. Advisory: the
 /// final `sync_all` is what guarantees the data.
 fn start_writeback(file: &std::fs::File, off: u64, len: usize) {
-    #[cfg(target_os = "linux")]
+    #[cfg(all(feature = "native", target_os = "linux"))]
     {
         use std::os::fd::AsRawFd;
         // SAFETY: a valid open descriptor; the call only schedules writeback of its pages.
@@ -183,7 +183,7 @@ fn start_writeback(file: &std::fs::File, off: u64, len: usize) {
             );
         }
     }
-    #[cfg(not(target_os = "linux"))]
+    #[cfg(not(all(feature = "native", target_os = "linux")))]
     let _ = (file, off, len);
 }
 
@@ -244,7 +244,7 @@ impl Writer {
             lists,
             done: false,
         };
-        use std::os::unix::fs::FileExt;
+        use super::format::FileAt;
         (|| {
             w.file.set_len(len)?;
             w.file.write_all_at(&w.head.to_bytes(), 0)?;
@@ -257,7 +257,7 @@ impl Writer {
     /// Writes the held batch `i` (0-based within the file's range): `values` are its
     /// `9·R'·columns` f64 ([`Header::l_rows`]). Callable from several threads.
     pub(crate) fn write_batch(&self, i: usize, values: &[f64]) -> Result<(), CacheError> {
-        use std::os::unix::fs::FileExt;
+        use super::format::FileAt;
         let h = &self.head;
         let held = h.held_batches();
         let want = if i < held {
@@ -297,7 +297,7 @@ impl Writer {
         r0: usize,
         out: &mut [f64],
     ) -> Result<(), CacheError> {
-        use std::os::unix::fs::FileExt;
+        use super::format::FileAt;
         let off =
             self.head.batch_offset(0) + 8 * (q as u64 * 3 * self.head.l_rows as u64 + r0 as u64);
         self.file
@@ -398,7 +398,7 @@ impl Writer {
 
     /// Writes header, batch sums and checksum, and syncs the file.
     fn write_tail(&self, sums: &[u64]) -> Result<(), CacheError> {
-        use std::os::unix::fs::FileExt;
+        use super::format::FileAt;
         let io = |source| CacheError::Io {
             path: self.path.clone(),
             source,

@@ -191,6 +191,42 @@ pub(crate) fn range_inconsistency(begin: u32, end: u32, total: u32, what: &str) 
     (begin > end || end > total).then(|| format!("{what} {begin}..{end} of {total}"))
 }
 
+/// Positioned reads and writes of a file (the batch writers share it across threads): Unix's
+/// `FileExt`; elsewhere (e.g. `wasm32-unknown-unknown`, which has no files) an `Unsupported`
+/// error.
+pub(crate) trait FileAt {
+    /// Fills `buf` from offset `off`.
+    fn read_exact_at(&self, buf: &mut [u8], off: u64) -> std::io::Result<()>;
+    /// Writes all of `buf` at offset `off`.
+    fn write_all_at(&self, buf: &[u8], off: u64) -> std::io::Result<()>;
+}
+
+impl FileAt for std::fs::File {
+    fn read_exact_at(&self, buf: &mut [u8], off: u64) -> std::io::Result<()> {
+        #[cfg(unix)]
+        {
+            std::os::unix::fs::FileExt::read_exact_at(self, buf, off)
+        }
+        #[cfg(not(unix))]
+        {
+            let _ = (buf, off);
+            Err(std::io::ErrorKind::Unsupported.into())
+        }
+    }
+
+    fn write_all_at(&self, buf: &[u8], off: u64) -> std::io::Result<()> {
+        #[cfg(unix)]
+        {
+            std::os::unix::fs::FileExt::write_all_at(self, buf, off)
+        }
+        #[cfg(not(unix))]
+        {
+            let _ = (buf, off);
+            Err(std::io::ErrorKind::Unsupported.into())
+        }
+    }
+}
+
 /// Where a cache's bytes come from: a file (read at offsets), or bytes in memory.
 pub(crate) enum Source<'a> {
     /// An open file.
@@ -211,10 +247,7 @@ impl Source<'_> {
     /// Fills `buf` from offset `off`; an `UnexpectedEof` error if the source ends first.
     pub fn read_exact_at(&self, buf: &mut [u8], off: u64) -> std::io::Result<()> {
         match self {
-            Source::File(f) => {
-                use std::os::unix::fs::FileExt;
-                f.read_exact_at(buf, off)
-            }
+            Source::File(f) => FileAt::read_exact_at(f, buf, off),
             Source::Bytes(b) => {
                 let at = usize::try_from(off).ok();
                 let part = at.and_then(|a| b.get(a..a.checked_add(buf.len())?));

@@ -49,6 +49,7 @@ mod key;
 mod runs;
 
 pub use atomic::write_atomic;
+#[cfg(feature = "native")]
 pub(crate) use atomic::AtomicFile;
 pub(crate) use dense::{load_near_part, shard_batches, Writer};
 pub use dense::{Header, Part};

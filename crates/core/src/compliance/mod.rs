@@ -30,10 +30,10 @@ pub(crate) use products::GramProducts;
 use crate::compliance::correction::Correction;
 use crate::compliance::hmatrix::{HError, HMatrix, HOptions, HPlan, LoadErrors, Panel};
 use crate::compliance::near::NearBlocks;
+use crate::threads::Stopwatch;
 use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::Mat;
 use glam::{DMat3, DVec3, Vec3};
-use std::time::Instant;
 
 use crate::fem::{FemError, Stiffness};
 use crate::mesh::Mesh;
@@ -265,7 +265,7 @@ impl Compliance {
         store: &crate::fem::FactorStore,
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<Compliance, FemError> {
-        let t0 = Instant::now();
+        let t0 = Stopwatch::start();
         let mut plan = ColumnPlan::with_method_in(mesh, sel, how, store)?;
         let mirrored = plan.mirror_from(0);
         let nr = plan.l_rows;
@@ -285,7 +285,7 @@ impl Compliance {
             &mut |done| progress(done, nc),
         )?;
         if mirrored {
-            let tm = Instant::now();
+            let tm = Stopwatch::start();
             let stride = 9 * nr * BATCH_COLS;
             for b in 1..plan.batches() {
                 let (done, rest) = l.split_at_mut(b * stride);
@@ -302,7 +302,7 @@ impl Compliance {
         phases.solve_s = t[0];
         phases.check_s = t[1];
         phases.scatter_s = t[2];
-        let t_fin = Instant::now();
+        let t_fin = Stopwatch::start();
         let (rows, cols) = (plan.rows.clone(), plan.cols.clone());
         let mut c = Compliance::from_stored(rows, plan.l_rows, cols, l, mesh.nodes.len())?;
         phases.finish_s = t_fin.elapsed().as_secs_f64();
@@ -1025,7 +1025,7 @@ impl Compliance {
         shard: (usize, usize),
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<HierParts, ComplianceError> {
-        let t0 = Instant::now();
+        let t0 = Stopwatch::start();
         opts.check()?;
         let plan = ColumnPlan::with_method_in(mesh, sel, how, store)?;
         let hp = hier_plan(mesh, &plan.rows, plan.l_rows, &plan.cols, opts)?;
@@ -1052,7 +1052,7 @@ impl Compliance {
             phases.solve_s += t[0];
             phases.check_s += t[1];
             phases.scatter_s += t[2];
-            let tc = Instant::now();
+            let tc = Stopwatch::start();
             let src = products
                 .as_ref()
                 .map(|g| g as &dyn crate::compliance::hmatrix::BlockProducts);

@@ -68,6 +68,7 @@ pub(crate) fn ordering() -> crate::fem::Ordering {
 
 /// Bytes of Cholesky factor above which the precompute keeps it in a file (see
 /// [`factor_store`]).
+#[cfg(feature = "native")]
 pub(crate) const FACTOR_FILE_ABOVE: usize = 256 << 20;
 
 /// Where the precompute keeps its Cholesky factor, by the environment variable
@@ -75,6 +76,7 @@ pub(crate) const FACTOR_FILE_ABOVE: usize = 256 << 20;
 /// multifrontal factorisation of [`crate::fem::frontal`]), or, unset or anything else, `file`
 /// for factors above [`FACTOR_FILE_ABOVE`]. The file is unlinked at once and lives in the
 /// cache directory ([`crate::options::cache_dir`]), or the system's temporary one.
+#[cfg(feature = "native")]
 pub(crate) fn factor_store() -> crate::fem::FactorStore {
     use crate::fem::FactorStore;
     let dir = crate::options::cache_dir()
@@ -90,6 +92,13 @@ pub(crate) fn factor_store() -> crate::fem::FactorStore {
             above: FACTOR_FILE_ABOVE,
         },
     }
+}
+
+/// Where the precompute keeps its Cholesky factor without the `native` feature: on the heap
+/// (there are no files, and `std::env::temp_dir` panics on `wasm32-unknown-unknown`).
+#[cfg(not(feature = "native"))]
+pub(crate) fn factor_store() -> crate::fem::FactorStore {
+    crate::fem::FactorStore::Heap
 }
 
 /// The factorised stiffness and the resolved selection, ready to solve column batches.
@@ -138,21 +147,11 @@ pub(crate) fn run_workers(
     work: &SolveWork<'_>,
     progress: &mut dyn FnMut(usize),
 ) -> Result<SolveSummary, FemError> {
-    let mut results = Vec::with_capacity(workers);
-    std::thread::scope(|sc| {
-        let handles: Vec<_> = (1..workers)
-            .map(|_| sc.spawn(move || work(&mut |_| {})))
-            .collect();
-        results.push(work(progress));
-        for h in handles {
-            results.push(h.join().unwrap_or_else(|_| {
-                Err(FemError::Factorisation("a solver thread panicked".into()))
-            }));
-        }
-    });
+    let results = crate::threads::fan_out(workers, || work(progress), |_| work(&mut |_| {}));
     let mut out = (0.0f64, [0.0f64; 3]);
     for r in results {
-        let (res, t) = r?;
+        let (res, t) =
+            r.unwrap_or_else(|_| Err(FemError::Factorisation("a solver thread panicked".into())))?;
         out.0 = out.0.max(res);
         for (a, v) in out.1.iter_mut().zip(t) {
             *a = a.max(v);
@@ -162,10 +161,7 @@ pub(crate) fn run_workers(
 }
 
 pub(crate) fn solver_threads() -> usize {
-    std::thread::available_parallelism()
-        .map(|n| n.get())
-        .unwrap_or(1)
-        .clamp(1, 16)
+    crate::threads::available().clamp(1, 16)
 }
 
 impl ColumnPlan {
@@ -191,7 +187,7 @@ impl ColumnPlan {
         how: Method,
         store: &crate::fem::FactorStore,
     ) -> Result<ColumnPlan, FemError> {
-        let t0 = Instant::now();
+        let t0 = Stopwatch::start();
         let n = mesh.nodes.len();
         let cols = sel.cols.resolve(mesh);
         let mut rows = sel.rows.resolve(mesh);
@@ -258,7 +254,7 @@ impl ColumnPlan {
             if let Some(g) = crate::fem::gram::GramPlan::new(&factor, &stiff.dofs, &shown, &cols) {
                 phases.gram_flops = g.forward_flops + g.gram_flops;
                 if how == Method::Gram || phases.gram_flops < 0.7 * phases.column_flops {
-                    let tf = Instant::now();
+                    let tf = Stopwatch::start();
                     if let Some(w) = g.forward(&factor, solver_threads()) {
                         phases.forward_s = tf.elapsed().as_secs_f64();
                         phases.w_bytes = g.w_bytes();
@@ -510,7 +506,7 @@ impl ColumnPlan {
                         dofs.push(self.first_dof(self.cols[ci])? + a);
                     }
                 }
-                let ts = Instant::now();
+                let ts = Stopwatch::start();
                 if x.ncols() < dofs.len() {
                     x = Mat::zeros(nf, per);
                 } else {
@@ -519,7 +515,7 @@ impl ColumnPlan {
                 let mut xg = x.as_mut().subcols_mut(0, dofs.len());
                 u.solve(&self.factor, &dofs, xg.rb_mut());
                 acc.1[0] += ts.elapsed().as_secs_f64();
-                let tsc = Instant::now();
+                let tsc = Stopwatch::start();
                 {
                     let mut out = pending[i].0.lock().unwrap_or_else(|e| e.into_inner());
                     if out.is_empty() {
@@ -539,7 +535,7 @@ impl ColumnPlan {
                 // The batch's last group: check its first column, hand it over.
                 let mut out =
                     std::mem::take(&mut *pending[i].0.lock().unwrap_or_else(|e| e.into_inner()));
-                let tc = Instant::now();
+                let tc = Stopwatch::start();
                 let node = self.cols[chunk.start];
                 let (xs, residual) = self
                     .check_solve(node)
@@ -661,13 +657,13 @@ impl ColumnPlan {
                 };
                 let cols: Vec<usize> = g.iter().map(|&q| want[q] as usize).collect();
                 let mut out = vec![0.0f64; ld * 3 * cols.len()];
-                let ts = Instant::now();
+                let ts = Stopwatch::start();
                 if let Some((gp, w, row_of)) = &self.gram {
                     let m = 3 * gp.nodes().len();
                     let mut tile = vec![0.0f64; m * 3 * cols.len()];
                     gp.tile_cols(w, &cols, gram_rows[pi].as_deref(), &mut tile, m);
                     t[0] += ts.elapsed().as_secs_f64();
-                    let tsc = Instant::now();
+                    let tsc = Stopwatch::start();
                     for j in 0..3 * cols.len() {
                         let (src, dst) = (&tile[j * m..][..m], &mut out[j * ld..][..ld]);
                         for (gi, &ri) in row_of.iter().enumerate() {
@@ -702,7 +698,7 @@ impl ColumnPlan {
                         }
                     }
                     t[0] += ts.elapsed().as_secs_f64();
-                    let tsc = Instant::now();
+                    let tsc = Stopwatch::start();
                     for j in 0..dofs.len() {
                         let xc = x.col(j);
                         let dst = &mut out[j * ld..][..ld];
@@ -717,20 +713,13 @@ impl ColumnPlan {
             }
         };
         let workers = solver_threads().min(groups.len()).max(1);
-        let results: Vec<_> = std::thread::scope(|sc| {
-            let hs: Vec<_> = (1..workers).map(|_| sc.spawn(work)).collect();
-            let mut r = vec![work()];
-            for h in hs {
-                r.push(h.join().unwrap_or_else(|_| {
-                    Err(FemError::Factorisation("a solver thread panicked".into()))
-                }));
-            }
-            r
-        });
+        let results = crate::threads::fan_out(workers, work, |_| work());
         let mut out = vec![0.0f64; ld * 3 * want.len()];
         let mut times = [0.0f64; 3];
         for r in results {
-            let (got, t) = r?;
+            let (got, t) = r.unwrap_or_else(|_| {
+                Err(FemError::Factorisation("a solver thread panicked".into()))
+            })?;
             for (a, v) in times.iter_mut().zip(t) {
                 *a += v;
             }
@@ -742,7 +731,7 @@ impl ColumnPlan {
         }
         let mut residual = 0.0;
         if let Some((r0, need)) = parts.iter().find(|p| check && !p.0.is_empty()) {
-            let tc = Instant::now();
+            let tc = Stopwatch::start();
             let q0 = r0.start;
             let node = self.cols[want[q0] as usize];
             let (xs, r) = self.check_solve(node)?;
@@ -775,10 +764,10 @@ impl ColumnPlan {
                 b[(d, 3 * k + a)] = 1.0;
             }
         }
-        let ts = Instant::now();
+        let ts = Stopwatch::start();
         self.factor.solve_in_place(&mut b);
         times[0] += ts.elapsed().as_secs_f64();
-        let tc = Instant::now();
+        let tc = Stopwatch::start();
         // The check K·x = e costs about as much as a solve per column: it is done on one DOF
         // column per batch (the batch's first), which catches a bad factorisation all the same.
         let residual = {
@@ -791,7 +780,7 @@ impl ColumnPlan {
             self.unit_residual(&xs, e)
         };
         times[1] += tc.elapsed().as_secs_f64();
-        let tsc = Instant::now();
+        let tsc = Stopwatch::start();
         let mut out = self.buffer(9 * nr * chunk.len());
         for j in 0..3 * chunk.len() {
             let x = b.col(j);
@@ -909,7 +898,7 @@ impl ColumnPlan {
         let mut times = [0.0f64; 3];
         let m = 3 * g.nodes().len();
         let nt = 3 * chunk.len();
-        let ts = Instant::now();
+        let ts = Stopwatch::start();
         let skip = match self.mirror_from {
             Some(first) => first.min(chunk.start)..chunk.start,
             None => 0..0,
@@ -934,7 +923,7 @@ impl ColumnPlan {
             g.tile(w, chunk.start, chunk.end, skip.clone(), &mut tile, m);
             times[0] = ts.elapsed().as_secs_f64();
         }
-        let tsc = Instant::now();
+        let tsc = Stopwatch::start();
         // Otherwise each row moves to its place in this module's layout.
         for j in (0..nt).filter(|_| !in_order) {
             let src = &tile[j * m..][..m];
@@ -953,7 +942,7 @@ impl ColumnPlan {
             }
         }
         times[2] = tsc.elapsed().as_secs_f64();
-        let tc = Instant::now();
+        let tc = Stopwatch::start();
         let mut residual = 0.0f64;
         if batch.is_multiple_of(GRAM_CHECK_EVERY) {
             let node = self.cols[chunk.start];

@@ -26,16 +26,26 @@
 //! * Force packets (`TFF1`, seq of the position packet used, n, n × force, n × flags[, tag]) go
 //!   to the owner's address from a fixed buffer with `MSG_DONTWAIT`; a send that would block
 //!   is dropped and counted.
+//!
+//! Without the `native` feature (no sockets, threads or clock) only the protocol remains: the
+//! packets' encoding, the [`Key`], the flags and [`UdpError`]; the bridge is native.
 
 use glam::DVec3;
 use hmac::{Hmac, Mac};
 use sha2::Sha256;
-use std::net::{SocketAddr, UdpSocket};
+use std::net::SocketAddr;
+#[cfg(feature = "native")]
+use std::net::UdpSocket;
 use std::path::Path;
+#[cfg(feature = "native")]
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+#[cfg(feature = "native")]
 use std::sync::{Arc, OnceLock};
-use std::time::{Duration, Instant};
+use std::time::Duration;
+#[cfg(feature = "native")]
+use std::time::Instant;
 
+#[cfg(feature = "native")]
 use super::{FingerDevices, ForceState};
 use crate::limits::MAX_FINGERS;
 
@@ -54,6 +64,7 @@ pub const FLAG_STALE: u32 = 4;
 pub const FLAG_RELEASED: u32 = 8;
 /// The default watchdog.
 pub(crate) const WATCHDOG: Duration = Duration::from_millis(20);
+#[cfg(feature = "native")]
 /// How long stale packets are sent after the watchdog expires; then nothing until a new
 /// position arrives.
 pub(crate) const STALE_SEND: Duration = Duration::from_millis(100);
@@ -64,6 +75,7 @@ pub(crate) const MIN_KEY_LEN: usize = 16;
 /// The largest datagram the bridge reads or writes, bytes.
 pub const MAX_PACKET: usize = 12 + 28 * MAX_FINGERS + TAG_LEN;
 
+#[cfg(feature = "native")]
 /// Whether sequence number `seq` is newer than `last` in 32-bit serial-number arithmetic
 /// (RFC 1982): `(seq − last) mod 2³²` lies in `[1, 2³¹)`.
 pub(crate) fn seq_newer(seq: u32, last: u32) -> bool {
@@ -208,6 +220,7 @@ pub struct ForcePacket {
 }
 
 /// Encodes a force packet into `out`; returns its length.
+#[cfg_attr(not(feature = "native"), allow(dead_code))]
 pub(crate) fn encode_force(seq: u32, forces: &[DVec3], flags: &[u32], out: &mut [u8]) -> usize {
     let n = forces.len();
     out[..4].copy_from_slice(FORCE_MAGIC);
@@ -300,6 +313,7 @@ impl Default for BridgeConfig {
     }
 }
 
+#[cfg(feature = "native")]
 /// The newest accepted position packet.
 #[derive(Clone, Copy, Debug)]
 struct Accepted {
@@ -308,6 +322,7 @@ struct Accepted {
     at: Instant,
 }
 
+#[cfg(feature = "native")]
 /// The protocol's admission rules (key, sequence, owner, watchdog).
 #[derive(Debug)]
 struct Gate {
@@ -318,6 +333,7 @@ struct Gate {
     last_accept: Option<Instant>,
 }
 
+#[cfg(feature = "native")]
 impl Gate {
     /// Checks one datagram received at `now`; counts it, and returns it when accepted.
     fn offer(
@@ -365,6 +381,7 @@ impl Gate {
     }
 }
 
+#[cfg(feature = "native")]
 /// The counters, shared with the receiver thread.
 #[derive(Debug, Default)]
 struct AtomicCounters {
@@ -380,6 +397,7 @@ struct AtomicCounters {
     releases_sent: AtomicU64,
 }
 
+#[cfg(feature = "native")]
 impl AtomicCounters {
     fn snapshot(&self) -> UdpCounters {
         let g = |a: &AtomicU64| a.load(Ordering::Relaxed);
@@ -398,6 +416,7 @@ impl AtomicCounters {
     }
 }
 
+#[cfg(feature = "native")]
 /// What the receiver thread shares with the haptic thread besides the triple buffer.
 #[derive(Debug, Default)]
 struct Shared {
@@ -409,6 +428,7 @@ struct Shared {
     waiter: OnceLock<std::thread::Thread>,
 }
 
+#[cfg(feature = "native")]
 /// The client the haptic thread last sent to.
 #[derive(Clone, Copy, Debug)]
 struct Client {
@@ -417,6 +437,7 @@ struct Client {
     n: usize,
 }
 
+#[cfg(feature = "native")]
 /// The bridge: serves up to [`MAX_FINGERS`] fingers over one UDP socket (see the module docs).
 pub struct UdpBridge {
     socket: UdpSocket,
@@ -436,6 +457,7 @@ pub struct UdpBridge {
     out: [u8; MAX_PACKET],
 }
 
+#[cfg(feature = "native")]
 impl std::fmt::Debug for UdpBridge {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("UdpBridge")
@@ -464,12 +486,15 @@ pub enum UdpError {
     KeyFile(String, std::io::Error),
 }
 
+#[cfg(feature = "native")]
 /// The receiver thread's `SCHED_FIFO` priority (the haptic loop's is 80).
 const RECEIVER_PRIORITY: i32 = 79;
 
+#[cfg(feature = "native")]
 /// How long the receiver thread blocks before looking at its stop flag.
 const RECEIVER_POLL: Duration = Duration::from_millis(20);
 
+#[cfg(feature = "native")]
 impl UdpBridge {
     /// Binds `addr` (loopback only unless `cfg.allow_remote` and a key) and starts the
     /// receiver thread.
@@ -560,6 +585,7 @@ impl UdpBridge {
     }
 }
 
+#[cfg(feature = "native")]
 /// The receiver thread: blocks on the socket, admits datagrams through the gate, publishes
 /// the newest accepted one and wakes a waiting haptic thread.
 fn receive(
@@ -589,6 +615,7 @@ fn receive(
     }
 }
 
+#[cfg(feature = "native")]
 impl Drop for UdpBridge {
     fn drop(&mut self) {
         self.release_client();
@@ -599,6 +626,7 @@ impl Drop for UdpBridge {
     }
 }
 
+#[cfg(feature = "native")]
 impl FingerDevices for UdpBridge {
     fn clocked(&self) -> bool {
         self.clock == Clock::Device
@@ -700,6 +728,7 @@ impl FingerDevices for UdpBridge {
     }
 }
 
+#[cfg(feature = "native")]
 /// `sendto` with `MSG_DONTWAIT`: never blocks, whatever the socket's mode.
 fn send_dontwait(socket: &UdpSocket, bytes: &[u8], to: SocketAddr) -> bool {
     use std::os::fd::AsRawFd;
@@ -718,6 +747,7 @@ fn send_dontwait(socket: &UdpSocket, bytes: &[u8], to: SocketAddr) -> bool {
     r == bytes.len() as isize
 }
 
+#[cfg(feature = "native")]
 /// A socket address in C's form.
 fn sockaddr(a: SocketAddr) -> (libc::sockaddr_storage, libc::socklen_t) {
     // SAFETY: sockaddr_storage is plain old data; all-zero is a valid value.
@@ -783,7 +813,7 @@ mod tests {
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "native"))]
 mod gate_tests {
     use super::*;
 

@@ -69,7 +69,10 @@ unsafe fn drop_pages(base: *const u8, range: std::ops::Range<usize>) {
     let hi = ((base + range.end * 8) / PAGE) * PAGE;
     if hi > lo {
         // SAFETY: whole pages inside the map (the caller's promise).
-        unsafe { libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_DONTNEED) };
+        #[cfg(all(feature = "native", unix))]
+        unsafe {
+            libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_DONTNEED)
+        };
     }
 }
 
@@ -102,6 +105,7 @@ impl Passed {
 
 /// A new empty file in `dir`, already unlinked: it lives as long as the handle, and a
 /// crash leaves nothing behind.
+#[cfg(feature = "native")]
 pub(crate) fn temp_file(dir: &std::path::Path) -> std::io::Result<File> {
     use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
     static NEXT: AtomicU64 = AtomicU64::new(0);
@@ -124,6 +128,20 @@ pub(crate) fn temp_file(dir: &std::path::Path) -> std::io::Result<File> {
 
 /// A new unlinked file in `dir` with `bytes` of disk reserved (`posix_fallocate`): a full
 /// disk is this error now, not a fault (SIGBUS) while the map is written.
+///
+/// Without the `native` feature there are no files to map: an error, and the factor stays on
+/// the heap where the store allows it.
+#[cfg(not(feature = "native"))]
+pub(crate) fn factor_file(dir: &std::path::Path, bytes: usize) -> Result<File, FemError> {
+    Err(FemError::Factorisation(format!(
+        "factor file of {bytes} bytes in {}: files need the `native` feature",
+        dir.display()
+    )))
+}
+
+/// A new unlinked file in `dir` with `bytes` of disk reserved (`posix_fallocate`): a full
+/// disk is this error now, not a fault (SIGBUS) while the map is written.
+#[cfg(feature = "native")]
 pub(crate) fn factor_file(dir: &std::path::Path, bytes: usize) -> Result<File, FemError> {
     use std::os::fd::AsRawFd;
     let err = |e: std::io::Error| {
@@ -306,7 +324,7 @@ impl Out {
         // A large block (the top supernodes, written while nothing else runs) is copied by
         // all cores: the first touch of page-cache pages is what costs.
         let parts = if data.len() >= 1 << 22 {
-            std::thread::available_parallelism().map_or(1, |n| n.get().min(8))
+            crate::threads::available().min(8)
         } else {
             1
         };
@@ -463,7 +481,7 @@ impl Worker {
         }
         self.on_stack.truncate(first);
         let par = if (ns * m) as f64 * m as f64 > 1e7 {
-            Par::rayon(0)
+            crate::threads::faer_par()
         } else {
             Par::Seq
         };

@@ -293,14 +293,16 @@ impl GramPlan {
         if parts == 1 {
             sweep(0..n_rows);
         } else {
-            std::thread::scope(|sc| {
-                for t in 1..parts {
-                    let r = bounds[t]..bounds[t + 1];
-                    let sweep = &sweep;
-                    sc.spawn(move || sweep(r));
+            let done = crate::threads::fan_out(
+                parts,
+                || sweep(bounds[0]..bounds[1]),
+                |t| sweep(bounds[t]..bounds[t + 1]),
+            );
+            for d in done {
+                if let Err(e) = d {
+                    std::panic::resume_unwind(e);
                 }
-                sweep(bounds[0]..bounds[1]);
-            });
+            }
         }
         Some(w)
     }

@@ -456,7 +456,7 @@ impl Stiffness {
         // faer splits the big fronts' dense work over the cores; the bits do not depend on
         // how many (tests/precompute.rs), so merged shards made on different machines still
         // equal the unsharded file.
-        self.factorize_with(ord, faer::Par::rayon(0))
+        self.factorize_with(ord, crate::threads::faer_par())
     }
 
     /// As [`Stiffness::factorize_timed`] with the numeric factorisation's parallelism `par`.
@@ -466,7 +466,7 @@ impl Stiffness {
         par: faer::Par,
     ) -> Result<(Factor, f64, f64), FemError> {
         let (symbolic, sym_s) = self.analyse(ord)?;
-        let t1 = std::time::Instant::now();
+        let t1 = crate::threads::Stopwatch::start();
         let f = self.numeric_heap(symbolic, par)?;
         Ok((f, sym_s, t1.elapsed().as_secs_f64()))
     }
@@ -478,7 +478,7 @@ impl Stiffness {
         store: &FactorStore,
     ) -> Result<(Factor, f64, f64), FemError> {
         let (symbolic, sym_s) = self.analyse(ord)?;
-        let t1 = std::time::Instant::now();
+        let t1 = crate::threads::Stopwatch::start();
         let supernodal = matches!(
             symbolic.raw(),
             faer::sparse::linalg::cholesky::SymbolicCholeskyRaw::Supernodal(_)
@@ -497,10 +497,10 @@ impl Stiffness {
                 // No room for the file (or no directory): memory, as before.
                 match crate::fem::frontal::factor_file(dir, bytes) {
                     Ok(file) => self.numeric_file(symbolic, &file, *threads)?,
-                    Err(_) => self.numeric_heap(symbolic, faer::Par::rayon(0))?,
+                    Err(_) => self.numeric_heap(symbolic, crate::threads::faer_par())?,
                 }
             }
-            _ => self.numeric_heap(symbolic, faer::Par::rayon(0))?,
+            _ => self.numeric_heap(symbolic, crate::threads::faer_par())?,
         };
         Ok((f, sym_s, t1.elapsed().as_secs_f64()))
     }
@@ -511,7 +511,7 @@ impl Stiffness {
         ord: Ordering,
     ) -> Result<(faer::sparse::linalg::cholesky::SymbolicCholesky<usize>, f64), FemError> {
         use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, SymmetricOrdering};
-        let t0 = std::time::Instant::now();
+        let t0 = crate::threads::Stopwatch::start();
         let perm = self.ordering(ord);
         let ordering = match &perm {
             None => SymmetricOrdering::Amd,

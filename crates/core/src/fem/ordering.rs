@@ -18,7 +18,15 @@ pub enum Ordering {
     Metis,
 }
 
+/// Without the `native` feature there is no METIS (a C library): `None`, so
+/// [`Ordering::Metis`] takes its documented fallback, [`Ordering::NestedDissection`].
+#[cfg(not(feature = "native"))]
+pub(super) fn metis_order(_ptr: &[usize], _idx: &[usize]) -> Option<Vec<usize>> {
+    None
+}
+
 /// METIS's fill-reducing order of the graph `ptr`/`idx` (new → old), `None` if METIS fails.
+#[cfg(feature = "native")]
 pub(super) fn metis_order(ptr: &[usize], idx: &[usize]) -> Option<Vec<usize>> {
     let n = ptr.len().checked_sub(1)?;
     if n == 0 {

@@ -49,6 +49,9 @@ pub mod coupling;
 pub mod cutter;
 mod sample;
 
+#[cfg(test)]
+mod pure_tests;
+
 pub use sample::{
     sample_channel, FingerView, LiveStatus, SampleReader, SampleWriter, WorldSample, MAX_OBJECTS,
 };

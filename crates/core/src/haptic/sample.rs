@@ -101,7 +101,8 @@ pub struct LiveStatus {
 
 impl LiveStatus {
     /// Waits until [`LiveStatus::visual_ready`] or [`LiveStatus::stop`] is set; `true` if the
-    /// visual side is ready.
+    /// visual side is ready. Sleeps between looks: only with the `native` feature.
+    #[cfg(feature = "native")]
     pub fn wait_visual_ready(&self) -> bool {
         loop {
             if self.stop.load(Ordering::SeqCst) {
@@ -126,7 +127,7 @@ impl LiveStatus {
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "native"))]
 mod tests {
     use super::*;
 

@@ -4,7 +4,9 @@
 use std::sync::Arc;
 
 pub use crate::haptic::cutter::{CutBody, CutFeed, CutPlan, Cutter, Stroke, FOLD_RANK};
+#[cfg(feature = "native")]
 use crate::scene::World;
+#[cfg(feature = "native")]
 use crate::Error;
 
 /// The haptic thread's ends of the cutter: strokes out, cut bodies in, replaced bodies back
@@ -44,6 +46,7 @@ impl CutLink {
 
 /// The cutter's thread: it applies the strokes as they come, a pass every millisecond at
 /// most, and hands each new body to the haptic thread and the visual feed.
+#[cfg(feature = "native")]
 pub struct CutThread {
     stop: Arc<std::sync::atomic::AtomicBool>,
     handle: Option<std::thread::JoinHandle<Result<CutStats, Error>>>,
@@ -66,6 +69,7 @@ pub struct CutStats {
     pub max_fold_s: f64,
 }
 
+#[cfg(feature = "native")]
 impl CutThread {
     /// Starts the cutter for `world`'s cuttable objects, or returns `None` when nothing in it
     /// can be cut by a blade (no cuttable object or no blade finger). The factorisation runs
@@ -153,6 +157,7 @@ impl CutThread {
     }
 }
 
+#[cfg(feature = "native")]
 impl Drop for CutThread {
     fn drop(&mut self) {
         self.stop.store(true, std::sync::atomic::Ordering::Release);

@@ -171,6 +171,7 @@ impl World {
 
     /// Parses, validates and precomputes a scene, caching compliances in [`cache_dir`].
     /// Warnings (a cache that cannot be written) go to stderr.
+    #[cfg(feature = "native")]
     pub(crate) fn from_source(src: &SceneSource) -> Result<World, Error> {
         World::from_source_with(src, cache_dir().as_deref())
     }
@@ -217,6 +218,7 @@ impl World {
 
     /// The hash a load of `src` gives ([`World::hash`]: its text and each object's cache key),
     /// without precomputing anything (the meshes are read).
+    #[cfg(feature = "native")]
     pub(crate) fn hash_of(src: &SceneSource) -> Result<u64, Error> {
         Ok(World::build(src, &mut |_, _, _, _, _, _| Ok(None))?.hash)
     }

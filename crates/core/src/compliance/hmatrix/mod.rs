@@ -342,9 +342,7 @@ impl HMatrix {
         mut solve: impl FnMut(&[u32]) -> Result<Vec<f64>, E>,
     ) -> Result<HMatrix, E> {
         let plan = HPlan::new(row_points, col_points, out_rows, opts)?;
-        let threads = std::thread::available_parallelism()
-            .map_or(1, |n| n.get())
-            .min(16);
+        let threads = crate::threads::available().min(16);
         let mut panels = Vec::with_capacity(plan.panels());
         for p in 0..plan.panels() {
             let data = solve(plan.panel_cols(p))?;
@@ -847,17 +845,11 @@ fn par_map<T: Send>(n: usize, threads: usize, f: impl Fn(usize) -> T + Sync) -> 
             got.push((i, f(i)));
         }
     };
-    let mut all: Vec<(usize, T)> = std::thread::scope(|s| {
-        let hs: Vec<_> = (1..threads.clamp(1, n.max(1)))
-            .map(|_| s.spawn(work))
-            .collect();
-        let mut all = work();
-        for h in hs {
-            // A worker only panics if `f` does: pass it on.
-            all.extend(h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)));
-        }
-        all
-    });
+    let mut all: Vec<(usize, T)> = Vec::new();
+    for got in crate::threads::fan_out(threads.clamp(1, n.max(1)), work, |_| work()) {
+        // A worker only panics if `f` does: pass it on.
+        all.extend(got.unwrap_or_else(|e| std::panic::resume_unwind(e)));
+    }
     all.sort_unstable_by_key(|x| x.0);
     all.into_iter().map(|x| x.1).collect()
 }
