@@ -10,7 +10,7 @@
 //! WGPU_BACKEND=vulkan cargo run --example embed -- /tmp/embed.png
 //! ```
 //!
-//! More than one argument, or an option: the usage on stderr, exit status 2.
+//! No argument, more than one, or an option: the usage on stderr, exit status 2.
 
 use glam::{DVec3, Mat4, Vec3};
 use touchfem::compliance::{Compliance, Selection};
@@ -41,19 +41,16 @@ fn fs(in: Out) -> @location(0) vec4<f32> {
 }
 "#;
 
-const USAGE: &str = "usage: embed [OUT.png]   (default: target/embed.png)";
+const USAGE: &str = "usage: embed OUT.png   (renders the pressed cube headless into OUT.png)";
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    if args.len() > 1 || args.iter().any(|a| a.starts_with('-') || a.is_empty()) {
-        eprintln!("error: expected at most one argument, the output PNG's path");
+    if args.len() != 1 || args.iter().any(|a| a.starts_with('-') || a.is_empty()) {
+        eprintln!("error: expected one argument, the output PNG's path");
         eprintln!("{USAGE}");
         std::process::exit(2);
     }
-    let out = args
-        .first()
-        .cloned()
-        .unwrap_or_else(|| concat!(env!("CARGO_MANIFEST_DIR"), "/target/embed.png").into());
+    let out = args[0].clone();
     let (w, h) = (400u32, 300u32);
 
     // --- The host's own wgpu setup (honours WGPU_BACKEND / WGPU_ADAPTER_NAME). ---

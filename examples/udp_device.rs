@@ -265,7 +265,7 @@ pub fn press_cube(t: f64, seconds: f64) -> DVec3 {
     DVec3::new(0.015, 0.015, 0.036 - 0.010 * s)
 }
 
-const USAGE: &str = "usage: udp_device [ADDR [SECONDS]] [--key FILE]\n  ADDR: touchfem serve's --udp address (default 127.0.0.1:47800)\n  SECONDS: how long to press, in (0, 3600] (default 3)\n  --key FILE: the secret `serve --key FILE` was given";
+const USAGE: &str = "usage: udp_device ADDR [SECONDS] [--key FILE]\n  ADDR: touchfem serve's --udp address (e.g. 127.0.0.1:47800)\n  SECONDS: how long to press, in (0, 3600] (default 3)\n  --key FILE: the secret `serve --key FILE` was given";
 
 /// Prints `msg` and the usage, and exits with status 2.
 fn usage(msg: &str) -> ! {
@@ -299,9 +299,10 @@ fn main() {
     if positional.len() > 2 {
         usage("too many arguments");
     }
-    let to: SocketAddr = positional
-        .first()
-        .map_or("127.0.0.1:47800", |s| s.as_str())
+    let Some(addr) = positional.first() else {
+        usage("expected ADDR, touchfem serve's --udp address")
+    };
+    let to: SocketAddr = addr
         .parse()
         .unwrap_or_else(|_| usage("ADDR must look like 127.0.0.1:47800"));
     let seconds: f64 = match positional.get(1) {

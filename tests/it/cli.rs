@@ -444,16 +444,6 @@ fn bad_view_environment_variables_name_the_variable() {
     }
 }
 
-/// The examples that run without arguments, each with what it does then: they are run with a
-/// bad option instead. Every other file in `examples/` needs its input and is run bare.
-const EXAMPLES_RUN_BARE: &[(&str, &str)] = &[
-    (
-        "embed",
-        "renders to target/embed.png (README: `cargo run --example embed`)",
-    ),
-    ("udp_device", "presses through 127.0.0.1:47800 for 3 s"),
-];
-
 /// The example names: every `examples/NAME.rs` and `examples/NAME/main.rs`.
 fn example_names() -> Vec<String> {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
@@ -477,19 +467,12 @@ fn example_names() -> Vec<String> {
 }
 
 /// Every example (found in `examples/`, so a new one cannot escape) prints its usage and exits 2
-/// on missing or bad arguments instead of panicking on `args[1]`: run bare (or, for those that
-/// run without arguments, [`EXAMPLES_RUN_BARE`], with an unknown option), and with a few bad
+/// on missing or bad arguments instead of panicking on `args[1]`: run bare, and with a few bad
 /// arguments. The binaries are built by `cargo test --all-targets` or `cargo build --examples`;
 /// one not built is skipped with a note.
 #[test]
 fn examples_print_their_usage_on_missing_arguments() {
     let names = example_names();
-    for (name, _) in EXAMPLES_RUN_BARE {
-        assert!(
-            names.iter().any(|n| n == name),
-            "{name} is not in examples/"
-        );
-    }
     assert!(names.len() >= 7, "{names:?}");
     // target/<profile>/deps/it-HASH → target/<profile>/examples/NAME
     let exe = std::env::current_exe().unwrap();
@@ -501,20 +484,7 @@ fn examples_print_their_usage_on_missing_arguments() {
         eprintln!("skipped: no examples directory next to {}", exe.display());
         return;
     };
-    let mut cases: Vec<(String, Vec<&str>)> = names
-        .iter()
-        .map(|n| {
-            let bare = !EXAMPLES_RUN_BARE.iter().any(|(b, _)| b == n);
-            (
-                n.clone(),
-                if bare {
-                    vec![]
-                } else {
-                    vec!["--no-such-option"]
-                },
-            )
-        })
-        .collect();
+    let mut cases: Vec<(String, Vec<&str>)> = names.iter().map(|n| (n.clone(), vec![])).collect();
     for (name, args) in [
         ("frame_cost", &["cube", "axb"][..]),
         ("frame_cost", &["cube", "640x480", "extra"]),
