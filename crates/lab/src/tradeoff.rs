@@ -470,20 +470,13 @@ pub fn frame_ms(
     };
     let r = Renderer::with_options(&gpu.device, FRAME_SIZE, options)?;
     let [w, h] = FRAME_SIZE;
-    let target = gpu.device.create_texture(&wgpu::TextureDescriptor {
-        label: Some("touchfem bench frame"),
-        size: wgpu::Extent3d {
-            width: w,
-            height: h,
-            depth_or_array_layers: 1,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format: options.format,
-        usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
-        view_formats: &[],
-    });
+    let target = touchfem_gpu::render::frame_texture(
+        &gpu.device,
+        "touchfem bench frame",
+        FRAME_SIZE,
+        options.format,
+        wgpu::TextureUsages::RENDER_ATTACHMENT,
+    );
     let view = target.create_view(&Default::default());
     let wireframe =
         touchfem_gpu::render::wireframe_by_default(scene.mesh.surface.len(), FRAME_SIZE);

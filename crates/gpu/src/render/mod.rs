@@ -717,16 +717,14 @@ impl Renderer {
             height: h,
             depth_or_array_layers: 1,
         };
-        let resolved = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("touchfem image"),
-            size: extent,
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: self.options.format,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[],
-        });
+        let usage = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC;
+        let resolved = frame_texture(
+            device,
+            "touchfem image",
+            self.size,
+            self.options.format,
+            usage,
+        );
         let resolved_view = resolved.create_view(&Default::default());
         let row_bytes = (4 * w).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
             * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
@@ -1018,27 +1016,89 @@ fn check_size(device: &wgpu::Device, size: [u32; 2]) -> Result<(), RenderError> 
 
 /// The attachments of `size` for `options`.
 fn attachments(device: &wgpu::Device, size: [u32; 2], options: RenderOptions) -> Attachments {
-    let texture = |label, format| {
-        device
-            .create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: wgpu::Extent3d {
-                    width: size[0],
-                    height: size[1],
-                    depth_or_array_layers: 1,
-                },
-                mip_level_count: 1,
-                sample_count: options.samples,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
-                view_formats: &[],
-            })
+    let view = |label, format| {
+        let usage = wgpu::TextureUsages::RENDER_ATTACHMENT;
+        texture_2d(device, label, size, options.samples, format, usage)
             .create_view(&Default::default())
     };
     Attachments {
-        msaa: (options.samples > 1).then(|| texture("touchfem msaa", options.format)),
-        depth: texture("touchfem depth", DEPTH_FORMAT),
+        msaa: (options.samples > 1).then(|| view("touchfem msaa", options.format)),
+        depth: view("touchfem depth", DEPTH_FORMAT),
+    }
+}
+
+/// A 2D texture of `size` pixels with `samples` samples a pixel.
+fn texture_2d(
+    device: &wgpu::Device,
+    label: &str,
+    size: [u32; 2],
+    samples: u32,
+    format: wgpu::TextureFormat,
+    usage: wgpu::TextureUsages,
+) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width: size[0],
+            height: size[1],
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: samples,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage,
+        view_formats: &[],
+    })
+}
+
+/// A single-sample 2D texture of `size` pixels in `format`: the target a caller hands
+/// [`Renderer::render_frame`] (with [`wgpu::TextureUsages::RENDER_ATTACHMENT`]).
+pub fn frame_texture(
+    device: &wgpu::Device,
+    label: &str,
+    size: [u32; 2],
+    format: wgpu::TextureFormat,
+    usage: wgpu::TextureUsages,
+) -> wgpu::Texture {
+    texture_2d(device, label, size, 1, format, usage)
+}
+
+/// The depth test of a pipeline drawn into the renderer's pass.
+fn depth_state(write: bool, compare: wgpu::CompareFunction) -> wgpu::DepthStencilState {
+    wgpu::DepthStencilState {
+        format: DEPTH_FORMAT,
+        depth_write_enabled: Some(write),
+        depth_compare: Some(compare),
+        stencil: Default::default(),
+        bias: Default::default(),
+    }
+}
+
+/// A uniform buffer's bind-group layout entry (`dynamic`: bound at a dynamic offset).
+fn uniform_layout(
+    binding: u32,
+    visibility: wgpu::ShaderStages,
+    dynamic: bool,
+    min_size: Option<wgpu::BufferSize>,
+) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: dynamic,
+            min_binding_size: min_size,
+        },
+        count: None,
+    }
+}
+
+/// `samples` samples a pixel, every sample written.
+fn multisample(samples: u32) -> wgpu::MultisampleState {
+    wgpu::MultisampleState {
+        count: samples,
+        ..Default::default()
     }
 }
 

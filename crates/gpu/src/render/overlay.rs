@@ -4,7 +4,7 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::{RenderOptions, DEPTH_FORMAT};
+use super::{depth_state, multisample, uniform_layout, RenderOptions};
 
 /// The WGSL source of the overlay (`shaders/overlay.wgsl`).
 pub(crate) const OVERLAY_WGSL: &str = include_str!("../../../../shaders/overlay.wgsl");
@@ -85,16 +85,7 @@ impl Overlay {
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("touchfem overlay"),
             entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
+                uniform_layout(0, wgpu::ShaderStages::VERTEX_FRAGMENT, false, None),
                 wgpu::BindGroupLayoutEntry {
                     binding: 1,
                     visibility: wgpu::ShaderStages::FRAGMENT,
@@ -126,17 +117,8 @@ impl Overlay {
                 ..Default::default()
             },
             // The pass has a depth attachment; the overlay ignores it.
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: DEPTH_FORMAT,
-                depth_write_enabled: Some(false),
-                depth_compare: Some(wgpu::CompareFunction::Always),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            multisample: wgpu::MultisampleState {
-                count: options.samples,
-                ..Default::default()
-            },
+            depth_stencil: Some(depth_state(false, wgpu::CompareFunction::Always)),
+            multisample: multisample(options.samples),
             fragment: Some(wgpu::FragmentState {
                 module: &module,
                 entry_point: Some("fs_overlay"),

@@ -4,9 +4,9 @@
 use wgpu::util::DeviceExt;
 
 use super::{
-    attachments, check_size, legend, ArrowInstance, CameraGpu, RenderError, RenderOptions,
-    Renderer, SphereInstance, DEPTH_FORMAT, MAX_ARROWS, MAX_FRAME_OBJECTS, MAX_SPHERES,
-    RENDER_WGSL, UNIFORM_STRIDE,
+    attachments, check_size, depth_state, legend, multisample, uniform_layout, ArrowInstance,
+    CameraGpu, RenderError, RenderOptions, Renderer, SphereInstance, MAX_ARROWS, MAX_FRAME_OBJECTS,
+    MAX_SPHERES, RENDER_WGSL, UNIFORM_STRIDE,
 };
 use crate::input::Vertex;
 
@@ -39,26 +39,18 @@ impl Renderer {
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("touchfem camera"),
             entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: true,
-                        min_binding_size: wgpu::BufferSize::new(camera_size),
-                    },
-                    count: None,
-                },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 1,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: wgpu::BufferSize::new(16 * legend::LUT_LEN as u64),
-                    },
-                    count: None,
-                },
+                uniform_layout(
+                    0,
+                    wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    true,
+                    wgpu::BufferSize::new(camera_size),
+                ),
+                uniform_layout(
+                    1,
+                    wgpu::ShaderStages::FRAGMENT,
+                    false,
+                    wgpu::BufferSize::new(16 * legend::LUT_LEN as u64),
+                ),
             ],
         });
         let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -119,17 +111,8 @@ impl Renderer {
                     cull_mode,
                     ..Default::default()
                 },
-                depth_stencil: Some(wgpu::DepthStencilState {
-                    format: DEPTH_FORMAT,
-                    depth_write_enabled: Some(depth_write),
-                    depth_compare: Some(compare),
-                    stencil: Default::default(),
-                    bias: Default::default(),
-                }),
-                multisample: wgpu::MultisampleState {
-                    count: options.samples,
-                    ..Default::default()
-                },
+                depth_stencil: Some(depth_state(depth_write, compare)),
+                multisample: multisample(options.samples),
                 fragment: Some(wgpu::FragmentState {
                     module: &module,
                     entry_point: Some(fs),
