@@ -182,13 +182,15 @@ pub fn precompute_to_file_with(
     progress: &mut dyn FnMut(usize, usize),
     stop: &AtomicBool,
 ) -> Result<Report, Error> {
-    let Some(opts) = compression else {
-        return precompute_until(mesh, sel, out, shard, progress, &|_| {
-            stop.load(Ordering::Relaxed)
-        });
+    let job = Job {
+        name: "",
+        mesh,
+        selection: sel,
+        compression: compression.copied(),
+        shard,
+        out: Destination::File(out),
     };
-    let key = cache::key_hier(mesh, sel, opts);
-    Ok(hier_to_file(mesh, sel, opts, key, out, shard, progress)?.0)
+    Ok(precompute(&job, progress, stop)?.report)
 }
 
 /// The compressed precompute of shard `shard` into `out` under `key`: the report and the
