@@ -45,13 +45,9 @@ pub struct Job<'a> {
 }
 
 impl Job<'_> {
-    /// The key the file is written under: [`cache::key_hier`] when compressed, else
-    /// [`cache::key`].
+    /// The key the file is written under ([`cache::key_for`]).
     pub fn key(&self) -> u64 {
-        match &self.compression {
-            Some(o) => cache::key_hier(self.mesh, self.selection, o),
-            None => cache::key(self.mesh, self.selection),
-        }
+        cache::key_for(self.mesh, self.selection, self.compression.as_ref())
     }
 
     /// The file the job writes (for a key from [`Job::key`]).

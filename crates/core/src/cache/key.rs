@@ -67,6 +67,14 @@ pub fn key(mesh: &Mesh, sel: &Selection) -> u64 {
     h.digest()
 }
 
+/// The key a file of this kind must match: [`key_hier`] with `compression`, else [`key`].
+pub fn key_for(mesh: &Mesh, sel: &Selection, compression: Option<&HOptions>) -> u64 {
+    match compression {
+        Some(opts) => key_hier(mesh, sel, opts),
+        None => key(mesh, sel),
+    }
+}
+
 /// The key of a compressed (hierarchical) cache file: [`key`]'s content, a tag that keeps it
 /// from ever equalling the dense key, and every compression option (tolerance, admissibility,
 /// leaf and panel sizes), so that a file made with other options is stale.

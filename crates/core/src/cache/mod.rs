@@ -54,7 +54,7 @@ pub(crate) use atomic::AtomicFile;
 pub(crate) use dense::{load_near_part, shard_batches, Writer};
 pub use dense::{Header, Part};
 pub use error::CacheError;
-pub use key::{key, key_hier};
+pub use key::{key, key_for, key_hier};
 
 use crate::compliance::hmatrix::HOptions;
 use crate::compliance::{Compliance, Selection};
@@ -279,10 +279,7 @@ pub fn load_or_compute_with(
     compression: Option<&HOptions>,
 ) -> Result<(Compliance, CacheOutcome), CacheError> {
     let n = mesh.nodes.len();
-    let k = match compression {
-        Some(opts) => key_hier(mesh, sel, opts),
-        None => key(mesh, sel),
-    };
+    let k = key_for(mesh, sel, compression);
     match load_made_with(path, k, n, compression) {
         Ok(c) => Ok((c, CacheOutcome::Hit)),
         Err(why) => {

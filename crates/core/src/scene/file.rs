@@ -525,10 +525,7 @@ impl World {
                 rows: NodeSet::Surface,
                 cols,
             };
-            let key = match &compression {
-                None => crate::cache::key(&mesh, &sel),
-                Some(o) => crate::cache::key_hier(&mesh, &sel, o),
-            };
+            let key = crate::cache::key_for(&mesh, &sel, compression.as_ref());
             hasher.update(&key.to_le_bytes());
             let name = o.name.clone().unwrap_or_else(|| {
                 Path::new(mesh_spec)
