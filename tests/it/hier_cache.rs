@@ -98,16 +98,21 @@ struct Small {
     panels: usize,
 }
 
+/// The compression options the small cube's file is made with.
+fn small_options() -> HOptions {
+    HOptions {
+        leaf_size: 8,
+        panel_size: 32,
+        ..HOptions::new(EPS)
+    }
+}
+
 fn small() -> &'static Small {
     static S: OnceLock<Small> = OnceLock::new();
     S.get_or_init(|| {
         let m = touchfem::mesh::cube();
         let sel = Selection::default();
-        let o = HOptions {
-            leaf_size: 8,
-            panel_size: 32,
-            ..HOptions::new(EPS)
-        };
+        let o = small_options();
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("cube.tfc");
         precompute_to_file_with(
@@ -809,11 +814,7 @@ fn another_or_a_crafted_tolerance_is_named_and_never_used() {
     let f = small();
     let m = touchfem::mesh::cube();
     let sel = Selection::default();
-    let made = HOptions {
-        leaf_size: 8,
-        panel_size: 32,
-        ..HOptions::new(EPS)
-    };
+    let made = small_options();
     assert_eq!(cache::key_hier(&m, &sel, &made), f.key);
     // Another tolerance: its own error and message.
     let other = HOptions {
@@ -909,11 +910,7 @@ fn a_damaged_compressed_file_stays_compressed() {
         );
     }
     // Asked for by its options, it is recomputed compressed (the same bytes as before).
-    let made = HOptions {
-        leaf_size: 8,
-        panel_size: 32,
-        ..HOptions::new(EPS)
-    };
+    let made = small_options();
     let (c, o) = cache::load_or_compute_file(&p, &m, &sel, Some(&made)).unwrap();
     assert!(matches!(o, CacheOutcome::Recomputed(_)), "{o:?}");
     assert!(c.hier().is_some());
@@ -1020,11 +1017,7 @@ fn the_precompute_call_returns_the_l_it_wrote() {
     use touchfem::precompute::{precompute, Destination, Job};
     let m = touchfem::mesh::cube();
     let sel = Selection::default();
-    let o = HOptions {
-        leaf_size: 8,
-        panel_size: 32,
-        ..HOptions::new(EPS)
-    };
+    let o = small_options();
     let (_d, p) = tmp("job.tfc");
     let job = Job {
         name: "cube",
