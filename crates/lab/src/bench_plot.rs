@@ -21,6 +21,37 @@ pub(crate) fn register_font() {
     });
 }
 
+/// Draws with plotters into an RGB image of `size` pixels and writes it to `path` as a PNG
+/// (with the bundled font registered as "sans-serif"). `draw` returns plotters' errors as text.
+pub fn draw_png(
+    path: &Path,
+    size: (u32, u32),
+    draw: impl FnOnce(
+        &plotters::prelude::DrawingArea<
+            plotters::prelude::BitMapBackend<'_>,
+            plotters::coord::Shift,
+        >,
+    ) -> Result<(), String>,
+) -> Result<(), String> {
+    use plotters::prelude::*;
+    register_font();
+    let mut rgb = vec![0u8; size.0 as usize * size.1 as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut rgb, size).into_drawing_area();
+        draw(&root)?;
+        root.present().map_err(|e| e.to_string())?;
+    }
+    image::save_buffer_with_format(
+        path,
+        &rgb,
+        size.0,
+        size.1,
+        image::ExtendedColorType::Rgb8,
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| e.to_string())
+}
+
 /// One hierarchical `L` for the memory panel: its worst point-load error and the bytes the
 /// GPU holds, with the dense `L`'s beside it.
 #[derive(Clone, Debug)]
@@ -76,92 +107,94 @@ pub fn write_plot(
         RGBColor(200, 160, 0),
     ];
     let n = meshes.len().max(1) as u32 + u32::from(!memory.is_empty());
-    let root = BitMapBackend::new(path, (560 * n + 220, 480)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| perr(e.to_string()))?;
-    let (plots, legend) = root.split_horizontally(560 * n);
-    let panels = plots.split_evenly((1, n as usize));
-    if let Some(panel) = panels.get(meshes.len()).filter(|_| !memory.is_empty()) {
-        memory_panel(panel, memory, &palette).map_err(perr)?;
-    }
-    for (panel, mesh) in panels.iter().zip(meshes) {
-        let here: Vec<&&Row> = visual.iter().filter(|r| r.mesh == *mesh).collect();
-        let tmin = here.iter().map(|r| r.time_us).fold(f64::INFINITY, f64::min);
-        let tmax = here.iter().map(|r| r.time_us).fold(0.0, f64::max);
-        let (tmin, tmax) = if here.is_empty() {
-            (1.0, 10.0)
-        } else {
-            (tmin * 0.5, tmax * 2.0)
-        };
-        let nodes = here.first().map_or(0, |r| r.nodes);
-        let mut chart = ChartBuilder::on(panel)
-            .caption(
-                format!("{mesh} ({nodes} nodes): time against error"),
-                ("sans-serif", 18),
-            )
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(64)
-            .build_cartesian_2d(
-                (tmin..tmax).log_scale(),
-                (ERROR_FLOOR * 0.5..1.0f64).log_scale(),
-            )
-            .map_err(|e| perr(e.to_string()))?;
-        chart
-            .configure_mesh()
-            .x_desc("time per frame (µs)")
-            .y_desc("max |Δu| / max |u|")
-            .y_label_formatter(&|v| format!("{v:.0e}"))
-            .x_label_formatter(&|v| format!("{v:.0e}"))
-            .draw()
-            .map_err(|e| perr(e.to_string()))?;
+    draw_png(path, (560 * n + 220, 480), |root| {
+        root.fill(&WHITE).map_err(|e| e.to_string())?;
+        let (plots, legend) = root.split_horizontally(560 * n);
+        let panels = plots.split_evenly((1, n as usize));
+        if let Some(panel) = panels.get(meshes.len()).filter(|_| !memory.is_empty()) {
+            memory_panel(panel, memory, &palette)?;
+        }
+        for (panel, mesh) in panels.iter().zip(meshes) {
+            let here: Vec<&&Row> = visual.iter().filter(|r| r.mesh == *mesh).collect();
+            let tmin = here.iter().map(|r| r.time_us).fold(f64::INFINITY, f64::min);
+            let tmax = here.iter().map(|r| r.time_us).fold(0.0, f64::max);
+            let (tmin, tmax) = if here.is_empty() {
+                (1.0, 10.0)
+            } else {
+                (tmin * 0.5, tmax * 2.0)
+            };
+            let nodes = here.first().map_or(0, |r| r.nodes);
+            let mut chart = ChartBuilder::on(panel)
+                .caption(
+                    format!("{mesh} ({nodes} nodes): time against error"),
+                    ("sans-serif", 18),
+                )
+                .margin(12)
+                .x_label_area_size(40)
+                .y_label_area_size(64)
+                .build_cartesian_2d(
+                    (tmin..tmax).log_scale(),
+                    (ERROR_FLOOR * 0.5..1.0f64).log_scale(),
+                )
+                .map_err(|e| e.to_string())?;
+            chart
+                .configure_mesh()
+                .x_desc("time per frame (µs)")
+                .y_desc("max |Δu| / max |u|")
+                .y_label_formatter(&|v| format!("{v:.0e}"))
+                .x_label_formatter(&|v| format!("{v:.0e}"))
+                .draw()
+                .map_err(|e| e.to_string())?;
+            for (i, m) in methods.iter().enumerate() {
+                let color = palette[i % palette.len()];
+                let pts: Vec<(f64, f64)> = here
+                    .iter()
+                    .filter(|r| r.method == *m)
+                    .map(|r| (r.time_us, r.rel_error.max(ERROR_FLOOR)))
+                    .collect();
+                let style = color.filled();
+                match i % 3 {
+                    0 => chart
+                        .draw_series(pts.iter().map(|p| Circle::new(*p, 5, style)))
+                        .map(|_| ()),
+                    1 => chart
+                        .draw_series(pts.iter().map(|p| TriangleMarker::new(*p, 6, style)))
+                        .map(|_| ()),
+                    _ => chart
+                        .draw_series(pts.iter().map(|p| Cross::new(*p, 5, color.stroke_width(2))))
+                        .map(|_| ()),
+                }
+                .map_err(|e| e.to_string())?;
+            }
+        }
+        // The legend: one line per method, in its colour.
         for (i, m) in methods.iter().enumerate() {
             let color = palette[i % palette.len()];
-            let pts: Vec<(f64, f64)> = here
-                .iter()
-                .filter(|r| r.method == *m)
-                .map(|r| (r.time_us, r.rel_error.max(ERROR_FLOOR)))
-                .collect();
-            let style = color.filled();
+            let y = 40 + 24 * i as i32;
             match i % 3 {
-                0 => chart
-                    .draw_series(pts.iter().map(|p| Circle::new(*p, 5, style)))
-                    .map(|_| ()),
-                1 => chart
-                    .draw_series(pts.iter().map(|p| TriangleMarker::new(*p, 6, style)))
-                    .map(|_| ()),
-                _ => chart
-                    .draw_series(pts.iter().map(|p| Cross::new(*p, 5, color.stroke_width(2))))
-                    .map(|_| ()),
+                0 => legend.draw(&Circle::new((16, y), 5, color.filled())),
+                1 => legend.draw(&TriangleMarker::new((16, y), 6, color.filled())),
+                _ => legend.draw(&Cross::new((16, y), 5, color.stroke_width(2))),
             }
-            .map_err(|e| perr(e.to_string()))?;
+            .map_err(|e| e.to_string())?;
+            legend
+                .draw(&Text::new(
+                    m.to_string(),
+                    (30, y - 8),
+                    ("sans-serif", 15).into_font(),
+                ))
+                .map_err(|e| e.to_string())?;
         }
-    }
-    // The legend: one line per method, in its colour.
-    for (i, m) in methods.iter().enumerate() {
-        let color = palette[i % palette.len()];
-        let y = 40 + 24 * i as i32;
-        match i % 3 {
-            0 => legend.draw(&Circle::new((16, y), 5, color.filled())),
-            1 => legend.draw(&TriangleMarker::new((16, y), 6, color.filled())),
-            _ => legend.draw(&Cross::new((16, y), 5, color.stroke_width(2))),
-        }
-        .map_err(|e| perr(e.to_string()))?;
         legend
             .draw(&Text::new(
-                m.to_string(),
-                (30, y - 8),
-                ("sans-serif", 15).into_font(),
+                format!("error 0 drawn at {ERROR_FLOOR:.0e}"),
+                (8, 40 + 24 * methods.len() as i32 + 10),
+                ("sans-serif", 13).into_font(),
             ))
-            .map_err(|e| perr(e.to_string()))?;
-    }
-    legend
-        .draw(&Text::new(
-            format!("error 0 drawn at {ERROR_FLOOR:.0e}"),
-            (8, 40 + 24 * methods.len() as i32 + 10),
-            ("sans-serif", 13).into_font(),
-        ))
-        .map_err(|e| perr(e.to_string()))?;
-    root.present().map_err(|e| perr(e.to_string()))
+            .map_err(|e| e.to_string())?;
+        Ok(())
+    })
+    .map_err(perr)
 }
 
 /// GPU memory (MB, log) against the worst point-load error (log), one colour per mesh.

@@ -201,91 +201,92 @@ pub fn write_plot(path: &std::path::Path, tables: &[(String, HertzTable)]) -> Re
     }
     let dmin = first.rows.first().map_or(1e-4, |r| r.depth_m) * 1e3 * 0.8;
     let dmax = first.rows.last().map_or(2e-3, |r| r.depth_m) * 1e3 * 1.2;
-    let root = BitMapBackend::new(path, (720, 520)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| perr(e.to_string()))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            "A rigid sphere (R = 10 mm) pressed into a block: force against depth",
-            ("sans-serif", 18),
-        )
-        .margin(14)
-        .x_label_area_size(44)
-        .y_label_area_size(70)
-        .build_cartesian_2d(
-            (dmin..dmax).log_scale(),
-            (fmin * 0.7..fmax * 1.4).log_scale(),
-        )
-        .map_err(|e| perr(e.to_string()))?;
-    chart
-        .configure_mesh()
-        .x_desc("depth d (mm)")
-        .y_desc("force (N)")
-        .draw()
-        .map_err(|e| perr(e.to_string()))?;
-    let hertz: Vec<(f64, f64)> = (0..=40)
-        .map(|k| {
-            let d = dmin * (dmax / dmin).powf(k as f64 / 40.0);
-            let r = first
-                .rows
-                .first()
-                .map_or(0.0, |r| r.hertz_n / r.depth_m.powf(1.5));
-            (d, r * (d * 1e-3).powf(1.5))
-        })
-        .collect();
-    chart
-        .draw_series(LineSeries::new(hertz, BLACK.stroke_width(2)))
-        .map_err(|e| perr(e.to_string()))?
-        .label(format!("Hertz, ν = {}", first.poisson))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
-    let point: Vec<(f64, f64)> = first
-        .rows
-        .iter()
-        .map(|r| (r.depth_m * 1e3, r.point_n))
-        .collect();
-    chart
-        .draw_series(LineSeries::new(
-            point.clone(),
-            RGBColor(120, 120, 120).stroke_width(2),
-        ))
-        .map_err(|e| perr(e.to_string()))?
-        .label("point finger (∝ d)")
-        .legend(|(x, y)| {
-            PathElement::new(
-                vec![(x, y), (x + 18, y)],
-                RGBColor(120, 120, 120).stroke_width(2),
+    crate::bench_plot::draw_png(path, (720, 520), |root| {
+        root.fill(&WHITE).map_err(|e| e.to_string())?;
+        let mut chart = ChartBuilder::on(root)
+            .caption(
+                "A rigid sphere (R = 10 mm) pressed into a block: force against depth",
+                ("sans-serif", 18),
             )
-        });
-    let palette = [
-        RGBColor(230, 25, 75),
-        RGBColor(0, 130, 200),
-        RGBColor(60, 180, 75),
-        RGBColor(245, 130, 48),
-    ];
-    for (k, (label, t)) in tables.iter().enumerate() {
-        let c = palette[k % palette.len()];
-        let pts: Vec<(f64, f64)> = t
-            .rows
-            .iter()
-            .map(|r| (r.depth_m * 1e3, r.sphere_n))
+            .margin(14)
+            .x_label_area_size(44)
+            .y_label_area_size(70)
+            .build_cartesian_2d(
+                (dmin..dmax).log_scale(),
+                (fmin * 0.7..fmax * 1.4).log_scale(),
+            )
+            .map_err(|e| e.to_string())?;
+        chart
+            .configure_mesh()
+            .x_desc("depth d (mm)")
+            .y_desc("force (N)")
+            .draw()
+            .map_err(|e| e.to_string())?;
+        let hertz: Vec<(f64, f64)> = (0..=40)
+            .map(|k| {
+                let d = dmin * (dmax / dmin).powf(k as f64 / 40.0);
+                let r = first
+                    .rows
+                    .first()
+                    .map_or(0.0, |r| r.hertz_n / r.depth_m.powf(1.5));
+                (d, r * (d * 1e-3).powf(1.5))
+            })
             .collect();
         chart
-            .draw_series(pts.iter().map(|&p| Circle::new(p, 4, c.filled())))
-            .map_err(|e| perr(e.to_string()))?
-            .label(format!(
-                "{label}: exponent {:.3}, {:.3}× Hertz",
-                t.exponent, t.prefactor_ratio
+            .draw_series(LineSeries::new(hertz, BLACK.stroke_width(2)))
+            .map_err(|e| e.to_string())?
+            .label(format!("Hertz, ν = {}", first.poisson))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
+        let point: Vec<(f64, f64)> = first
+            .rows
+            .iter()
+            .map(|r| (r.depth_m * 1e3, r.point_n))
+            .collect();
+        chart
+            .draw_series(LineSeries::new(
+                point.clone(),
+                RGBColor(120, 120, 120).stroke_width(2),
             ))
-            .legend(move |(x, y)| Circle::new((x + 9, y), 4, c.filled()));
-    }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| perr(e.to_string()))?;
-    root.present().map_err(|e| perr(e.to_string()))?;
-    Ok(())
+            .map_err(|e| e.to_string())?
+            .label("point finger (∝ d)")
+            .legend(|(x, y)| {
+                PathElement::new(
+                    vec![(x, y), (x + 18, y)],
+                    RGBColor(120, 120, 120).stroke_width(2),
+                )
+            });
+        let palette = [
+            RGBColor(230, 25, 75),
+            RGBColor(0, 130, 200),
+            RGBColor(60, 180, 75),
+            RGBColor(245, 130, 48),
+        ];
+        for (k, (label, t)) in tables.iter().enumerate() {
+            let c = palette[k % palette.len()];
+            let pts: Vec<(f64, f64)> = t
+                .rows
+                .iter()
+                .map(|r| (r.depth_m * 1e3, r.sphere_n))
+                .collect();
+            chart
+                .draw_series(pts.iter().map(|&p| Circle::new(p, 4, c.filled())))
+                .map_err(|e| e.to_string())?
+                .label(format!(
+                    "{label}: exponent {:.3}, {:.3}× Hertz",
+                    t.exponent, t.prefactor_ratio
+                ))
+                .legend(move |(x, y)| Circle::new((x + 9, y), 4, c.filled()));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| e.to_string())?;
+        Ok(())
+    })
+    .map_err(perr)
 }
 
 #[cfg(test)]

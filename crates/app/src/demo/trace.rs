@@ -83,57 +83,55 @@ pub(crate) fn write_csv(path: &Path, tr: &ForceTrace) -> Result<(), Error> {
 pub fn write_plot(path: &Path, title: &str, tr: &ForceTrace) -> Result<(), Error> {
     use plotters::prelude::*;
     let perr = |e: String| Error::Input(format!("{}: cannot draw the plot: {e}", path.display()));
-    static FONT_ONCE: std::sync::Once = std::sync::Once::new();
-    FONT_ONCE.call_once(|| {
-        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
-    });
-    let root = BitMapBackend::new(path, (800, 400)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| perr(e.to_string()))?;
-    let t_max = tr.t.last().copied().unwrap_or(1.0).max(1e-3);
-    let f_max = tr
-        .force
-        .iter()
-        .map(|f| f.abs().max_element().max(f.length()))
-        .fold(0.0, f64::max)
-        .max(1e-3)
-        * 1.1;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 20))
-        .margin(12)
-        .x_label_area_size(36)
-        .y_label_area_size(56)
-        .build_cartesian_2d(0.0..t_max, -f_max..f_max)
-        .map_err(|e| perr(e.to_string()))?;
-    chart
-        .configure_mesh()
-        .x_desc("time (s)")
-        .y_desc("force on the finger (N)")
-        .draw()
-        .map_err(|e| perr(e.to_string()))?;
-    type Series = (&'static str, RGBColor, fn(&DVec3) -> f64);
-    let series: [Series; 4] = [
-        ("|F|", BLACK, |f| f.length()),
-        ("Fx", RED, |f| f.x),
-        ("Fy", GREEN, |f| f.y),
-        ("Fz", BLUE, |f| f.z),
-    ];
-    for (name, color, get) in series {
+    touchfem_lab::bench_plot::draw_png(path, (800, 400), |root| {
+        root.fill(&WHITE).map_err(|e| e.to_string())?;
+        let t_max = tr.t.last().copied().unwrap_or(1.0).max(1e-3);
+        let f_max = tr
+            .force
+            .iter()
+            .map(|f| f.abs().max_element().max(f.length()))
+            .fold(0.0, f64::max)
+            .max(1e-3)
+            * 1.1;
+        let mut chart = ChartBuilder::on(root)
+            .caption(title, ("sans-serif", 20))
+            .margin(12)
+            .x_label_area_size(36)
+            .y_label_area_size(56)
+            .build_cartesian_2d(0.0..t_max, -f_max..f_max)
+            .map_err(|e| e.to_string())?;
         chart
-            .draw_series(LineSeries::new(
-                tr.t.iter().zip(&tr.force).map(|(t, f)| (*t, get(f))),
-                color.stroke_width(2),
-            ))
-            .map_err(|e| perr(e.to_string()))?
-            .label(name)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
-    }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| perr(e.to_string()))?;
-    root.present().map_err(|e| perr(e.to_string()))
+            .configure_mesh()
+            .x_desc("time (s)")
+            .y_desc("force on the finger (N)")
+            .draw()
+            .map_err(|e| e.to_string())?;
+        type Series = (&'static str, RGBColor, fn(&DVec3) -> f64);
+        let series: [Series; 4] = [
+            ("|F|", BLACK, |f| f.length()),
+            ("Fx", RED, |f| f.x),
+            ("Fy", GREEN, |f| f.y),
+            ("Fz", BLUE, |f| f.z),
+        ];
+        for (name, color, get) in series {
+            chart
+                .draw_series(LineSeries::new(
+                    tr.t.iter().zip(&tr.force).map(|(t, f)| (*t, get(f))),
+                    color.stroke_width(2),
+                ))
+                .map_err(|e| e.to_string())?
+                .label(name)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| e.to_string())?;
+        Ok(())
+    })
+    .map_err(perr)
 }
 
 /// Writes frames as an animated GIF (looping, `delay_ms` per frame).
