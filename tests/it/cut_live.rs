@@ -434,11 +434,24 @@ fn a_recorded_incision_holds_its_cuts_and_replays_bit_for_bit() {
     let rep = touchfem::runtime::session::replay(&w, &s).unwrap();
     assert_eq!(rep.max_force_diff_n, 0.0, "{rep:?}");
     assert_eq!(rep.ticks, s.ticks.len());
+    // When the live cutter's last body landed (the cutter's thread runs beside the haptic
+    // loop in real time: on a starved machine, e.g. two busy cores running this suite, it can
+    // land seconds after the blade, after the press that should feel it).
+    let last_cut = s.cuts.iter().map(|e| e.after_tick).max().unwrap();
+    // The second press reaches its depth at 4.8 s (scenes/incision.toml, 1 kHz).
+    if last_cut >= 4_800 {
+        eprintln!(
+            "the cutter's last body landed after tick {last_cut}, after the second press began: \
+             the replay above holds its cuts bit for bit; the cut's effect on the press is \
+             checked by the synchronous tests"
+        );
+        return;
+    }
     // Replayed without its cuts, the press after the blade is the press before.
     let mut uncut = s.clone();
     uncut.cuts.clear();
     let rep = touchfem::runtime::session::replay(&w, &uncut).unwrap();
-    assert!(rep.max_force_diff_n > 1e-4, "{rep:?}");
+    assert!(rep.max_force_diff_n > 1e-4, "last cut after tick {last_cut}: {rep:?}");
     // The trace the demo wrote (the session replayed) shows the softer press after the cut.
     let csv = std::fs::read_to_string(out.join("incision_tissue_force.csv")).unwrap();
     let f: Vec<f64> = csv
