@@ -34,6 +34,7 @@ mod scene_file;
 mod session;
 mod udp;
 mod view;
+mod web;
 
 /// The simulated device of `examples/udp_device.rs`, driven by the `udp` and `coupling` tests.
 #[allow(dead_code)]

@@ -19,11 +19,10 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use touchfem_core::compliance::Compliance;
-use touchfem_core::contact::force::MAX_FINGERS;
 use touchfem_core::runtime::cutting::{CutBody, CutFeed};
 use touchfem_core::runtime::WorldSample;
 use touchfem_core::scene::World;
-use touchfem_gpu::render::{Edges, ForceArrow, FrameObject};
+
 use touchfem_gpu::{install_cut, Deformer, DeformerOptions, Gpu, LStorage};
 
 /// How long the visual loop waits for one GPU update before it gives the GPU up.
@@ -340,77 +339,4 @@ impl<'a> Visual<'a> {
     }
 }
 
-/// What a frame shows of a haptic sample besides the objects: each finger, its god-object and
-/// its force arrow (`NaN` where a finger has no valid position or touches nothing, which the
-/// renderer skips). With [`frame_objects`], the one place a frame is built from a sample.
-/// Allocates nothing.
-#[derive(Clone, Copy, Debug)]
-pub struct SampleMarks {
-    /// Finger positions, metres (scene frame).
-    pub fingers: [DVec3; MAX_FINGERS],
-    /// God-objects of the touching fingers (a sphere's: its patch's centre).
-    pub proxies: [DVec3; MAX_FINGERS],
-    /// Each finger's sphere radius, m (0 for a point): set by [`SampleMarks::with_tools`].
-    pub radii: [f64; MAX_FINGERS],
-    /// Force arrows from the god-objects of the touching fingers.
-    pub arrows: [ForceArrow; MAX_FINGERS],
-    /// Fingers in the sample.
-    pub n: usize,
-}
-
-impl SampleMarks {
-    /// The marks of `sample`, arrows `m_per_n` metres long per newton.
-    pub fn of(sample: &WorldSample, m_per_n: f64) -> SampleMarks {
-        let none = ForceArrow {
-            at: DVec3::NAN,
-            force_n: DVec3::ZERO,
-            m_per_n,
-        };
-        let mut m = SampleMarks {
-            fingers: [DVec3::NAN; MAX_FINGERS],
-            proxies: [DVec3::NAN; MAX_FINGERS],
-            arrows: [none; MAX_FINGERS],
-            radii: [0.0; MAX_FINGERS],
-            n: sample.n_fingers.min(MAX_FINGERS),
-        };
-        for (i, f) in sample.fingers().iter().enumerate().take(MAX_FINGERS) {
-            m.fingers[i] = f.position;
-            if let Some(p) = f.proxy.filter(|_| f.object.is_some()) {
-                m.proxies[i] = p;
-                m.arrows[i].at = p;
-                m.arrows[i].force_n = f.force;
-            }
-        }
-        m
-    }
-
-    /// The marks with each sphere finger of `world` drawn at its radius.
-    pub fn with_tools(mut self, world: &World) -> SampleMarks {
-        for (r, f) in self.radii.iter_mut().zip(&world.fingers) {
-            *r = f.tool.radius().unwrap_or(0.0);
-        }
-        self
-    }
-}
-
-/// Each object of `world` as a frame object: its deformer, where it sits, its rest bounds and,
-/// where given, its edges.
-pub fn frame_objects<'a>(
-    world: &World,
-    deformers: &'a [Deformer],
-    edges: &'a [Edges],
-) -> Vec<FrameObject<'a>> {
-    world
-        .objects
-        .iter()
-        .zip(deformers)
-        .enumerate()
-        .map(|(i, (o, d))| FrameObject {
-            deformer: d,
-            offset: o.offset,
-            bounds: o.body.mesh.bounds(),
-            edges: edges.get(i),
-            deformed: false,
-        })
-        .collect()
-}
+pub use touchfem_gpu::render::{frame_objects, SampleMarks};

@@ -23,19 +23,8 @@ use touchfem_gpu::render::{
 };
 use touchfem_gpu::{AdapterSelection, Deformer, DeformerOptions};
 
-/// Where the finger starts before a press: this far outside the touched point, m.
-const OUTSIDE_M: f64 = 1e-3;
-/// Least press depth per pixel dragged, m.
-const MIN_DEPTH_PER_PX: f64 = 0.06e-3;
-/// Press depth per pixel as a fraction of the scene's diagonal.
-const DEPTH_PER_PX_OF_DIAGONAL: f64 = 0.002;
-/// The colour map's full scale as a fraction of the scene's diagonal (rounded to a nice
-/// number): a 100-pixel drag on the cube presses 6 mm, its scale is 6 mm.
-const COLOR_SCALE_OF_DIAGONAL: f64 = 0.1;
-/// Least depth of a blade's top under the surface it was pressed on, m.
-const MIN_BLADE_SINK_M: f64 = 0.2e-3;
-/// A blade's top under the surface as a fraction of the scene's diagonal.
-const BLADE_SINK_OF_DIAGONAL: f64 = 0.005;
+use touchfem_gpu::render::{median, ViewScales, OUTSIDE_M};
+
 /// How long a notice (`B` on a scene that cannot cut) stays on the status line.
 const NOTICE_FOR: Duration = Duration::from_secs(3);
 /// How often the status line is refreshed.
@@ -119,25 +108,6 @@ pub(super) struct App<'a> {
     samples_override: Option<u32>,
 }
 
-/// The force arrow's scale (m per N): the force of a press as deep as the colour scale's full
-/// scale at the first object's median contact stiffness (the 3×3 `L_ii⁻¹` blocks' mean
-/// diagonal) is a quarter of the scene's size.
-fn arrow_m_per_n(world: &World, diag: f64) -> f64 {
-    let Some(o) = world.objects.first() else {
-        return touchfem_gpu::render::arrow_scale(1.0, 0.25 * diag);
-    };
-    let c = &o.body.compliance;
-    let mut k: Vec<f64> = (0..c.cols().len())
-        .map(|i| {
-            let m = c.diag_inv(i);
-            (m.x_axis.x + m.y_axis.y + m.z_axis.z) / 3.0
-        })
-        .filter(|v| v.is_finite() && *v > 0.0)
-        .collect();
-    let k = median(&mut k);
-    touchfem_gpu::render::arrow_scale(k * COLOR_SCALE_OF_DIAGONAL * diag, 0.25 * diag)
-}
-
 /// The largest `TOUCHFEM_VIEW_SECONDS` accepted (about 11.6 days).
 pub(super) const MAX_VIEW_SECONDS: f64 = 1e6;
 
@@ -190,19 +160,6 @@ pub(super) fn parse_view_samples(v: &str) -> Result<u32, String> {
     }
 }
 
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 impl<'a> App<'a> {
     pub(super) fn new(
         world: &'a World,
@@ -219,7 +176,8 @@ impl<'a> App<'a> {
             (DVec3::ZERO, DVec3::ONE)
         };
         let size = [opts.size[0].max(1), opts.size[1].max(1)];
-        let diag = (hi - lo).length();
+        let scales = ViewScales::of(world);
+        let diag = scales.diag;
         let EnvHooks {
             quit_after,
             samples: samples_override,
@@ -259,10 +217,10 @@ impl<'a> App<'a> {
                 size,
             ),
             colors: opts.colors,
-            color_scale: touchfem_gpu::render::displacement_scale(COLOR_SCALE_OF_DIAGONAL * diag),
-            arrow_m_per_n: arrow_m_per_n(world, diag),
-            depth_per_px: MIN_DEPTH_PER_PX.max(DEPTH_PER_PX_OF_DIAGONAL * diag),
-            blade_sink: MIN_BLADE_SINK_M.max(BLADE_SINK_OF_DIAGONAL * diag),
+            color_scale: scales.color_scale,
+            arrow_m_per_n: scales.arrow_m_per_n,
+            depth_per_px: scales.depth_per_px,
+            blade_sink: scales.blade_sink_m,
             notice: None,
             scale: diag,
             stats: Stats::default(),

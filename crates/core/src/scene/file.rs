@@ -199,6 +199,31 @@ impl World {
         })
     }
 
+    /// As [`World::from_source_with`], each object's compliance given by `compliance` from its
+    /// plan (name, mesh, selection, compression, cache key): the pure engine's way in, with no
+    /// file and no thread (e.g. read from bytes with [`crate::cache::load_bytes`], or computed
+    /// with [`Compliance::compute`]).
+    pub fn from_source_by(
+        src: &SceneSource,
+        compliance: &mut dyn FnMut(&PlannedObject) -> Result<Compliance, Error>,
+    ) -> Result<World, Error> {
+        World::build(src, &mut |name, mesh, sel, compression, key, _| {
+            let plan = PlannedObject {
+                name: name.to_string(),
+                mesh: mesh.clone(),
+                selection: sel.clone(),
+                compression: compression.copied(),
+                key,
+            };
+            compliance(&plan).map(Some)
+        })
+    }
+
+    /// The fingers a scene declares, without computing any compliance (the meshes are read).
+    pub fn fingers_of(src: &SceneSource) -> Result<Vec<FingerSpec>, Error> {
+        Ok(World::build(src, &mut |_, _, _, _, _, _| Ok(None))?.fingers)
+    }
+
     /// What a scene asks to precompute, without computing it: for each object its name, mesh
     /// (scene units applied), selection and cache key (see `touchfem precompute`).
     pub fn plan(src: &SceneSource) -> Result<Vec<PlannedObject>, Error> {

@@ -40,6 +40,7 @@ pub use text::FONT;
 mod pick;
 mod pipelines;
 mod text;
+mod view;
 
 pub(crate) use camera::FULL_FRAME;
 pub use camera::{Camera, Orbit, VIEW_DIR};
@@ -49,6 +50,7 @@ pub use legend::{
 };
 pub use overlay::{Anchor, Overlay};
 pub use pick::{pick, Hit};
+pub use view::{frame_objects, median, SampleMarks, ViewScales, OUTSIDE_M};
 
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;

@@ -1,0 +1,479 @@
+//! The page's browser side: [`Page`], exported with wasm-bindgen. It owns the canvas's WebGPU
+//! device, one [`Deformer`] per object (the same WGSL as native), the renderer, the orbit
+//! camera and the pointer's press; `web/main.js` calls it from the page's events and
+//! animation frames, and measures time (there is no clock in the engine).
+
+use glam::DVec3;
+use wasm_bindgen::prelude::*;
+
+use crate::page::{PageWorld, PressSpec};
+use touchfem_gpu::render::{
+    frame_objects, legend_image, pick, Anchor, Coloring, Edges, Frame, LegendSpec, Orbit, Overlay,
+    RenderOptions, Renderer, SampleMarks, ViewScales, OUTSIDE_M,
+};
+use touchfem_gpu::{Deformer, DeformerOptions, VERTEX_STRIDE};
+
+fn js_err(e: impl std::fmt::Display) -> JsError {
+    JsError::new(&e.to_string())
+}
+
+/// The canvas's device and everything drawn on it.
+struct Gfx {
+    surface: wgpu::Surface<'static>,
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    config: wgpu::SurfaceConfiguration,
+    renderer: Renderer,
+    legend: Overlay,
+    deformers: Vec<Deformer>,
+    edges: Vec<Edges>,
+    adapter: String,
+    /// A read-back in flight: the staging buffer and the slot its callback fills.
+    readback: Option<(wgpu::Buffer, std::rc::Rc<std::cell::Cell<Option<bool>>>)>,
+}
+
+/// A pointer press: where it touched, the surface normal there, the pixel it started at.
+#[derive(Clone, Copy)]
+struct Press {
+    pixel: [f64; 2],
+    point: DVec3,
+    normal: DVec3,
+}
+
+/// touchfem in the page: a scene, its haptic state and, once attached, its canvas.
+#[wasm_bindgen]
+pub struct Page {
+    world: PageWorld,
+    gfx: Option<Gfx>,
+    size: [u32; 2],
+    orbit: Orbit,
+    scales: ViewScales,
+    press: Option<Press>,
+    /// A scripted press's contact forces, drawn instead of the live sample's.
+    scripted: Option<(Vec<(u32, DVec3)>, DVec3, Option<DVec3>, DVec3)>,
+}
+
+#[wasm_bindgen]
+impl Page {
+    /// Loads a bundled scene or mesh (`fig1`, `fig2`, `palpate`, `incision`, `cube`, `mouse`,
+    /// …), its compliance read from `cache` (a cache file's bytes) when given, else computed
+    /// here on this thread.
+    #[wasm_bindgen(constructor)]
+    pub fn new(scene: &str, cache: Option<Vec<u8>>) -> Result<Page, JsError> {
+        let world = PageWorld::load(scene, cache.as_deref()).map_err(js_err)?;
+        let scales = ViewScales::of(world.world);
+        let (lo, hi) = world.world.bounds();
+        Ok(Page {
+            world,
+            gfx: None,
+            size: [640, 480],
+            orbit: Orbit::framing(lo, hi, 640.0 / 480.0),
+            scales,
+            press: None,
+            scripted: None,
+        })
+    }
+
+    /// `"computed"` or `"cache"`: where the compliance came from.
+    pub fn compliance_source(&self) -> String {
+        self.world.source.as_str().into()
+    }
+
+    /// Nodes and surface triangles of every object (for the page's status line).
+    pub fn describe(&self) -> String {
+        let w = self.world.world;
+        let nodes: usize = w.objects.iter().map(|o| o.body.mesh.nodes.len()).sum();
+        let tris: usize = w.objects.iter().map(|o| o.body.mesh.surface.len()).sum();
+        let cols: usize = w
+            .objects
+            .iter()
+            .map(|o| o.body.compliance.cols().len())
+            .sum();
+        format!(
+            "{}: {} object(s), {nodes} nodes, {tris} surface triangles, {cols} touchable nodes",
+            w.name,
+            w.objects.len()
+        )
+    }
+
+    /// Asks for a WebGPU adapter and device that can draw to `canvas`, uploads every object's
+    /// compliance and builds the renderer. Errors (no WebGPU, no adapter) are for the page to
+    /// show.
+    pub async fn attach(mut self, canvas: web_sys::HtmlCanvasElement) -> Result<Page, JsError> {
+        let size = [canvas.width().max(1), canvas.height().max(1)];
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
+            backends: wgpu::Backends::BROWSER_WEBGPU,
+            ..wgpu::InstanceDescriptor::new_without_display_handle()
+        });
+        let surface = instance
+            .create_surface(wgpu::SurfaceTarget::Canvas(canvas))
+            .map_err(js_err)?;
+        let adapter = instance
+            .request_adapter(&wgpu::RequestAdapterOptions {
+                power_preference: wgpu::PowerPreference::HighPerformance,
+                force_fallback_adapter: false,
+                compatible_surface: Some(&surface),
+                apply_limit_buckets: false,
+            })
+            .await
+            .map_err(|e| JsError::new(&format!("no WebGPU adapter: {e}")))?;
+        let info = adapter.get_info();
+        let adapter_name = [
+            info.name.as_str(),
+            info.driver.as_str(),
+            info.driver_info.as_str(),
+        ]
+        .iter()
+        .filter(|s| !s.is_empty())
+        .copied()
+        .collect::<Vec<_>>()
+        .join(" / ");
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("touchfem web"),
+                required_features: wgpu::Features::empty(),
+                required_limits: adapter.limits(),
+                experimental_features: wgpu::ExperimentalFeatures::disabled(),
+                memory_hints: wgpu::MemoryHints::Performance,
+                trace: wgpu::Trace::Off,
+            })
+            .await
+            .map_err(js_err)?;
+        let caps = surface.get_capabilities(&adapter);
+        let format = caps
+            .formats
+            .iter()
+            .copied()
+            .find(|f| !f.is_srgb())
+            .or_else(|| caps.formats.first().copied())
+            .ok_or_else(|| JsError::new("the adapter cannot draw to this canvas"))?;
+        let config = wgpu::SurfaceConfiguration {
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+            format,
+            width: size[0],
+            height: size[1],
+            present_mode: wgpu::PresentMode::Fifo,
+            desired_maximum_frame_latency: 2,
+            alpha_mode: wgpu::CompositeAlphaMode::Opaque,
+            view_formats: vec![],
+            color_space: wgpu::SurfaceColorSpace::Auto,
+        };
+        surface.configure(&device, &config);
+        let options = RenderOptions { samples: 4, format };
+        let renderer = Renderer::with_options(&device, size, options).map_err(js_err)?;
+        let mut legend = Overlay::new(&device, options);
+        legend.set_anchor(Anchor::TopRight);
+        let img = legend_image(&LegendSpec {
+            bar_px: LegendSpec::bar_for(size[1]),
+            displacement: Some(self.scales.color_scale),
+            arrow_m_per_n: Some(self.scales.arrow_m_per_n),
+            force_n: None,
+        });
+        legend.set_image(&device, &queue, img.as_ref());
+        let dopts = DeformerOptions::default();
+        let mut deformers = Vec::new();
+        for o in &self.world.world.objects {
+            let b = &o.body;
+            deformers.push(
+                Deformer::new(
+                    &device,
+                    &queue,
+                    &b.compliance,
+                    &b.mesh.nodes,
+                    &b.mesh.surface,
+                    &dopts,
+                )
+                .map_err(js_err)?,
+            );
+        }
+        let edges = deformers.iter().map(|d| Edges::new(&device, d)).collect();
+        let (lo, hi) = self.world.world.bounds();
+        self.size = size;
+        self.orbit = Orbit::framing(lo, hi, f64::from(size[0]) / f64::from(size[1]));
+        self.gfx = Some(Gfx {
+            surface,
+            device,
+            queue,
+            config,
+            renderer,
+            legend,
+            deformers,
+            edges,
+            adapter: adapter_name,
+            readback: None,
+        });
+        Ok(self)
+    }
+
+    /// The adapter's description (empty before [`Page::attach`]).
+    pub fn adapter(&self) -> String {
+        self.gfx
+            .as_ref()
+            .map_or(String::new(), |g| g.adapter.clone())
+    }
+
+    /// The scripted press (`press=X,Y,Z:DX,DY,DZ`, scene units; `sphere` a radius or 0;
+    /// `exact` the exact model), as `touchfem poke` presses: returns a JSON object with
+    /// `force` (N) and `finger` (m). The next frames draw its deformation.
+    pub fn scripted_press(
+        &mut self,
+        press: &str,
+        sphere: f64,
+        exact: bool,
+    ) -> Result<String, JsError> {
+        let mut spec = PressSpec::parse(press).map_err(js_err)?;
+        spec.exact = exact;
+        if sphere != 0.0 {
+            spec.sphere = Some(sphere);
+        }
+        let out = self
+            .world
+            .press(&spec, crate::page::POKE_STEPS)
+            .map_err(js_err)?;
+        let json = serde_json::json!({
+            "force": out.force.to_array(),
+            "finger": out.finger.to_array(),
+            "active_columns": out.forces.len(),
+        });
+        self.scripted = Some((out.forces, out.finger, out.proxy, out.force));
+        Ok(json.to_string())
+    }
+
+    /// Steps `n` haptic ticks (the page passes the time elapsed, in ticks; capped).
+    pub fn tick(&mut self, n: usize) {
+        self.world.tick(n);
+    }
+
+    /// The force on the pointer's finger and on any finger, and whether one touches:
+    /// `[|F_pointer|, max |F|, touching (0/1), haptic time s]`.
+    pub fn readout(&self) -> Vec<f64> {
+        let s = self.world.sample();
+        let touching = s.fingers().iter().any(|f| f.object.is_some());
+        vec![
+            self.world.pointer_force().length(),
+            self.world.max_force(),
+            f64::from(u8::from(touching)),
+            self.world.time(),
+        ]
+    }
+
+    /// The press depth of the pointer's finger under the surface it was pressed on, m (0 when
+    /// not pressing).
+    pub fn depth(&self) -> f64 {
+        self.press.map_or(0.0, |p| {
+            let s = self.world.sample();
+            s.fingers()
+                .iter()
+                .find_map(|f| f.object.map(|_| (p.point - f.position).dot(p.normal)))
+                .unwrap_or(0.0)
+                .max(0.0)
+        })
+    }
+
+    /// A left press at pixel (x, y): the pointer's finger goes just outside the surface point
+    /// under it (nothing under it: nothing happens). True when it touched.
+    pub fn pointer_down(&mut self, x: f64, y: f64) -> bool {
+        if !self.world.has_pointer() {
+            return false;
+        }
+        let surfaces: Vec<_> = self
+            .world
+            .world
+            .objects
+            .iter()
+            .map(|o| (&o.body.surface, o.offset))
+            .collect();
+        let Some(h) = pick(&self.orbit.camera(), self.size, [x, y], &surfaces) else {
+            return false;
+        };
+        self.scripted = None;
+        self.press = Some(Press {
+            pixel: [x, y],
+            point: h.point,
+            normal: h.normal,
+        });
+        self.world.set_pointer(h.point + h.normal * OUTSIDE_M);
+        true
+    }
+
+    /// The pointer dragged to (x, y) while pressing: the finger goes into the surface by the
+    /// distance dragged (as `touchfem view`).
+    pub fn pointer_drag(&mut self, x: f64, y: f64) {
+        if let Some(p) = self.press {
+            let px = ((x - p.pixel[0]).powi(2) + (y - p.pixel[1]).powi(2)).sqrt();
+            self.world
+                .set_pointer(p.point - p.normal * (px * self.scales.depth_per_px));
+        }
+    }
+
+    /// Puts the pointer's finger at (x, y, z), scene frame, metres (NaN lifts it): for scripts
+    /// and measurements.
+    pub fn set_finger(&mut self, x: f64, y: f64, z: f64) {
+        self.world.set_pointer(DVec3::new(x, y, z));
+    }
+
+    /// The scripted press's end position (the finger), scene frame, m; empty without one.
+    pub fn scripted_finger(&self) -> Vec<f64> {
+        self.scripted
+            .as_ref()
+            .map_or(Vec::new(), |s| s.1.to_array().to_vec())
+    }
+
+    /// Drops the scripted press: the next frames draw the live sample.
+    pub fn end_scripted(&mut self) {
+        self.scripted = None;
+    }
+
+    /// The press ends: the finger lifts.
+    pub fn pointer_up(&mut self) {
+        self.press = None;
+        self.world.set_pointer(DVec3::NAN);
+    }
+
+    /// A right drag by (dx, dy) pixels orbits the camera.
+    pub fn orbit(&mut self, dx: f64, dy: f64) {
+        self.orbit.rotate(dx, dy);
+    }
+
+    /// The wheel: `steps` notches (positive zooms in).
+    pub fn zoom(&mut self, steps: f64) {
+        self.orbit.zoom(steps);
+    }
+
+    /// Draws a frame: each object's deformation pass for the latest forces (the scripted
+    /// press's, or the haptic sample's), then the scene as `touchfem view` draws it.
+    pub fn frame(&mut self) -> Result<(), JsError> {
+        let Some(g) = self.gfx.as_mut() else {
+            return Err(JsError::new("no canvas attached"));
+        };
+        let sample = *self.world.sample();
+        let mut marks =
+            SampleMarks::of(&sample, self.scales.arrow_m_per_n).with_tools(self.world.world);
+        for (o, d) in g.deformers.iter_mut().enumerate() {
+            let forces: Vec<(u32, [f32; 3])> = match &self.scripted {
+                Some((forces, ..)) if o == 0 => forces
+                    .iter()
+                    .map(|&(c, f)| (c, f.as_vec3().to_array()))
+                    .collect(),
+                Some(_) => Vec::new(),
+                None if o < sample.n_objects => {
+                    let (f, n) = sample.bcs[o].to_f32();
+                    f[..n].to_vec()
+                }
+                None => Vec::new(),
+            };
+            d.set_forces(&g.queue, &forces).map_err(js_err)?;
+        }
+        if let Some((_, finger, proxy, force)) = &self.scripted {
+            marks.n = 1;
+            marks.fingers[0] = *finger;
+            marks.proxies[0] = proxy.unwrap_or(DVec3::NAN);
+            marks.arrows[0].at = proxy.unwrap_or(*finger);
+            marks.arrows[0].force_n = *force;
+        }
+        let tex = match g.surface.get_current_texture() {
+            wgpu::CurrentSurfaceTexture::Success(t)
+            | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
+            _ => {
+                g.surface.configure(&g.device, &g.config);
+                return Ok(());
+            }
+        };
+        let view = tex.texture.create_view(&Default::default());
+        let objects = frame_objects(self.world.world, &g.deformers, &g.edges);
+        let n = marks.n;
+        let frame = Frame {
+            objects: &objects,
+            camera: self.orbit.camera(),
+            fingers: &marks.fingers[..n],
+            finger_radii: &marks.radii[..n],
+            patch: &[],
+            proxies: &marks.proxies[..n],
+            scale: self.scales.diag,
+            wireframe: false,
+            overlay: None,
+            coloring: Coloring::Displacement {
+                full_scale_m: self.scales.color_scale.0,
+                step_m: self.scales.color_scale.1,
+            },
+            arrows: &marks.arrows[..n],
+            legend: Some(&g.legend),
+        };
+        let mut enc = g.device.create_command_encoder(&Default::default());
+        g.renderer
+            .draw(&g.device, &g.queue, &mut enc, &view, &frame)
+            .map_err(js_err)?;
+        g.queue.submit([enc.finish()]);
+        g.queue.present(tex);
+        Ok(())
+    }
+
+    /// Starts reading the first object's vertex buffer back (after the frames drawn so far);
+    /// poll [`Page::readback_positions`] until it gives them.
+    pub fn begin_readback(&mut self) -> Result<(), JsError> {
+        let Some(g) = self.gfx.as_mut() else {
+            return Err(JsError::new("no canvas attached"));
+        };
+        let d = g
+            .deformers
+            .first()
+            .ok_or_else(|| JsError::new("no object"))?;
+        let size = d.vertex_buffer().size();
+        let staging = g.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("touchfem web readback"),
+            size,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut enc = g.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(d.vertex_buffer(), 0, &staging, 0, size);
+        g.queue.submit([enc.finish()]);
+        let slot = std::rc::Rc::new(std::cell::Cell::new(None));
+        let s2 = slot.clone();
+        staging.map_async(wgpu::MapMode::Read, .., move |r| s2.set(Some(r.is_ok())));
+        g.readback = Some((staging, slot));
+        Ok(())
+    }
+
+    /// The read-back's deformed positions, x y z per displayed row (f32, m, the object's
+    /// frame), once the GPU has written them; `None` while pending. Errors if the map failed.
+    pub fn readback_positions(&mut self) -> Result<Option<Vec<f32>>, JsError> {
+        let Some(g) = self.gfx.as_mut() else {
+            return Ok(None);
+        };
+        let Some((buf, slot)) = &g.readback else {
+            return Ok(None);
+        };
+        match slot.get() {
+            None => Ok(None),
+            Some(false) => {
+                g.readback = None;
+                Err(JsError::new("reading the vertex buffer back failed"))
+            }
+            Some(true) => {
+                let bytes = buf.get_mapped_range(..).map_err(js_err)?.to_vec();
+                buf.unmap();
+                g.readback = None;
+                let stride = VERTEX_STRIDE as usize;
+                let out = bytes
+                    .chunks_exact(stride)
+                    .flat_map(|v| {
+                        (0..3).map(move |k| {
+                            f32::from_le_bytes([v[4 * k], v[4 * k + 1], v[4 * k + 2], v[4 * k + 3]])
+                        })
+                    })
+                    .collect();
+                Ok(Some(out))
+            }
+        }
+    }
+
+    /// The first object's displayed rows (mesh node per vertex of the read-back).
+    pub fn rows(&self) -> Vec<u32> {
+        self.world
+            .world
+            .objects
+            .first()
+            .map_or(Vec::new(), |o| o.body.compliance.rows().to_vec())
+    }
+}

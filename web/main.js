@@ -1,0 +1,271 @@
+// touchfem's page: loads the engine (wasm, built from crates/web), a bundled scene and its
+// compliance, attaches the canvas's WebGPU device, then runs the haptic ticks and draws frames.
+// No physics here: every number comes from the engine. With `press=` in the query it performs
+// that press once (as `touchfem poke`), reports `window.touchfemResult` and sets the title to
+// `touchfem:done` (or `touchfem:error:REASON`).
+import init, { Page } from './touchfem_web.js';
+
+const SCENES = ['fig1', 'fig2', 'palpate', 'incision', 'pinch', 'rub', 'cube', 'mouse', 'phantom'];
+const query = new URLSearchParams(location.search);
+const sceneName = query.get('scene') || 'fig2';
+const press = query.get('press');
+const sphere = Number(query.get('sphere') || 0);
+const exact = query.get('exact') === '1';
+const wantCache = (query.get('compliance') || 'cache') !== 'compute';
+
+const $ = (id) => document.getElementById(id);
+const status = (text) => { $('status').textContent = text; };
+const yieldFrame = () => new Promise((r) => requestAnimationFrame(() => setTimeout(r, 0)));
+
+function fail(reason) {
+  const msg = String(reason && reason.message ? reason.message : reason);
+  $('message').style.display = 'block';
+  $('message').textContent = msg;
+  status('stopped');
+  document.title = 'touchfem:error:' + msg;
+  console.error('touchfem: ' + msg);
+}
+
+function setupControls() {
+  const sel = $('scene');
+  for (const s of SCENES) {
+    const o = document.createElement('option');
+    o.value = o.textContent = s;
+    if (s === sceneName) o.selected = true;
+    sel.appendChild(o);
+  }
+  $('source').value = wantCache ? 'cache' : 'compute';
+  const go = () => {
+    const q = new URLSearchParams();
+    q.set('scene', sel.value);
+    if ($('source').value === 'compute') q.set('compliance', 'compute');
+    location.search = q.toString();
+  };
+  sel.onchange = go;
+  $('source').onchange = go;
+}
+
+async function fetchCache(name) {
+  try {
+    const r = await fetch(`cache/${name}.tfc`);
+    if (!r.ok) return null;
+    return new Uint8Array(await r.arrayBuffer());
+  } catch (_) {
+    return null;
+  }
+}
+
+function median(v) {
+  if (!v.length) return 0;
+  const s = [...v].sort((a, b) => a - b);
+  const n = s.length;
+  return n % 2 ? s[(n - 1) / 2] : 0.5 * (s[n / 2 - 1] + s[n / 2]);
+}
+
+async function main() {
+  setupControls();
+  if (!navigator.gpu) {
+    throw new Error('this browser has no WebGPU; in Chromium start with --enable-unsafe-webgpu');
+  }
+  status('loading the engine (wasm)…');
+  await init();
+  let cache = null;
+  if (wantCache) {
+    status(`fetching ${sceneName}'s compliance…`);
+    cache = await fetchCache(sceneName);
+  }
+  status(cache ? `reading ${sceneName}'s compliance (${(cache.length / 1e6).toFixed(1)} MB)…`
+               : `computing ${sceneName}'s compliance in the page (one thread)…`);
+  await yieldFrame();
+  let t0 = performance.now();
+  let page;
+  try {
+    page = new Page(sceneName, cache);
+  } catch (e) {
+    if (!cache) throw e;
+    // A cache that does not fit this build's scene: computed instead, and said so.
+    console.warn(`touchfem: cache/${sceneName}.tfc not used (${e.message || e}); computing`);
+    status(`computing ${sceneName}'s compliance in the page (one thread)…`);
+    await yieldFrame();
+    t0 = performance.now();
+    page = new Page(sceneName, null);
+  }
+  const complianceMs = performance.now() - t0;
+  const source = page.compliance_source();
+  $('n-compliance').textContent = complianceMs.toFixed(0);
+  $('about').textContent = page.describe() + ` — compliance ${source}.`;
+  status('asking for a WebGPU adapter…');
+  await yieldFrame();
+  let p;
+  try {
+    p = await page.attach($('view'));
+  } catch (e) {
+    throw new Error(`${e.message || e}; this browser gave no usable WebGPU adapter (in Chromium start with --enable-unsafe-webgpu)`);
+  }
+  const adapter = p.adapter();
+  status(`${sceneName} on ${adapter}`);
+  if (press) {
+    await scripted(p, { complianceMs, source, adapter });
+  }
+  live(p);
+}
+
+// The scripted press: force, one frame, the vertex read-back and the timings.
+async function scripted(p, info) {
+  const out = JSON.parse(p.scripted_press(press, sphere, exact));
+  // Step time: the pointer held where the press ended, 1000 ticks.
+  const fin = p.scripted_finger();
+  p.set_finger(fin[0], fin[1], fin[2]);
+  p.tick(10);
+  const ts = performance.now();
+  for (let i = 0; i < 10; i++) p.tick(100);
+  const stepUs = (performance.now() - ts) * 1000 / 1000;
+  p.set_finger(NaN, NaN, NaN);
+  p.tick(1);
+  // Frames: the press drawn, timed over 30 animation frames.
+  const intervals = [];
+  const passes = [];
+  let last = performance.now();
+  for (let i = 0; i < 30; i++) {
+    const a = performance.now();
+    p.frame();
+    passes.push(performance.now() - a);
+    await new Promise((r) => requestAnimationFrame(r));
+    const now = performance.now();
+    intervals.push(now - last);
+    last = now;
+  }
+  p.begin_readback();
+  let positions = null;
+  for (let i = 0; i < 600 && positions == null; i++) {
+    await new Promise((r) => setTimeout(r, 5));
+    positions = p.readback_positions();
+  }
+  if (positions == null) throw new Error('the vertex read-back never completed');
+  window.touchfemResult = {
+    scene: sceneName,
+    press,
+    force: out.force,
+    finger: out.finger,
+    active_columns: out.active_columns,
+    adapter: info.adapter,
+    compliance_ms: info.complianceMs,
+    compliance_source: info.source,
+    step_us: stepUs,
+    frame_ms: median(intervals),
+    record_ms: median(passes),
+    positions: Array.from(positions),
+    rows: Array.from(p.rows()),
+    units: { force: 'N', positions: 'm', finger: 'm' },
+  };
+  $('n-force').textContent = Math.hypot(...out.force).toFixed(4);
+  p.frame();
+  await new Promise((r) => requestAnimationFrame(r));
+  document.title = 'touchfem:done';
+}
+
+// The live page: the pointer presses, the haptic ticks follow the clock, frames follow the
+// display, a trace of |F| over the last seconds.
+function live(p) {
+  const canvas = $('view');
+  let mode = null;
+  let lastXY = [0, 0];
+  const xy = (e) => {
+    const r = canvas.getBoundingClientRect();
+    return [(e.clientX - r.left) * canvas.width / r.width, (e.clientY - r.top) * canvas.height / r.height];
+  };
+  canvas.addEventListener('contextmenu', (e) => e.preventDefault());
+  canvas.addEventListener('pointerdown', (e) => {
+    canvas.setPointerCapture(e.pointerId);
+    const [x, y] = xy(e);
+    lastXY = [x, y];
+    if (e.button === 2) {
+      mode = 'orbit';
+    } else if (e.button === 0 && p.pointer_down(x, y)) {
+      mode = 'press';
+    }
+  });
+  canvas.addEventListener('pointermove', (e) => {
+    const [x, y] = xy(e);
+    if (mode === 'press') p.pointer_drag(x, y);
+    if (mode === 'orbit') p.orbit(x - lastXY[0], y - lastXY[1]);
+    lastXY = [x, y];
+  });
+  const up = () => {
+    if (mode === 'press') p.pointer_up();
+    mode = null;
+  };
+  canvas.addEventListener('pointerup', up);
+  canvas.addEventListener('pointercancel', up);
+  canvas.addEventListener('wheel', (e) => {
+    e.preventDefault();
+    p.zoom(-Math.sign(e.deltaY));
+  }, { passive: false });
+
+  const trace = [];
+  const ctx = $('trace').getContext('2d');
+  let lastT = performance.now();
+  let carry = 0;
+  const frameTimes = [];
+  const stepTimes = [];
+  let shownAt = 0;
+  const rate = 1000; // ticks per second: every bundled scene runs its haptic loop at 1 kHz
+  const loop = (now) => {
+    const dt = Math.min(now - lastT, 100);
+    frameTimes.push(now - lastT);
+    lastT = now;
+    carry += dt * rate / 1000;
+    const n = Math.floor(carry);
+    carry -= n;
+    if (n > 0) {
+      const a = performance.now();
+      p.tick(n);
+      stepTimes.push((performance.now() - a) * 1000 / n);
+    }
+    try {
+      p.frame();
+    } catch (e) {
+      fail(e);
+      return;
+    }
+    const [fPointer, fMax] = p.readout();
+    trace.push([now, fPointer > 0 ? fPointer : fMax]);
+    while (trace.length && now - trace[0][0] > 5000) trace.shift();
+    if (now - shownAt > 200) {
+      shownAt = now;
+      $('n-force').textContent = (fPointer > 0 ? fPointer : fMax).toFixed(3);
+      $('n-depth').textContent = (p.depth() * 1e3).toFixed(2);
+      $('n-frame').textContent = median(frameTimes.splice(0)).toFixed(1);
+      $('n-step').textContent = median(stepTimes.splice(0)).toFixed(1);
+      drawTrace(ctx, trace, now);
+    }
+    requestAnimationFrame(loop);
+  };
+  requestAnimationFrame(loop);
+}
+
+function drawTrace(ctx, trace, now) {
+  const { width: w, height: h } = ctx.canvas;
+  ctx.fillStyle = '#fff';
+  ctx.fillRect(0, 0, w, h);
+  const fMax = Math.max(0.1, ...trace.map((s) => s[1])) * 1.1;
+  ctx.strokeStyle = '#ddd';
+  ctx.fillStyle = '#666';
+  ctx.font = '11px sans-serif';
+  ctx.fillText(`${fMax.toFixed(2)} N`, 4, 12);
+  ctx.beginPath();
+  ctx.moveTo(0, h - 0.5);
+  ctx.lineTo(w, h - 0.5);
+  ctx.stroke();
+  ctx.strokeStyle = '#c22';
+  ctx.lineWidth = 1.5;
+  ctx.beginPath();
+  trace.forEach(([t, f], i) => {
+    const x = w - (now - t) / 5000 * w;
+    const y = h - f / fMax * (h - 16);
+    if (i === 0) ctx.moveTo(x, y); else ctx.lineTo(x, y);
+  });
+  ctx.stroke();
+}
+
+main().catch(fail);
