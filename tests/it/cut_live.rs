@@ -456,7 +456,10 @@ fn a_recorded_incision_holds_its_cuts_and_replays_bit_for_bit() {
     let mut uncut = s.clone();
     uncut.cuts.clear();
     let rep = touchfem::runtime::session::replay(&w, &uncut).unwrap();
-    assert!(rep.max_force_diff_n > 1e-4, "last cut after tick {last_cut}: {rep:?}");
+    assert!(
+        rep.max_force_diff_n > 1e-4,
+        "last cut after tick {last_cut}: {rep:?}"
+    );
     // The trace the demo wrote (the session replayed) shows the softer press after the cut.
     let csv = std::fs::read_to_string(out.join("incision_tissue_force.csv")).unwrap();
     let f: Vec<f64> = csv
