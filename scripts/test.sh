@@ -2,12 +2,20 @@
 # The test command: installs lavapipe and the X tools if needed, then runs every test of the
 # workspace (GPU tests included, on lavapipe): each crate's unit tests, the one integration-test
 # binary (tests/it, which also runs the examples), and the doc tests (README and the embedding
-# guide included). The criterion benches are built by `.ci/run`'s clippy, not here.
+# guide included), and the web page in a headless Chromium. The criterion benches are built by `.ci/run`'s clippy, not here.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/ensure-vulkan.sh
 scripts/ensure-x11.sh
 export WGPU_BACKEND="${WGPU_BACKEND:-vulkan}"
 export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
+# The web page for the browser tests (tests/it/web.rs): Chromium and Node from Debian's
+# packages, the page built for wasm32 (scripts/web.sh installs the target and wasm-bindgen-cli
+# when absent). Where that cannot be had the browser tests say they are skipped.
+if scripts/ensure-chromium.sh && TOUCHFEM_WEB_NO_CACHES=1 scripts/web.sh --build-only --out target/web-test; then
+  export TOUCHFEM_WEB_DIR="$PWD/target/web-test"
+else
+  echo "note: the web page could not be built; the browser tests are SKIPPED" >&2
+fi
 # Without target flags, `cargo test` runs the doc tests too.
 cargo test --workspace --all-features "$@"

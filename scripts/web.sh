@@ -11,7 +11,8 @@
 # (cargo install, a few minutes once). Where a native `touchfem` program is at hand
 # (target/release, target/debug or PATH), the bundled scenes' compliance caches are
 # precomputed into DIR/cache so that the page starts without computing them; without one the
-# page computes them itself.
+# page computes them itself. TOUCHFEM_WEB_NO_CACHES=1 skips them (the test command: its
+# browser tests write their own).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=target/web
@@ -43,12 +44,15 @@ want=$(awk '/^name = "wasm-bindgen"$/ { getline; gsub(/version = |"/, ""); print
 have=$(wasm-bindgen --version 2>/dev/null | awk '{ print $2 }' || true)
 if [ "$have" != "$want" ]; then
   echo "installing wasm-bindgen-cli $want (the version Cargo.lock pins; once)…" >&2
-  cargo install --quiet --locked wasm-bindgen-cli --version "$want"
+  # Its own lock file first; where a registry mirror lacks a version it pins, the newest that
+  # fits its requirements.
+  cargo install --quiet --locked wasm-bindgen-cli --version "$want" 2>/dev/null \
+    || cargo install --quiet wasm-bindgen-cli --version "$want"
 fi
 
-cargo build --quiet -p touchfem-web --target "$target" --profile web
+cargo build --quiet -p touchfem-web --target "$target" --profile web-release
 mkdir -p "$out"
-wasm-bindgen --target web --no-typescript --out-dir "$out" "target/$target/web/touchfem_web.wasm"
+wasm-bindgen --target web --no-typescript --out-dir "$out" "target/$target/web-release/touchfem_web.wasm"
 cp web/index.html web/main.js "$out/"
 
 # The compliance caches, where a native program can make them.
@@ -57,7 +61,9 @@ for b in target/release/touchfem target/debug/touchfem; do
   if [ -x "$b" ]; then bin=$b; break; fi
 done
 if [ -z "$bin" ] && command -v touchfem >/dev/null 2>&1; then bin=$(command -v touchfem); fi
-if [ -n "$bin" ]; then
+if [ "${TOUCHFEM_WEB_NO_CACHES:-0}" = 1 ]; then
+  :
+elif [ -n "$bin" ]; then
   mkdir -p "$out/cache"
   for s in fig1 fig2 palpate incision cube mouse phantom; do
     "$bin" precompute "$s" --out "$out/cache/$s.tfc" >/dev/null 2>&1 \

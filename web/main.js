@@ -64,6 +64,8 @@ function median(v) {
 
 async function main() {
   setupControls();
+  // A scripted press shows the canvas alone at the page's corner (for screenshots).
+  if (press) document.body.classList.add('scripted');
   if (!navigator.gpu) {
     throw new Error('this browser has no WebGPU; in Chromium start with --enable-unsafe-webgpu');
   }
@@ -102,10 +104,16 @@ async function main() {
   } catch (e) {
     throw new Error(`${e.message || e}; this browser gave no usable WebGPU adapter (in Chromium start with --enable-unsafe-webgpu)`);
   }
-  const adapter = p.adapter();
+  // The adapter as the browser describes it (wgpu's web backend leaves its name empty).
+  let adapter = p.adapter();
+  try {
+    const a = await navigator.gpu.requestAdapter();
+    const i = a && a.info;
+    if (i) adapter = [i.vendor, i.architecture, i.device, i.description].filter(Boolean).join(' / ') || adapter;
+  } catch (_) { /* keep wgpu's */ }
   status(`${sceneName} on ${adapter}`);
   if (press) {
-    await scripted(p, { complianceMs, source, adapter });
+    await scripted(p, { complianceMs, source, adapter: adapter || 'WebGPU' });
   }
   live(p);
 }

@@ -239,13 +239,20 @@ impl Deformer {
             }
             LStorage::Texture | LStorage::TextureF16 => true,
             LStorage::Buffers | LStorage::BuffersF16 => false,
+            // In a browser the buffers: the texture's out-of-memory check below waits on the
+            // device, which a page's one thread cannot do.
             LStorage::Auto | LStorage::AutoF16 => {
-                textures_ok && device.adapter_info().device_type == wgpu::DeviceType::Cpu
+                !cfg!(target_arch = "wasm32")
+                    && textures_ok
+                    && device.adapter_info().device_type == wgpu::DeviceType::Cpu
             }
         };
         let auto = matches!(options.storage, LStorage::Auto | LStorage::AutoF16);
         let path = if let Some(h) = hier {
             Path::Hier(HierPath::new(&shared, h)?)
+        } else if texture && cfg!(target_arch = "wasm32") {
+            // (No waiting on the device in a browser: an error surfaces as the device's.)
+            Path::Texture(TexturePath::new(&shared)?)
         } else if texture {
             // A texture too large for the device's memory (the f32 texture of a 45k-node
             // organ's whole surface, 3.8 GB, on lavapipe): `Auto` falls back to the buffers,

@@ -6,7 +6,7 @@
 use glam::DVec3;
 use wasm_bindgen::prelude::*;
 
-use crate::page::{PageWorld, PressSpec};
+use crate::page::{PageWorld, PressOutcome, PressSpec};
 use touchfem_gpu::render::{
     frame_objects, legend_image, pick, Anchor, Coloring, Edges, Frame, LegendSpec, Orbit, Overlay,
     RenderOptions, Renderer, SampleMarks, ViewScales, OUTSIDE_M,
@@ -28,6 +28,8 @@ struct Gfx {
     deformers: Vec<Deformer>,
     edges: Vec<Edges>,
     adapter: String,
+    /// The frame drawn in the canvas's format's sRGB twin, then copied onto the canvas.
+    offscreen: wgpu::Texture,
     /// A read-back in flight: the staging buffer and the slot its callback fills.
     readback: Option<(wgpu::Buffer, std::rc::Rc<std::cell::Cell<Option<bool>>>)>,
 }
@@ -50,7 +52,7 @@ pub struct Page {
     scales: ViewScales,
     press: Option<Press>,
     /// A scripted press's contact forces, drawn instead of the live sample's.
-    scripted: Option<(Vec<(u32, DVec3)>, DVec3, Option<DVec3>, DVec3)>,
+    scripted: Option<PressOutcome>,
 }
 
 #[wasm_bindgen]
@@ -140,15 +142,17 @@ impl Page {
             .await
             .map_err(js_err)?;
         let caps = surface.get_capabilities(&adapter);
+        // A canvas takes 8-bit unorm formats only: the renderer draws linear colour into an
+        // sRGB texture, as into the native window's sRGB surface, whose bytes are then copied
+        // onto the canvas (formats that differ only in sRGB-ness copy as they are).
         let format = caps
             .formats
-            .iter()
+            .first()
             .copied()
-            .find(|f| !f.is_srgb())
-            .or_else(|| caps.formats.first().copied())
             .ok_or_else(|| JsError::new("the adapter cannot draw to this canvas"))?;
+        let view_format = format.add_srgb_suffix();
         let config = wgpu::SurfaceConfiguration {
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_DST,
             format,
             width: size[0],
             height: size[1],
@@ -159,7 +163,24 @@ impl Page {
             color_space: wgpu::SurfaceColorSpace::Auto,
         };
         surface.configure(&device, &config);
-        let options = RenderOptions { samples: 4, format };
+        let options = RenderOptions {
+            samples: 4,
+            format: view_format,
+        };
+        let offscreen = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("touchfem web frame"),
+            size: wgpu::Extent3d {
+                width: size[0],
+                height: size[1],
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: view_format,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        });
         let renderer = Renderer::with_options(&device, size, options).map_err(js_err)?;
         let mut legend = Overlay::new(&device, options);
         legend.set_anchor(Anchor::TopRight);
@@ -201,6 +222,7 @@ impl Page {
             edges,
             adapter: adapter_name,
             readback: None,
+            offscreen,
         });
         Ok(self)
     }
@@ -235,7 +257,7 @@ impl Page {
             "finger": out.finger.to_array(),
             "active_columns": out.forces.len(),
         });
-        self.scripted = Some((out.forces, out.finger, out.proxy, out.force));
+        self.scripted = Some(out);
         Ok(json.to_string())
     }
 
@@ -316,7 +338,7 @@ impl Page {
     pub fn scripted_finger(&self) -> Vec<f64> {
         self.scripted
             .as_ref()
-            .map_or(Vec::new(), |s| s.1.to_array().to_vec())
+            .map_or(Vec::new(), |s| s.finger.to_array().to_vec())
     }
 
     /// Drops the scripted press: the next frames draw the live sample.
@@ -351,7 +373,8 @@ impl Page {
             SampleMarks::of(&sample, self.scales.arrow_m_per_n).with_tools(self.world.world);
         for (o, d) in g.deformers.iter_mut().enumerate() {
             let forces: Vec<(u32, [f32; 3])> = match &self.scripted {
-                Some((forces, ..)) if o == 0 => forces
+                Some(out) if o == 0 => out
+                    .forces
                     .iter()
                     .map(|&(c, f)| (c, f.as_vec3().to_array()))
                     .collect(),
@@ -364,12 +387,12 @@ impl Page {
             };
             d.set_forces(&g.queue, &forces).map_err(js_err)?;
         }
-        if let Some((_, finger, proxy, force)) = &self.scripted {
+        if let Some(out) = &self.scripted {
             marks.n = 1;
-            marks.fingers[0] = *finger;
-            marks.proxies[0] = proxy.unwrap_or(DVec3::NAN);
-            marks.arrows[0].at = proxy.unwrap_or(*finger);
-            marks.arrows[0].force_n = *force;
+            marks.fingers[0] = out.finger;
+            marks.proxies[0] = out.proxy.unwrap_or(DVec3::NAN);
+            marks.arrows[0].at = out.proxy.unwrap_or(out.finger);
+            marks.arrows[0].force_n = out.force;
         }
         let tex = match g.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(t)
@@ -379,7 +402,7 @@ impl Page {
                 return Ok(());
             }
         };
-        let view = tex.texture.create_view(&Default::default());
+        let view = g.offscreen.create_view(&Default::default());
         let objects = frame_objects(self.world.world, &g.deformers, &g.edges);
         let n = marks.n;
         let frame = Frame {
@@ -403,6 +426,11 @@ impl Page {
         g.renderer
             .draw(&g.device, &g.queue, &mut enc, &view, &frame)
             .map_err(js_err)?;
+        enc.copy_texture_to_texture(
+            g.offscreen.as_image_copy(),
+            tex.texture.as_image_copy(),
+            g.offscreen.size(),
+        );
         g.queue.submit([enc.finish()]);
         g.queue.present(tex);
         Ok(())
