@@ -28,8 +28,9 @@ if [ ! -d "$sysroot/lib/rustlib/$target/lib" ]; then
 fi
 cargo check -p touchfem-core --no-default-features --target "$target"
 cargo check -p touchfem-gpu --no-default-features --target "$target"
-cargo clippy -p touchfem-core -p touchfem-gpu --no-default-features --target "$target" -- -D warnings
-echo "touchfem-core (no native) and touchfem-gpu check for $target"
+cargo check -p touchfem-web --target "$target"
+cargo clippy -p touchfem-core -p touchfem-gpu -p touchfem-web --no-default-features --target "$target" -- -D warnings
+echo "touchfem-core (no native), touchfem-gpu and the page (touchfem-web) check for $target"
 if [ "${1:-}" = "--run" ]; then
   command -v node >/dev/null 2>&1 || { echo "note: no node; the wasm32 run is SKIPPED" >&2; exit 0; }
   smoke=target/wasm-smoke

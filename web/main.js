@@ -98,22 +98,28 @@ async function main() {
   $('about').textContent = page.describe() + ` — compliance ${source}.`;
   status('asking for a WebGPU adapter…');
   await yieldFrame();
-  let p;
-  try {
-    p = await page.attach($('view'));
-  } catch (e) {
-    throw new Error(`${e.message || e}; this browser gave no usable WebGPU adapter (in Chromium start with --enable-unsafe-webgpu)`);
-  }
-  // The adapter as the browser describes it (wgpu's web backend leaves its name empty).
-  let adapter = p.adapter();
+  // The adapter as the browser describes it (wgpu's web backend leaves its name empty), and
+  // whether it is a software rasteriser (then no MSAA, as the native window on lavapipe).
+  let adapter = '';
+  let software = false;
   try {
     const a = await navigator.gpu.requestAdapter();
     const i = a && a.info;
-    if (i) adapter = [i.vendor, i.architecture, i.device, i.description].filter(Boolean).join(' / ') || adapter;
-  } catch (_) { /* keep wgpu's */ }
+    if (i) {
+      adapter = [i.vendor, i.architecture, i.device, i.description].filter(Boolean).join(' / ');
+      software = !!i.isFallbackAdapter;
+    }
+  } catch (_) { /* wgpu's request below says what is wrong */ }
+  let p;
+  try {
+    p = await page.attach($('view'), software);
+  } catch (e) {
+    throw new Error(`${e.message || e}; this browser gave no usable WebGPU adapter (in Chromium start with --enable-unsafe-webgpu)`);
+  }
+  adapter = adapter || p.adapter();
   status(`${sceneName} on ${adapter}`);
   if (press) {
-    await scripted(p, { complianceMs, source, adapter: adapter || 'WebGPU' });
+    await scripted(p, { complianceMs, source, adapter: adapter || 'WebGPU', software });
   }
   live(p);
 }
@@ -159,6 +165,7 @@ async function scripted(p, info) {
     adapter: info.adapter,
     compliance_ms: info.complianceMs,
     compliance_source: info.source,
+    msaa_samples: info.software ? 1 : 4,
     step_us: stepUs,
     frame_ms: median(intervals),
     record_ms: median(passes),

@@ -99,9 +99,15 @@ impl Page {
     }
 
     /// Asks for a WebGPU adapter and device that can draw to `canvas`, uploads every object's
-    /// compliance and builds the renderer. Errors (no WebGPU, no adapter) are for the page to
-    /// show.
-    pub async fn attach(mut self, canvas: web_sys::HtmlCanvasElement) -> Result<Page, JsError> {
+    /// compliance and builds the renderer. `software`: the browser's adapter is a software
+    /// rasteriser (its `isFallbackAdapter`): frames are then drawn without MSAA, as the native
+    /// window does on lavapipe ([`touchfem_gpu::render::live_samples`]). Errors (no WebGPU, no
+    /// adapter) are for the page to show.
+    pub async fn attach(
+        mut self,
+        canvas: web_sys::HtmlCanvasElement,
+        software: bool,
+    ) -> Result<Page, JsError> {
         let size = [canvas.width().max(1), canvas.height().max(1)];
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
             backends: wgpu::Backends::BROWSER_WEBGPU,
@@ -164,7 +170,7 @@ impl Page {
         };
         surface.configure(&device, &config);
         let options = RenderOptions {
-            samples: 4,
+            samples: if software { 1 } else { 4 },
             format: view_format,
         };
         let offscreen = device.create_texture(&wgpu::TextureDescriptor {
