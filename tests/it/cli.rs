@@ -666,7 +666,7 @@ fn help_and_docs_name_what_the_code_does() {
         "## Command line",
         "## Scene files (TOML)",
         "## The Haply Inverse3 (planned, not yet implemented)",
-        "## The web page (planned, not yet implemented)",
+        "## The web page",
         "## UDP device protocol, version 1",
         "## Errors and exit status",
         "## Environment",
