@@ -212,6 +212,11 @@ function live(p) {
   };
   canvas.addEventListener('pointerup', up);
   canvas.addEventListener('pointercancel', up);
+  window.addEventListener('keydown', (e) => {
+    if (e.key === 'b' || e.key === 'B') {
+      status('the blade (B) is not in the web page yet: cut with `touchfem view` (docs/guide/web.md)');
+    }
+  });
   canvas.addEventListener('wheel', (e) => {
     e.preventDefault();
     p.zoom(-Math.sign(e.deltaY));
