@@ -8,7 +8,7 @@ use touchfem_core::contact::force::ForceModel;
 use touchfem_core::devices::KeyframePath;
 use touchfem_core::haptic::{HapticWorld, WorldSample};
 use touchfem_core::limits::MAX_FINGERS;
-use touchfem_core::scene::{DeviceSpec, SceneSource, World, BUNDLED_SCENES};
+use touchfem_core::scene::{DeviceSpec, SceneSource, World};
 use touchfem_core::Error;
 
 /// The scenes and meshes the page offers (its `scene=` values).
@@ -55,7 +55,6 @@ pub fn scene_source(spec: &str) -> Result<SceneSource, Error> {
     let Some(mut src) = SceneSource::find(spec)? else {
         return Ok(SceneSource::for_mesh(spec, "pointer"));
     };
-    debug_assert!(BUNDLED_SCENES.iter().any(|(n, _)| *n == spec));
     let fingers = World::fingers_of(&src)?;
     if !fingers.iter().any(|f| f.device == DeviceSpec::Pointer) && fingers.len() < MAX_FINGERS {
         src.text.push_str("\n[[finger]]\ndevice = \"pointer\"\n");
