@@ -8,8 +8,8 @@ use wasm_bindgen::prelude::*;
 
 use crate::page::{PageWorld, PressOutcome, PressSpec};
 use touchfem_gpu::render::{
-    frame_objects, legend_image, pick, Anchor, Coloring, Edges, Frame, LegendSpec, Orbit, Overlay,
-    RenderOptions, Renderer, SampleMarks, ViewScales, OUTSIDE_M,
+    frame_objects, frame_texture, legend_image, pick, Anchor, Coloring, Edges, Frame, LegendSpec,
+    Orbit, Overlay, RenderOptions, Renderer, SampleMarks, ViewScales, OUTSIDE_M,
 };
 use touchfem_gpu::{Deformer, DeformerOptions, VERTEX_STRIDE};
 
@@ -173,20 +173,13 @@ impl Page {
             samples: if software { 1 } else { 4 },
             format: view_format,
         };
-        let offscreen = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("touchfem web frame"),
-            size: wgpu::Extent3d {
-                width: size[0],
-                height: size[1],
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: view_format,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[],
-        });
+        let offscreen = frame_texture(
+            &device,
+            "touchfem web frame",
+            size,
+            view_format,
+            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+        );
         let renderer = Renderer::with_options(&device, size, options).map_err(js_err)?;
         let mut legend = Overlay::new(&device, options);
         legend.set_anchor(Anchor::TopRight);
