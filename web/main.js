@@ -1,14 +1,16 @@
 // touchfem's page: loads the engine (wasm, built from crates/web), a bundled scene and its
 // compliance, attaches the canvas's WebGPU device, then runs the haptic ticks and draws frames.
 // No physics here: every number comes from the engine. With `press=` in the query it performs
-// that press once (as `touchfem poke`), reports `window.touchfemResult` and sets the title to
-// `touchfem:done` (or `touchfem:error:REASON`).
+// that press once (as `touchfem poke`), with `run=SECONDS` it runs the scene's own scripts
+// (cutting included) for that long; either way it reports `window.touchfemResult` and sets the
+// title to `touchfem:done` (or `touchfem:error:REASON`).
 import init, { Page } from './touchfem_web.js';
 
 const SCENES = ['fig1', 'fig2', 'palpate', 'incision', 'pinch', 'rub', 'cube', 'mouse', 'phantom'];
 const query = new URLSearchParams(location.search);
 const sceneName = query.get('scene') || 'fig2';
 const press = query.get('press');
+const run = query.get('run');
 const sphere = Number(query.get('sphere') || 0);
 const exact = query.get('exact') === '1';
 const wantCache = (query.get('compliance') || 'cache') !== 'compute';
@@ -65,7 +67,7 @@ function median(v) {
 async function main() {
   setupControls();
   // A scripted press shows the canvas alone at the page's corner (for screenshots).
-  if (press) document.body.classList.add('scripted');
+  if (press || run) document.body.classList.add('scripted');
   if (!navigator.gpu) {
     throw new Error('this browser has no WebGPU; in Chromium start with --enable-unsafe-webgpu');
   }
@@ -118,10 +120,51 @@ async function main() {
   }
   adapter = adapter || p.adapter();
   status(`${sceneName} on ${adapter}`);
+  const info = { complianceMs, source, adapter: adapter || 'WebGPU', software };
   if (press) {
-    await scripted(p, { complianceMs, source, adapter: adapter || 'WebGPU', software });
+    await scripted(p, info);
+  } else if (run) {
+    await scriptedRun(p, Number(run), info);
   }
   live(p);
+}
+
+// The first object's vertex buffer read back from the GPU (m, x y z per displayed row).
+async function readBack(p) {
+  p.begin_readback();
+  let positions = null;
+  for (let i = 0; i < 600 && positions == null; i++) {
+    await new Promise((r) => setTimeout(r, 5));
+    positions = p.readback_positions();
+  }
+  if (positions == null) throw new Error('the vertex read-back never completed');
+  return positions;
+}
+
+// The scripted run: the scene's scripts (and blades: the cutter runs between passes) for
+// `seconds` of haptic time, then a few frames and the vertex read-back.
+async function scriptedRun(p, seconds, info) {
+  const t0 = performance.now();
+  const out = JSON.parse(p.run_scripts(seconds));
+  const runMs = performance.now() - t0;
+  for (let i = 0; i < 3; i++) {
+    p.frame();
+    await new Promise((r) => requestAnimationFrame(r));
+  }
+  const positions = await readBack(p);
+  window.touchfemResult = {
+    scene: sceneName,
+    run: seconds,
+    ...out,
+    run_ms: runMs,
+    adapter: info.adapter,
+    compliance_ms: info.complianceMs,
+    compliance_source: info.source,
+    positions: Array.from(positions),
+    rows: Array.from(p.rows()),
+    units: { forces: 'N', positions: 'm', time: 's' },
+  };
+  document.title = 'touchfem:done';
 }
 
 // The scripted press: force, one frame, the vertex read-back and the timings.
@@ -149,13 +192,7 @@ async function scripted(p, info) {
     intervals.push(now - last);
     last = now;
   }
-  p.begin_readback();
-  let positions = null;
-  for (let i = 0; i < 600 && positions == null; i++) {
-    await new Promise((r) => setTimeout(r, 5));
-    positions = p.readback_positions();
-  }
-  if (positions == null) throw new Error('the vertex read-back never completed');
+  const positions = await readBack(p);
   window.touchfemResult = {
     scene: sceneName,
     press,
@@ -212,9 +249,17 @@ function live(p) {
   };
   canvas.addEventListener('pointerup', up);
   canvas.addEventListener('pointercancel', up);
+  const idle = $('status').textContent;
   window.addEventListener('keydown', (e) => {
-    if (e.key === 'b' || e.key === 'B') {
-      status('the blade (B) is not in the web page yet: cut with `touchfem view` (docs/guide/web.md)');
+    if (e.key !== 'b' && e.key !== 'B') return;
+    if (mode === 'press') mode = null;
+    try {
+      const on = p.toggle_blade();
+      const [, , , depth] = p.cut_readout();
+      status(on ? `blade on (${(depth * 1e3).toFixed(1)} mm deep): left drag cuts · B presses again`
+                : idle);
+    } catch (err) {
+      status(`warning: ${err.message || err}`);
     }
   });
   canvas.addEventListener('wheel', (e) => {
@@ -228,6 +273,7 @@ function live(p) {
   let carry = 0;
   const frameTimes = [];
   const stepTimes = [];
+  let cutMs = 0;
   let shownAt = 0;
   const rate = 1000; // ticks per second: every bundled scene runs its haptic loop at 1 kHz
   const loop = (now) => {
@@ -243,6 +289,10 @@ function live(p) {
       stepTimes.push((performance.now() - a) * 1000 / n);
     }
     try {
+      // The cutter's pass over this frame's blade strokes (the engine's cutter, between
+      // frames: the page has one thread), then the frame that draws what it cut.
+      const c = performance.now();
+      if (p.cut() > 0) cutMs = performance.now() - c;
       p.frame();
     } catch (e) {
       fail(e);
@@ -257,6 +307,8 @@ function live(p) {
       $('n-depth').textContent = (p.depth() * 1e3).toFixed(2);
       $('n-frame').textContent = median(frameTimes.splice(0)).toFixed(1);
       $('n-step').textContent = median(stepTimes.splice(0)).toFixed(1);
+      const [bodies, tets] = p.cut_readout();
+      $('n-cut').textContent = bodies > 0 ? `${tets} tets (pass ${cutMs.toFixed(0)} ms)` : '–';
       drawTrace(ctx, trace, now);
     }
     requestAnimationFrame(loop);

@@ -240,6 +240,93 @@ fn the_page_computes_the_compliance_itself_when_asked_and_equals_the_cache() {
     assert!((a - b).length() <= 1e-12 * a.length(), "{a:?} vs {b:?}");
 }
 
+/// The incision in the page: the scene's own scripts for 5.5 s (the blade drawn 20 mm through
+/// the cuttable ball, then the fingertip pressing beside the open cut), the page's cutter
+/// between passes. The browser cuts the same tets as the same run natively
+/// ([`touchfem_web::page::PageWorld::run_scripts`], f64 on both sides, the compliance computed
+/// on each), its fingertip's force agrees to 1e-9, and the vertices its GPU wrote (the folded
+/// `L` and the correction's pass on WebGPU) match the cut compliance's f64 displacement.
+#[test]
+fn the_page_cuts_the_incision_as_the_engine_does_natively() {
+    let Some(dir) = web_dir() else { return };
+    let t = served(&dir, &[]);
+    let seconds = 5.5;
+    let run = drive(
+        t.path(),
+        &format!("index.html?scene=incision&compliance=compute&run={seconds}"),
+        &[],
+    );
+    let j = &run.json;
+    assert_eq!(run.code, 0, "{j}");
+    let errors = j["errors"].as_array().unwrap();
+    assert!(errors.is_empty(), "the page logged errors: {errors:?}");
+    let r = &j["result"];
+    let mut native = touchfem_web::page::PageWorld::load("incision", None).unwrap();
+    native.run_scripts(seconds).unwrap();
+    let tets = r["tets_removed"].as_u64().unwrap() as usize;
+    let bodies = r["cut_bodies"].as_u64().unwrap();
+    eprintln!(
+        "incision page: {tets} tets removed in {bodies} cut bodies (native {} in {}), run {:.0} ms, \
+         compliance and cutter {:.0} ms",
+        native.tets_removed,
+        native.cut_bodies,
+        r["run_ms"].as_f64().unwrap(),
+        r["compliance_ms"].as_f64().unwrap()
+    );
+    assert!(tets > 100, "the blade cut {tets} tets");
+    assert_eq!(tets, native.tets_removed);
+    assert_eq!(bodies, native.cut_bodies);
+    let forces = r["forces"].as_array().unwrap();
+    let tip = vec3(&forces[0]);
+    let want = native.finger_forces()[0];
+    assert!(
+        want.z > 0.01,
+        "the fingertip presses beside the cut: {want:?}"
+    );
+    let rel = (tip - want).length() / want.length();
+    eprintln!("incision fingertip: page {tip:?} N, native {want:?} N ({rel:e})");
+    assert!(rel <= 1e-9, "{tip:?} vs {want:?} ({rel:e})");
+    // The GPU's vertices against rest + the cut compliance's f64 displacement.
+    let body = native.cut_body(0).expect("the native run cut");
+    let o = &native.world.objects[0];
+    let rows = body.compliance.rows();
+    let bc: Vec<(u32, DVec3)> = native.sample().bcs[0]
+        .entries()
+        .iter()
+        .map(|&(c, f)| (c, f.as_vec3().as_dvec3()))
+        .collect();
+    let mut u = vec![DVec3::ZERO; rows.len()];
+    body.compliance.displace(&bc, &mut u);
+    let pos: Vec<f64> = r["positions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    assert_eq!(pos.len(), 3 * rows.len());
+    let umax = u.iter().fold(0.0f64, |m, v| m.max(v.abs().max_element()));
+    let xmax = o
+        .body
+        .mesh
+        .nodes
+        .iter()
+        .fold(0.0f64, |m, v| m.max(v.abs().max_element()));
+    let tol = 1e-5 * umax + 4.0 * f64::from(f32::EPSILON) * xmax;
+    let worst = rows
+        .iter()
+        .zip(&u)
+        .enumerate()
+        .map(|(i, (&node, u))| {
+            let want = o.body.mesh.nodes[node as usize] + *u;
+            let got = DVec3::new(pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]);
+            (got - want).abs().max_element()
+        })
+        .fold(0.0f64, f64::max);
+    eprintln!("incision: browser GPU vs f64: max error {worst:e} m (tol {tol:e}, max|u| {umax:e})");
+    assert!(umax > 1e-4, "the press deforms ({umax:e} m)");
+    assert!(worst <= tol, "{worst:e} > {tol:e}");
+}
+
 #[test]
 fn without_webgpu_the_page_says_so() {
     let Some(dir) = web_dir() else { return };

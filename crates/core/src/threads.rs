@@ -5,7 +5,7 @@
 //! thread to the driver's queue thread and back. When the two run on different cores each
 //! hand-off is a cross-core wake-up, which on a virtual machine costs tens of microseconds and
 //! varies wildly; on one core it is a plain context switch. Measured on the development VM
-//! (`cargo bench --bench deform`): an empty submit-and-wait took 30–80 µs unpinned and a
+//! (`cargo bench -p touchfem-benches --bench deform`): an empty submit-and-wait took 30–80 µs unpinned and a
 //! steady 17 µs with both threads on one core. Threads inherit the affinity of the thread that
 //! creates them, so [`VisualPlacement`] pins the visual thread *before* the GPU context is
 //! created (the driver's threads start on that core too) and gives the haptic loop another.

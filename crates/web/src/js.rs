@@ -4,14 +4,16 @@
 //! animation frames, and measures time (there is no clock in the engine).
 
 use glam::DVec3;
+use std::sync::Arc;
 use wasm_bindgen::prelude::*;
 
 use crate::page::{PageWorld, PressOutcome, PressSpec};
+use touchfem_core::haptic::cutter::CutBody;
 use touchfem_gpu::render::{
     frame_objects, frame_texture, legend_image, pick, Anchor, Coloring, Edges, Frame, LegendSpec,
-    Orbit, Overlay, RenderOptions, Renderer, SampleMarks, ViewScales, OUTSIDE_M,
+    Orbit, Overlay, PointerPress, RenderOptions, Renderer, SampleMarks, ViewScales,
 };
-use touchfem_gpu::{Deformer, DeformerOptions, VERTEX_STRIDE};
+use touchfem_gpu::{install_cut, Deformer, DeformerOptions, VERTEX_STRIDE};
 
 fn js_err(e: impl std::fmt::Display) -> JsError {
     JsError::new(&e.to_string())
@@ -27,19 +29,15 @@ struct Gfx {
     legend: Overlay,
     deformers: Vec<Deformer>,
     edges: Vec<Edges>,
+    /// Each object's cut body on its deformer (`None`: uncut).
+    bodies: Vec<Option<Arc<CutBody>>>,
+    /// What a deformer is rebuilt with when a cut brings a new `L`.
+    options: DeformerOptions,
     adapter: String,
     /// The frame drawn in the canvas's format's sRGB twin, then copied onto the canvas.
     offscreen: wgpu::Texture,
     /// A read-back in flight: the staging buffer and the slot its callback fills.
     readback: Option<(wgpu::Buffer, std::rc::Rc<std::cell::Cell<Option<bool>>>)>,
-}
-
-/// A pointer press: where it touched, the surface normal there, the pixel it started at.
-#[derive(Clone, Copy)]
-struct Press {
-    pixel: [f64; 2],
-    point: DVec3,
-    normal: DVec3,
 }
 
 /// touchfem in the page: a scene, its haptic state and, once attached, its canvas.
@@ -50,7 +48,7 @@ pub struct Page {
     size: [u32; 2],
     orbit: Orbit,
     scales: ViewScales,
-    press: Option<Press>,
+    press: Option<PointerPress>,
     /// A scripted press's contact forces, drawn instead of the live sample's.
     scripted: Option<PressOutcome>,
 }
@@ -207,6 +205,7 @@ impl Page {
             );
         }
         let edges = deformers.iter().map(|d| Edges::new(&device, d)).collect();
+        let bodies = vec![None; deformers.len()];
         let (lo, hi) = self.world.world.bounds();
         self.size = size;
         self.orbit = Orbit::framing(lo, hi, f64::from(size[0]) / f64::from(size[1]));
@@ -219,6 +218,8 @@ impl Page {
             legend,
             deformers,
             edges,
+            bodies,
+            options: dopts,
             adapter: adapter_name,
             readback: None,
             offscreen,
@@ -258,6 +259,28 @@ impl Page {
         });
         self.scripted = Some(out);
         Ok(json.to_string())
+    }
+
+    /// The scripted run (`run=SECONDS`): the scene's scripts for `seconds` of haptic time, a
+    /// cut pass every 16 ticks ([`PageWorld::run_scripts`]). Returns a JSON object with each
+    /// finger's `forces` (N), `tets_removed`, `cut_bodies` and the haptic `time` (s); the next
+    /// frames draw the result.
+    pub fn run_scripts(&mut self, seconds: f64) -> Result<String, JsError> {
+        self.scripted = None;
+        self.world.run_scripts(seconds).map_err(js_err)?;
+        let forces: Vec<[f64; 3]> = self
+            .world
+            .finger_forces()
+            .iter()
+            .map(|f| f.to_array())
+            .collect();
+        Ok(serde_json::json!({
+            "forces": forces,
+            "tets_removed": self.world.tets_removed,
+            "cut_bodies": self.world.cut_bodies,
+            "time": self.world.time(),
+        })
+        .to_string())
     }
 
     /// Steps `n` haptic ticks (the page passes the time elapsed, in ticks; capped).
@@ -308,23 +331,52 @@ impl Page {
             return false;
         };
         self.scripted = None;
-        self.press = Some(Press {
+        let press = PointerPress {
             pixel: [x, y],
             point: h.point,
             normal: h.normal,
-        });
-        self.world.set_pointer(h.point + h.normal * OUTSIDE_M);
+        };
+        self.world
+            .set_pointer(press.start(self.world.blade_on(), &self.scales));
+        self.press = Some(press);
         true
     }
 
     /// The pointer dragged to (x, y) while pressing: the finger goes into the surface by the
-    /// distance dragged (as `touchfem view`).
+    /// distance dragged, or the blade slides along it (as `touchfem view`).
     pub fn pointer_drag(&mut self, x: f64, y: f64) {
-        if let Some(p) = self.press {
-            let px = ((x - p.pixel[0]).powi(2) + (y - p.pixel[1]).powi(2)).sqrt();
-            self.world
-                .set_pointer(p.point - p.normal * (px * self.scales.depth_per_px));
+        let Some(p) = self.press else {
+            return;
+        };
+        let camera = self.orbit.camera();
+        let blade = self.world.blade_on();
+        if let Some(at) = p.drag(&camera, self.size, [x, y], blade, &self.scales) {
+            self.world.set_pointer(at);
         }
+    }
+
+    /// `B`: the pointer becomes a blade, or a finger again (the press ends). Returns whether
+    /// blade mode is now on; on a scene that cannot be cut, the error says why.
+    pub fn toggle_blade(&mut self) -> Result<bool, JsError> {
+        self.press = None;
+        self.world.toggle_blade().map_err(js_err)
+    }
+
+    /// The cutting so far: `[cut bodies made, tets removed, blade mode (0/1), blade depth m]`.
+    pub fn cut_readout(&self) -> Vec<f64> {
+        vec![
+            self.world.cut_bodies as f64,
+            self.world.tets_removed as f64,
+            f64::from(u8::from(self.world.blade_on())),
+            self.world.blade_depth_m().unwrap_or(0.0),
+        ]
+    }
+
+    /// One cut pass over the strokes since the last one (the cutter runs here, between
+    /// frames; the haptic world reads each new body from the next tick). [`Page::frame`]
+    /// draws the bodies it made. Returns how many it made.
+    pub fn cut(&mut self) -> Result<usize, JsError> {
+        self.world.cut().map_err(js_err)
     }
 
     /// Puts the pointer's finger at (x, y, z), scene frame, metres (NaN lifts it): for scripts
@@ -361,12 +413,37 @@ impl Page {
         self.orbit.zoom(steps);
     }
 
-    /// Draws a frame: each object's deformation pass for the latest forces (the scripted
-    /// press's, or the haptic sample's), then the scene as `touchfem view` draws it.
+    /// Draws a frame: the cut bodies made since the last frame installed, each object's
+    /// deformation pass for the latest forces (the scripted press's, or the haptic sample's),
+    /// then the scene as `touchfem view` draws it.
     pub fn frame(&mut self) -> Result<(), JsError> {
         let Some(g) = self.gfx.as_mut() else {
             return Err(JsError::new("no canvas attached"));
         };
+        // The cut bodies the cutter made: on the GPU (a new `L` after a fold, the correction,
+        // the opened surface and its wireframe).
+        for (o, body) in self.world.take_cut_bodies() {
+            let (Some(d), Some(obj)) = (g.deformers.get_mut(o), self.world.world.objects.get(o))
+            else {
+                continue;
+            };
+            let uploaded = g.bodies[o]
+                .as_ref()
+                .map_or(&obj.body.compliance, |b| &b.compliance);
+            install_cut(
+                &g.device,
+                &g.queue,
+                d,
+                uploaded,
+                &body.compliance,
+                &body.triangles,
+                &obj.body.mesh,
+                &g.options,
+            )
+            .map_err(|e| JsError::new(&format!("cannot draw the cut of '{}': {e}", obj.name)))?;
+            g.edges[o] = Edges::new(&g.device, d);
+            g.bodies[o] = Some(body);
+        }
         let sample = *self.world.sample();
         let mut marks =
             SampleMarks::of(&sample, self.scales.arrow_m_per_n).with_tools(self.world.world);

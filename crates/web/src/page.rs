@@ -3,11 +3,14 @@
 //! call it directly.
 
 use glam::DVec3;
+use std::sync::Arc;
 use touchfem_core::compliance::Compliance;
 use touchfem_core::contact::force::ForceModel;
 use touchfem_core::devices::KeyframePath;
+use touchfem_core::haptic::cutter::{CutBody, Cutter, Stroke};
 use touchfem_core::haptic::{HapticWorld, WorldSample};
 use touchfem_core::limits::MAX_FINGERS;
+use touchfem_core::scene::pointer::{blade_twin, pointer_fingers, BladeTwin};
 use touchfem_core::scene::{DeviceSpec, SceneSource, World};
 use touchfem_core::Error;
 
@@ -22,6 +25,14 @@ pub const POKE_STEPS: usize = 50;
 /// Ticks the page steps at most per animation frame (a tab in the background, or a slow
 /// frame, does not pile up seconds of haptic time to catch up).
 pub const MAX_TICKS_PER_FRAME: usize = 100;
+
+/// Haptic ticks between two cut passes of a scripted run ([`PageWorld::run_scripts`]): a
+/// display frame at 60 Hz, as the live page cuts once a frame.
+pub const RUN_TICKS_PER_PASS: usize = 16;
+
+/// Blade strokes kept between two cut passes ([`PageWorld::cut`]); more are dropped and
+/// counted (the page cuts once a frame, so a frame's strokes always fit).
+pub const MAX_PENDING_STROKES: usize = 4 * MAX_TICKS_PER_FRAME * MAX_FINGERS;
 
 /// Where a page's compliance came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -42,9 +53,8 @@ impl ComplianceSource {
     }
 }
 
-/// The scene source of `spec` (a bundled scene or mesh name) with the page's pointer: a scene
-/// without a pointer finger gets one (`[[finger]] device = "pointer"` appended) when it has
-/// room for it, as `touchfem view` does; a mesh's one finger is the pointer.
+/// The scene source of `spec`: a bundled scene, or a bundled mesh as a one-object scene whose
+/// one finger is the pointer. [`PageWorld::load`] adds the pointer and its blade twin.
 pub fn scene_source(spec: &str) -> Result<SceneSource, Error> {
     if !PAGE_SCENES.contains(&spec) {
         return Err(Error::Input(format!(
@@ -52,14 +62,7 @@ pub fn scene_source(spec: &str) -> Result<SceneSource, Error> {
             PAGE_SCENES.join(", ")
         )));
     }
-    let Some(mut src) = SceneSource::find(spec)? else {
-        return Ok(SceneSource::for_mesh(spec, "pointer"));
-    };
-    let fingers = World::fingers_of(&src)?;
-    if !fingers.iter().any(|f| f.device == DeviceSpec::Pointer) && fingers.len() < MAX_FINGERS {
-        src.text.push_str("\n[[finger]]\ndevice = \"pointer\"\n");
-    }
-    Ok(src)
+    Ok(SceneSource::find(spec)?.unwrap_or_else(|| SceneSource::for_mesh(spec, "pointer")))
 }
 
 /// A scripted press, as `touchfem poke MESH --at X,Y,Z --push DX,DY,DZ [--sphere R] [--exact]`
@@ -132,6 +135,23 @@ pub struct PageWorld {
     t: f64,
     /// Where the compliance came from.
     pub source: ComplianceSource,
+    /// The pointer's blade twin, when an object can be cut.
+    twin: Option<BladeTwin>,
+    /// Whether the pointer drives its blade twin (`B`).
+    blade: bool,
+    /// The cutter (one thread: [`PageWorld::cut`] runs it between frames), when the scene has
+    /// a blade and a cuttable object.
+    cutter: Option<Cutter>,
+    /// Strokes since the last cut pass.
+    strokes: Vec<Stroke>,
+    /// Strokes that did not fit before a cut pass.
+    pub strokes_dropped: u64,
+    /// Cut bodies made since the renderer last took them.
+    new_bodies: Vec<(usize, Arc<CutBody>)>,
+    /// Tets removed so far, every object.
+    pub tets_removed: usize,
+    /// Cut bodies made so far.
+    pub cut_bodies: u64,
 }
 
 impl PageWorld {
@@ -159,18 +179,32 @@ impl PageWorld {
                     None => Compliance::compute(&plan.mesh, &plan.selection)?,
                 })
             };
-        let world = World::from_source_by(&src, &mut compute)?;
+        let mut src = src;
+        let mut world = World::from_source_by(&src, &mut compute)?;
+        // The pointer, and its blade twin where an object is cuttable, as `touchfem view` adds
+        // them; the compliances do not depend on the fingers and are taken over.
+        let extra = pointer_fingers(&world, None);
+        if !extra.is_empty() {
+            src.text.push_str(&extra);
+            let mut done = world.objects.iter().map(|o| o.body.compliance.clone());
+            world = World::from_source_by(&src, &mut |plan| {
+                done.next().ok_or_else(|| {
+                    Error::Input(format!("object '{}' appeared on reload", plan.name))
+                })
+            })?;
+        }
         if cache.is_some() && world.objects.len() != 1 {
             return Err(Error::Input(format!(
                 "a cache file holds one object's compliance; '{spec}' has {}",
                 world.objects.len()
             )));
         }
-        Ok(PageWorld::new(Box::leak(Box::new(world)), source))
+        PageWorld::new(Box::leak(Box::new(world)), source)
     }
 
-    /// The page's state around an already loaded world.
-    pub fn new(world: &'static World, source: ComplianceSource) -> PageWorld {
+    /// The page's state around an already loaded world; a world with a blade finger and a
+    /// cuttable object gets its cutter (the stiffness factorised here).
+    pub fn new(world: &'static World, source: ComplianceSource) -> Result<PageWorld, Error> {
         let scripts = world
             .fingers
             .iter()
@@ -183,7 +217,13 @@ impl PageWorld {
             .fingers
             .iter()
             .position(|f| f.device == DeviceSpec::Pointer);
-        PageWorld {
+        let blades = world.fingers.iter().any(|f| f.tool.blade_depth().is_some());
+        let cutter = if blades && world.objects.iter().any(|o| o.cuttable.is_some()) {
+            Some(Cutter::new(world)?)
+        } else {
+            None
+        };
+        Ok(PageWorld {
             world,
             hw: HapticWorld::new(world),
             sample: WorldSample::default(),
@@ -194,7 +234,104 @@ impl PageWorld {
             pointer_at: DVec3::NAN,
             t: 0.0,
             source,
+            twin: blade_twin(world).ok(),
+            blade: false,
+            cutter,
+            strokes: Vec::with_capacity(MAX_PENDING_STROKES),
+            strokes_dropped: 0,
+            new_bodies: Vec::new(),
+            tets_removed: 0,
+            cut_bodies: 0,
+        })
+    }
+
+    /// `B`: the pointer becomes its blade twin, or the scene's pointer finger again (both
+    /// lifted). Returns whether blade mode is now on, or why the pointer cannot cut here.
+    pub fn toggle_blade(&mut self) -> Result<bool, Error> {
+        match blade_twin(self.world) {
+            Ok(_) if self.cutter.is_some() => {
+                self.pointer_at = DVec3::NAN;
+                self.blade = !self.blade;
+                Ok(self.blade)
+            }
+            Ok(_) => Err(Error::Input("blade: no cutter for this scene".into())),
+            Err(why) => Err(Error::Input(why)),
         }
+    }
+
+    /// Whether the pointer drives its blade twin.
+    pub fn blade_on(&self) -> bool {
+        self.blade
+    }
+
+    /// The blade twin's depth while blade mode is on, m.
+    pub fn blade_depth_m(&self) -> Option<f64> {
+        self.twin.filter(|_| self.blade).map(|t| t.depth_m)
+    }
+
+    /// One cut pass (the page's cutter, between frames, as the cutter's thread runs it
+    /// natively): the strokes since the last pass cut the cuttable objects, each new cut body
+    /// is installed in the haptic world (from the next tick its force solve reads it) and
+    /// kept for the renderer ([`PageWorld::take_cut_bodies`]); a correction due is folded into
+    /// a new `L`. Returns how many bodies it made.
+    pub fn cut(&mut self) -> Result<usize, Error> {
+        let Some(cutter) = self.cutter.as_mut() else {
+            self.strokes.clear();
+            return Ok(0);
+        };
+        if self.strokes.is_empty() {
+            return Ok(0);
+        }
+        let bodies = cutter.apply_all(&self.strokes)?;
+        self.strokes.clear();
+        let n = bodies.len();
+        for (o, body) in bodies {
+            self.cut_bodies += 1;
+            self.hw.install_cut(o, body.clone());
+            self.new_bodies.retain(|(k, _)| *k != o);
+            self.new_bodies.push((o, body));
+        }
+        self.tets_removed = (0..self.world.objects.len())
+            .filter_map(|o| self.hw.cut_body(o).map(|b| b.tets_removed))
+            .sum();
+        cutter.fold_due()?;
+        Ok(n)
+    }
+
+    /// A scripted run, the same on every machine: `seconds` of haptic time of the scene's own
+    /// scripts (the pointer lifted), a cut pass every [`RUN_TICKS_PER_PASS`] ticks. The page's
+    /// `run=SECONDS` and the native tests call it alike, so that cuts and forces compare.
+    pub fn run_scripts(&mut self, seconds: f64) -> Result<(), Error> {
+        if !(seconds.is_finite() && seconds >= 0.0) {
+            return Err(Error::Input(format!(
+                "run: {seconds} s is not a finite, non-negative duration"
+            )));
+        }
+        self.pointer_at = DVec3::NAN;
+        let mut left = (seconds * self.world.haptics.rate_hz).round() as usize;
+        while left > 0 {
+            let n = left.min(RUN_TICKS_PER_PASS);
+            self.tick(n);
+            self.cut()?;
+            left -= n;
+        }
+        Ok(())
+    }
+
+    /// Object `o`'s cut body in the haptic world, if it was cut.
+    pub fn cut_body(&self, o: usize) -> Option<&Arc<CutBody>> {
+        self.hw.cut_body(o)
+    }
+
+    /// The force last sent to each finger, N.
+    pub fn finger_forces(&self) -> &[DVec3] {
+        &self.forces[..self.world.fingers.len().min(MAX_FINGERS)]
+    }
+
+    /// The cut bodies made since the last call, each object's newest: for the renderer
+    /// ([`touchfem_gpu::install_cut`]).
+    pub fn take_cut_bodies(&mut self) -> Vec<(usize, Arc<CutBody>)> {
+        std::mem::take(&mut self.new_bodies)
     }
 
     /// The scripted press on the first object, as `touchfem poke` does it: the same engine
@@ -248,21 +385,27 @@ impl PageWorld {
     }
 
     /// Steps `n` haptic ticks (at most [`MAX_TICKS_PER_FRAME`]) of the scene's period: the
-    /// scripts at their time (looping), the pointer where it was put. Allocates nothing.
+    /// scripts at their time (looping), the pointer (or its blade twin) where it was put; the
+    /// blades' strokes are kept for the next [`PageWorld::cut`]. Allocates nothing.
     pub fn tick(&mut self, n: usize) {
         let period = 1.0 / self.world.haptics.rate_hz;
         let n_f = self.world.fingers.len().min(MAX_FINGERS);
+        // The finger the pointer drives: the pointer's, or its blade twin in blade mode.
+        let driven = match self.twin {
+            Some(t) if self.blade => Some(t.finger),
+            _ => self.pointer,
+        };
         for _ in 0..n.min(MAX_TICKS_PER_FRAME) {
             self.t += period;
             for i in 0..n_f {
-                self.positions[i] = match (&mut self.scripts[i], self.pointer == Some(i)) {
-                    (_, true) => self.pointer_at,
-                    (Some(path), _) => {
+                self.positions[i] = match &mut self.scripts[i] {
+                    _ if driven == Some(i) => self.pointer_at,
+                    Some(path) => {
                         let d = path.duration();
                         let t = if d > 0.0 { self.t % d } else { 0.0 };
                         path.at(t)
                     }
-                    (None, false) => DVec3::NAN,
+                    None => DVec3::NAN,
                 };
             }
             self.hw.step_dt(
@@ -271,6 +414,13 @@ impl PageWorld {
                 &mut self.forces[..n_f],
                 &mut self.sample,
             );
+            for s in self.hw.strokes() {
+                if self.strokes.len() < MAX_PENDING_STROKES {
+                    self.strokes.push(*s);
+                } else {
+                    self.strokes_dropped += 1;
+                }
+            }
         }
     }
 
@@ -321,14 +471,83 @@ mod tests {
     }
 
     #[test]
-    fn unknown_scenes_are_refused_and_scenes_get_a_pointer() {
+    fn unknown_scenes_are_refused_and_palpate_gets_a_pointer_without_a_twin() {
         assert!(scene_source("nope").is_err());
-        // palpate has scripted fingers only: the page adds its pointer.
-        let src = scene_source("palpate").unwrap();
-        let f = World::fingers_of(&src).unwrap();
-        assert_eq!(
-            f.iter().filter(|f| f.device == DeviceSpec::Pointer).count(),
-            1
+        assert!(PageWorld::load("nope", None).is_err());
+        // palpate has scripted fingers only and nothing cuttable: the page adds its pointer,
+        // and `B` says why it cannot cut.
+        let mut p = PageWorld::load("palpate", None).unwrap();
+        let fingers = &p.world.fingers;
+        let pointers = fingers.iter().filter(|f| f.device == DeviceSpec::Pointer);
+        assert_eq!(pointers.count(), 1);
+        assert!(fingers.iter().all(|f| f.tool.blade_depth().is_none()));
+        let why = p.toggle_blade().unwrap_err().to_string();
+        assert!(why.contains("cuttable"), "{why}");
+        assert!(!p.blade_on());
+    }
+
+    /// `B` on the incision page: the pointer gets the scene blade's depth (8 mm) for its twin;
+    /// with blade mode on, a slide across the cuttable ball removes tets (the same ones the
+    /// engine's `blade_tets` finds along the slide, within the region) at zero force, and the
+    /// pointer's press beside the cut is then softer than the same press before it.
+    #[test]
+    fn the_incision_pages_blade_cuts_and_softens_the_tissue_beside_it() {
+        let mut p = PageWorld::load("incision", None).unwrap();
+        let w = p.world;
+        let twin = blade_twin(w).unwrap();
+        assert_eq!(twin.depth_m, 8e-3);
+        assert_eq!(w.fingers[twin.pointer].device, DeviceSpec::Pointer);
+        // The incision's own scripts stay lifted here: pin the time before their blade enters.
+        let press = |p: &mut PageWorld| {
+            p.set_pointer(DVec3::new(-15.0, 5.5, 21.0) * 1e-3);
+            p.tick(5);
+            p.set_pointer(DVec3::new(-15.0, 5.5, 18.5) * 1e-3);
+            for _ in 0..3 {
+                p.tick(100);
+            }
+            let f = p.pointer_force();
+            p.set_pointer(DVec3::NAN);
+            p.tick(5);
+            p.t = 0.0;
+            f
+        };
+        let before = press(&mut p);
+        assert!(before.z > 5e-3, "{before:?}");
+        assert!(p.toggle_blade().unwrap());
+        assert_eq!(p.blade_depth_m(), Some(8e-3));
+        // The blade's top 0.5 mm under the top face (z = 20 mm), slid 20 mm along y = 0.
+        let (a, b) = (DVec3::new(-25.0, 0.0, 19.5), DVec3::new(-5.0, 0.0, 19.5));
+        for k in 0..=40 {
+            p.set_pointer(a.lerp(b, k as f64 / 40.0) * 1e-3);
+            p.tick(2);
+            assert_eq!(p.pointer_force(), DVec3::ZERO, "a blade presses nothing");
+            p.t = 0.0;
+            if k % 10 == 0 {
+                p.cut().unwrap();
+            }
+        }
+        p.cut().unwrap();
+        let bodies = p.take_cut_bodies();
+        assert_eq!(bodies.len(), 1);
+        let o = &w.objects[0];
+        let region = o.cuttable.as_ref().unwrap();
+        let want: Vec<usize> =
+            touchfem_core::cut::blade_tets(&o.body.mesh, a * 1e-3, b * 1e-3, DVec3::NEG_Z, 8e-3)
+                .into_iter()
+                .filter(|&t| region.contains(t))
+                .collect();
+        assert!(want.len() > 10, "{}", want.len());
+        assert_eq!(p.tets_removed, want.len());
+        assert_eq!(bodies[0].1.tets_removed, want.len());
+        p.pointer_at = DVec3::NAN;
+        assert!(!p.toggle_blade().unwrap());
+        let after = press(&mut p);
+        assert!(after.is_finite());
+        assert!(
+            after.z < 0.97 * before.z,
+            "beside the cut the press should be softer: {:.4} N before, {:.4} N after",
+            before.z,
+            after.z
         );
     }
 

@@ -23,7 +23,7 @@ use touchfem_gpu::render::{
 };
 use touchfem_gpu::{AdapterSelection, Deformer, DeformerOptions};
 
-use touchfem_gpu::render::{median, ViewScales, OUTSIDE_M};
+use touchfem_gpu::render::{median, PointerPress, ViewScales};
 
 /// How long a notice (`B` on a scene that cannot cut) stays on the status line.
 const NOTICE_FOR: Duration = Duration::from_secs(3);
@@ -48,14 +48,6 @@ struct Gfx {
     cuts: CutFollower,
     /// The first error the device reported (validation, out of memory, lost).
     device_error: Arc<Mutex<Option<String>>>,
-}
-
-/// A left press that hit an object.
-#[derive(Clone, Copy, Debug)]
-struct Press {
-    pixel: [f64; 2],
-    point: DVec3,
-    normal: DVec3,
 }
 
 /// Per-second and whole-run frame statistics.
@@ -86,7 +78,7 @@ pub(super) struct App<'a> {
     orbit: Orbit,
     size: [u32; 2],
     cursor: [f64; 2],
-    press: Option<Press>,
+    press: Option<PointerPress>,
     orbiting: bool,
     wireframe: bool,
     /// Colour by displacement (`C` toggles).
@@ -95,9 +87,8 @@ pub(super) struct App<'a> {
     color_scale: (f64, f64),
     /// The force arrow's scale, m per N, fixed for the session.
     arrow_m_per_n: f64,
-    depth_per_px: f64,
-    /// How far under the surface a blade's top goes, m.
-    blade_sink: f64,
+    /// The view's scales (press depth per pixel, the blade's sink).
+    scales: ViewScales,
     /// A message for the status line, and when it was given.
     notice: Option<(String, Instant)>,
     scale: f64,
@@ -219,8 +210,7 @@ impl<'a> App<'a> {
             colors: opts.colors,
             color_scale: scales.color_scale,
             arrow_m_per_n: scales.arrow_m_per_n,
-            depth_per_px: scales.depth_per_px,
-            blade_sink: scales.blade_sink_m,
+            scales,
             notice: None,
             scale: diag,
             stats: Stats::default(),
@@ -665,16 +655,13 @@ impl<'a> App<'a> {
             .collect();
         let hit = pick(&self.orbit.camera(), self.size, self.cursor, &surfaces);
         if let Some(h) = hit {
-            self.press = Some(Press {
+            let press = PointerPress {
                 pixel: self.cursor,
                 point: h.point,
                 normal: h.normal,
-            });
-            if pointer.blade_on() {
-                pointer.set_position(h.point - h.normal * self.blade_sink);
-            } else {
-                pointer.set_position(h.point + h.normal * OUTSIDE_M);
-            }
+            };
+            pointer.set_position(press.start(pointer.blade_on(), &self.scales));
+            self.press = Some(press);
         }
     }
 
@@ -682,22 +669,15 @@ impl<'a> App<'a> {
         let (Some(p), Some(pointer)) = (self.press, &self.pointer) else {
             return;
         };
-        if pointer.blade_on() {
-            // The blade slides under the pointer in the plane tangent at the press.
-            let (eye, dir) = self.orbit.camera().ray(self.cursor, self.size);
-            let along = dir.dot(p.normal);
-            if along.abs() > 1e-9 {
-                let t = (p.point - eye).dot(p.normal) / along;
-                if t.is_finite() && t > 0.0 {
-                    pointer.set_position(eye + dir * t - p.normal * self.blade_sink);
-                }
-            }
-            return;
-        }
-        let px =
-            ((self.cursor[0] - p.pixel[0]).powi(2) + (self.cursor[1] - p.pixel[1]).powi(2)).sqrt();
-        if px > 0.0 {
-            pointer.set_position(p.point - p.normal * (px * self.depth_per_px));
+        let camera = self.orbit.camera();
+        if let Some(x) = p.drag(
+            &camera,
+            self.size,
+            self.cursor,
+            pointer.blade_on(),
+            &self.scales,
+        ) {
+            pointer.set_position(x);
         }
     }
 

@@ -6,7 +6,6 @@ use std::sync::atomic::Ordering;
 use super::blade::PointerRoute;
 use super::WindowOptions;
 use crate::error::Error;
-use touchfem_core::contact::force::MAX_FINGERS;
 use touchfem_core::devices::pointer::PointerDevice;
 use touchfem_core::devices::{HapticDevice, KeyframePath};
 use touchfem_core::runtime::{
@@ -16,7 +15,7 @@ use touchfem_core::scene::file::{cache_dir, Hold};
 use touchfem_core::scene::{DeviceSpec, SceneSource, World};
 
 /// The devices of a scene's fingers in `view`: the first `pointer` finger is the window's
-/// pointer, the pointer's blade twin ([`super::blade::blade_twin`]) is the pointer in blade
+/// pointer, the pointer's blade twin ([`touchfem_core::scene::pointer::blade_twin`]) is the pointer in blade
 /// mode, scripted fingers follow their paths; other devices are refused.
 pub fn view_devices(
     world: &World,
@@ -55,7 +54,7 @@ pub fn view_devices(
 /// The window's pointer is always a finger: a scene without a `pointer` finger (one of
 /// scripted fingers only, such as `palpate`) gets one more, `[[finger]] device = "pointer"`
 /// appended to its text, so that a recorded session replays it; when the scene already has
-/// [`MAX_FINGERS`] fingers it is shown as it is. Compliances are cached in `cache` (`None`: no
+/// [`touchfem_core::limits::MAX_FINGERS`] fingers it is shown as it is. Compliances are cached in `cache` (`None`: no
 /// cache).
 pub fn load_with_pointer(spec: &str, cache: Option<&Path>) -> Result<World, Error> {
     load_with_pointer_as(spec, cache, None)
@@ -67,8 +66,8 @@ pub fn load_with_pointer(spec: &str, cache: Option<&Path>) -> Result<World, Erro
 ///
 /// A scene with a cuttable object whose pointer is not a blade also gets the pointer's blade
 /// twin (`B` in the window; [`super::blade`]): one more finger, `[[finger]] device = "pointer"`
-/// with `tool = { blade = DEPTH }` ([`super::blade::twin_depth_m`], in the scene's unit),
-/// appended to the text when there is room for it (at most [`MAX_FINGERS`] fingers).
+/// with `tool = { blade = DEPTH }` ([`touchfem_core::scene::pointer::pointer_fingers`]),
+/// appended to the text when there is room for it (at most [`touchfem_core::limits::MAX_FINGERS`] fingers).
 pub fn load_with_pointer_as(
     spec: &str,
     cache: Option<&Path>,
@@ -94,33 +93,7 @@ pub fn load_with_pointer_as(
             return Ok(World::from_source_holding(&src, cache, Hold::Live)?);
         }
     }
-    let pointer = world
-        .fingers
-        .iter()
-        .find(|f| matches!(f.device, DeviceSpec::Pointer));
-    let mut fingers = world.fingers.len();
-    let mut extra = String::new();
-    if pointer.is_none() {
-        if fingers >= MAX_FINGERS {
-            return Ok(world);
-        }
-        extra.push_str("\n[[finger]]\ndevice = \"pointer\"\n");
-        if let Some(r) = sphere {
-            extra.push_str(&format!("tool = {{ sphere = {r:?} }}\n"));
-        }
-        fingers += 1;
-    }
-    let pointer_is_blade = pointer.is_some_and(|f| f.tool.blade_depth().is_some());
-    let has_twin = pointer.is_some() && super::blade::blade_twin(&world).is_ok();
-    if let Some(depth_m) = super::blade::twin_depth_m(&world)
-        .filter(|_| !pointer_is_blade && !has_twin && fingers < MAX_FINGERS)
-    {
-        let depth = depth_m / world.unit.to_metres();
-        extra.push_str(&format!(
-            "\n[[finger]]  # the pointer's blade twin (`B` in `touchfem view`)\n\
-             device = \"pointer\"\ntool = {{ blade = {depth:?} }}\n"
-        ));
-    }
+    let extra = touchfem_core::scene::pointer::pointer_fingers(&world, sphere);
     if extra.is_empty() {
         return Ok(world);
     }

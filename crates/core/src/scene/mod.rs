@@ -14,6 +14,7 @@ use crate::mesh::{self, Mesh, MeshError};
 use crate::Error;
 
 pub mod file;
+pub mod pointer;
 mod schema;
 mod world;
 pub use file::{SceneSource, BUNDLED_SCENES};

@@ -25,6 +25,58 @@ const MIN_BLADE_SINK_M: f64 = 0.2e-3;
 /// A blade's top under the surface as a fraction of the scene's diagonal.
 const BLADE_SINK_OF_DIAGONAL: f64 = 0.005;
 
+/// A pointer press that hit an object, and where it puts the finger the pointer drives: a
+/// left drag presses along the normal by the distance dragged; a blade (`B`) hangs
+/// [`ViewScales::blade_sink_m`] under the surface and slides in the plane tangent at the press.
+/// The window and the web page both press this way.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PointerPress {
+    /// The pixel the press started at.
+    pub pixel: [f64; 2],
+    /// The surface point it touched, scene frame, m.
+    pub point: DVec3,
+    /// The outward surface normal there.
+    pub normal: DVec3,
+}
+
+impl PointerPress {
+    /// Where the finger goes when the press starts: [`OUTSIDE_M`] outside the touched point,
+    /// or a blade's sink under it.
+    pub fn start(&self, blade: bool, scales: &ViewScales) -> DVec3 {
+        if blade {
+            self.point - self.normal * scales.blade_sink_m
+        } else {
+            self.point + self.normal * OUTSIDE_M
+        }
+    }
+
+    /// Where the finger goes when the pointer is at `cursor` (pixels of a `size` view seen by
+    /// `camera`): a finger into the surface by the distance dragged, a blade under the point of
+    /// the tangent plane under the cursor. `None`: it stays (no drag yet, or a ray that misses
+    /// the tangent plane).
+    pub fn drag(
+        &self,
+        camera: &super::Camera,
+        size: [u32; 2],
+        cursor: [f64; 2],
+        blade: bool,
+        scales: &ViewScales,
+    ) -> Option<DVec3> {
+        if blade {
+            let (eye, dir) = camera.ray(cursor, size);
+            let along = dir.dot(self.normal);
+            if along.abs() <= 1e-9 {
+                return None;
+            }
+            let t = (self.point - eye).dot(self.normal) / along;
+            return (t.is_finite() && t > 0.0)
+                .then(|| eye + dir * t - self.normal * scales.blade_sink_m);
+        }
+        let px = ((cursor[0] - self.pixel[0]).powi(2) + (cursor[1] - self.pixel[1]).powi(2)).sqrt();
+        (px > 0.0).then(|| self.point - self.normal * (px * scales.depth_per_px))
+    }
+}
+
 /// The scales a live view of a scene uses, from its rest bounds and its stiffness.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ViewScales {
