@@ -53,7 +53,7 @@ fi
 cargo build --quiet -p touchfem-web --target "$target" --profile web-release
 mkdir -p "$out"
 wasm-bindgen --target web --no-typescript --out-dir "$out" "target/$target/web-release/touchfem_web.wasm"
-cp web/index.html web/main.js "$out/"
+cp web/index.html web/main.js web/worker.js "$out/"
 
 # The compliance caches, where a native program can make them.
 bin=""

@@ -16,6 +16,14 @@ const exact = query.get('exact') === '1';
 const wantCache = (query.get('compliance') || 'cache') !== 'compute';
 
 const $ = (id) => document.getElementById(id);
+// The page's long tasks (over 50 ms on its one thread: what holds the tab), for the results.
+const longTasks = [];
+try {
+  new PerformanceObserver((list) => {
+    for (const e of list.getEntries()) longTasks.push(e.duration);
+  }).observe({ type: 'longtask', buffered: true });
+} catch (_) { /* a browser without the Long Tasks API reports 0 */ }
+const longestTask = () => longTasks.reduce((a, b) => Math.max(a, b), 0);
 const status = (text) => { $('status').textContent = text; };
 const yieldFrame = () => new Promise((r) => requestAnimationFrame(() => setTimeout(r, 0)));
 
@@ -57,6 +65,23 @@ async function fetchCache(name) {
   }
 }
 
+// The scene's compliance computed by the engine in a worker: a cache file's bytes, or null
+// for a scene the page computes itself.
+function computeInWorker(name) {
+  return new Promise((resolve, reject) => {
+    const w = new Worker(new URL('./worker.js', import.meta.url), { type: 'module' });
+    w.onmessage = (e) => {
+      w.terminate();
+      if (e.data.ok) resolve(e.data.bytes); else reject(new Error(e.data.error));
+    };
+    w.onerror = (e) => {
+      w.terminate();
+      reject(new Error(`the compliance worker failed: ${e.message || e}`));
+    };
+    w.postMessage({ scene: name });
+  });
+}
+
 function median(v) {
   if (!v.length) return 0;
   const s = [...v].sort((a, b) => a - b);
@@ -78,24 +103,32 @@ async function main() {
     status(`fetching ${sceneName}'s compliance…`);
     cache = await fetchCache(sceneName);
   }
-  status(cache ? `reading ${sceneName}'s compliance (${(cache.length / 1e6).toFixed(1)} MB)…`
-               : `computing ${sceneName}'s compliance in the page (one thread)…`);
-  await yieldFrame();
   let t0 = performance.now();
-  let page;
-  try {
-    page = new Page(sceneName, cache);
-  } catch (e) {
-    if (!cache) throw e;
-    // A cache that does not fit this build's scene: computed instead, and said so.
-    console.warn(`touchfem: cache/${sceneName}.tfc not used (${e.message || e}); computing`);
-    status(`computing ${sceneName}'s compliance in the page (one thread)…`);
+  let page = null;
+  let computed = false;
+  if (cache) {
+    status(`reading ${sceneName}'s compliance (${(cache.length / 1e6).toFixed(1)} MB)…`);
     await yieldFrame();
+    try {
+      page = new Page(sceneName, cache);
+    } catch (e) {
+      // A cache that does not fit this build's scene: computed instead, and said so.
+      console.warn(`touchfem: cache/${sceneName}.tfc not used (${e.message || e}); computing`);
+    }
+  }
+  if (!page) {
+    // Computed by the engine in a worker, so that the tab stays responsive; the page then
+    // reads the worker's bytes as it reads a cache file.
+    status(`computing ${sceneName}'s compliance in a worker (one thread)…`);
     t0 = performance.now();
-    page = new Page(sceneName, null);
+    const bytes = await computeInWorker(sceneName);
+    status(`reading ${sceneName}'s compliance…`);
+    await yieldFrame();
+    page = new Page(sceneName, bytes);
+    computed = true;
   }
   const complianceMs = performance.now() - t0;
-  const source = page.compliance_source();
+  const source = computed ? 'computed' : page.compliance_source();
   $('n-compliance').textContent = complianceMs.toFixed(0);
   $('about').textContent = page.describe() + ` — compliance ${source}.`;
   status('asking for a WebGPU adapter…');
@@ -157,6 +190,7 @@ async function scriptedRun(p, seconds, info) {
     run: seconds,
     ...out,
     run_ms: runMs,
+    longest_task_ms: longestTask(),
     adapter: info.adapter,
     compliance_ms: info.complianceMs,
     compliance_source: info.source,
@@ -205,6 +239,7 @@ async function scripted(p, info) {
     msaa_samples: info.software ? 1 : 4,
     step_us: stepUs,
     frame_ms: median(intervals),
+    longest_task_ms: longestTask(),
     record_ms: median(passes),
     positions: Array.from(positions),
     rows: Array.from(p.rows()),

@@ -821,9 +821,12 @@ fn a_dense_file_is_the_documented_layout_byte_for_byte() {
     want.extend_from_slice(&h.digest().to_le_bytes());
     assert_eq!(bytes.len(), want.len());
     assert!(bytes == want, "the file differs from the documented layout");
-    // From bytes in memory, the same compliance.
+    // From bytes in memory, the same compliance; and written to bytes in memory (the web
+    // page's worker), the file byte for byte.
     let back = cache::load_bytes(&bytes, key, m.nodes.len()).unwrap();
     assert_eq!(back.l_f64(), c.l_f64());
+    let mem = cache::to_bytes(&c, key, m.nodes.len()).unwrap();
+    assert!(mem == bytes, "to_bytes differs from the file");
     // A shard of the one call gets the part suffix.
     let job = Job {
         shard: (2, 3),

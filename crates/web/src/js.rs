@@ -40,6 +40,14 @@ struct Gfx {
     readback: Option<(wgpu::Buffer, std::rc::Rc<std::cell::Cell<Option<bool>>>)>,
 }
 
+/// The compliance of a one-object scene or mesh, computed on this thread and returned as a
+/// cache file's bytes: the page's worker calls it, off the page's thread, and hands the bytes
+/// to [`Page::new`]. `undefined` for a scene the page computes itself (several objects).
+#[wasm_bindgen]
+pub fn compute_cache(scene: &str) -> Result<Option<Vec<u8>>, JsError> {
+    crate::page::compute_cache(scene).map_err(js_err)
+}
+
 /// touchfem in the page: a scene, its haptic state and, once attached, its canvas.
 #[wasm_bindgen]
 pub struct Page {

@@ -65,6 +65,26 @@ pub fn scene_source(spec: &str) -> Result<SceneSource, Error> {
     Ok(SceneSource::find(spec)?.unwrap_or_else(|| SceneSource::for_mesh(spec, "pointer")))
 }
 
+/// The compliance of `spec`'s one object, computed here and written as a cache file's bytes
+/// ([`touchfem_core::cache::to_bytes`]): what the page's worker computes off the page's
+/// thread and hands to [`PageWorld::load`]. `None` for a scene of several objects (the page
+/// computes those itself) or a compressed one.
+pub fn compute_cache(spec: &str) -> Result<Option<Vec<u8>>, Error> {
+    let plans = World::plan(&scene_source(spec)?)?;
+    let [plan] = &plans[..] else {
+        return Ok(None);
+    };
+    if plan.compression.is_some() {
+        return Ok(None);
+    }
+    let c = Compliance::compute(&plan.mesh, &plan.selection)?;
+    Ok(Some(touchfem_core::cache::to_bytes(
+        &c,
+        plan.key,
+        plan.mesh.nodes.len(),
+    )?))
+}
+
 /// A scripted press, as `touchfem poke MESH --at X,Y,Z --push DX,DY,DZ [--sphere R] [--exact]`
 /// on the scene's first object (its own frame, the scene's unit).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -607,6 +627,9 @@ mod tests {
         assert!(PageWorld::load("cube", Some(&bad)).is_err());
         // And another scene's file is refused.
         assert!(PageWorld::load("mouse", Some(&bytes)).is_err());
+        // The worker's bytes are the file's.
+        assert!(compute_cache("cube").unwrap().unwrap() == bytes);
+        assert!(compute_cache("nope").is_err());
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -229,10 +229,7 @@ impl Writer {
                 std::fs::create_dir_all(dir).map_err(io)?;
             }
         }
-        let mut lists = Vec::with_capacity(4 * (rows.len() + cols.len()));
-        for &v in rows.iter().chain(cols) {
-            lists.extend_from_slice(&v.to_le_bytes());
-        }
+        let lists = lists_of(rows, cols);
         let tmp = unique_tmp(path);
         let file = std::fs::File::create_new(&tmp).map_err(io)?;
         let w = Writer {
@@ -403,21 +400,9 @@ impl Writer {
             path: self.path.clone(),
             source,
         };
-        let mut table = Vec::with_capacity(8 * sums.len());
-        for s in sums {
-            table.extend_from_slice(&s.to_le_bytes());
-        }
-        let head = self.head.to_bytes();
-        let mut h = Xxh3::new();
-        h.update(&head);
-        h.update(&self.lists);
-        h.update(&table);
-        let l_end = HEADER as u64 + self.lists.len() as u64 + self.head.l_bytes();
+        let (head, tail, l_end) = tail_of(&self.head, &self.lists, sums);
         self.file.write_all_at(&head, 0).map_err(io)?;
-        self.file.write_all_at(&table, l_end).map_err(io)?;
-        self.file
-            .write_all_at(&h.digest().to_le_bytes(), l_end + table.len() as u64)
-            .map_err(io)?;
+        self.file.write_all_at(&tail, l_end).map_err(io)?;
         self.file.sync_all().map_err(io)
     }
 
@@ -461,11 +446,48 @@ impl Drop for Writer {
 /// file, synced, then a rename and a sync of the directory).
 pub fn save(path: &Path, c: &Compliance, key: u64, n_nodes: usize) -> Result<(), CacheError> {
     let nr = c.l_rows();
+    let head = header_for(c, key, n_nodes);
+    let w = Writer::create(path, head, c.rows(), c.cols())?;
+    let l = c.l_f64();
+    for (i, chunk) in l.chunks(9 * nr * BATCH_COLS).enumerate() {
+        w.write_batch(i, chunk)?;
+    }
+    w.finish().map(|_| ())
+}
+
+/// The row and column node lists as the file stores them.
+fn lists_of(rows: &[u32], cols: &[u32]) -> Vec<u8> {
+    let mut lists = Vec::with_capacity(4 * (rows.len() + cols.len()));
+    for &v in rows.iter().chain(cols) {
+        lists.extend_from_slice(&v.to_le_bytes());
+    }
+    lists
+}
+
+/// The header's bytes, the tail (the batch checksums and the checksum of header, lists and
+/// table) and the tail's offset: what a file or a buffer ends with.
+fn tail_of(head: &Header, lists: &[u8], sums: &[u64]) -> ([u8; HEADER], Vec<u8>, u64) {
+    let mut tail = Vec::with_capacity(8 * sums.len() + 8);
+    for s in sums {
+        tail.extend_from_slice(&s.to_le_bytes());
+    }
+    let bytes = head.to_bytes();
+    let mut h = Xxh3::new();
+    h.update(&bytes);
+    h.update(lists);
+    h.update(&tail);
+    tail.extend_from_slice(&h.digest().to_le_bytes());
+    let l_end = HEADER as u64 + lists.len() as u64 + head.l_bytes();
+    (bytes, tail, l_end)
+}
+
+/// The dense header [`save`] writes for `c`.
+fn header_for(c: &Compliance, key: u64, n_nodes: usize) -> Header {
     let nc = c.cols().len();
-    let head = Header {
+    Header {
         n_nodes: n_nodes as u32,
         rows: c.rows().len() as u32,
-        l_rows: nr as u32,
+        l_rows: c.l_rows() as u32,
         cols: nc as u32,
         batch: BATCH_COLS as u32,
         key,
@@ -475,13 +497,42 @@ pub fn save(path: &Path, c: &Compliance, key: u64, n_nodes: usize) -> Result<(),
         col_end: nc as u32,
         free_dofs: c.stats.free_dofs as u32,
         residual_bits: c.stats.residual.to_bits(),
-    };
-    let w = Writer::create(path, head, c.rows(), c.cols())?;
-    let l = c.l_f64();
-    for (i, chunk) in l.chunks(9 * nr * BATCH_COLS).enumerate() {
-        w.write_batch(i, chunk)?;
     }
-    w.finish().map(|_| ())
+}
+
+/// The bytes [`save`] would write for a dense compliance, in memory (for a place without
+/// files: the web page's worker hands them to the page, which reads them with
+/// [`super::load_bytes`]). Equal, byte for byte, to the file.
+pub fn to_bytes(c: &Compliance, key: u64, n_nodes: usize) -> Result<Vec<u8>, CacheError> {
+    let head = header_for(c, key, n_nodes);
+    let bad = |msg: String| CacheError::Format {
+        path: PathBuf::from("(bytes)"),
+        msg,
+    };
+    let len = head
+        .checked_file_len()
+        .and_then(|l| usize::try_from(l).ok())
+        .ok_or_else(|| bad("the compliance does not fit a cache in memory".into()))?;
+    if !c.holds_l() || c.hier().is_some() {
+        return Err(bad(
+            "only a dense L held in memory is written to bytes".into()
+        ));
+    }
+    let lists = lists_of(c.rows(), c.cols());
+    let mut out = vec![0u8; len];
+    out[HEADER..HEADER + lists.len()].copy_from_slice(&lists);
+    let l = c.l_f64();
+    let mut sums = Vec::with_capacity(head.held_batches());
+    for (i, chunk) in l.chunks(9 * c.l_rows() * BATCH_COLS).enumerate() {
+        let bytes: &[u8] = bytemuck::cast_slice(chunk);
+        let off = head.batch_offset(i) as usize;
+        out[off..off + bytes.len()].copy_from_slice(bytes);
+        sums.push(xxh3_64(bytes));
+    }
+    let (h, tail, l_end) = tail_of(&head, &lists, &sums);
+    out[..HEADER].copy_from_slice(&h);
+    out[l_end as usize..].copy_from_slice(&tail);
+    Ok(out)
 }
 
 /// An opened cache file or shard (or bytes in memory) whose header, lists and checksum table

@@ -189,6 +189,13 @@ pub fn save(path: &Path, c: &Compliance, key: u64, n_nodes: usize) -> Result<(),
     dense::save(path, c, key, n_nodes)
 }
 
+/// The bytes [`save`] writes for a dense compliance, in memory and without a file (the web
+/// page's worker): equal to the file byte for byte, read back with [`load_bytes`]. A
+/// hierarchical compliance is refused.
+pub fn to_bytes(c: &Compliance, key: u64, n_nodes: usize) -> Result<Vec<u8>, CacheError> {
+    dense::to_bytes(c, key, n_nodes)
+}
+
 /// What a merge wrote.
 #[derive(Clone, Debug)]
 pub struct MergeInfo {
