@@ -22,6 +22,7 @@ mod haptics;
 mod hard_cases;
 mod hier;
 mod hier_cache;
+mod lab;
 mod ladder;
 mod locking_free;
 mod mesh_io;

@@ -339,34 +339,6 @@ pub fn pass_us(
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The study's rows hold the guarantee and the measured storage; prints the table with
-    /// `--nocapture` (a test, not the library, prints).
-    #[test]
-    fn hmatrix_rows_hold_their_bounds() {
-        // (One tolerance: the core module's tests hold the bound at 1e-2, 1e-4 and 1e-6.)
-        let rows = hmatrix_rows(&[1e-3], 5).expect("rows");
-        for r in &rows {
-            println!("{}", serde_json::to_string(r).expect("json"));
-            assert!(r.frobenius_rel <= r.tolerance, "{r:?}");
-            assert!(r.l2_median <= r.l2_worst && r.l2_worst.is_finite(), "{r:?}");
-        }
-        let mouse3 = rows
-            .iter()
-            .find(|r| r.mesh == "mouse" && r.tolerance == 1e-3)
-            .expect("mouse at 1e-3");
-        // Measured: 0.333 of the dense values; one finger's matvec 33 µs against 47 µs dense.
-        assert!(mouse3.ratio < 0.36, "{mouse3:?}");
-        assert!(
-            mouse3.l2_median <= 2e-3 && mouse3.l2_worst <= 1e-2,
-            "{mouse3:?}"
-        );
-    }
-}
-
 /// A hierarchical precompute from the factor's solves on a mesh too large for the dense `L`
 /// to be compared whole, checked against an independent dense precompute of a sample of its
 /// columns (`Selection { rows: surface, cols: the sample }`, a separate factorisation and

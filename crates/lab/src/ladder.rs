@@ -235,7 +235,7 @@ pub fn rung(
 
 /// Richardson extrapolation of the last three values, taken at sizes shrinking by the same
 /// ratio `r`: the limit and the observed order. `None` if they do not converge monotonically.
-pub(crate) fn richardson(f: [f64; 3], r: f64) -> Option<(f64, f64)> {
+pub fn richardson(f: [f64; 3], r: f64) -> Option<(f64, f64)> {
     let (a, b, c) = (f[0], f[1], f[2]);
     let d1 = a - b;
     let d2 = b - c;
@@ -501,20 +501,4 @@ pub fn bench(
         crate::tradeoff::write_json(path, &v)?;
     }
     Ok(out)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn richardson_recovers_a_known_limit() {
-        // f(h) = 2 + 3 h²: at h = 1, 1/2, 1/4.
-        let (l, p) = richardson([5.0, 2.75, 2.1875], 2.0).unwrap();
-        assert!(
-            (l - 2.0).abs() < 1e-12 && (p - 2.0).abs() < 1e-12,
-            "{l} {p}"
-        );
-        assert!(richardson([1.0, 2.0, 1.5], 2.0).is_none());
-    }
 }
