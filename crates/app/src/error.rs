@@ -16,9 +16,6 @@ pub enum Error {
     /// The window's error (`view`, `serve --view`).
     #[error(transparent)]
     View(#[from] crate::window::ViewError),
-    /// The Haply Inverse Service's client (`serve --haply`).
-    #[error(transparent)]
-    Haply(#[from] crate::haply::HaplyError),
     /// Bad input that the parsers could not catch (a combination of flags, a coordinate).
     #[error("{0}")]
     Input(String),

@@ -9,7 +9,10 @@
 //!   the client sets the rate. Each state received is published (the cursor position mapped
 //!   into the scene) and answered at once with one `set_cursor_force` carrying the newest force
 //!   the haptic loop wrote (zero when it is older than the watchdog, or service has ended).
-//!   One message is in flight at a time.
+//!   One message is in flight at a time, and commands go out at most at the haptic loop's
+//!   rate (deadlines one period apart): faster would only repeat a tick's force.
+//!   The first state after a stall restarts the exchange (polls it did not answer may never
+//!   be).
 //! * **Watchdog**: no state for longer than the watchdog → a stale period (counted): the finger
 //!   has no valid position (the loop's side ages the reading out by itself) and the client
 //!   sends a zero force every watchdog period, which also asks the service for a state.
@@ -55,6 +58,9 @@ pub struct ClientConfig {
     pub workspace: Workspace,
     /// No state for longer than this: zero force.
     pub watchdog: Duration,
+    /// The shortest time between two commands: the haptic loop's period (a state that comes
+    /// sooner is answered at the next period, with the force of a newer tick).
+    pub period: Duration,
 }
 
 /// Why the client cannot start.
@@ -109,7 +115,7 @@ pub struct HaplyCounters {
     pub rtt_us_p50: f64,
     /// Round trips, µs: 99th percentile.
     pub rtt_us_p99: f64,
-    /// State updates per second over the connected time.
+    /// State updates per second, from the first state used to the last (each connection).
     pub rate_hz: f64,
 }
 
@@ -335,9 +341,8 @@ fn io_thread(ws: Ws, cfg: &ClientConfig, id: &str, mut port: ExternalPort, share
             }
             continue;
         };
-        let start = Instant::now();
-        let ended = exchange(socket, cfg, id, &mut port, shared, &mut hist);
-        connected += start.elapsed();
+        let (ended, span) = exchange(socket, cfg, id, &mut port, shared, &mut hist);
+        connected += span;
         if let Ended::Disconnected = ended {
             shared.disconnects.fetch_add(1, Ordering::Relaxed);
             port.lift();
@@ -357,9 +362,9 @@ fn exchange(
     port: &mut ExternalPort,
     shared: &Shared,
     hist: &mut [u64],
-) -> Ended {
+) -> (Ended, Duration) {
     if ws.get_mut().set_read_timeout(Some(READ_POLL)).is_err() {
-        return Ended::Disconnected;
+        return (Ended::Disconnected, Duration::ZERO);
     }
     let send = |ws: &mut Ws, force: DVec3| -> bool {
         let f = cfg.workspace.force_to_device(force);
@@ -378,9 +383,12 @@ fn exchange(
     let mut last_state = Instant::now();
     let mut last_sent = Instant::now();
     if !send(&mut ws, DVec3::ZERO) {
-        return Ended::Disconnected;
+        return (Ended::Disconnected, Duration::ZERO);
     }
+    // The first and the latest state used: the exchange's span (its rate's denominator).
+    let mut first_state: Option<Instant> = None;
     let mut in_flight: u32 = 1;
+    let mut next_send = Instant::now();
     let mut stale = false;
     let ended = loop {
         if shared.stop.load(Ordering::Relaxed) {
@@ -390,7 +398,13 @@ fn exchange(
             Ok(Message::Text(t)) => {
                 let now = Instant::now();
                 let rtt = now.saturating_duration_since(last_sent).as_micros() as usize;
-                in_flight = in_flight.saturating_sub(1);
+                // The first state after a stall restarts the exchange: the polls it did not
+                // answer may never be answered.
+                in_flight = if stale {
+                    0
+                } else {
+                    in_flight.saturating_sub(1)
+                };
                 match serde_json::from_str::<ServiceUpdate>(t.as_str())
                     .ok()
                     .and_then(|u| u.cursor_of(id))
@@ -402,6 +416,7 @@ fn exchange(
                         shared.states.fetch_add(1, Ordering::Relaxed);
                         hist[rtt.min(hist.len() - 1)] += 1;
                         last_state = now;
+                        first_state.get_or_insert(now);
                         stale = false;
                     }
                     None => {
@@ -410,6 +425,13 @@ fn exchange(
                 }
                 // One message in flight: answer each reply with the newest force.
                 if in_flight == 0 {
+                    let now = Instant::now();
+                    if next_send > now {
+                        std::thread::sleep(next_send - now);
+                    }
+                    let now = Instant::now();
+                    next_send =
+                        (next_send + cfg.period).max(now.checked_sub(cfg.period).unwrap_or(now));
                     let force = if stale {
                         DVec3::ZERO
                     } else {
@@ -473,7 +495,8 @@ fn exchange(
             }
         }
     }
-    ended
+    let span = first_state.map_or(Duration::ZERO, |f| last_state.saturating_duration_since(f));
+    (ended, span)
 }
 
 #[cfg(test)]

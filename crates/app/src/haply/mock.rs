@@ -248,11 +248,12 @@ fn connection(
                     return Ok(());
                 }
                 replies += 1;
-                let reply = if cfg.malformed_every > 0 && replies % cfg.malformed_every == 0 {
-                    "not a state update".to_string()
-                } else {
-                    state(cfg, t, None)
-                };
+                let reply =
+                    if cfg.malformed_every > 0 && replies.is_multiple_of(cfg.malformed_every) {
+                        "not a state update".to_string()
+                    } else {
+                        state(cfg, t, None)
+                    };
                 ws.send(Message::text(reply))?;
                 if let Ok(mut l) = log.lock() {
                     l.states_sent += 1;

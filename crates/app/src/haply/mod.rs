@@ -123,11 +123,15 @@ pub fn serve_haply(
                 device_id: spec.device_id.clone(),
                 workspace: spec.workspace,
                 watchdog: opts.watchdog,
+                period: Duration::from_secs_f64(1.0 / world.haptics.rate_hz),
             };
             if address.is_empty() {
                 address = spec.url.clone();
             }
-            clients.push(HaplyClient::connect(&cfg, port)?);
+            // The client's error, as one line (the program's error does not name this module).
+            let client =
+                HaplyClient::connect(&cfg, port).map_err(|e| Error::Input(e.to_string()))?;
+            clients.push(client);
             fingers.push(finger);
         }
         let ids: Vec<String> = clients.iter().map(|c| c.device_id().to_string()).collect();
