@@ -665,7 +665,7 @@ fn help_and_docs_name_what_the_code_does() {
     for section in [
         "## Command line",
         "## Scene files (TOML)",
-        "## The Haply Inverse3 (planned, not yet implemented)",
+        "## The Haply Inverse3 (through the Haply Inverse Service)",
         "## The web page",
         "## UDP device protocol, version 1",
         "## Errors and exit status",

@@ -18,6 +18,7 @@ mod gpu_cut;
 mod gpu_f16;
 mod gpu_hier;
 mod gram;
+mod haply;
 mod haptics;
 mod hard_cases;
 mod hier;

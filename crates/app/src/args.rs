@@ -180,11 +180,22 @@ pub struct BenchArgs {
 /// `touchfem serve` flags.
 #[derive(Args, Debug)]
 pub struct ServeArgs {
-    /// Scene file, bundled scene, or mesh (then up to four UDP fingers).
+    /// Scene file, bundled scene, or mesh (then up to four UDP fingers, or one Haply finger
+    /// with `--haply`).
     pub scene: String,
-    /// Address to listen on, e.g. 127.0.0.1:47800.
-    #[arg(long)]
-    pub udp: std::net::SocketAddr,
+    /// Address to listen on for UDP fingers, e.g. 127.0.0.1:47800.
+    #[arg(long, conflicts_with = "haply")]
+    pub udp: Option<std::net::SocketAddr>,
+    /// Drive the scene's Haply fingers through the Haply Inverse Service at URL (default
+    /// ws://127.0.0.1:10001): sets every Haply finger's `url`; a scene with none gets its first
+    /// finger made one, a bare mesh one Haply finger. Without `--udp` or `--haply`, a scene's
+    /// own Haply fingers are served at their own URLs.
+    #[arg(long, value_name = "URL", num_args = 0..=1, default_missing_value = touchfem_core::scene::HAPLY_DEFAULT_URL)]
+    pub haply: Option<String>,
+    /// Haply watchdog: no state from the service for longer than this (ms, in (0, 60000])
+    /// gives zero force (counted in `haply_stale`).
+    #[arg(long, value_name = "MS", default_value_t = crate::haply::DEFAULT_WATCHDOG_MS, value_parser = parse_watchdog_ms, allow_hyphen_values = true)]
+    pub haply_watchdog_ms: f64,
     /// Seconds to run, in (0, 1e6] (default: until interrupted).
     #[arg(long, value_name = "S", value_parser = parse_serve_seconds, allow_hyphen_values = true)]
     pub seconds: Option<f64>,
@@ -211,9 +222,10 @@ pub struct ServeArgs {
     /// packet starts a tick, answered at once: the lowest round trip).
     #[arg(long, default_value = "host")]
     pub clock: touchfem_core::devices::udp::Clock,
-    /// Device limits for UDP fingers whose scene gives none: a preset (falcon, phantom-omni,
-    /// phantom-premium-1.5, delta.3, omega.3, sigma.7). The force is then rendered through a
-    /// virtual coupling sized from them.
+    /// Device limits for UDP or Haply fingers whose scene gives none: a preset (falcon,
+    /// phantom-omni, phantom-premium-1.5, delta.3, omega.3, sigma.7, inverse3; Haply fingers
+    /// default to inverse3). The force is then rendered through a virtual coupling sized from
+    /// them.
     #[arg(long)]
     pub limits: Option<String>,
     /// First measure this machine's bare-loop floor for this many seconds (in [0, 3600];

@@ -303,6 +303,9 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
 
 fn serve(a: &ServeArgs) -> Result<(), Error> {
     use touchfem_core::runtime::serve::{serve, stop_on_interrupt, ServeOptions, INTERRUPTED};
+    let Some(udp) = a.udp else {
+        return crate::haply::cli::serve(a);
+    };
     if let Some(s) = a.seconds {
         if !(s.is_finite() && s > 0.0) {
             return Err(Error::Input(format!("--seconds must be positive, got {s}")));
@@ -329,16 +332,14 @@ fn serve(a: &ServeArgs) -> Result<(), Error> {
         None => None,
     };
     let remote_ok = a.allow_remote && key.is_some();
-    if !a.udp.ip().is_loopback() && !remote_ok {
+    if !udp.ip().is_loopback() && !remote_ok {
         return Err(Error::Input(format!(
-            "--udp {}: not a loopback address; serving beyond this machine needs --allow-remote and --key FILE",
-            a.udp
+            "--udp {udp}: not a loopback address; serving beyond this machine needs --allow-remote and --key FILE"
         )));
     }
-    if !a.udp.ip().is_loopback() {
+    if !udp.ip().is_loopback() {
         eprintln!(
-            "warning: serving {} beyond this machine: anyone who can reach it drives forces into a person's hand",
-            a.udp
+            "warning: serving {udp} beyond this machine: anyone who can reach it drives forces into a person's hand"
         );
     }
     let limits = match &a.limits {
@@ -351,7 +352,7 @@ fn serve(a: &ServeArgs) -> Result<(), Error> {
     let world = touchfem_core::runtime::serve::udp_world(&a.scene, limits.as_ref())?;
     stop_on_interrupt();
     let opts = ServeOptions {
-        addr: a.udp,
+        addr: udp,
         allow_remote: a.allow_remote,
         key,
         seconds: a.seconds,

@@ -2,13 +2,15 @@
 //!
 //! The `touchfem` program: its command line ([`args`], [`cli`]), the bundled demo ([`demo`]),
 //! the interactive window ([`window`]), the visual path both draw from ([`visual`]), `precompute`
-//! with its progress bar ([`precompute`]) and the VTK output ([`vtu`]). It is the edge of the workspace: environment variables are read and
+//! with its progress bar ([`precompute`]), the VTK output ([`vtu`]) and the Haply Inverse3's
+//! client ([`haply`]). It is the edge of the workspace: environment variables are read and
 //! things are printed here, and the libraries' log records are written to stderr.
 
 pub mod args;
 pub mod cli;
 pub mod demo;
 pub mod error;
+pub mod haply;
 pub mod precompute;
 pub mod visual;
 pub mod vtu;

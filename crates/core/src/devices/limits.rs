@@ -6,6 +6,14 @@
 //! (`cFalconDevice`, `cPhantomDevices`, `CDeltaDevices`): peak force, the closed-loop stiffness
 //! and damping they render stably, and the workspace radius. No vendor states a continuous
 //! force there, so `max_continuous_force_n` is `None` for all of them.
+//!
+//! `inverse3` (Haply Robotics Inverse3, driven through the Haply Inverse Service) carries the
+//! numbers the Inverse3's CHAI3D driver declares (`cHaplyDevices`, the CHAI3D port of Haply's
+//! HardwareAPI, `src/devices/CHaplyDevices.cpp`: `m_maxLinearForce = 10.0`,
+//! `m_maxLinearStiffness = 1000.0`, `m_maxLinearDamping = 6.0`, `m_workspaceRadius = 0.15`),
+//! the same kind of source as the others. Haply's product page
+//! (<https://www.haply.co/inverse3>) is the reference to check them against; its published
+//! peak force is the one this bound must never exceed.
 
 /// A device's limits (SI).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -41,6 +49,9 @@ const TABLE: &[(&str, f64, f64, f64, f64)] = &[
     ("omega.3", 12.0, 5000.0, 30.0, 0.075),
     // Force Dimension sigma.7 (cDeltaDevice, DHD_DEVICE_SIGMA331).
     ("sigma.7", 12.0, 4000.0, 30.0, 0.075),
+    // Haply Robotics Inverse3 (cHaplyDevices, C_HAPTIC_DEVICE_HAPLY_INVERSE3; see the module
+    // docs).
+    ("inverse3", 10.0, 1000.0, 6.0, 0.15),
 ];
 
 /// The named presets.
@@ -51,6 +62,7 @@ pub(crate) const PRESETS: &[&str] = &[
     "delta.3",
     "omega.3",
     "sigma.7",
+    "inverse3",
 ];
 
 /// Why limits are not usable.
@@ -126,6 +138,8 @@ mod tests {
             ),
             (8.0, 3000.0, 20.0)
         );
+        let i = DeviceLimits::preset("inverse3").unwrap();
+        assert_eq!((i.max_force_n, i.max_stiffness_n_per_m), (10.0, 1000.0));
         assert!(matches!(
             DeviceLimits::named("phantom"),
             Err(LimitsError::UnknownPreset(_))

@@ -3,16 +3,23 @@
 //!
 //! * [`ScriptedDevice`] / [`KeyframePath`]: a scripted path (demo, tests, benchmarks);
 //! * [`pointer::PointerDevice`]: the `view` window's mouse pointer;
-//! * [`ReplayDevice`]: the positions of a recorded session.
+//! * [`ReplayDevice`]: the positions of a recorded session;
+//! * [`udp::UdpBridge`]: fingers driven over UDP (`touchfem serve --udp`);
+//! * [`external::ExternalFinger`]: a finger another thread drives through memory (the Haply
+//!   Inverse3's WebSocket client in `touchfem-app`), with [`workspace::Workspace`] mapping a
+//!   device's workspace into the scene.
 //!
 //! Every method is called from the haptic loop once per tick: implementations must not block
 //! or allocate.
 
+#[cfg(feature = "native")]
+pub mod external;
 pub mod limits;
 pub mod pointer;
 mod replay;
 mod script;
 pub mod udp;
+pub mod workspace;
 
 use glam::DVec3;
 

@@ -1,16 +1,21 @@
-//! `touchfem serve`: the haptic loop for fingers driven over UDP ([`crate::devices::udp`]),
-//! with the visual path's displacement update running headless beside it.
+//! `touchfem serve`: the haptic loop for fingers driven over UDP ([`crate::devices::udp`]) or
+//! by a device thread of the program's ([`crate::devices::external`], the Haply Inverse3's
+//! client in `touchfem-app`), with the visual path's displacement update running headless
+//! beside it. [`serve_devices_with`] runs any [`FingerDevices`]; [`serve`] and [`serve_with`]
+//! run the UDP bridge through it.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
+use super::HapticRun;
 use super::{
     join_haptic, run_haptic, sample_channel, session, DoneGuard, LiveStatus, SampleReader,
 };
 use crate::devices::limits::DeviceLimits;
 use crate::devices::udp::{BridgeConfig, Clock, Key, UdpBridge, UdpCounters};
+use crate::devices::FingerDevices;
 use crate::runtime::pacer::HapticStats;
 use crate::scene::DeviceSpec;
 use crate::scene::World;
@@ -157,6 +162,99 @@ pub fn serve_with<E: From<Error>>(
     bound: impl FnOnce(SocketAddr),
     visual: impl FnOnce(SampleReader, &LiveStatus) -> Result<(), E>,
 ) -> Result<ServeReport, E> {
+    let cfg = BridgeConfig {
+        allow_remote: opts.allow_remote,
+        watchdog: opts.watchdog,
+        clock: opts.clock,
+        key: opts.key.clone(),
+    };
+    let mut addr = opts.addr;
+    let open = || -> Result<UdpBridge, E> {
+        let bridge = UdpBridge::bind(opts.addr, &cfg).map_err(Error::from)?;
+        addr = bridge
+            .local_addr()
+            .map_err(|e| Error::Input(format!("UDP socket: {e}")))?;
+        bound(addr);
+        Ok(bridge)
+    };
+    let (served, bridge) = serve_devices_with(world, &opts.loop_options(), stop, open, visual)?;
+    let counters = bridge.counters();
+    drop(bridge);
+    let run = served.run;
+    Ok(ServeReport {
+        address: addr.to_string(),
+        ticks: run.stats.ticks,
+        packets_received: counters.packets_received,
+        packets_dropped: counters.packets_dropped,
+        packets_rejected: counters.packets_rejected,
+        stale_periods: counters.stale_periods,
+        missed_deadlines: run.stats.missed_deadlines,
+        period_error_us_p999: run.stats.period_error_us_p999,
+        max_force_n: run.stats.max_force_n,
+        clock: match opts.clock {
+            Clock::Host => "host".into(),
+            Clock::Device => "device".into(),
+        },
+        limits: world.fingers.iter().map(|f| f.limits.clone()).collect(),
+        udp: counters,
+        haptic: run.stats,
+        floor: served.floor,
+        records_dropped: served.records_dropped,
+        recording_error: served.recording_error,
+    })
+}
+
+/// What serving does besides its devices: how long, recording, core placement, the floor.
+#[derive(Clone, Debug, Default)]
+pub struct LoopOptions {
+    /// Seconds to run (`None`: until `stop`).
+    pub seconds: Option<f64>,
+    /// Record the session here.
+    pub record: Option<PathBuf>,
+    /// Core placement.
+    pub placement: crate::threads::VisualPlacement,
+    /// Seconds of the bare-loop floor to measure before serving (see
+    /// [`ServeOptions::floor_seconds`]).
+    pub floor_seconds: Option<f64>,
+}
+
+impl ServeOptions {
+    /// The options that are not the bridge's.
+    pub fn loop_options(&self) -> LoopOptions {
+        LoopOptions {
+            seconds: self.seconds,
+            record: self.record.clone(),
+            placement: self.placement.clone(),
+            floor_seconds: self.floor_seconds,
+        }
+    }
+}
+
+/// What a served run gave, whatever its devices.
+#[derive(Clone, Debug)]
+pub struct Served {
+    /// The haptic loop's run (timing, largest force, contacts).
+    pub run: HapticRun,
+    /// The bare-loop floor measured before serving.
+    pub floor: Option<HapticStats>,
+    /// With `--record`: ticks whose record was not kept (see [`ServeReport::records_dropped`]).
+    pub records_dropped: Option<u64>,
+    /// With `--record`: why the recording failed.
+    pub recording_error: Option<String>,
+}
+
+/// Serves `world` with any devices: measures the floor if asked, opens the devices
+/// (`open`, after the floor), then runs the haptic loop on the haptic core and `visual` on
+/// this thread until `opts.seconds`, `stop`, or `visual` returning. The loop releases the
+/// devices when it ends, however it ends ([`FingerDevices::release`]); the devices are handed
+/// back for their counters.
+pub fn serve_devices_with<D: FingerDevices, E: From<Error>>(
+    world: &World,
+    opts: &LoopOptions,
+    stop: &AtomicBool,
+    open: impl FnOnce() -> Result<D, E>,
+    visual: impl FnOnce(SampleReader, &LiveStatus) -> Result<(), E>,
+) -> Result<(Served, D), E> {
     let floor = match opts.floor_seconds {
         Some(secs) => Some(
             std::thread::scope(|sc| {
@@ -175,33 +273,23 @@ pub fn serve_with<E: From<Error>>(
         ),
         None => None,
     };
-    let cfg = BridgeConfig {
-        allow_remote: opts.allow_remote,
-        watchdog: opts.watchdog,
-        clock: opts.clock,
-        key: opts.key.clone(),
-    };
-    let mut bridge = UdpBridge::bind(opts.addr, &cfg).map_err(Error::from)?;
-    let addr = bridge
-        .local_addr()
-        .map_err(|e| Error::Input(format!("UDP socket: {e}")))?;
+    let mut devices = open()?;
     opts.placement.enter_visual();
     let mut recording = match &opts.record {
         Some(p) => Some(session::record(p, world).map_err(E::from)?),
         None => None,
     };
-    bound(addr);
     let (mut writer, reader) = sample_channel();
     let status = LiveStatus::default();
-    let (run, counters, shown) = std::thread::scope(|sc| {
+    let (run, shown) = std::thread::scope(|sc| {
         let h = sc.spawn(|| {
             let _g = DoneGuard(&status);
             opts.placement.enter_haptic();
             let realtime = crate::threads::try_realtime_priority();
             let rec = recording.as_mut().map(|r| &mut r.0);
-            let mut run = run_haptic(world, &mut bridge, opts.seconds, &mut writer, &status, rec);
+            let mut run = run_haptic(world, &mut devices, opts.seconds, &mut writer, &status, rec);
             run.stats.realtime = realtime;
-            (run, bridge.counters())
+            run
         });
         // `stop` (Ctrl-C) reaches the haptic loop whatever the visual loop does.
         sc.spawn(|| {
@@ -215,7 +303,7 @@ pub fn serve_with<E: From<Error>>(
         let shown = visual(reader, &status);
         status.stop.store(true, Ordering::Relaxed);
         opts.placement.leave();
-        join_haptic(h).map(|(run, counters)| (run, counters, shown))
+        join_haptic(h).map(|run| (run, shown))
     })
     .map_err(E::from)?;
     shown?;
@@ -234,27 +322,80 @@ pub fn serve_with<E: From<Error>>(
         });
         recording_error = written.err().map(|e| e.to_string());
     }
-    Ok(ServeReport {
-        address: addr.to_string(),
-        ticks: run.stats.ticks,
-        packets_received: counters.packets_received,
-        packets_dropped: counters.packets_dropped,
-        packets_rejected: counters.packets_rejected,
-        stale_periods: counters.stale_periods,
-        missed_deadlines: run.stats.missed_deadlines,
-        period_error_us_p999: run.stats.period_error_us_p999,
-        max_force_n: run.stats.max_force_n,
-        clock: match opts.clock {
-            Clock::Host => "host".into(),
-            Clock::Device => "device".into(),
+    Ok((
+        Served {
+            run,
+            floor,
+            records_dropped,
+            recording_error,
         },
-        limits: world.fingers.iter().map(|f| f.limits.clone()).collect(),
-        udp: counters,
-        haptic: run.stats,
-        floor,
-        records_dropped,
-        recording_error,
-    })
+        devices,
+    ))
+}
+
+/// The world `serve --haply` runs: a scene's Haply fingers (their `url` replaced by `url`
+/// when given); a scene with none, its first finger made a Haply finger with the defaults
+/// (model, tool and limits kept; the others dropped); a bare mesh, one Haply finger with the
+/// defaults. Every Haply finger whose scene gives no limits gets `limits`, else the `inverse3`
+/// preset: its force goes through the virtual coupling and is bounded by the smaller of
+/// `[haptics] max_force_n` and the Inverse3's peak force.
+pub fn haply_world(
+    spec: &str,
+    url: Option<&str>,
+    limits: Option<&DeviceLimits>,
+) -> Result<World, Error> {
+    use crate::scene::{HaplySpec, SceneSource};
+    let mut world = World::load_live(spec, "haply")?;
+    let is_haply = |f: &crate::scene::FingerSpec| matches!(f.device, DeviceSpec::Haply(_));
+    if !world.fingers.iter().any(is_haply) {
+        let Some(first) = world.fingers.first().cloned() else {
+            return Err(Error::Body(format!("scene '{}' has no finger", world.name)));
+        };
+        if SceneSource::find(spec)?.is_some() && url.is_none() {
+            return Err(Error::Body(format!(
+                "scene '{}' has no haply finger: serve it with --haply [URL] (or its udp fingers with --udp ADDR)",
+                world.name
+            )));
+        }
+        let default = haply_default(&world);
+        world.fingers = vec![crate::scene::FingerSpec {
+            device: DeviceSpec::Haply(default),
+            ..first
+        }];
+    }
+    if let Some(other) = world.fingers.iter().position(|f| !is_haply(f)) {
+        return Err(Error::Body(format!(
+            "scene '{}': finger {} is not a haply finger; `serve` drives haply fingers only, or udp fingers only (--udp ADDR)",
+            world.name,
+            other + 1
+        )));
+    }
+    let preset = DeviceLimits::preset("inverse3").expect("a preset of the table");
+    for f in &mut world.fingers {
+        if let (DeviceSpec::Haply(HaplySpec { url: u, .. }), Some(url)) = (&mut f.device, url) {
+            *u = url.to_string();
+        }
+        f.limits
+            .get_or_insert_with(|| limits.cloned().unwrap_or_else(|| preset.clone()));
+    }
+    Ok(world)
+}
+
+/// A Haply finger with every default for `world`: the service on this machine, the first
+/// Inverse3, its workspace centre at the middle of the top of the objects' bounds, scale 1.
+fn haply_default(world: &World) -> crate::scene::HaplySpec {
+    use crate::devices::workspace::{Workspace, DEFAULT_DEVICE_CENTRE};
+    let (lo, hi) = world.bounds();
+    let c = glam::DVec3::new(0.5 * (lo.x + hi.x), 0.5 * (lo.y + hi.y), hi.z);
+    crate::scene::HaplySpec {
+        url: crate::scene::HAPLY_DEFAULT_URL.into(),
+        device_id: None,
+        workspace: Workspace {
+            device_centre: glam::DVec3::from_array(DEFAULT_DEVICE_CENTRE),
+            scene_centre: if c.is_finite() { c } else { glam::DVec3::ZERO },
+            scale: 1.0,
+        },
+    }
 }
 
 /// Set by SIGINT (Ctrl-C) or SIGTERM once [`stop_on_interrupt`] has been called.

@@ -13,8 +13,10 @@ use glam::DVec3;
 use std::path::{Path, PathBuf};
 use toml::Spanned;
 
-use super::schema::{line_of, toml_error, BallToml, FileToml, LimitsToml, TouchableToml};
-use super::world::{DeviceSpec, FingerSpec, HapticSettings, Object, World};
+use super::schema::{
+    line_of, toml_error, BallToml, FileToml, HaplyToml, LimitsToml, Table, TouchableToml,
+};
+use super::world::{DeviceSpec, FingerSpec, HaplySpec, HapticSettings, Object, World};
 use super::{load_mesh, Body, LoadOptions};
 use crate::compliance::hmatrix::HOptions;
 use crate::compliance::{Compliance, NodeSet, Selection};
@@ -643,16 +645,30 @@ impl World {
                 "pointer" => DeviceSpec::Pointer,
                 "udp" => DeviceSpec::Udp,
                 "replay" => DeviceSpec::Replay,
+                "haply" => DeviceSpec::Haply(haply_spec(
+                    f.haply.as_ref(),
+                    f.device.span(),
+                    s,
+                    &objects,
+                    &at,
+                )?),
                 other => {
                     return Err(at(
                         f.device.span(),
                         "device",
                         format!(
-                            "'{other}' is not a device: use \"script\", \"udp\", \"pointer\" or \"replay\""
+                            "'{other}' is not a device: use \"script\", \"udp\", \"pointer\", \"replay\" or \"haply\""
                         ),
                     ))
                 }
             };
+            if let (Some(h), false) = (&f.haply, matches!(device, DeviceSpec::Haply(_))) {
+                return Err(at(
+                    h.span(),
+                    "haply",
+                    "only a haply finger (`device = \"haply\"`) takes a haply table".into(),
+                ));
+            }
             if f.path.is_some() && !matches!(device, DeviceSpec::Script(_)) {
                 let span = f.path.as_ref().map(|p| p.span()).unwrap_or(0..0);
                 return Err(at(span, "path", "only a script finger takes a path".into()));
@@ -828,6 +844,87 @@ pub struct PlannedObject {
 
 /// A `{ center, radius }` ball of the scene (units `s` to metres, the object at `offset`) in
 /// the object's frame: its centre and radius, m. Errors name `key`.
+/// A Haply finger's settings from its `haply` table (`None`: every default), lengths in the
+/// scene's unit `s` (metres per unit) except `device_centre` (metres, the device's frame).
+/// The default `scene_centre` is the middle of the top of the objects' bounds.
+fn haply_spec(
+    h: Option<&Spanned<Table<HaplyToml>>>,
+    device_span: std::ops::Range<usize>,
+    s: f64,
+    objects: &[Object],
+    at: &dyn Fn(std::ops::Range<usize>, &str, String) -> Error,
+) -> Result<HaplySpec, Error> {
+    use crate::devices::workspace::{Workspace, DEFAULT_DEVICE_CENTRE};
+    let span = || h.map_or(device_span.clone(), |h| h.span());
+    let t = h.map(|h| &h.get_ref().0);
+    let url = t
+        .and_then(|t| t.url.clone())
+        .unwrap_or_else(|| crate::scene::HAPLY_DEFAULT_URL.into());
+    if !url.starts_with("ws://") || url.len() <= "ws://".len() {
+        return Err(at(
+            span(),
+            "haply.url",
+            format!("'{url}' is not a WebSocket address: give ws://HOST:PORT (the Haply Inverse Service's is ws://127.0.0.1:10001)"),
+        ));
+    }
+    let device_id = t.and_then(|t| t.device_id.clone());
+    if device_id.as_deref() == Some("") {
+        return Err(at(span(), "haply.device_id", "is empty".into()));
+    }
+    let device_centre = t
+        .and_then(|t| t.device_centre)
+        .unwrap_or(DEFAULT_DEVICE_CENTRE);
+    if !coordinates_ok(&device_centre) {
+        return Err(at(
+            span(),
+            "haply.device_centre",
+            format!("must be finite and at most {MAX_COORDINATE:e} in magnitude"),
+        ));
+    }
+    let scene_centre = match t.and_then(|t| t.scene_centre) {
+        Some(c) if coordinates_ok(&c) => DVec3::from_array(c) * s,
+        Some(_) => {
+            return Err(at(
+                span(),
+                "haply.scene_centre",
+                format!("must be finite and at most {MAX_COORDINATE:e} in magnitude"),
+            ))
+        }
+        None => {
+            let mut lo = DVec3::splat(f64::INFINITY);
+            let mut hi = DVec3::splat(f64::NEG_INFINITY);
+            for o in objects {
+                let (a, b) = o.body.mesh.bounds();
+                lo = lo.min(a + o.offset);
+                hi = hi.max(b + o.offset);
+            }
+            let c = DVec3::new(0.5 * (lo.x + hi.x), 0.5 * (lo.y + hi.y), hi.z);
+            if c.is_finite() {
+                c
+            } else {
+                DVec3::ZERO
+            }
+        }
+    };
+    let scale = t.and_then(|t| t.scale).unwrap_or(1.0);
+    if !(scale.is_finite() && scale > 0.0 && scale <= 1e6 && (1.0 / scale).is_finite()) {
+        return Err(at(
+            span(),
+            "haply.scale",
+            format!("{scale} is not a positive scale in (0, 1e6]"),
+        ));
+    }
+    Ok(HaplySpec {
+        url,
+        device_id,
+        workspace: Workspace {
+            device_centre: DVec3::from_array(device_centre),
+            scene_centre,
+            scale,
+        },
+    })
+}
+
 fn ball(
     b: &BallToml,
     s: f64,

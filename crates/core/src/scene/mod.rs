@@ -18,7 +18,9 @@ pub mod pointer;
 mod schema;
 mod world;
 pub use file::{SceneSource, BUNDLED_SCENES};
-pub use world::{CutRegion, DeviceSpec, FingerSpec, HapticSettings, Object, World};
+pub use world::{
+    CutRegion, DeviceSpec, FingerSpec, HaplySpec, HapticSettings, Object, World, HAPLY_DEFAULT_URL,
+};
 
 /// How to load a mesh given on the command line.
 #[derive(Clone, Debug)]

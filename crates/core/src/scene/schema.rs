@@ -189,6 +189,7 @@ table_forms! {
     ToolToml => "a table `tool = { sphere = R }` or `tool = { blade = DEPTH }`",
     BallToml => "a ball { center = [x, y, z], radius = r }",
     LimitNumbersToml => "a table of limits (max_force_n, max_stiffness_n_per_m, …)",
+    HaplyToml => "a table `haply = { url, device_id, device_centre, scene_centre, scale }`",
 }
 
 #[derive(Debug, Deserialize)]
@@ -206,6 +207,18 @@ pub(super) struct FingerToml {
     pub(super) model: Option<Spanned<String>>,
     pub(super) limits: Option<Spanned<LimitsToml>>,
     pub(super) tool: Option<Spanned<Table<ToolToml>>>,
+    pub(super) haply: Option<Spanned<Table<HaplyToml>>>,
+}
+
+/// A Haply finger's `haply` table (every key optional).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct HaplyToml {
+    pub(super) url: Option<String>,
+    pub(super) device_id: Option<String>,
+    pub(super) device_centre: Option<[f64; 3]>,
+    pub(super) scene_centre: Option<[f64; 3]>,
+    pub(super) scale: Option<f64>,
 }
 
 /// A finger's device limits: a preset's name, or the numbers (SI, the unit in each key).

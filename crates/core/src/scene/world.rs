@@ -59,6 +59,22 @@ pub enum DeviceSpec {
     Udp,
     /// Positions from a recorded session.
     Replay,
+    /// A Haply Inverse3 through the Haply Inverse Service (`touchfem serve --haply`).
+    Haply(HaplySpec),
+}
+
+/// The default Haply Inverse Service address.
+pub const HAPLY_DEFAULT_URL: &str = "ws://127.0.0.1:10001";
+
+/// A Haply finger's settings (the finger's `haply` table), SI.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HaplySpec {
+    /// The service's WebSocket address (`ws://…`).
+    pub url: String,
+    /// The Inverse3 to drive (`None`: the first in the service's inventory).
+    pub device_id: Option<String>,
+    /// Where the device's workspace lies in the scene.
+    pub workspace: crate::devices::workspace::Workspace,
 }
 
 /// One finger of a scene.
