@@ -166,39 +166,51 @@ fn press_matches_native(dir: &Path, mesh: &str, at: &str, push: &str, shot: Opti
         .iter()
         .map(|&(col, f)| (col, f.as_vec3().as_dvec3()))
         .collect();
-    let rows: Vec<u32> = r["rows"]
+    gpu_matches_f64(mesh, r, &body.mesh.nodes, &body.compliance, &forces);
+    run
+}
+
+/// The page's displayed rows (`r["rows"]`) are `c`'s, and the vertices the browser's GPU wrote
+/// (`r["positions"]`, x y z per displayed row) match `rest + c·forces` in f64 (the forces as
+/// the pass takes them), to the native GPU tests' tolerance.
+fn gpu_matches_f64(
+    what: &str,
+    r: &serde_json::Value,
+    rest: &[DVec3],
+    c: &Compliance,
+    forces: &[(u32, DVec3)],
+) {
+    let rows = c.rows();
+    let page_rows: Vec<u32> = r["rows"]
         .as_array()
         .unwrap()
         .iter()
         .map(|x| x.as_u64().unwrap() as u32)
         .collect();
-    assert_eq!(rows, body.compliance.rows(), "{mesh}: the displayed rows");
+    assert_eq!(page_rows, rows, "{what}: the displayed rows");
     let mut u = vec![DVec3::ZERO; rows.len()];
-    body.compliance.displace(&forces, &mut u);
+    c.displace(forces, &mut u);
     let pos: Vec<f64> = r["positions"]
         .as_array()
         .unwrap()
         .iter()
         .map(|x| x.as_f64().unwrap())
         .collect();
-    assert_eq!(pos.len(), 3 * rows.len(), "{mesh}: positions");
+    assert_eq!(pos.len(), 3 * rows.len(), "{what}: positions");
     let umax = u.iter().fold(0.0f64, |m, v| m.max(v.abs().max_element()));
-    let xmax = body
-        .mesh
-        .nodes
+    let xmax = rest
         .iter()
         .fold(0.0f64, |m, v| m.max(v.abs().max_element()));
     let tol = 1e-5 * umax + 4.0 * f64::from(f32::EPSILON) * xmax;
     let mut worst = 0.0f64;
     for (i, (&node, u)) in rows.iter().zip(&u).enumerate() {
-        let want = body.mesh.nodes[node as usize] + *u;
+        let want = rest[node as usize] + *u;
         let got = DVec3::new(pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]);
         worst = worst.max((got - want).abs().max_element());
     }
-    eprintln!("{mesh}: browser GPU vs f64: max error {worst:e} m (tol {tol:e}, max|u| {umax:e})");
-    assert!(umax > 1e-4, "{mesh}: the press deforms ({umax:e} m)");
-    assert!(worst <= tol, "{mesh}: {worst:e} > {tol:e}");
-    run
+    eprintln!("{what}: browser GPU vs f64: max error {worst:e} m (tol {tol:e}, max|u| {umax:e})");
+    assert!(umax > 1e-4, "{what}: the press deforms ({umax:e} m)");
+    assert!(worst <= tol, "{what}: {worst:e} > {tol:e}");
 }
 
 #[test]
@@ -289,42 +301,12 @@ fn the_page_cuts_the_incision_as_the_engine_does_natively() {
     // The GPU's vertices against rest + the cut compliance's f64 displacement.
     let body = native.cut_body(0).expect("the native run cut");
     let o = &native.world.objects[0];
-    let rows = body.compliance.rows();
     let bc: Vec<(u32, DVec3)> = native.sample().bcs[0]
         .entries()
         .iter()
         .map(|&(c, f)| (c, f.as_vec3().as_dvec3()))
         .collect();
-    let mut u = vec![DVec3::ZERO; rows.len()];
-    body.compliance.displace(&bc, &mut u);
-    let pos: Vec<f64> = r["positions"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_f64().unwrap())
-        .collect();
-    assert_eq!(pos.len(), 3 * rows.len());
-    let umax = u.iter().fold(0.0f64, |m, v| m.max(v.abs().max_element()));
-    let xmax = o
-        .body
-        .mesh
-        .nodes
-        .iter()
-        .fold(0.0f64, |m, v| m.max(v.abs().max_element()));
-    let tol = 1e-5 * umax + 4.0 * f64::from(f32::EPSILON) * xmax;
-    let worst = rows
-        .iter()
-        .zip(&u)
-        .enumerate()
-        .map(|(i, (&node, u))| {
-            let want = o.body.mesh.nodes[node as usize] + *u;
-            let got = DVec3::new(pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]);
-            (got - want).abs().max_element()
-        })
-        .fold(0.0f64, f64::max);
-    eprintln!("incision: browser GPU vs f64: max error {worst:e} m (tol {tol:e}, max|u| {umax:e})");
-    assert!(umax > 1e-4, "the press deforms ({umax:e} m)");
-    assert!(worst <= tol, "{worst:e} > {tol:e}");
+    gpu_matches_f64("incision", r, &o.body.mesh.nodes, &body.compliance, &bc);
 }
 
 #[test]

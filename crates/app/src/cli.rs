@@ -368,23 +368,11 @@ fn serve(a: &ServeArgs) -> Result<(), Error> {
     } else {
         serve(&world, &opts, &INTERRUPTED, bound)?
     };
-    let json = serde_json::to_string_pretty(&report).expect("serialisable");
-    match &a.report {
-        Some(path) => {
-            touchfem_core::cache::write_atomic(path, json.as_bytes()).map_err(|source| {
-                Error::Write {
-                    path: path.clone(),
-                    source,
-                }
-            })?
-        }
-        None => println!("{json}"),
-    }
-    // A failed recording fails the command, after the report is written.
-    match report.recording_error {
-        Some(e) => Err(Error::Session(format!("--record: {e}"))),
-        None => Ok(()),
-    }
+    crate::report::report_out(
+        &report,
+        a.report.as_deref(),
+        report.recording_error.as_deref(),
+    )
 }
 
 fn replay(a: &ReplayArgs) -> Result<(), Error> {

@@ -12,6 +12,7 @@ pub mod demo;
 pub mod error;
 pub mod haply;
 pub mod precompute;
+pub mod report;
 pub mod visual;
 pub mod vtu;
 pub mod window;

@@ -50,20 +50,9 @@ pub fn serve(a: &ServeArgs) -> Result<(), Error> {
     let report = serve_haply(&world, &opts, &INTERRUPTED, |ids| {
         eprintln!("driving Haply Inverse3 {}", ids.join(", "));
     })?;
-    let json = serde_json::to_string_pretty(&report).expect("serialisable");
-    match &a.report {
-        Some(path) => {
-            touchfem_core::cache::write_atomic(path, json.as_bytes()).map_err(|source| {
-                Error::Write {
-                    path: path.clone(),
-                    source,
-                }
-            })?
-        }
-        None => println!("{json}"),
-    }
-    match report.recording_error {
-        Some(e) => Err(Error::Session(format!("--record: {e}"))),
-        None => Ok(()),
-    }
+    crate::report::report_out(
+        &report,
+        a.report.as_deref(),
+        report.recording_error.as_deref(),
+    )
 }
