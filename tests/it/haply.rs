@@ -147,7 +147,7 @@ fn a_press_through_the_mock_service_gets_the_librarys_force_and_zero_at_the_end(
         (0, 0, 0)
     );
     assert_eq!(r.devices, ["049D"]);
-    assert!(r.max_force_n <= bound && r.max_force_n > 0.05);
+    assert!(r.run.max_force_n <= bound && r.run.max_force_n > 0.05);
     assert!(r.haply[0].rtt_us_p99.is_finite());
 }
 
@@ -247,7 +247,7 @@ fn a_small_scene_bound_caps_every_force_sent() {
         .map(|m| DVec3::from_array(m.force).length())
         .fold(0.0, f64::max);
     assert!(max <= 0.1 + 1e-12 && max > 0.09, "{max}");
-    assert!(r.max_force_n <= 0.1 + 1e-12);
+    assert!(r.run.max_force_n <= 0.1 + 1e-12);
 }
 
 #[test]

@@ -246,8 +246,8 @@ fn a_press_over_loopback_gets_the_librarys_force_and_survives_bad_packets() {
         r.packets_dropped,
         r.udp.malformed + r.udp.out_of_order + r.udp.foreign
     );
-    assert_eq!(r.ticks, 1500);
-    assert!(r.max_force_n > 0.1 && r.max_force_n <= 8.5);
+    assert_eq!(r.run.ticks, 1500);
+    assert!(r.run.max_force_n > 0.1 && r.run.max_force_n <= 8.5);
 }
 
 #[test]
@@ -554,11 +554,15 @@ fn no_force_packet_exceeds_the_bound_through_the_coupling() {
         eprintln!(
             "{clock:?}: {} packets, max {max} N, report max {} N",
             got.len(),
-            r.max_force_n
+            r.run.max_force_n
         );
         assert!(got.len() > 50, "{clock:?}");
         assert!(max <= 0.1 + 1e-12 && max > 0.09, "{clock:?}: {max} N");
-        assert!(r.max_force_n <= 0.1 + 1e-12, "{clock:?}: {}", r.max_force_n);
+        assert!(
+            r.run.max_force_n <= 0.1 + 1e-12,
+            "{clock:?}: {}",
+            r.run.max_force_n
+        );
         assert!(got.iter().any(|(_, p)| p.flags[0] & FLAG_LIMITED != 0));
     }
 }
@@ -835,7 +839,7 @@ fn fuzzed_datagrams_over_the_wire_keep_forces_finite_and_bounded() {
             assert!(f.is_finite() && f.length() <= 0.25 + 1e-12, "{p:?}");
         }
     }
-    assert!(r.max_force_n <= 0.25 + 1e-12);
+    assert!(r.run.max_force_n <= 0.25 + 1e-12);
     assert!(r.udp.malformed > 1000, "{:?}", r.udp);
 }
 

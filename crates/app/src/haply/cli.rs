@@ -53,6 +53,6 @@ pub fn serve(a: &ServeArgs) -> Result<(), Error> {
     crate::report::report_out(
         &report,
         a.report.as_deref(),
-        report.recording_error.as_deref(),
+        report.run.recording_error.as_deref(),
     )
 }

@@ -22,9 +22,7 @@ use std::time::Duration;
 
 pub use client::{ClientConfig, HaplyClient, HaplyCounters, HaplyError};
 use touchfem_core::devices::external::{external_link, ExternalFingers};
-use touchfem_core::devices::limits::DeviceLimits;
-use touchfem_core::runtime::pacer::HapticStats;
-use touchfem_core::runtime::serve::{headless, serve_devices_with, LoopOptions};
+use touchfem_core::runtime::serve::{headless, serve_devices_with, LoopOptions, LoopReport};
 use touchfem_core::scene::{DeviceSpec, World};
 
 use crate::error::Error;
@@ -49,8 +47,6 @@ pub struct HaplyReport {
     pub address: String,
     /// The Inverse3 each finger drives.
     pub devices: Vec<String>,
-    /// Haptic ticks run.
-    pub ticks: u64,
     /// UDP datagrams read (none on this path; the key of every `serve` report).
     pub packets_received: u64,
     /// UDP datagrams dropped (none on this path).
@@ -59,12 +55,6 @@ pub struct HaplyReport {
     pub packets_rejected: u64,
     /// Watchdog periods (the same as `haply_stale`).
     pub stale_periods: u64,
-    /// Missed haptic deadlines.
-    pub missed_deadlines: u64,
-    /// p99.9 of the period error, µs.
-    pub period_error_us_p999: f64,
-    /// Largest force sent, N.
-    pub max_force_n: f64,
     /// `set_cursor_force` commands sent, every finger.
     pub haply_messages: u64,
     /// Watchdog periods: times no state came for longer than the watchdog.
@@ -79,19 +69,9 @@ pub struct HaplyReport {
     pub haply_watchdog_ms: f64,
     /// Each finger's client counters (round trips, rate).
     pub haply: Vec<HaplyCounters>,
-    /// Each finger's device limits.
-    pub limits: Vec<Option<DeviceLimits>>,
-    /// The haptic loop's timing.
-    pub haptic: HapticStats,
-    /// The bare-loop floor measured before serving (`--floor-seconds`).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub floor: Option<HapticStats>,
-    /// With `--record`: ticks whose record was not kept.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub records_dropped: Option<u64>,
-    /// With `--record`: why the recording failed.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub recording_error: Option<String>,
+    /// The loop: ticks, deadlines, forces, limits, timing, recording.
+    #[serde(flatten)]
+    pub run: LoopReport,
 }
 
 /// Serves `world`'s Haply fingers (every finger must be one; see
@@ -147,19 +127,14 @@ pub fn serve_haply(
     let devices: Vec<String> = clients.iter().map(|c| c.device_id().to_string()).collect();
     let counters: Vec<HaplyCounters> = clients.into_iter().map(HaplyClient::stop).collect();
     let (served, _) = served?;
-    let run = served.run;
     let sum = |f: fn(&HaplyCounters) -> u64| counters.iter().map(f).sum::<u64>();
     Ok(HaplyReport {
         address,
         devices,
-        ticks: run.stats.ticks,
         packets_received: 0,
         packets_dropped: 0,
         packets_rejected: 0,
         stale_periods: sum(|c| c.stale),
-        missed_deadlines: run.stats.missed_deadlines,
-        period_error_us_p999: run.stats.period_error_us_p999,
-        max_force_n: run.stats.max_force_n,
         haply_messages: sum(|c| c.messages),
         haply_stale: sum(|c| c.stale),
         haply_malformed: sum(|c| c.malformed),
@@ -167,10 +142,6 @@ pub fn serve_haply(
         haply_reconnects: sum(|c| c.reconnects),
         haply_watchdog_ms: opts.watchdog.as_secs_f64() * 1e3,
         haply: counters,
-        limits: world.fingers.iter().map(|f| f.limits.clone()).collect(),
-        haptic: run.stats,
-        floor: served.floor,
-        records_dropped: served.records_dropped,
-        recording_error: served.recording_error,
+        run: LoopReport::of(world, served),
     })
 }

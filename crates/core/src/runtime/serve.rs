@@ -46,33 +46,20 @@ pub struct ServeOptions {
     pub floor_seconds: Option<f64>,
 }
 
-/// The report of `serve` (keys in CONTRACTS.md).
+/// What every `serve` report says of the haptic loop, whatever its devices (flattened into the
+/// report: its keys stand beside the devices' own).
 #[derive(Clone, Debug, serde::Serialize)]
-pub struct ServeReport {
-    /// The address served.
-    pub address: String,
+pub struct LoopReport {
     /// Haptic ticks run.
     pub ticks: u64,
-    /// Datagrams read.
-    pub packets_received: u64,
-    /// Datagrams dropped (malformed, rejected, old, duplicate, foreign).
-    pub packets_dropped: u64,
-    /// Of those, packets whose tag did not verify under `--key`.
-    pub packets_rejected: u64,
-    /// Times the watchdog expired with a client being served.
-    pub stale_periods: u64,
     /// Missed haptic deadlines.
     pub missed_deadlines: u64,
     /// p99.9 of the period error, µs.
     pub period_error_us_p999: f64,
     /// Largest force sent, N.
     pub max_force_n: f64,
-    /// What paced the loop: "host" or "device".
-    pub clock: String,
     /// Each finger's device limits (`null`: the paper's force, saturated).
     pub limits: Vec<Option<DeviceLimits>>,
-    /// Every counter of the bridge.
-    pub udp: UdpCounters,
     /// The haptic loop's timing.
     pub haptic: HapticStats,
     /// The bare-loop floor measured before serving (`--floor-seconds`).
@@ -86,6 +73,46 @@ pub struct ServeReport {
     /// then exits with this error).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub recording_error: Option<String>,
+}
+
+impl LoopReport {
+    /// The report of a loop that served `world`.
+    pub fn of(world: &World, served: Served) -> LoopReport {
+        let stats = served.run.stats;
+        LoopReport {
+            ticks: stats.ticks,
+            missed_deadlines: stats.missed_deadlines,
+            period_error_us_p999: stats.period_error_us_p999,
+            max_force_n: stats.max_force_n,
+            limits: world.fingers.iter().map(|f| f.limits.clone()).collect(),
+            haptic: stats,
+            floor: served.floor,
+            records_dropped: served.records_dropped,
+            recording_error: served.recording_error,
+        }
+    }
+}
+
+/// The report of `serve` (keys in CONTRACTS.md).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ServeReport {
+    /// The address served.
+    pub address: String,
+    /// Datagrams read.
+    pub packets_received: u64,
+    /// Datagrams dropped (malformed, rejected, old, duplicate, foreign).
+    pub packets_dropped: u64,
+    /// Of those, packets whose tag did not verify under `--key`.
+    pub packets_rejected: u64,
+    /// Times the watchdog expired with a client being served.
+    pub stale_periods: u64,
+    /// What paced the loop: "host" or "device".
+    pub clock: String,
+    /// Every counter of the bridge.
+    pub udp: UdpCounters,
+    /// The loop: ticks, deadlines, forces, limits, timing, recording.
+    #[serde(flatten)]
+    pub run: LoopReport,
 }
 
 /// The world `serve` runs: a scene whose fingers are all UDP fingers, or a bare mesh (then as
@@ -180,27 +207,18 @@ pub fn serve_with<E: From<Error>>(
     let (served, bridge) = serve_devices_with(world, &opts.loop_options(), stop, open, visual)?;
     let counters = bridge.counters();
     drop(bridge);
-    let run = served.run;
     Ok(ServeReport {
         address: addr.to_string(),
-        ticks: run.stats.ticks,
         packets_received: counters.packets_received,
         packets_dropped: counters.packets_dropped,
         packets_rejected: counters.packets_rejected,
         stale_periods: counters.stale_periods,
-        missed_deadlines: run.stats.missed_deadlines,
-        period_error_us_p999: run.stats.period_error_us_p999,
-        max_force_n: run.stats.max_force_n,
         clock: match opts.clock {
             Clock::Host => "host".into(),
             Clock::Device => "device".into(),
         },
-        limits: world.fingers.iter().map(|f| f.limits.clone()).collect(),
         udp: counters,
-        haptic: run.stats,
-        floor: served.floor,
-        records_dropped: served.records_dropped,
-        recording_error: served.recording_error,
+        run: LoopReport::of(world, served),
     })
 }
 
@@ -237,7 +255,7 @@ pub struct Served {
     pub run: HapticRun,
     /// The bare-loop floor measured before serving.
     pub floor: Option<HapticStats>,
-    /// With `--record`: ticks whose record was not kept (see [`ServeReport::records_dropped`]).
+    /// With `--record`: ticks whose record was not kept (see [`LoopReport::records_dropped`]).
     pub records_dropped: Option<u64>,
     /// With `--record`: why the recording failed.
     pub recording_error: Option<String>,
