@@ -216,3 +216,14 @@ impl Xorshift {
         (self.next() % n.max(1) as u64) as usize
     }
 }
+
+/// The native GPU tests' tolerance for a vertex position against `rest + u` in f64: 1e-5 of the
+/// largest displacement plus 4 f32 ulps of the largest rest coordinate. Returns (tolerance,
+/// max |u|), m.
+pub fn gpu_tolerance(u: &[glam::DVec3], rest: &[glam::DVec3]) -> (f64, f64) {
+    let umax = u.iter().fold(0.0f64, |m, v| m.max(v.abs().max_element()));
+    let xmax = rest
+        .iter()
+        .fold(0.0f64, |m, v| m.max(v.abs().max_element()));
+    (1e-5 * umax + 4.0 * f64::from(f32::EPSILON) * xmax, umax)
+}

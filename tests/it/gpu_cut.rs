@@ -94,11 +94,7 @@ fn check_positions(
         .zip(&u)
         .map(|(&node, u)| rest[node as usize] + *u)
         .collect();
-    let umax = u.iter().fold(0.0f64, |m, v| m.max(v.abs().max_element()));
-    let xmax = rest
-        .iter()
-        .fold(0.0f64, |m, v| m.max(v.abs().max_element()));
-    let tol = 1e-5 * umax + 4.0 * f64::from(f32::EPSILON) * xmax;
+    let (tol, umax) = crate::common::gpu_tolerance(&u, rest);
     let mut worst = 0.0f64;
     for (i, (g, want)) in pos.iter().zip(&x).enumerate() {
         let err = (to_f64(*g) - *want).abs().max_element();

@@ -197,11 +197,7 @@ fn gpu_matches_f64(
         .map(|x| x.as_f64().unwrap())
         .collect();
     assert_eq!(pos.len(), 3 * rows.len(), "{what}: positions");
-    let umax = u.iter().fold(0.0f64, |m, v| m.max(v.abs().max_element()));
-    let xmax = rest
-        .iter()
-        .fold(0.0f64, |m, v| m.max(v.abs().max_element()));
-    let tol = 1e-5 * umax + 4.0 * f64::from(f32::EPSILON) * xmax;
+    let (tol, umax) = crate::common::gpu_tolerance(&u, rest);
     let mut worst = 0.0f64;
     for (i, (&node, u)) in rows.iter().zip(&u).enumerate() {
         let want = rest[node as usize] + *u;

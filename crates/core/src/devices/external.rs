@@ -118,7 +118,7 @@ impl ExternalFinger {
         }
     }
 
-    fn send(&mut self, force: DVec3, touching: bool, released: bool) {
+    fn send(&mut self, force: DVec3, touching: bool, released: bool, at: Instant) {
         let force = if force.is_finite() && !released {
             force
         } else {
@@ -126,7 +126,7 @@ impl ExternalFinger {
         };
         self.forces.write(ForceSample {
             force,
-            at: Some(Instant::now()),
+            at: Some(at),
             touching,
             released,
         });
@@ -138,7 +138,7 @@ impl HapticDevice for ExternalFinger {
         self.position_at(Instant::now())
     }
     fn set_force(&mut self, f: DVec3) {
-        self.send(f, false, false);
+        self.send(f, false, false, Instant::now());
     }
 }
 
@@ -172,14 +172,16 @@ impl FingerDevices for ExternalFingers {
         }
     }
     fn write(&mut self, forces: &[DVec3], state: &[ForceState]) {
+        let now = Instant::now();
         for (i, (f, d)) in forces.iter().zip(self.0.iter_mut()).enumerate() {
             let touching = state.get(i).is_some_and(|s| s.touching);
-            d.send(*f, touching, false);
+            d.send(*f, touching, false, now);
         }
     }
     fn release(&mut self) {
+        let now = Instant::now();
         for d in &mut self.0 {
-            d.send(DVec3::ZERO, false, true);
+            d.send(DVec3::ZERO, false, true, now);
         }
     }
 }
