@@ -5,6 +5,7 @@ mod cli;
 #[allow(dead_code)]
 mod common;
 mod contact_force;
+mod core_checks;
 mod coupling;
 mod cut;
 mod cut_hostile;

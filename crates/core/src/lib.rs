@@ -66,6 +66,9 @@ pub mod options;
 pub mod precompute;
 pub mod runtime;
 pub mod scene;
+#[cfg(feature = "self-check")]
+#[doc(hidden)]
+pub mod self_check;
 pub mod threads;
 
 pub use error::Error;

@@ -196,15 +196,19 @@ impl VisualPlacement {
     }
 }
 
-#[cfg(all(test, feature = "native", target_os = "linux"))]
-mod tests {
+#[cfg(all(
+    any(test, feature = "self-check"),
+    feature = "native",
+    target_os = "linux"
+))]
+pub(crate) mod tests {
     use super::*;
 
     /// Pinning restricts the thread to the named core, and restoring gives every core back;
     /// bad requests change nothing. (Runs on a spawned thread so the test harness's thread
     /// keeps its affinity.)
-    #[test]
-    fn pin_and_restore() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn pin_and_restore() {
         std::thread::spawn(|| {
             let all = current_cpus();
             assert!(!all.is_empty(), "sched_getaffinity works on Linux");

@@ -340,12 +340,12 @@ pub(crate) fn check_merge<P: Shard>(
     Ok(opened.iter().map(|p| p.residual()).fold(0.0f64, f64::max))
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn the_common_header_reads_what_it_writes() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn the_common_header_reads_what_it_writes() {
         let c = Common {
             n_nodes: 7,
             rows: 5,
@@ -370,8 +370,8 @@ mod tests {
         assert_eq!(kind(&h[..11]), Kind::Other);
     }
 
-    #[test]
-    fn byte_sources_read_within_their_length() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn byte_sources_read_within_their_length() {
         let b = [1u8, 2, 3, 4];
         let s = Source::Bytes(&b);
         let mut out = [0u8; 2];

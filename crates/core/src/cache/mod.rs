@@ -43,7 +43,7 @@ use std::path::{Path, PathBuf};
 mod atomic;
 mod dense;
 mod error;
-mod format;
+pub(crate) mod format;
 pub mod hier;
 mod key;
 mod runs;

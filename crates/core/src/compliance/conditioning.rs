@@ -194,8 +194,8 @@ pub fn dense_k(k: &Stiffness) -> nalgebra::DMatrix<f64> {
     }
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
     /// The estimate for `mesh`, its smallest eigenvalue checked against the dense (for a
@@ -218,8 +218,8 @@ mod tests {
     /// iteration on the mixed factor equals the condensed stiffness's (formed densely by the
     /// Schur complement, an independent route), and the largest is bounded above by the
     /// nodal-average stiffness's without falling far below the true one.
-    #[test]
-    fn a_mixed_system_is_estimated_against_its_condensed_stiffness() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn a_mixed_system_is_estimated_against_its_condensed_stiffness() {
         let mut mesh = crate::mesh::cube();
         mesh.material.poisson = 0.49;
         mesh.formulation = crate::mesh::units::Formulation::LockingFree;
@@ -232,8 +232,8 @@ mod tests {
         );
     }
 
-    #[test]
-    fn the_cube_is_estimated_against_its_dense_eigenvalues() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn the_cube_is_estimated_against_its_dense_eigenvalues() {
         let mesh = crate::mesh::cube();
         let (c, hi) = estimate_against_dense(&mesh);
         assert!(

@@ -118,12 +118,12 @@ impl NearBlocks {
     }
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn pairs_are_the_triangles_edges_and_the_diagonal() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn pairs_are_the_triangles_edges_and_the_diagonal() {
         // Nodes 0..5; node 4 is clamped (no column); columns: node n -> n for n < 4, 5 -> 4.
         let col_of_node = [0, 1, 2, 3, u32::MAX, 4];
         let tris = [[0, 1, 2], [2, 1, 3], [3, 4, 5]];

@@ -186,12 +186,12 @@ impl FingerDevices for ExternalFingers {
     }
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn readings_age_out_forces_flow_and_release_is_final() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn readings_age_out_forces_flow_and_release_is_final() {
         let (finger, mut port) = external_link(Duration::from_millis(20));
         let mut fingers = ExternalFingers(vec![finger]);
         let mut p = [DVec3::ZERO];

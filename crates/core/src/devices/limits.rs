@@ -117,12 +117,12 @@ impl DeviceLimits {
     }
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn every_preset_resolves_and_is_valid() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn every_preset_resolves_and_is_valid() {
         for p in PRESETS {
             let l = DeviceLimits::named(p).unwrap();
             assert_eq!(l.name, *p);

@@ -17,7 +17,7 @@ pub mod external;
 pub mod limits;
 pub mod pointer;
 mod replay;
-mod script;
+pub(crate) mod script;
 pub mod udp;
 pub mod workspace;
 

@@ -91,12 +91,12 @@ impl HapticDevice for KeyframePath {
     fn set_force(&mut self, _f: DVec3) {}
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn keyframes_interpolate_and_hold() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn keyframes_interpolate_and_hold() {
         let mut p = KeyframePath::new(vec![
             (0.0, DVec3::ZERO),
             (1.0, DVec3::new(1.0, 0.0, 0.0)),

@@ -784,12 +784,12 @@ fn sockaddr(a: SocketAddr) -> (libc::sockaddr_storage, libc::socklen_t) {
     (s, len as libc::socklen_t)
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn packets_round_trip_and_malformed_ones_are_refused() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn packets_round_trip_and_malformed_ones_are_refused() {
         let mut b = [0u8; 200];
         let p = [DVec3::new(1.0, 2.0, 3.0), DVec3::new(-1.0, 0.5, 1e-3)];
         let len = encode_position(7, &p, &mut b);
@@ -813,8 +813,8 @@ mod tests {
     }
 }
 
-#[cfg(all(test, feature = "native"))]
-mod gate_tests {
+#[cfg(all(any(test, feature = "self-check"), feature = "native"))]
+pub(crate) mod gate_tests {
     use super::*;
 
     fn gate(key: Option<Key>) -> Gate {
@@ -838,8 +838,8 @@ mod gate_tests {
         b[..len].to_vec()
     }
 
-    #[test]
-    fn sequence_numbers_compare_in_serial_arithmetic() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn sequence_numbers_compare_in_serial_arithmetic() {
         assert!(seq_newer(1, 0));
         assert!(seq_newer(0, u32::MAX), "the counter wraps");
         assert!(seq_newer(5, u32::MAX - 5));
@@ -850,8 +850,8 @@ mod gate_tests {
         assert!(!seq_newer(100 + (1 << 31), 100));
     }
 
-    #[test]
-    fn a_wrapping_counter_loses_no_packet() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn a_wrapping_counter_loses_no_packet() {
         let c = AtomicCounters::default();
         let mut g = gate(None);
         let from: SocketAddr = "127.0.0.1:5000".parse().unwrap();
@@ -866,8 +866,8 @@ mod gate_tests {
         assert_eq!(c.snapshot().packets_dropped, 0);
     }
 
-    #[test]
-    fn one_packet_with_seq_max_does_not_lock_the_client_out() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn one_packet_with_seq_max_does_not_lock_the_client_out() {
         let c = AtomicCounters::default();
         let mut g = gate(None);
         let from: SocketAddr = "127.0.0.1:5000".parse().unwrap();
@@ -881,8 +881,8 @@ mod gate_tests {
         assert!(g.offer(&packet(101, None), from, t2, &c).is_some());
     }
 
-    #[test]
-    fn keyed_packets_verify_and_others_are_rejected() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn keyed_packets_verify_and_others_are_rejected() {
         let key = Key::new(b"0123456789abcdef-secret").unwrap();
         let other = Key::new(b"another key of 16+ bytes").unwrap();
         let c = AtomicCounters::default();
@@ -908,8 +908,8 @@ mod gate_tests {
         assert!(matches!(Key::new(b"short"), Err(UdpError::ShortKey(5))));
     }
 
-    #[test]
-    fn random_and_mutated_datagrams_never_panic_the_gate() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn random_and_mutated_datagrams_never_panic_the_gate() {
         use proptest::prelude::*;
         use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
         let key = Key::new(b"fuzzing key, 16+ bytes").unwrap();

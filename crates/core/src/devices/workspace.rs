@@ -50,12 +50,12 @@ impl Workspace {
     }
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn points_map_both_ways_and_forces_are_unchanged() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn points_map_both_ways_and_forces_are_unchanged() {
         let w = Workspace {
             device_centre: DVec3::from_array(DEFAULT_DEVICE_CENTRE),
             scene_centre: DVec3::new(0.015, 0.015, 0.030),

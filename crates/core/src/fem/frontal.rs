@@ -815,14 +815,14 @@ pub(crate) fn factorize_to_file(
     Ok((Values::Mapped(map), 8 * peak))
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
     /// The visiting order is a post-order: every supernode once, each after its children,
     /// each subtree one contiguous run ending at its root (what the workers' runs rely on).
-    #[test]
-    fn the_plan_is_a_post_order_with_contiguous_subtrees() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn the_plan_is_a_post_order_with_contiguous_subtrees() {
         let m = crate::mesh::mouse();
         let k = crate::fem::Stiffness::assemble(&m).expect("K");
         let f = k.factorize().expect("factor");

@@ -833,8 +833,8 @@ fn mark_path(marked: &mut [bool], parent: &[usize], mut s: usize) {
     }
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
     /// A clamped cube of `n`³ cells, its factor and the Gram plan of its free surface (rows and
@@ -851,8 +851,8 @@ mod tests {
 
     /// Shards made on machines with different core counts must merge into the unsharded
     /// file: `W` may not depend on how its rows are split over threads.
-    #[test]
-    fn w_is_the_same_bit_for_bit_on_any_number_of_threads() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn w_is_the_same_bit_for_bit_on_any_number_of_threads() {
         let (f, g) = cube_surface(14);
         let one = g.forward(&f, 1).expect("W");
         assert!(one.iter().any(|&v| v != 0.0) && one.iter().all(|v| v.is_finite()));
@@ -867,8 +867,8 @@ mod tests {
 
     /// `apply` of a set of vectors equals the Gram tiles' entries (all rows) times them, for
     /// scattered, consecutive and disjoint node sets.
-    #[test]
-    fn apply_equals_the_tiles_times_the_vectors() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn apply_equals_the_tiles_times_the_vectors() {
         let (f, g) = cube_surface(8);
         let w = g.forward(&f, 1).expect("W");
         let n = g.nodes().len();

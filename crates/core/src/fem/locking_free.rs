@@ -546,8 +546,8 @@ pub(crate) fn wanted(mesh: &Mesh) -> bool {
     mesh.formulation == Formulation::LockingFree
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
     use crate::mesh::units::{LengthUnit, Material, MaterialError};
     use crate::mesh::{cube_with, grid_raw};
@@ -628,8 +628,8 @@ mod tests {
     /// zero at interior nodes, the tractions of the uniform stress on the boundary — and, with
     /// the boundary nodes held at the affine field, the solve reproduces it inside, on a
     /// distorted mesh at ν = 0.3 and 0.4999.
-    #[test]
-    fn patch_test_linear_field_is_reproduced_exactly() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn patch_test_linear_field_is_reproduced_exactly() {
         for nu in [0.3, 0.4999] {
             let m = jittered(3, nu);
             let u = affine(&m);
@@ -685,8 +685,8 @@ mod tests {
     /// and the number of modes that stiffen with the bulk modulus is at most the number of
     /// nodal dilatations (27; stabilised: 4), against up to one per tet (40) for the standard
     /// element: the volume constraints that lock it.
-    #[test]
-    fn a_free_patch_has_exactly_six_zero_modes_and_no_spurious_ones() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn a_free_patch_has_exactly_six_zero_modes_and_no_spurious_ones() {
         let m = jittered(2, 0.4999);
         let std_e = eigenvalues(&super::super::dense_stiffness(&m));
         let dev_e = eigenvalues(&dense_deviatoric(&m));
@@ -782,8 +782,8 @@ mod tests {
         m
     }
 
-    #[test]
-    fn the_mixed_system_gives_the_assembled_displacements_on_every_path() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn the_mixed_system_gives_the_assembled_displacements_on_every_path() {
         // (The stabilised ones' too, against their dense condensed stiffness.)
         use super::super::{FactorStore, Ordering};
         use crate::compliance::{Compliance, Method, Selection};
@@ -892,8 +892,8 @@ mod tests {
     }
 
     #[cfg(feature = "native")] // METIS's fill
-    #[test]
-    fn the_mixed_factor_is_about_half_the_assembled_one() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn the_mixed_factor_is_about_half_the_assembled_one() {
         let mut m = cube_with([8; 3], [30.0; 3], material(0.4999)).expect("cube");
         m.formulation = Formulation::LockingFree;
         let std_k = {
@@ -918,8 +918,8 @@ mod tests {
     /// The sparse, clamped stiffness equals the dense one on the free DOFs, is symmetric, and
     /// honours per-tet materials: a two-region mesh (a stiff, nearly incompressible half on
     /// a soft, compressible one) keeps the sandwich deviatoric ≤ locking-free ≤ standard.
-    #[test]
-    fn sparse_equals_dense_and_regions_are_honoured() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn sparse_equals_dense_and_regions_are_honoured() {
         let mut raw = grid_raw([3, 3, 3], [30.0; 3], |_, _, _| true);
         // The tets of the upper cells (z > 15 mm) form the group "top".
         let top: Vec<usize> = (0..raw.tets.len())
@@ -991,8 +991,8 @@ mod tests {
     /// least 80 % of the 8³ one; the standard element's is not even monotone (2³ settles more
     /// than 4³) and its 4³ mesh reaches less than 75 % of its 8³ one (locked). At ν = 0.3 all
     /// agree within 2 % on 4³.
-    #[test]
-    fn converges_under_refinement_where_the_standard_element_locks() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn converges_under_refinement_where_the_standard_element_locks() {
         let settle = |cells: usize, nu: f64, f: Option<Smoothing>| -> f64 {
             let m = cube_with([cells; 3], [30.0; 3], material(nu)).expect("mesh");
             let mut load = vec![DVec3::ZERO; m.nodes.len()];
@@ -1050,8 +1050,8 @@ mod tests {
     /// relaxation brings, documented): under a point press, where the strain concentrates,
     /// the RMS dilatation is a third (bubble) to a half (projection) of the RMS strain on 4³
     /// and on 8³ alike, against 1 % for the locked standard element; held under 0.5 here.
-    #[test]
-    fn the_stabilised_elements_keep_the_whole_bodys_volume() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn the_stabilised_elements_keep_the_whole_bodys_volume() {
         // (volume change m³, the volume-weighted RMS of θ_e over that of |ε_e|)
         let change = |cells: usize, nu: f64, s: Option<Smoothing>| -> (f64, f64) {
             let m = jittered(cells, nu);
@@ -1106,8 +1106,8 @@ mod tests {
 
     /// ν = 0.5 exactly is a typed error for both formulations, at the material and in a
     /// region; ν just below it assembles.
-    #[test]
-    fn poisson_one_half_is_a_typed_error() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn poisson_one_half_is_a_typed_error() {
         for f in [Formulation::Standard, Formulation::LockingFree] {
             let mut m = cube_with([2; 3], [30.0; 3], material(0.5)).expect("mesh");
             m.formulation = f;

@@ -814,15 +814,15 @@ pub(crate) fn collinear(p: &[DVec3], scale: f64) -> bool {
         .all(|&q| (q - a).cross(dir).length() <= 1e-9 * scale)
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
     use crate::mesh::cube;
 
     /// The direct CSC assembly equals the dense assembly of the element matrices on the free
     /// DOFs (to round-off: the sums run in another order), zero off its pattern.
-    #[test]
-    fn direct_assembly_equals_the_dense_assembly() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn direct_assembly_equals_the_dense_assembly() {
         let mesh =
             crate::mesh::cube_with([5, 4, 6], [30.0, 20.0, 40.0], Material::DEFAULT).expect("mesh");
         let k = Stiffness::assemble(&mesh).unwrap();
@@ -848,8 +848,8 @@ mod tests {
         assert!(max > 0.0);
     }
 
-    #[test]
-    fn element_stiffness_is_symmetric_and_kills_rigid_modes() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn element_stiffness_is_symmetric_and_kills_rigid_modes() {
         let p = [
             DVec3::new(0.0, 0.0, 0.0),
             DVec3::new(1.0, 0.1, 0.0),
@@ -878,8 +878,8 @@ mod tests {
         }
     }
 
-    #[test]
-    fn cube_assembles_and_factorizes() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn cube_assembles_and_factorizes() {
         let m = cube();
         let s = Stiffness::assemble(&m).unwrap();
         assert_eq!(s.dofs.n_free, (125 - 25) * 3);

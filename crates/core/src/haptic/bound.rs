@@ -106,16 +106,16 @@ impl ForceBound {
     }
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
     fn falcon() -> DeviceLimits {
         DeviceLimits::preset("falcon").unwrap()
     }
 
-    #[test]
-    fn the_bound_is_the_smaller_of_the_scene_and_the_device() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn the_bound_is_the_smaller_of_the_scene_and_the_device() {
         assert_eq!(ForceBound::new(0.1, Some(&falcon())).bound(), 0.1);
         assert_eq!(ForceBound::new(20.0, Some(&falcon())).bound(), 8.0);
         assert_eq!(ForceBound::new(3.0, None).bound(), 3.0);
@@ -123,8 +123,8 @@ mod tests {
         assert_eq!(ForceBound::new(-1.0, None).bound(), 0.0);
     }
 
-    #[test]
-    fn any_input_gives_a_finite_force_within_the_bound() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn any_input_gives_a_finite_force_within_the_bound() {
         let mut b = ForceBound::new(0.1, Some(&falcon()));
         let wants = [
             DVec3::new(5.0, 0.0, 0.0),
@@ -140,8 +140,8 @@ mod tests {
         }
     }
 
-    #[test]
-    fn the_force_rises_at_the_rate_in_measured_time() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn the_force_rises_at_the_rate_in_measured_time() {
         // 1 N bound: 50 N/s. A step to 1 N reaches 0.05 N after 1 ms, whether that
         // millisecond is one tick or eight.
         let want = DVec3::new(0.0, 0.0, 1.0);
@@ -162,8 +162,8 @@ mod tests {
         assert_eq!(one.apply(DVec3::ZERO, 1e-3).0, DVec3::ZERO);
     }
 
-    #[test]
-    fn a_held_force_falls_to_the_continuous_force() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn a_held_force_falls_to_the_continuous_force() {
         let mut l = falcon();
         l.max_continuous_force_n = Some(2.0);
         let mut b = ForceBound::new(8.5, Some(&l));

@@ -47,10 +47,10 @@
 pub mod bound;
 pub mod coupling;
 pub mod cutter;
-mod sample;
+pub(crate) mod sample;
 
-#[cfg(test)]
-mod pure_tests;
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod pure_tests;
 
 pub use sample::{
     sample_channel, FingerView, LiveStatus, SampleReader, SampleWriter, WorldSample, MAX_OBJECTS,

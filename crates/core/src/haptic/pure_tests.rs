@@ -85,8 +85,8 @@ fn probe(c: &Compliance) -> Vec<f64> {
 
 /// The compliance of a mesh parsed from text, with the solve fanned out over threads
 /// (`native`) or run on the calling thread: the same numbers.
-#[test]
-fn compliance_from_text_matches_the_threaded_solve() {
+#[cfg_attr(test, test)]
+pub(crate) fn compliance_from_text_matches_the_threaded_solve() {
     let mesh = block_from_text();
     let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
     let got = probe(&c);
@@ -96,8 +96,8 @@ fn compliance_from_text_matches_the_threaded_solve() {
 /// A dense cache written out and read back from bytes in memory gives `L` bit for bit; so
 /// does a compressed (hierarchical) one, whose displacement is the dense one's to its
 /// tolerance.
-#[test]
-fn caches_round_trip_through_bytes() {
+#[cfg_attr(test, test)]
+pub(crate) fn caches_round_trip_through_bytes() {
     let mesh = block_from_text();
     let sel = Selection::default();
     let c = Compliance::compute(&mesh, &sel).unwrap();
@@ -142,8 +142,8 @@ fn caches_round_trip_through_bytes() {
 
 /// The paper's Fig. 1 scene (bundled text, bundled cube): a finger pressed 5 mm into the top
 /// face over 300 haptic steps. The last step's force is the native engine's.
-#[test]
-fn a_haptic_press_gives_the_native_force() {
+#[cfg_attr(test, test)]
+pub(crate) fn a_haptic_press_gives_the_native_force() {
     let src = SceneSource::find("fig1").unwrap().unwrap();
     let world = World::from_source_with(&src, None).unwrap();
     let mut hw = HapticWorld::new(&world);
@@ -159,8 +159,8 @@ fn a_haptic_press_gives_the_native_force() {
 }
 
 /// [`crate::threads::fan_out`] returns the parts in order, the calling thread's first.
-#[test]
-fn fan_out_keeps_the_order() {
+#[cfg_attr(test, test)]
+pub(crate) fn fan_out_keeps_the_order() {
     let got: Vec<usize> = crate::threads::fan_out(4, || 10, |i| 10 + i)
         .into_iter()
         .map(|r| r.unwrap())

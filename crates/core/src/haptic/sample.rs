@@ -127,14 +127,14 @@ impl LiveStatus {
     }
 }
 
-#[cfg(all(test, feature = "native"))]
-mod tests {
+#[cfg(all(any(test, feature = "self-check"), feature = "native"))]
+pub(crate) mod tests {
     use super::*;
 
     /// Asserts the order of events, not a duration: the waiter returns only after a flag was
     /// set (a busy machine may start the waiting thread late, which changes nothing here).
-    #[test]
-    fn the_haptic_side_waits_for_the_visual_side_or_a_stop() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn the_haptic_side_waits_for_the_visual_side_or_a_stop() {
         for (ready, stop, want) in [(true, false, true), (false, true, false)] {
             let s = LiveStatus::default();
             let set = AtomicBool::new(false);

@@ -203,12 +203,12 @@ pub fn graded_block(
     Ok(mesh)
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn cube_table1_counts_are_the_papers() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn cube_table1_counts_are_the_papers() {
         let m = cube();
         let t = m.table1();
         assert_eq!(t.nodes, 125);
@@ -221,8 +221,8 @@ mod tests {
         assert!(m.report.is_clean(), "{:?}", m.report);
     }
 
-    #[test]
-    fn mouse_table1_counts_and_pads() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn mouse_table1_counts_and_pads() {
         let m = mouse();
         let t = m.table1();
         assert_eq!(
@@ -250,8 +250,8 @@ mod tests {
 
     /// The phantom's groups: the nodule's tets fill the ball (volume within the mesh's chord
     /// error), tissue and nodule share no tet and cover the block.
-    #[test]
-    fn phantom_has_a_conforming_nodule() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn phantom_has_a_conforming_nodule() {
         let m = phantom();
         let vol = |ids: &[u32]| -> f64 {
             ids.iter()
@@ -280,8 +280,8 @@ mod tests {
         assert_eq!((m.material.young_pa, m.material.poisson), (3000.0, 0.45));
     }
 
-    #[test]
-    fn cube_volume_is_exact() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn cube_volume_is_exact() {
         let m = cube();
         let v: f64 = m
             .tets

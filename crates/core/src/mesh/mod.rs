@@ -6,7 +6,7 @@
 //! unused nodes and extracts the boundary. Every problem is a typed [`MeshError`] naming the tet or
 //! node; nothing here panics on bad input.
 
-mod cube;
+pub(crate) mod cube;
 pub mod io;
 pub mod units;
 
@@ -748,8 +748,8 @@ pub fn worst_quality(mesh: &Mesh) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
     fn one_tet() -> RawMesh {
@@ -767,8 +767,8 @@ mod tests {
 
     /// Area-weighted normals from the fans equal those summed over triangles, on a closed
     /// surface (one chain per vertex), an open strip and a non-manifold bow tie.
-    #[test]
-    fn fans_cover_every_triangle_once() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn fans_cover_every_triangle_once() {
         let cube = cube();
         // A jittered copy of the cube's nodes, so no two normals are trivially equal.
         let p: Vec<DVec3> = cube
@@ -830,8 +830,8 @@ mod tests {
         );
     }
 
-    #[test]
-    fn single_tet_surface_is_outward() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn single_tet_surface_is_outward() {
         let m = Mesh::from_raw(one_tet(), LengthUnit::Metre, Material::DEFAULT).unwrap();
         assert_eq!(m.surface.len(), 4);
         let centroid = m.nodes.iter().copied().sum::<DVec3>() / 4.0;

@@ -192,12 +192,12 @@ pub fn run_floor(rate_hz: f64, seconds: f64, stop: &AtomicBool) -> HapticStats {
     p.stats()
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn quantiles_of_a_histogram() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn quantiles_of_a_histogram() {
         let mut h = vec![0u32; 10];
         h[1] = 998;
         h[7] = 2;
@@ -207,8 +207,8 @@ mod tests {
         assert_eq!(quantile(&[0; 4], 0.5), 0);
     }
 
-    #[test]
-    fn the_floor_runs_at_its_rate() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn the_floor_runs_at_its_rate() {
         let s = run_floor(1000.0, 0.2, &AtomicBool::new(false));
         assert_eq!(s.ticks, 200);
         // 199 periods of 1 ms: the rate is 1 kHz unless the machine stalled for a long time.

@@ -383,8 +383,8 @@ impl SplitMix {
     }
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
     /// A `m × n` matrix with singular values `10^(-i/4)` (i = 0, 1, …) and random singular
@@ -413,8 +413,8 @@ mod tests {
     /// the block, keeps a rank within 3 of the optimal one for the same error, and reports
     /// an error within a factor of the true one; a block whose rank does not pay is left to
     /// the caller.
-    #[test]
-    fn a_sketch_meets_the_tolerance_with_a_near_optimal_rank() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn a_sketch_meets_the_tolerance_with_a_near_optimal_rank() {
         let (m, n) = (300, 240);
         for (seed, tol) in [(1u64, 1e-2), (2, 1e-3), (3, 1e-4), (4, 1e-6)] {
             let (b, s) = decaying(m, n, seed);

@@ -56,7 +56,7 @@ use glam::{DMat3, DVec3};
 
 use tree::ClusterTree;
 
-mod compress;
+pub(crate) mod compress;
 mod plan;
 mod tree;
 
@@ -865,12 +865,12 @@ pub struct LoadErrors {
     pub max: Vec<f64>,
 }
 
-#[cfg(test)]
-mod tests {
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn bad_build_input_is_a_typed_error() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn bad_build_input_is_a_typed_error() {
         let o = HOptions::new(1e-3);
         let p = [DVec3::ZERO];
         let blk = |c: &[u32]| Ok::<_, HError>(vec![0.0; 9 * c.len()]);
@@ -906,8 +906,8 @@ mod tests {
         );
     }
 
-    #[test]
-    fn coincident_points_and_a_zero_matrix_build() {
+    #[cfg_attr(test, test)]
+    pub(crate) fn coincident_points_and_a_zero_matrix_build() {
         // All points in one place: one leaf that cannot split, one dense block.
         let p = vec![DVec3::ONE; 100];
         let h = HMatrix::build(&p, &p, 100, &HOptions::new(1e-3), |c| {
