@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # The test command: installs lavapipe and the X tools if needed, then runs every test of the
-# workspace (GPU tests included, on lavapipe): each crate's unit tests, the one integration-test
-# binary (tests/it, which also runs the examples), and the doc tests (README and the embedding
-# guide included), and the web page in a headless Chromium. The criterion benches (their own package, benches/) are built by `.ci/run`'s clippy, not here.
+# workspace (GPU tests included, on lavapipe): the GPU and web crates' unit tests, the one
+# integration-test binary (tests/it, which also runs the examples and the engine's unit
+# checks), the doc tests (README and the embedding guide included), and the web page in a
+# headless Chromium. The criterion benches (their own package, benches/) are built by
+# `.ci/run`'s clippy, not here.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/ensure-vulkan.sh

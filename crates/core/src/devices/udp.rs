@@ -910,60 +910,53 @@ pub(crate) mod gate_tests {
 
     #[cfg_attr(test, test)]
     pub(crate) fn random_and_mutated_datagrams_never_panic_the_gate() {
-        use proptest::prelude::*;
-        use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
+        // A fixed-seed xorshift64* stream (no proptest: the engine's checks build with the
+        // library, and a dependency here would hold its compilation up).
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = move || {
+            state ^= state >> 12;
+            state ^= state << 25;
+            state ^= state >> 27;
+            state.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        };
         let key = Key::new(b"fuzzing key, 16+ bytes").unwrap();
-        let cases = 20_000;
-        let mut runner = TestRunner::new_with_rng(
-            Config {
-                cases,
-                failure_persistence: None,
-                ..Config::default()
-            },
-            TestRng::deterministic_rng(RngAlgorithm::ChaCha),
-        );
+        let cases = 20_000u32;
         let base = packet(7, None);
         let counts = std::cell::Cell::new((0u64, 0u64));
-        let strategy = (
-            proptest::collection::vec(any::<u8>(), 0..200),
-            any::<bool>(),
-            any::<u32>(),
-            any::<u64>(),
-        );
-        runner
-            .run(&strategy, |(noise, mutate, seq, bits)| {
-                // Either random bytes, or a valid packet with a field or a byte changed.
-                let bytes = if mutate {
-                    let mut b = base.clone();
-                    b[4..8].copy_from_slice(&seq.to_le_bytes());
-                    let i = (bits as usize) % b.len();
-                    b[i] ^= (bits >> 32) as u8;
-                    if bits & 1 == 1 {
-                        b[12..20].copy_from_slice(&f64::from_bits(bits).to_le_bytes());
-                    }
-                    b
-                } else {
-                    noise
-                };
-                for k in [None, Some(key.clone())] {
-                    let c = AtomicCounters::default();
-                    let mut g = gate(k);
-                    let from: SocketAddr = "127.0.0.1:5000".parse().unwrap();
-                    let got = g.offer(&bytes, from, Instant::now(), &c);
-                    let (ok, dropped) = counts.get();
-                    if let Some(a) = got {
-                        prop_assert!(a.packet.positions[..a.packet.n]
-                            .iter()
-                            .all(|p| p.is_finite()));
-                        counts.set((ok + 1, dropped));
-                    } else {
-                        prop_assert_eq!(c.snapshot().packets_dropped, 1);
-                        counts.set((ok, dropped + 1));
-                    }
+        for _ in 0..cases {
+            let len = (next() % 200) as usize;
+            let noise: Vec<u8> = (0..len).map(|_| next() as u8).collect();
+            let (mutate, seq, bits) = (next() & 1 == 1, next() as u32, next());
+            // Either random bytes, or a valid packet with a field or a byte changed.
+            let bytes = if mutate {
+                let mut b = base.clone();
+                b[4..8].copy_from_slice(&seq.to_le_bytes());
+                let i = (bits as usize) % b.len();
+                b[i] ^= (bits >> 32) as u8;
+                if bits & 1 == 1 {
+                    b[12..20].copy_from_slice(&f64::from_bits(bits).to_le_bytes());
                 }
-                Ok(())
-            })
-            .unwrap();
+                b
+            } else {
+                noise
+            };
+            for k in [None, Some(key.clone())] {
+                let c = AtomicCounters::default();
+                let mut g = gate(k);
+                let from: SocketAddr = "127.0.0.1:5000".parse().unwrap();
+                let got = g.offer(&bytes, from, Instant::now(), &c);
+                let (ok, dropped) = counts.get();
+                if let Some(a) = got {
+                    assert!(a.packet.positions[..a.packet.n]
+                        .iter()
+                        .all(|p| p.is_finite()));
+                    counts.set((ok + 1, dropped));
+                } else {
+                    assert_eq!(c.snapshot().packets_dropped, 1);
+                    counts.set((ok, dropped + 1));
+                }
+            }
+        }
         let (ok, dropped) = counts.get();
         eprintln!("gate fuzz: {cases} datagrams × 2 gates: {ok} accepted, {dropped} dropped");
         assert_eq!(ok + dropped, 2 * u64::from(cases));

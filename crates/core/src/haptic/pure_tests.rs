@@ -101,11 +101,9 @@ pub(crate) fn caches_round_trip_through_bytes() {
     let mesh = block_from_text();
     let sel = Selection::default();
     let c = Compliance::compute(&mesh, &sel).unwrap();
-    let dir = tempfile::tempdir().unwrap();
     let key = cache::key(&mesh, &sel);
-    let path = dir.path().join("dense.tfc");
-    cache::save(&path, &c, key, mesh.nodes.len()).unwrap();
-    let bytes = std::fs::read(&path).unwrap();
+    // The file's bytes (`to_bytes` writes what `save` writes: tests/it/precompute.rs).
+    let bytes = cache::to_bytes(&c, key, mesh.nodes.len()).unwrap();
     let back = cache::load_bytes(&bytes, key, mesh.nodes.len()).unwrap();
     assert_eq!(back.cols(), c.cols());
     assert!(back
@@ -118,9 +116,14 @@ pub(crate) fn caches_round_trip_through_bytes() {
     let opts = HOptions::new(1e-6);
     let h = Compliance::compute_hier(&mesh, &sel, &opts, &mut |_, _| {}).unwrap();
     let hkey = cache::key_hier(&mesh, &sel, &opts);
-    let hpath = dir.path().join("hier.tfc");
+    // A folder of its own under the system's temporary one, removed at the end (no tempfile
+    // crate: the engine's checks build with the library).
+    let dir = std::env::temp_dir().join(format!("touchfem-pure-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let hpath = dir.join("hier.tfc");
     cache::hier::save(&hpath, &h, hkey, mesh.nodes.len()).unwrap();
     let hb = std::fs::read(&hpath).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
     let hback = cache::load_bytes(&hb, hkey, mesh.nodes.len()).unwrap();
     assert!(hback.hier().is_some());
     let col = (c.cols().len() / 2) as u32;
