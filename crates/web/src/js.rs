@@ -10,8 +10,9 @@ use wasm_bindgen::prelude::*;
 use crate::page::{PageWorld, PressOutcome, PressSpec};
 use touchfem_core::haptic::cutter::CutBody;
 use touchfem_gpu::render::{
-    frame_objects, frame_texture, legend_image, pick, Anchor, Coloring, Edges, Frame, LegendSpec,
-    Orbit, Overlay, PointerPress, RenderOptions, Renderer, SampleMarks, ViewScales,
+    frame_objects, frame_texture, legend_image, pick, rest_surfaces, Anchor, Coloring, Edges,
+    Frame, LegendSpec, Orbit, Overlay, PointerPress, RenderOptions, Renderer, SampleMarks,
+    ViewScales,
 };
 use touchfem_gpu::{install_cut, Deformer, DeformerOptions, VERTEX_STRIDE};
 
@@ -328,13 +329,7 @@ impl Page {
         if !self.world.has_pointer() {
             return false;
         }
-        let surfaces: Vec<_> = self
-            .world
-            .world
-            .objects
-            .iter()
-            .map(|o| (&o.body.surface, o.offset))
-            .collect();
+        let surfaces = rest_surfaces(self.world.world);
         let Some(h) = pick(&self.orbit.camera(), self.size, [x, y], &surfaces) else {
             return false;
         };
@@ -343,6 +338,7 @@ impl Page {
             pixel: [x, y],
             point: h.point,
             normal: h.normal,
+            object: h.object,
         };
         self.world
             .set_pointer(press.start(self.world.blade_on(), &self.scales));
@@ -358,7 +354,8 @@ impl Page {
         };
         let camera = self.orbit.camera();
         let blade = self.world.blade_on();
-        if let Some(at) = p.drag(&camera, self.size, [x, y], blade, &self.scales) {
+        let surfaces = rest_surfaces(self.world.world);
+        if let Some(at) = p.drag(&camera, self.size, [x, y], blade, &self.scales, &surfaces) {
             self.world.set_pointer(at);
         }
     }

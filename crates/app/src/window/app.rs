@@ -23,7 +23,7 @@ use touchfem_gpu::render::{
 };
 use touchfem_gpu::{AdapterSelection, Deformer, DeformerOptions};
 
-use touchfem_gpu::render::{median, PointerPress, ViewScales};
+use touchfem_gpu::render::{median, rest_surfaces, PointerPress, ViewScales};
 
 /// How long a notice (`B` on a scene that cannot cut) stays on the status line.
 const NOTICE_FOR: Duration = Duration::from_secs(3);
@@ -647,18 +647,14 @@ impl<'a> App<'a> {
         let Some(pointer) = &self.pointer else {
             return;
         };
-        let surfaces: Vec<(&touchfem_core::contact::Surface, DVec3)> = self
-            .world
-            .objects
-            .iter()
-            .map(|o| (&o.body.surface, o.offset))
-            .collect();
+        let surfaces = rest_surfaces(self.world);
         let hit = pick(&self.orbit.camera(), self.size, self.cursor, &surfaces);
         if let Some(h) = hit {
             let press = PointerPress {
                 pixel: self.cursor,
                 point: h.point,
                 normal: h.normal,
+                object: h.object,
             };
             pointer.set_position(press.start(pointer.blade_on(), &self.scales));
             self.press = Some(press);
@@ -670,12 +666,14 @@ impl<'a> App<'a> {
             return;
         };
         let camera = self.orbit.camera();
+        let surfaces = rest_surfaces(self.world);
         if let Some(x) = p.drag(
             &camera,
             self.size,
             self.cursor,
             pointer.blade_on(),
             &self.scales,
+            &surfaces,
         ) {
             pointer.set_position(x);
         }

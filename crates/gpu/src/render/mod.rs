@@ -50,7 +50,9 @@ pub use legend::{
 };
 pub use overlay::{Anchor, Overlay};
 pub use pick::{pick, Hit};
-pub use view::{frame_objects, median, PointerPress, SampleMarks, ViewScales, OUTSIDE_M};
+pub use view::{
+    frame_objects, median, rest_surfaces, PointerPress, SampleMarks, ViewScales, OUTSIDE_M,
+};
 
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;

@@ -25,9 +25,20 @@ const MIN_BLADE_SINK_M: f64 = 0.2e-3;
 /// A blade's top under the surface as a fraction of the scene's diagonal.
 const BLADE_SINK_OF_DIAGONAL: f64 = 0.005;
 
+/// Each object's rest surface and its offset in the scene: what [`super::pick`] and
+/// [`PointerPress::drag`] take.
+pub fn rest_surfaces(world: &World) -> Vec<(&touchfem_core::contact::Surface, DVec3)> {
+    world
+        .objects
+        .iter()
+        .map(|o| (&o.body.surface, o.offset))
+        .collect()
+}
+
 /// A pointer press that hit an object, and where it puts the finger the pointer drives: a
 /// left drag presses along the normal by the distance dragged; a blade (`B`) hangs
-/// [`ViewScales::blade_sink_m`] under the surface and slides in the plane tangent at the press.
+/// [`ViewScales::blade_sink_m`] under the surface point under the cursor, so it follows a
+/// curved surface (off the object's silhouette it slides in the plane tangent at the press).
 /// The window and the web page both press this way.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PointerPress {
@@ -37,6 +48,9 @@ pub struct PointerPress {
     pub point: DVec3,
     /// The outward surface normal there.
     pub normal: DVec3,
+    /// The object it touched: its index in the objects given to [`super::pick`] (and to
+    /// [`PointerPress::drag`]).
+    pub object: usize,
 }
 
 impl PointerPress {
@@ -51,9 +65,11 @@ impl PointerPress {
     }
 
     /// Where the finger goes when the pointer is at `cursor` (pixels of a `size` view seen by
-    /// `camera`): a finger into the surface by the distance dragged, a blade under the point of
-    /// the tangent plane under the cursor. `None`: it stays (no drag yet, or a ray that misses
-    /// the tangent plane).
+    /// `camera`): a finger into the surface by the distance dragged; a blade under the point of
+    /// the pressed object's rest surface under the cursor (`objects` as given to
+    /// [`super::pick`]), along that point's normal, or, where the cursor is off the object,
+    /// under the point of the tangent plane at the press. `None`: it stays (no drag yet, or a
+    /// ray that misses both).
     pub fn drag(
         &self,
         camera: &super::Camera,
@@ -61,8 +77,15 @@ impl PointerPress {
         cursor: [f64; 2],
         blade: bool,
         scales: &ViewScales,
+        objects: &[(&touchfem_core::contact::Surface, DVec3)],
     ) -> Option<DVec3> {
         if blade {
+            let on = objects
+                .get(self.object)
+                .and_then(|o| super::pick(camera, size, cursor, std::slice::from_ref(o)));
+            if let Some(h) = on {
+                return Some(h.point - h.normal * scales.blade_sink_m);
+            }
             let (eye, dir) = camera.ray(cursor, size);
             let along = dir.dot(self.normal);
             if along.abs() <= 1e-9 {
