@@ -69,10 +69,11 @@ def expand(tree):
 
 def references(text):
     """Paths (as segment lists) a file uses: rooted at crate/super/self, or (in a `use`) at a
-    child module's name. A unit-test module at the end of a file (`#[cfg(test)] mod …`) is left
-    out: tests may use what they like."""
+    child module's name. A unit-test module at the end of a file (`#[cfg(test)] mod …`, or
+    `#[cfg(any(test, feature = "self-check"))] mod …`: the engine's checks, run from the
+    integration binary) is left out: tests may use what they like."""
     text = strip_comments(text)
-    m = re.search(r"#\[cfg\(test\)\]\s*(pub(\(\w+\))?\s+)?mod\s+\w+\s*\{", text)
+    m = re.search(r'#\[cfg\((?:test|any\(test,\s*feature\s*=\s*"self-check"\))\)\]\s*(pub(\(\w+\))?\s+)?mod\s+\w+\s*\{', text)
     if m:
         text = text[: m.start()]
     refs = []

@@ -4,11 +4,12 @@
 #   (crates/gpu/src/options.rs) and the app (crates/app, src/main.rs);
 # - no println!/eprintln!/print!/eprint! in the libraries' code (crates/core, crates/gpu,
 #   crates/lab): they log through the `log` facade, or return warnings as values. Unit-test
-#   modules (after `#[cfg(test)]`) may print.
+#   modules (after `#[cfg(test)]`, or the engine's `#[cfg(any(test, feature = "self-check"))]`
+#   checks) may print.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 fail=0
-strip_tests() { awk '/^#\[cfg\(test\)\]/{exit} {print FILENAME ":" FNR ":" $0}' "$1"; }
+strip_tests() { awk '/^#\[cfg\((test|any\(test, feature = "self-check"\))\)\]/{exit} {print FILENAME ":" FNR ":" $0}' "$1"; }
 for f in $(find crates/core/src crates/gpu/src crates/lab/src -name '*.rs'); do
   case "$f" in
     crates/core/src/options.rs|crates/gpu/src/options.rs) ;;

@@ -37,6 +37,9 @@ ORDER = [
     "scene",
     "haptic",
     "runtime",
+    # Hidden, only under the `self-check` feature: the registry of every room's unit checks,
+    # so above them all.
+    "self_check",
 ]
 
 # Root files that belong to a room without being its module.
