@@ -195,20 +195,44 @@ fn hostile_cuts_never_panic_or_go_non_finite() {
 /// into faer's sparse matrix over the unclamped nodes that still have a tet, faer's sparse
 /// Cholesky. Nodes without a tet do not move.
 fn sparse_reference(mesh: &Mesh, removed: &[bool], forces: &[(u32, DVec3)]) -> Vec<DVec3> {
+    let tets: Vec<[usize; 4]> = (mesh.tets.iter().zip(removed))
+        .filter(|(_, &r)| !r)
+        .map(|(t, _)| t.map(|v| v as usize))
+        .collect();
+    let mats: Vec<(f64, f64)> = (0..mesh.tets.len())
+        .filter(|&t| !removed[t])
+        .map(|t| {
+            let m = mesh.tet_material(t);
+            (m.young_pa, m.poisson)
+        })
+        .collect();
+    independent_fem(&mesh.nodes, &tets, &mats, &mesh.fixed, forces)
+}
+
+/// The independent FEM itself: `tets` over `nodes` (m), each of its (Young's modulus Pa,
+/// Poisson's ratio), `fixed` nodes clamped, `forces` (node, N) applied; every node's
+/// displacement.
+fn independent_fem(
+    nodes: &[DVec3],
+    tets: &[[usize; 4]],
+    mats: &[(f64, f64)],
+    fixed: &[bool],
+    forces: &[(u32, DVec3)],
+) -> Vec<DVec3> {
     use faer::linalg::solvers::Solve;
     use faer::sparse::{SparseColMat, Triplet};
     use std::collections::HashMap;
-    let nn = mesh.nodes.len();
+    let nn = nodes.len();
     let mut has_tet = vec![false; nn];
-    for (t, _) in mesh.tets.iter().zip(removed).filter(|(_, &r)| !r) {
+    for t in tets {
         for &v in t {
-            has_tet[v as usize] = true;
+            has_tet[v] = true;
         }
     }
     let mut dof = vec![usize::MAX; 3 * nn];
     let mut n = 0;
     for v in 0..nn {
-        if has_tet[v] && !mesh.fixed[v] {
+        if has_tet[v] && !fixed[v] {
             for a in 0..3 {
                 dof[3 * v + a] = n;
                 n += 1;
@@ -216,11 +240,8 @@ fn sparse_reference(mesh: &Mesh, removed: &[bool], forces: &[(u32, DVec3)]) -> V
         }
     }
     let mut sum: HashMap<(usize, usize), f64> = HashMap::new();
-    for (ti, t) in mesh.tets.iter().enumerate() {
-        if removed[ti] {
-            continue;
-        }
-        let p = t.map(|v| mesh.nodes[v as usize]);
+    for (t, &(e, nu)) in tets.iter().zip(mats) {
+        let p = t.map(|v| nodes[v]);
         let jm = glam::DMat3::from_cols(p[1] - p[0], p[2] - p[0], p[3] - p[0]);
         let vol = jm.determinant().abs() / 6.0;
         let inv = jm.inverse();
@@ -228,15 +249,13 @@ fn sparse_reference(mesh: &Mesh, removed: &[bool], forces: &[(u32, DVec3)]) -> V
         let g2 = inv.row(1);
         let g3 = inv.row(2);
         let g = [-(g1 + g2 + g3), g1, g2, g3];
-        let mat = mesh.tet_material(ti);
-        let (e, nu) = (mat.young_pa, mat.poisson);
         let lambda = e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
         let mu = e / (2.0 * (1.0 + nu));
         for a in 0..4 {
             for b in 0..4 {
                 for i in 0..3 {
                     for j in 0..3 {
-                        let (da, db) = (dof[3 * t[a] as usize + i], dof[3 * t[b] as usize + j]);
+                        let (da, db) = (dof[3 * t[a] + i], dof[3 * t[b] + j]);
                         if da == usize::MAX || db == usize::MAX {
                             continue;
                         }
@@ -328,15 +347,16 @@ fn poke_json(args: &[&str]) -> serde_json::Value {
 
 #[test]
 fn pressing_beside_a_deepening_incision_needs_less_force() {
-    // The cube's top pressed 3 mm at x = 20 mm, beside a blade drawn across y at x = 11 mm.
+    // The cube's top pressed 3 mm at x = 20 mm with the exact force, beside a blade drawn
+    // across y at x = 11 mm: the blade separates the material, nothing is removed.
     let base = [
-        "poke", "cube", "--at", "20,15,30", "--push", "0,0,-3", "--json",
+        "poke", "cube", "--at", "20,15,30", "--push", "0,0,-3", "--json", "--exact",
     ];
-    let uncut = poke_json(&[&base[..], &["--exact"]].concat());
+    let uncut = poke_json(&base);
     let f0 = uncut["force"][2].as_f64().unwrap();
     let mut last = f0;
-    let mut removed_last = 0;
-    for depth in ["2", "8", "16", "24"] {
+    let mut split_last = 0;
+    for depth in ["8", "16", "24"] {
         let v = poke_json(
             &[
                 &base[..],
@@ -345,29 +365,33 @@ fn pressing_beside_a_deepening_incision_needs_less_force() {
             .concat(),
         );
         let f = v["force"][2].as_f64().unwrap();
-        let removed = v["tets_removed"].as_u64().unwrap();
+        let split = v["nodes_split"].as_u64().unwrap();
         eprintln!(
-            "depth {depth} mm: {removed} tets, rank {}, force {f:.5} N",
-            v["correction_rank"]
+            "depth {depth} mm: {split} nodes split, {} snapped, {} tets removed, rank {}, force {f:.5} N",
+            v["nodes_snapped"], v["tets_removed"], v["correction_rank"]
         );
-        assert!(removed >= removed_last && removed > 0);
+        assert!(
+            split > split_last,
+            "depth {depth}: {split} after {split_last}"
+        );
+        assert_eq!(v["tets_removed"].as_u64(), Some(0), "{v}");
         assert!(f <= last * (1.0 + 1e-12), "depth {depth}: {f} after {last}");
         assert!(f > 0.0);
         last = f;
-        removed_last = removed;
+        split_last = split;
     }
     assert!(last < 0.95 * f0, "{last} vs uncut {f0}");
 }
 
 #[test]
-fn a_cut_pokes_vtu_agrees_with_an_independent_fem_of_the_remaining_tets() {
+fn a_cut_pokes_vtu_agrees_with_an_independent_fem_of_the_separated_mesh() {
     let dir = tempfile::tempdir().unwrap();
     let vtu = dir.path().join("cut.vtu");
     let v = poke_json(&[
         "poke",
         "cube",
         "--at",
-        "20,15,30",
+        "12,16,30",
         "--push",
         "0,0,-3",
         "--cut",
@@ -389,19 +413,36 @@ fn a_cut_pokes_vtu_agrees_with_an_independent_fem_of_the_remaining_tets() {
             .map(|x| x.parse().unwrap())
             .collect()
     };
-    let conn: Vec<usize> = array("connectivity").iter().map(|&x| x as usize).collect();
+    // The points: the cube's 125 nodes (some snapped onto the blade's plane), then a copy for
+    // each further side of a split node.
+    let points: Vec<DVec3> = {
+        let start = text.find("<Points>").unwrap();
+        let body = &text[start..];
+        let open = body.find("ascii\">").unwrap() + 7;
+        let close = body.find("</DataArray>").unwrap();
+        let xs: Vec<f64> = body[open..close]
+            .split_whitespace()
+            .map(|x| x.parse().unwrap())
+            .collect();
+        xs.chunks(3).map(|c| DVec3::new(c[0], c[1], c[2])).collect()
+    };
     let mesh = cube();
-    let kept: std::collections::HashSet<[usize; 4]> =
-        conn.chunks(4).map(|c| [c[0], c[1], c[2], c[3]]).collect();
-    let removed: Vec<bool> = mesh
-        .tets
-        .iter()
-        .map(|t| !kept.contains(&t.map(|v| v as usize)))
+    let split = v["nodes_split"].as_u64().unwrap() as usize;
+    assert!(split > 0, "{v}");
+    assert_eq!(points.len(), mesh.nodes.len() + split);
+    let tets: Vec<[usize; 4]> = array("connectivity")
+        .chunks(4)
+        .map(|c| [c[0], c[1], c[2], c[3]].map(|x| x as usize))
         .collect();
     assert_eq!(
-        removed.iter().filter(|&&r| r).count() as u64,
-        v["tets_removed"].as_u64().unwrap()
+        mesh.tets.len() - tets.len(),
+        v["tets_removed"].as_u64().unwrap() as usize
     );
+    assert!(tets.iter().flatten().any(|&n| n >= mesh.nodes.len()));
+    let young = array("young");
+    let poisson = array("poisson");
+    let mats: Vec<(f64, f64)> = young.iter().copied().zip(poisson).collect();
+    let fixed: Vec<bool> = array("fixed").iter().map(|&x| x != 0.0).collect();
     let disp = array("displacement");
     let force = array("force");
     let forces: Vec<(u32, DVec3)> = force
@@ -411,13 +452,16 @@ fn a_cut_pokes_vtu_agrees_with_an_independent_fem_of_the_remaining_tets() {
         .map(|(i, f)| (i as u32, DVec3::new(f[0], f[1], f[2])))
         .collect();
     assert!(!forces.is_empty());
-    let reference = sparse_reference(&mesh, &removed, &forces);
+    let reference = independent_fem(&points, &tets, &mats, &fixed, &forces);
     let u: Vec<DVec3> = disp
         .chunks(3)
         .map(|d| DVec3::new(d[0], d[1], d[2]))
         .collect();
     let e = rel_err(&u, &reference);
-    eprintln!("cut poke's VTU against an independent FEM: {e:.2e}");
+    eprintln!(
+        "separating poke's VTU ({} points, {split} copies) against an independent FEM: {e:.2e}",
+        points.len()
+    );
     assert!(e < 1e-6, "{e}");
     // The finger feels minus the nodal forces.
     let sum: DVec3 = forces.iter().map(|f| f.1).sum();

@@ -10,6 +10,7 @@ mod coupling;
 mod cut;
 mod cut_hostile;
 mod cut_live;
+mod cut_split;
 mod fingertip;
 mod fingertip_cli;
 mod frontal;

@@ -433,8 +433,9 @@ pub struct PokeArgs {
     #[arg(long, value_name = "DX,DY,DZ", value_parser = parse_vec3, allow_hyphen_values = true)]
     pub slide: Option<DVec3>,
     /// Before the push, a blade of `--depth` cuts along the surface from the surface point
-    /// nearest the first point to the one nearest the second (mesh units), removing the tets
-    /// it sweeps; the poke then runs on the cut object (a point finger, exact force).
+    /// nearest the first point to the one nearest the second (mesh units), separating the
+    /// material along the quad it sweeps (nodes snapped onto it and split); the poke then runs
+    /// on the cut object (a point finger; the paper's force unless `--exact`).
     #[arg(long, value_name = "X1,Y1,Z1:X2,Y2,Z2", value_parser = parse_segment, allow_hyphen_values = true, requires = "depth")]
     pub cut: Option<(DVec3, DVec3)>,
     /// The blade's depth (mesh units, > 0) for `--cut`.

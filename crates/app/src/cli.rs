@@ -718,7 +718,7 @@ struct PokeOutcome {
 
 fn poke(a: &PokeArgs) -> Result<(), Error> {
     if let (Some(seg), Some(depth)) = (a.cut, a.depth) {
-        return poke_cut(a, seg, depth);
+        return crate::cut_poke::poke_cut(a, seg, depth);
     }
     let (mesh, unit) = a.load.load(&a.mesh)?;
     if !a.json {
@@ -969,104 +969,6 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
         if out.contact_nodes.is_empty() {
             println!("(the finger is not in contact)");
         }
-    }
-    Ok(())
-}
-
-/// `poke --cut X1,Y1,Z1:X2,Y2,Z2 --depth D`: the blade cuts first (the exact low-rank update
-/// of `L`, no recompute), then a point finger pokes the cut object with the exact force.
-fn poke_cut(a: &PokeArgs, seg: (DVec3, DVec3), depth: f64) -> Result<(), Error> {
-    let refuse = |flag: &str| {
-        Err(Error::Input(format!(
-            "--cut: {flag} is not combined with a cut yet (a point finger, the exact force)"
-        )))
-    };
-    if a.sphere.is_some() {
-        return refuse("--sphere");
-    }
-    if a.friction.is_some() {
-        return refuse("--friction");
-    }
-    if a.slide.is_some() {
-        return refuse("--slide");
-    }
-    if a.png.is_some() {
-        return refuse("--png");
-    }
-    if a.cache.is_some() {
-        return refuse("--cache");
-    }
-    let (mesh, unit) = a.load.load(&a.mesh)?;
-    let s = unit.to_metres();
-    let blade = touchfem_core::contact::Tool::Blade { depth_m: depth * s };
-    check_tool("--depth", depth, blade, &[extent_m(&mesh)])?;
-    check_motion("--push", a.push, &mesh, unit)?;
-    let surface = touchfem_core::contact::Surface::new(&mesh);
-    let (t1, p1) = surface.closest_global(seg.0 * s);
-    let (_, p2) = surface.closest_global(seg.1 * s);
-    let inward = -surface.normals[t1 as usize];
-    let tets = touchfem_core::cut::blade_tets(&mesh, p1, p2, inward, depth * s);
-    let mut cut = touchfem_core::cut::Cut::new(&mesh)?;
-    let rep = cut.remove(&mesh, &tets)?;
-    // The finger: the god-object on the opened rest surface (the cut's faces touchable too),
-    // pushed in `steps` ticks.
-    let mut open = mesh.clone();
-    open.surface = mesh.open_surface(cut.removed());
-    let surface = touchfem_core::contact::Surface::new(&open);
-    let (at, push) = (a.at * s, a.push * s);
-    let (tri, p0) = surface.closest_global(at);
-    let mut god = touchfem_core::contact::GodObject::touching(tri);
-    let steps = a.steps.max(1);
-    let mut contact = None;
-    for k in 1..=steps {
-        contact = god.update(&surface, p0 + push * (k as f64 / steps as f64));
-    }
-    let n = mesh.nodes.len();
-    let (feedback, forces, u) = match contact
-        .and_then(|c| touchfem_core::cut::point_poke(&cut, c.nodes, c.alpha, c.displacement()))
-    {
-        Some(x) => x,
-        None => (DVec3::ZERO, Vec::new(), vec![DVec3::ZERO; n]),
-    };
-    let max_u = u.iter().map(|v| v.length()).fold(0.0, f64::max);
-    let mut f = vec![DVec3::ZERO; n];
-    for &(v, fv) in &forces {
-        f[v as usize] += fv;
-    }
-    if let Some(path) = &a.vtu {
-        let remaining = mesh.without_tets(cut.removed());
-        crate::vtu::write_vtu(path, &remaining, &u, &f, &f)?;
-    }
-    let contact_nodes: Vec<u32> = forces.iter().map(|p| p.0).collect();
-    if a.json {
-        let v = serde_json::json!({
-            "force": feedback.to_array(),
-            "max_displacement": max_u,
-            "tets_removed": cut.removed().iter().filter(|&&r| r).count(),
-            "correction_rank": rep.rank,
-            "pieces_removed": rep.pieces_removed,
-            "nodes_pinned": cut.pinned().iter().filter(|&&p| p).count(),
-            "contact_nodes": contact_nodes,
-            "touch_point": p0.to_array(),
-            "blade": { "from": p1.to_array(), "to": p2.to_array(), "depth_m": depth * s },
-            "units": {"force": "N", "max_displacement": "m", "positions": "m"},
-        });
-        println!("{v}");
-    } else {
-        println!(
-            "cut: {} tets removed ({} in pieces cut off), correction rank {}",
-            cut.removed().iter().filter(|&&r| r).count(),
-            rep.pieces_removed,
-            rep.rank
-        );
-        println!(
-            "force on the finger: [{:.6}, {:.6}, {:.6}] N (|F| = {:.6} N)",
-            feedback.x,
-            feedback.y,
-            feedback.z,
-            feedback.length()
-        );
-        println!("max displacement: {:.4} mm", max_u * 1e3);
     }
     Ok(())
 }

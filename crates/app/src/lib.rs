@@ -8,6 +8,7 @@
 
 pub mod args;
 pub mod cli;
+mod cut_poke;
 pub mod demo;
 pub mod error;
 pub mod haply;
