@@ -9,12 +9,14 @@
 # it (docs/guide/web.md). Installs what the build needs when it is absent: the
 # wasm32-unknown-unknown target (rustup) and wasm-bindgen-cli at the version Cargo.lock pins
 # (cargo install, a few minutes once). Where a native `touchfem` program is at hand
-# (target/release, target/debug or PATH), the bundled scenes' compliance caches are
+# (release or debug under Cargo's target folder, or PATH), the bundled scenes' compliance caches are
 # precomputed into DIR/cache so that the page starts without computing them; without one the
 # page computes them itself. TOUCHFEM_WEB_NO_CACHES=1 skips them (the test command: its
 # browser tests write their own).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# Cargo's output folder (CARGO_TARGET_DIR where set).
+tdir="${CARGO_TARGET_DIR:-target}"
 out=target/web
 port=8080
 serve=1
@@ -52,12 +54,12 @@ fi
 
 cargo build --quiet -p touchfem-web --target "$target" --profile web-release
 mkdir -p "$out"
-wasm-bindgen --target web --no-typescript --out-dir "$out" "target/$target/web-release/touchfem_web.wasm"
+wasm-bindgen --target web --no-typescript --out-dir "$out" "$tdir/$target/web-release/touchfem_web.wasm"
 cp web/index.html web/main.js web/worker.js "$out/"
 
 # The compliance caches, where a native program can make them.
 bin=""
-for b in target/release/touchfem target/debug/touchfem; do
+for b in "$tdir/release/touchfem" "$tdir/debug/touchfem"; do
   if [ -x "$b" ]; then bin=$b; break; fi
 done
 if [ -z "$bin" ] && command -v touchfem >/dev/null 2>&1; then bin=$(command -v touchfem); fi

@@ -227,3 +227,15 @@ pub fn gpu_tolerance(u: &[glam::DVec3], rest: &[glam::DVec3]) -> (f64, f64) {
         .fold(0.0f64, |m, v| m.max(v.abs().max_element()));
     (1e-5 * umax + 4.0 * f64::from(f32::EPSILON) * xmax, umax)
 }
+
+/// The relative error `‖a − b‖ / ‖b‖` of two displacement fields (node by node).
+pub fn rel_err(a: &[glam::DVec3], b: &[glam::DVec3]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    let num: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (*x - *y).length_squared())
+        .sum();
+    let den: f64 = b.iter().map(|y| y.length_squared()).sum();
+    (num / den).sqrt()
+}

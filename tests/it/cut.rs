@@ -46,16 +46,6 @@ fn dense_reference(mesh: &Mesh, removed: &[bool], forces: &[(u32, DVec3)]) -> Ve
     u
 }
 
-fn rel_err(a: &[DVec3], b: &[DVec3]) -> f64 {
-    let num: f64 = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| (*x - *y).length_squared())
-        .sum();
-    let den: f64 = b.iter().map(|y| y.length_squared()).sum();
-    (num / den).sqrt()
-}
-
 #[test]
 fn cuts_of_1_10_and_50_tets_equal_a_dense_recompute() {
     let mesh = cube();
@@ -337,6 +327,7 @@ fn cuts_on_the_mouse_and_the_phantom_equal_a_full_recompute() {
     }
 }
 
+use crate::common::rel_err;
 use crate::common::touchfem_status as touchfem;
 
 fn poke_json(args: &[&str]) -> serde_json::Value {

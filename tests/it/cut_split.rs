@@ -12,6 +12,7 @@ use touchfem::fem::{Factor, Stiffness};
 use touchfem::mesh::{cube, mouse, tet_volume};
 use touchfem::Mesh;
 
+use crate::common::rel_err;
 use crate::common::touchfem_status as touchfem;
 
 /// A full recompute of a cut body: its separated mesh (each node left with no tet clamped:
@@ -60,17 +61,6 @@ impl Recompute {
         }
         u
     }
-}
-
-fn rel_err(a: &[DVec3], b: &[DVec3]) -> f64 {
-    assert_eq!(a.len(), b.len());
-    let num: f64 = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| (*x - *y).length_squared())
-        .sum();
-    let den: f64 = b.iter().map(|y| y.length_squared()).sum();
-    (num / den).sqrt()
 }
 
 /// The largest entry of a 3×3 block.
