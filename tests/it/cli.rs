@@ -675,7 +675,7 @@ fn help_and_docs_name_what_the_code_does() {
     }
     assert!(contracts.contains("(2 for bad input)"));
     let readme = read("docs/README.md");
-    for want in ["format 3", "format 4", "version 2, and 3", "contracts.md"] {
+    for want in ["format 3", "format 4", "version 2, and 4", "contracts.md"] {
         assert!(readme.contains(want), "docs/README.md lacks {want}");
     }
 }

@@ -94,6 +94,69 @@ pub struct IncisionRun {
 
 /// See [`IncisionRun`]; every force is checked finite and within the bound on the way.
 pub fn run_incision(fold_rank: usize) -> IncisionRun {
+    run_incision_in(fold_rank, touchfem::runtime::cutting::FoldMode::Deferred)
+}
+
+/// A cutter's passes as its thread makes them, synchronously: the folds finished since the
+/// last pass adopted first (each with a body of its own; half of the cuts since its snapshot
+/// made again by `Folded::catch_up`, as the fold's thread does, the rest by the adoption),
+/// then the strokes, then the folds due handed out and run at once, to be adopted at the next
+/// pass. In [`FoldMode::Inline`] the cutter folds by itself.
+#[derive(Default)]
+pub struct CutPasses {
+    ready: Vec<touchfem::runtime::cutting::Folded>,
+    /// Folds adopted.
+    pub adopted: usize,
+}
+
+impl std::fmt::Debug for CutPasses {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} fold(s) waiting, {} adopted",
+            self.ready.len(),
+            self.adopted
+        )
+    }
+}
+
+impl CutPasses {
+    /// One pass of `cutter` over `strokes`: the bodies made, in order.
+    pub fn pass(
+        &mut self,
+        cutter: &mut touchfem::runtime::cutting::Cutter,
+        strokes: &[touchfem::runtime::cutting::Stroke],
+    ) -> Vec<(usize, std::sync::Arc<touchfem::runtime::cutting::CutBody>)> {
+        let mut out = Vec::new();
+        for mut f in self.ready.drain(..) {
+            let o = f.object();
+            // Half of the cuts since the snapshot made again as the fold's thread would, the
+            // rest by the adoption.
+            let ops = cutter.fold_ops(o);
+            f.catch_up(&ops[..ops.len() / 2])
+                .expect("the fold catches up");
+            cutter.adopt(f).expect("a fold is adopted");
+            out.push((o, cutter.body_now(o).expect("the adopted body")));
+            self.adopted += 1;
+        }
+        let bodies = cutter.apply_all(strokes).expect("a cut never errors");
+        let any = !bodies.is_empty();
+        out.extend(bodies);
+        if any {
+            for job in cutter.take_folds().expect("folds handed out") {
+                self.ready.push(job.run().1.expect("a fold runs"));
+            }
+            cutter.fold_due().expect("an inline fold");
+        }
+        out
+    }
+}
+
+/// [`run_incision`] with the cutter folding in `mode`.
+pub fn run_incision_in(
+    fold_rank: usize,
+    mode: touchfem::runtime::cutting::FoldMode,
+) -> IncisionRun {
     use glam::DVec3;
     use touchfem::runtime::cutting::Cutter;
     use touchfem::runtime::{HapticWorld, WorldSample};
@@ -118,6 +181,8 @@ pub fn run_incision(fold_rank: usize) -> IncisionRun {
     };
     let mut cutter = Cutter::new(&world).unwrap();
     cutter.set_fold_rank(fold_rank);
+    cutter.set_fold_mode(mode);
+    let mut passes = CutPasses::default();
     let bound = world.haptics.max_force_n;
     let (sample, before, after, body) = {
         let mut hw = HapticWorld::new(&world);
@@ -133,7 +198,7 @@ pub fn run_incision(fold_rank: usize) -> IncisionRun {
                 .all(|v| v.is_finite() && v.length() <= bound + 1e-12));
             strokes.extend_from_slice(hw.strokes());
             if k % 20 == 0 {
-                for (o, body) in cutter.apply_all(&strokes).unwrap() {
+                for (o, body) in passes.pass(&mut cutter, &strokes) {
                     hw.install_cut(o, body);
                 }
                 strokes.clear();

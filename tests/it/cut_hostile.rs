@@ -35,9 +35,10 @@ max_force_n = 8.5
     ))
 }
 
-/// Counts of what a run did.
+/// Counts of what a run did (and the cutter's deferred folds between its passes).
 #[derive(Debug, Default)]
 struct Tally {
+    passes: crate::common::CutPasses,
     ticks: usize,
     strokes: usize,
     bodies: usize,
@@ -75,7 +76,7 @@ fn drive(
         strokes.extend_from_slice(hw.strokes());
         if (k + 1) % every == 0 || k + 1 == positions.len() {
             tally.strokes += strokes.len();
-            for (o, body) in cutter.apply_all(&strokes).expect("a cut never errors") {
+            for (o, body) in tally.passes.pass(cutter, &strokes) {
                 tally.bodies += 1;
                 tally.tets_removed = tally.tets_removed.max(body.tets_removed);
                 tally.pieces += body.report.pieces_removed;
@@ -105,6 +106,8 @@ fn fuzz(world: &World, n: usize, seed: u64) -> Tally {
             cutter = Cutter::new(world).unwrap();
             cutter.set_fold_rank(200);
             hw = HapticWorld::new(world);
+            // (Folds of the old cutter are not the new one's.)
+            tally.passes = Default::default();
         }
         let pick = |s: &mut u64| {
             lo - 0.1 * span

@@ -142,8 +142,19 @@ fn cutting_folding_and_cutting_again_reads_a_full_recompute() {
 fn a_cutter_that_folds_feels_what_one_that_carries_feels() {
     // The incision with the cutter folding whenever the rank reaches 60 (several folds) and
     // with no fold: the press after the cut and every block read the same to round-off.
+    // Deferred (the default: each fold adopted a pass after its snapshot, that pass's cuts
+    // made again on the folded L) and inline.
     let (_, carried_f, carried) = incision_folding_at(usize::MAX);
     let (_, folded_f, folded) = incision_folding_at(60);
+    let inline = crate::common::run_incision_in(60, touchfem::runtime::cutting::FoldMode::Inline);
+    let e_inline = (carried_f - inline.after).length() / carried_f.length();
+    eprintln!(
+        "inline: {} folds, press {} ({e_inline:.1e})",
+        inline.body.folds, inline.after
+    );
+    assert!(inline.body.folds >= 2, "{}", inline.body.folds);
+    assert!(e_inline < 1e-9, "{e_inline}");
+    assert_eq!(inline.body.tets_removed, folded.tets_removed);
     let e = (carried_f - folded_f).length() / carried_f.length();
     assert!(carried_f.length() > 0.01, "{carried_f}");
     eprintln!(
@@ -425,10 +436,30 @@ fn a_recorded_incision_holds_its_cuts_and_replays_bit_for_bit() {
     // folds at the same point of the cuts.
     assert!(cuts["folds"].as_u64().unwrap() >= 1, "{cuts}");
     let s = touchfem::runtime::session::read(&rec).unwrap();
-    assert_eq!(s.header.version, 3);
+    assert_eq!(s.header.version, 4);
+    // Its folds were deferred: each adopted between two passes, a body of its own, recorded
+    // so that the replay below adopts it there too.
+    let adopted = s.cuts.iter().filter(|e| e.fold_adopted).count();
+    eprintln!(
+        "{} cut events, {adopted} adopting a fold; the cutter's longest pass {} s, fold {} s, adoption {} s; stroke to haptic loop: median {} s, longest {} s over {} bodies",
+        s.cuts.len(),
+        cuts["max_pass_s"],
+        cuts["max_fold_s"],
+        cuts["max_adopt_s"],
+        cuts["median_delay_s"],
+        cuts["max_delay_s"],
+        cuts["delays"],
+    );
+    assert!(adopted >= 1, "no adopted fold was recorded");
+    assert!(cuts["delays"].as_u64().unwrap() >= 1, "{cuts}");
     assert!(!s.cuts.is_empty());
+    // Every body but an adoption's was made by strokes.
     let strokes: usize = s.cuts.iter().map(|e| e.strokes.len()).sum();
-    assert!(strokes >= s.cuts.len());
+    assert!(strokes >= s.cuts.len() - adopted);
+    assert!(s
+        .cuts
+        .iter()
+        .all(|e| e.fold_adopted || !e.strokes.is_empty()));
     // Every tick's forces again, the cuts rebuilt from their strokes at the same ticks.
     let w = touchfem::runtime::session::world(&s, "test").unwrap();
     let rep = touchfem::runtime::session::replay(&w, &s).unwrap();

@@ -494,6 +494,7 @@ fn the_visual_path_follows_a_feed_and_uploads_a_new_l() {
         generation: 1,
         strokes: Vec::new(),
         folds: 0,
+        fold_adopted: false,
     });
     let mut sample = WorldSample {
         n_objects: 1,

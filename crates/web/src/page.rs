@@ -7,7 +7,7 @@ use std::sync::Arc;
 use touchfem_core::compliance::Compliance;
 use touchfem_core::contact::force::ForceModel;
 use touchfem_core::devices::KeyframePath;
-use touchfem_core::haptic::cutter::{CutBody, Cutter, Stroke};
+use touchfem_core::haptic::cutter::{CutBody, Cutter, FoldMode, Stroke};
 use touchfem_core::haptic::{HapticWorld, WorldSample};
 use touchfem_core::limits::MAX_FINGERS;
 use touchfem_core::scene::pointer::{blade_twin, pointer_fingers, BladeTwin};
@@ -239,7 +239,10 @@ impl PageWorld {
             .position(|f| f.device == DeviceSpec::Pointer);
         let blades = world.fingers.iter().any(|f| f.tool.blade_depth().is_some());
         let cutter = if blades && world.objects.iter().any(|o| o.cuttable.is_some()) {
-            Some(Cutter::new(world)?)
+            // One thread here: each fold runs inline, before the object's next cut.
+            let mut c = Cutter::new(world)?;
+            c.set_fold_mode(FoldMode::Inline);
+            Some(c)
         } else {
             None
         };

@@ -114,6 +114,20 @@ pub struct Cut {
     cap: DMatrix<f64>,
 }
 
+/// A cut's rebase, planned ([`Cut::rebase_plan`]) and not yet run: the separated body and
+/// the state the rebased cut starts from.
+pub struct Rebase {
+    rest: Mesh,
+    state: State,
+}
+
+impl Rebase {
+    /// Assembles and factors the separated body: the rebased cut ([`Cut::rebase`]).
+    pub fn run(self) -> Result<Cut, Error> {
+        Cut::factored(&self.rest, self.state)
+    }
+}
+
 /// The body as cut, carried from a [`Cut`] to its rebased successor.
 struct State {
     nodes: Vec<DVec3>,
@@ -1021,6 +1035,12 @@ impl Cut {
     /// the carried rank starts from zero. `mesh` is the uncut mesh (the one [`Cut::remove`]
     /// takes). Costs one assembly and factorisation.
     pub fn rebase(&self, mesh: &Mesh) -> Result<Cut, Error> {
+        self.rebase_plan(mesh)?.run()
+    }
+
+    /// What [`Cut::rebase`] needs of this cut, copied (no factor: cheap), so that its
+    /// assembly and factorisation can run on another thread ([`Rebase::run`]).
+    pub fn rebase_plan(&self, mesh: &Mesh) -> Result<Rebase, Error> {
         self.check_mesh(mesh)?;
         let mut rest = self.current_mesh(mesh).without_tets(&self.removed);
         for (f, &p) in rest.fixed.iter_mut().zip(&self.pinned) {
@@ -1037,7 +1057,7 @@ impl Cut {
             pinned: self.pinned.clone(),
             uncut_nodes: self.uncut_nodes,
         };
-        Cut::factored(&rest, state)
+        Ok(Rebase { rest, state })
     }
 }
 

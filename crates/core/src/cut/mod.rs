@@ -33,5 +33,5 @@ mod split;
 
 pub use blade::{blade_tets, BladeQuad};
 pub use body::{point_poke, point_poke_paper, tets_near, tets_near_keeping_nodes};
-pub use body::{Cut, CutPoke, CutReport};
+pub use body::{Cut, CutPoke, CutReport, Rebase};
 pub use split::{SplitReport, SLIVER_FRACTION};

@@ -13,6 +13,10 @@
 //! * The cutter coalesces the strokes that arrived since its last pass into one quad (the
 //!   chord of the blade's path), so one pass costs one sweep of the mesh's tets whatever the
 //!   haptic rate.
+//! * Past [`FOLD_RANK`] the correction is folded into a new `L`. By default the fold is
+//!   deferred ([`FoldMode::Deferred`]): it runs beside the cuts as a [`FoldJob`], and the cuts
+//!   made meanwhile are made again on the folded `L` when it is adopted, so no cut waits for
+//!   a fold.
 
 use std::sync::Arc;
 
@@ -63,6 +67,126 @@ pub struct CutBody {
     /// How many times the object's correction was folded into a new `L` before this body
     /// (its compliance then holds that `L`, not the uncut one).
     pub folds: u32,
+    /// Whether a deferred fold was adopted just before this body's strokes
+    /// ([`Cutter::adopt`]): a recorded session keeps it, so that a replay adopts where the
+    /// live run did.
+    pub fold_adopted: bool,
+}
+
+/// How a [`Cutter`] folds its correction into a new `L` once its rank reaches the fold rank.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FoldMode {
+    /// On the cutter's own time, just before the object's next cut (which waits for it):
+    /// [`Cutter::fold_due`]. Sessions of version 3 were recorded so.
+    Inline,
+    /// Off the cutter: [`Cutter::take_folds`] hands out a [`FoldJob`] (a snapshot), which
+    /// runs anywhere while the cuts go on, carried against the old `L`; [`Cutter::adopt`]
+    /// then takes the folded `L` and replays on it the cuts made since the snapshot. No cut
+    /// waits for a fold.
+    #[default]
+    Deferred,
+}
+
+/// What a cut did to an object while a fold of it was out, kept to do it again on the folded
+/// `L` ([`Folded::catch_up`], [`Cutter::adopt`]).
+#[derive(Clone, Debug)]
+pub struct CutOp(Op);
+
+#[derive(Clone, Debug)]
+enum Op {
+    /// A blade's chord.
+    Stroke(Stroke),
+    /// Tets removed by [`Cutter::remove_tets`].
+    Tets(Vec<usize>),
+}
+
+/// Makes `op` again on `cut` (of `mesh`, cut within `region`): the same tets as when it was
+/// first made, since `cut` has removed the same ones before it.
+fn redo(cut: &mut Cut, mesh: &crate::Mesh, region: &CutRegion, op: &CutOp) -> Result<(), Error> {
+    let tets: Vec<usize> = match &op.0 {
+        Op::Stroke(st) => blade_tets(mesh, st.from, st.to, st.inward, st.depth),
+        Op::Tets(t) => t.clone(),
+    };
+    let removed = cut.removed();
+    let tets: Vec<usize> = (tets.into_iter())
+        .filter(|&t| region.contains(t) && !removed[t])
+        .collect();
+    if !tets.is_empty() {
+        cut.remove(mesh, &tets)?;
+    }
+    Ok(())
+}
+
+/// A fold taken off a [`Cutter`] ([`Cutter::take_folds`]): the object's compliance with its
+/// correction at the snapshot, and its cut's rebase. Runs on any thread ([`FoldJob::run`]).
+pub struct FoldJob {
+    object: usize,
+    compliance: Compliance,
+    rebase: crate::cut::Rebase,
+    mesh: crate::Mesh,
+    region: CutRegion,
+}
+
+/// A finished [`FoldJob`]: the folded `L` and the cut rebased on it, for [`Cutter::adopt`],
+/// with the first cuts made since the snapshot already made again on it
+/// ([`Folded::catch_up`]).
+pub struct Folded {
+    object: usize,
+    base: Compliance,
+    cut: Cut,
+    mesh: crate::Mesh,
+    region: CutRegion,
+    /// How many of the cuts since the snapshot it has made again.
+    applied: usize,
+}
+
+impl FoldJob {
+    /// The object it folds.
+    pub fn object(&self) -> usize {
+        self.object
+    }
+
+    /// Folds the correction into a new `L` and factors the cut body afresh (the heavy part:
+    /// about 0.1–1 s on the mouse). Returns the object and the result.
+    pub fn run(self) -> (usize, Result<Folded, Error>) {
+        let o = self.object;
+        let run = || -> Result<Folded, Error> {
+            let base = self.compliance.folded().map_err(Error::from)?;
+            let cut = self.rebase.run()?;
+            Ok(Folded {
+                object: o,
+                base,
+                cut,
+                mesh: self.mesh,
+                region: self.region,
+                applied: 0,
+            })
+        };
+        (o, run())
+    }
+}
+
+impl Folded {
+    /// The object it folds.
+    pub fn object(&self) -> usize {
+        self.object
+    }
+
+    /// Makes again the cuts made since the snapshot that it has not made yet: `ops` are
+    /// [`Cutter::fold_ops`] as they stand (or any longer prefix of them), so that the fold's
+    /// thread catches up with the cutter and the adoption is left little to do.
+    pub fn catch_up(&mut self, ops: &[CutOp]) -> Result<(), Error> {
+        for op in ops.iter().skip(self.applied) {
+            redo(&mut self.cut, &self.mesh, &self.region, op)?;
+            self.applied += 1;
+        }
+        Ok(())
+    }
+
+    /// How many cuts since the snapshot it has made again.
+    pub fn applied(&self) -> usize {
+        self.applied
+    }
 }
 
 struct ObjectCut {
@@ -76,6 +200,12 @@ struct ObjectCut {
     last: CutReport,
     since: Vec<Stroke>,
     folds: u32,
+    /// The compliance of the object's last body (the correction as cut so far).
+    current: Option<Compliance>,
+    /// While a deferred fold is out: what was cut since its snapshot.
+    in_flight: Option<Vec<CutOp>>,
+    /// A fold was adopted since the last body.
+    adopted: bool,
 }
 
 impl ObjectCut {
@@ -111,6 +241,7 @@ pub const FOLD_RANK: usize = 160;
 pub struct Cutter {
     objects: Vec<Option<ObjectCut>>,
     fold_rank: usize,
+    mode: FoldMode,
 }
 
 impl Cutter {
@@ -163,13 +294,120 @@ impl Cutter {
                     last: CutReport::default(),
                     since: Vec::new(),
                     folds: 0,
+                    current: None,
+                    in_flight: None,
+                    adopted: false,
                 }),
             });
         }
         Ok(Cutter {
             objects,
             fold_rank: FOLD_RANK,
+            mode: FoldMode::default(),
         })
+    }
+
+    /// Sets how the cutter folds (default [`FoldMode::Deferred`]).
+    pub fn set_fold_mode(&mut self, mode: FoldMode) {
+        self.mode = mode;
+    }
+
+    /// How the cutter folds.
+    pub fn fold_mode(&self) -> FoldMode {
+        self.mode
+    }
+
+    /// In [`FoldMode::Deferred`]: a [`FoldJob`] for every object whose rank has reached the
+    /// fold rank and that has no fold out, each a snapshot of its last body (call it right
+    /// after the bodies are built: [`Cutter::apply_all`], [`Cutter::apply_strokes`]). Empty
+    /// in [`FoldMode::Inline`].
+    pub fn take_folds(&mut self) -> Result<Vec<FoldJob>, Error> {
+        let mut jobs = Vec::new();
+        if self.mode != FoldMode::Deferred {
+            return Ok(jobs);
+        }
+        let due = self.fold_rank.max(1);
+        for (o, oc) in self.objects.iter_mut().enumerate() {
+            let Some(oc) = oc else { continue };
+            if oc.in_flight.is_some() || oc.cut.rank() < due {
+                continue;
+            }
+            let Some(compliance) = oc.current.clone() else {
+                continue;
+            };
+            jobs.push(FoldJob {
+                object: o,
+                compliance,
+                rebase: oc.cut.rebase_plan(&oc.mesh)?,
+                mesh: oc.mesh.clone(),
+                region: oc.region.clone(),
+            });
+            oc.in_flight = Some(Vec::new());
+        }
+        Ok(jobs)
+    }
+
+    /// Takes a finished fold: the object's `L` becomes the folded one and its cut the rebased
+    /// one, on which the cuts made since the snapshot are made again (the same tets, so the
+    /// same body, now carried against the folded `L`). The next body says so
+    /// ([`CutBody::fold_adopted`]); [`Cutter::body_now`] builds it at once. Errors when no
+    /// fold of that object is out, or when a cut cannot be made again (the object then keeps
+    /// its unfolded state).
+    pub fn adopt(&mut self, f: Folded) -> Result<(), Error> {
+        let Some(Some(oc)) = self.objects.get_mut(f.object) else {
+            return Err(Error::Input(format!("object {} is not cuttable", f.object)));
+        };
+        let Some(ops) = oc.in_flight.take() else {
+            return Err(Error::Input(format!(
+                "object {} has no fold out to adopt",
+                f.object
+            )));
+        };
+        if f.applied > ops.len() {
+            oc.in_flight = Some(ops);
+            return Err(Error::Input(format!(
+                "a fold of object {} made more cuts again than were made",
+                f.object
+            )));
+        }
+        let mut cut = f.cut;
+        for op in &ops[f.applied..] {
+            if let Err(e) = redo(&mut cut, &oc.mesh, &oc.region, op) {
+                oc.in_flight = Some(ops);
+                return Err(e);
+            }
+        }
+        oc.cut = cut;
+        oc.base = f.base;
+        oc.folds += 1;
+        oc.adopted = true;
+        Ok(())
+    }
+
+    /// The cuts made on object `o` since the snapshot of its fold out (empty when none is
+    /// out), in order: what [`Folded::catch_up`] makes again.
+    pub fn fold_ops(&self, o: usize) -> &[CutOp] {
+        match self.objects.get(o) {
+            Some(Some(ObjectCut {
+                in_flight: Some(ops),
+                ..
+            })) => ops,
+            _ => &[],
+        }
+    }
+
+    /// Forgets object `o`'s fold out (it failed): the object carries its correction on, and
+    /// [`Cutter::take_folds`] may hand it out again.
+    pub fn drop_fold(&mut self, o: usize) {
+        if let Some(Some(oc)) = self.objects.get_mut(o) {
+            oc.in_flight = None;
+        }
+    }
+
+    /// Object `o`'s body as it stands (after [`Cutter::adopt`]: the same cut, carried
+    /// against the folded `L`, with no strokes of its own).
+    pub fn body_now(&mut self, o: usize) -> Result<Arc<CutBody>, Error> {
+        self.body(o)
     }
 
     /// Sets the rank past which [`Cutter::fold_due`] folds (default [`FOLD_RANK`]).
@@ -177,13 +415,13 @@ impl Cutter {
         self.fold_rank = rank;
     }
 
-    /// Folds the correction of every object whose rank has reached the fold rank into a new
-    /// `L` ([`Cut::fold`]) and starts its cut afresh from it ([`Cut::rebase`]), so that the
-    /// next body carries only what is cut after. Returns how many objects it folded. The
-    /// bodies already handed out stay valid (they share the old `L`). An object is also
-    /// folded, when due, just before its next cut, so a fold always happens at the same point
-    /// of its cuts (a replay folds where the live run did); the cutter's thread calls this as
-    /// soon as it has handed its bodies over, to fold while the blade is still.
+    /// In [`FoldMode::Inline`] (else it does nothing): folds the correction of every object
+    /// whose rank has reached the fold rank into a new `L` ([`Cut::fold`]) and starts its cut
+    /// afresh from it ([`Cut::rebase`]), so that the next body carries only what is cut after.
+    /// Returns how many objects it folded. The bodies already handed out stay valid (they
+    /// share the old `L`). An object is also folded, when due, just before its next cut, so a
+    /// fold always happens at the same point of its cuts (a replay folds where the live run
+    /// did).
     pub fn fold_due(&mut self) -> Result<usize, Error> {
         let mut n = 0;
         for o in 0..self.objects.len() {
@@ -194,6 +432,9 @@ impl Cutter {
 
     /// Folds object `o` when its rank has reached the fold rank; true when it did.
     fn fold_object(&mut self, o: usize) -> Result<bool, Error> {
+        if self.mode != FoldMode::Inline {
+            return Ok(false);
+        }
         let Some(Some(oc)) = self.objects.get_mut(o) else {
             return Ok(false);
         };
@@ -251,6 +492,9 @@ impl Cutter {
             return Ok(None);
         };
         oc.remove(o, &tets)?;
+        if let Some(ops) = &mut oc.in_flight {
+            ops.push(CutOp(Op::Tets(tets)));
+        }
         self.body(o).map(Some)
     }
 
@@ -298,6 +542,9 @@ impl Cutter {
         };
         oc.remove(stroke.object, &tets)?;
         oc.since.push(*stroke);
+        if let Some(ops) = &mut oc.in_flight {
+            ops.push(CutOp(Op::Stroke(*stroke)));
+        }
         Ok(true)
     }
 
@@ -315,6 +562,7 @@ impl Cutter {
         open.surface = oc.mesh.open_surface(oc.cut.removed());
         let surface = Surface::new(&open);
         oc.generation += 1;
+        oc.current = Some(compliance.clone());
         Ok(Arc::new(CutBody {
             compliance,
             surface,
@@ -325,6 +573,7 @@ impl Cutter {
             generation: oc.generation,
             strokes: std::mem::take(&mut oc.since),
             folds: oc.folds,
+            fold_adopted: std::mem::take(&mut oc.adopted),
         }))
     }
 

@@ -3,7 +3,9 @@
 
 use std::sync::Arc;
 
-pub use crate::haptic::cutter::{CutBody, CutFeed, CutPlan, Cutter, Stroke, FOLD_RANK};
+pub use crate::haptic::cutter::{
+    CutBody, CutFeed, CutOp, CutPlan, Cutter, FoldJob, FoldMode, Folded, Stroke, FOLD_RANK,
+};
 #[cfg(feature = "native")]
 use crate::scene::World;
 #[cfg(feature = "native")]
@@ -14,11 +16,30 @@ use crate::Error;
 /// allocates through them.
 pub struct CutLink {
     strokes: rtrb::Producer<Stroke>,
-    bodies: rtrb::Consumer<(usize, Arc<CutBody>)>,
+    bodies: rtrb::Consumer<(usize, Arc<CutBody>, u64)>,
     spent: rtrb::Producer<Arc<CutBody>>,
     /// Strokes that did not fit the ring (the cutter fell behind).
     pub strokes_dropped: u64,
+    /// When each stroke was sent, by its number modulo the ring's size (native only).
+    #[cfg(feature = "native")]
+    sent_at: Box<[Option<std::time::Instant>]>,
+    /// Strokes sent so far (the next one's number).
+    sent: u64,
+    /// Each body's delay (s, in order, up to [`DELAYS_KEPT`]): from the sending of the first
+    /// stroke of the pass that made it to its installation.
+    delays: Vec<f64>,
 }
+
+/// The strokes the ring holds.
+#[cfg(feature = "native")]
+const STROKE_RING: usize = 1 << 14;
+
+/// How many cut bodies' delays a [`CutLink`] keeps (allocated up front).
+pub const DELAYS_KEPT: usize = 4096;
+
+/// A body's number of the first stroke of its pass when no stroke made it (a fold adopted).
+#[cfg(feature = "native")]
+const NO_STROKE: u64 = u64::MAX;
 
 impl CutLink {
     /// Sends the tick's strokes, and installs in `hw` every body the cutter has finished,
@@ -31,9 +52,24 @@ impl CutLink {
         for s in hw.strokes() {
             if self.strokes.push(*s).is_err() {
                 self.strokes_dropped += 1;
+            } else {
+                #[cfg(feature = "native")]
+                {
+                    self.sent_at[(self.sent % STROKE_RING as u64) as usize] =
+                        Some(std::time::Instant::now());
+                }
+                self.sent += 1;
             }
         }
-        while let Ok((o, body)) = self.bodies.pop() {
+        while let Ok((o, body, first)) = self.bodies.pop() {
+            #[cfg(feature = "native")]
+            if first != NO_STROKE && self.delays.len() < self.delays.capacity() {
+                if let Some(t) = self.sent_at[(first % STROKE_RING as u64) as usize] {
+                    self.delays.push(t.elapsed().as_secs_f64());
+                }
+            }
+            #[cfg(not(feature = "native"))]
+            let _ = first;
             installed(o, &body);
             if let Some(old) = hw.install_cut(o, body) {
                 // Back to the cutter's thread to be freed there; if the ring is full, it is
@@ -42,10 +78,19 @@ impl CutLink {
             }
         }
     }
+
+    /// Each cut body's delay so far (s, in order; at most [`DELAYS_KEPT`]): from the sending
+    /// of the first stroke of the cutter's pass that made it to its installation in the
+    /// haptic world (a fold's adoption, made of no stroke, has none).
+    pub fn delays(&self) -> &[f64] {
+        &self.delays
+    }
 }
 
 /// The cutter's thread: it applies the strokes as they come, a pass every millisecond at
-/// most, and hands each new body to the haptic thread and the visual feed.
+/// most, and hands each new body to the haptic thread and the visual feed. Folds run on a
+/// thread of their own (`touchfem-fold`, also off the haptic core) and are adopted between
+/// two passes, so that a pass never waits for a fold ([`FoldMode::Deferred`]).
 #[cfg(feature = "native")]
 pub struct CutThread {
     stop: Arc<std::sync::atomic::AtomicBool>,
@@ -63,10 +108,100 @@ pub struct CutStats {
     pub pieces_removed: usize,
     /// The longest pass (strokes to cut body), s.
     pub max_pass_s: f64,
-    /// Folds of a correction into a new `L`.
+    /// Folds of a correction into a new `L` (adopted).
     pub folds: u64,
-    /// The longest fold (with the new factorisation), s.
+    /// The longest fold (with the new factorisation), s; on the fold's thread.
     pub max_fold_s: f64,
+    /// The longest adoption of a fold (the cuts since its snapshot made again, and the
+    /// body), s; on the cutter's thread, between two passes.
+    pub max_adopt_s: f64,
+    /// Cut bodies whose delay was measured ([`CutLink::delays`]).
+    pub delays: usize,
+    /// Their median delay, s: from the blade's stroke to the body in the haptic loop.
+    pub median_delay_s: f64,
+    /// Their longest delay, s.
+    pub max_delay_s: f64,
+}
+
+impl CutStats {
+    /// Fills the delays' figures from a link's ([`CutLink::delays`]).
+    pub fn with_delays(mut self, delays: &[f64]) -> CutStats {
+        let mut d = delays.to_vec();
+        d.sort_by(f64::total_cmp);
+        self.delays = d.len();
+        self.median_delay_s = d.get(d.len() / 2).copied().unwrap_or(0.0);
+        self.max_delay_s = d.last().copied().unwrap_or(0.0);
+        self
+    }
+}
+
+/// How the cutter's thread folds: [`FoldMode::Deferred`], unless `TOUCHFEM_FOLD=inline` (an
+/// expert switch, to compare with the folds of before 2026-12-06; its sessions are version 3).
+pub fn fold_mode() -> FoldMode {
+    match crate::options::var("TOUCHFEM_FOLD").as_deref() {
+        Some("inline") => FoldMode::Inline,
+        _ => FoldMode::Deferred,
+    }
+}
+
+/// What the cutter's thread sends the fold's thread.
+#[cfg(feature = "native")]
+enum ToFold {
+    /// A fold to run (its number).
+    Job(u64, Box<FoldJob>),
+    /// The next cuts made while fold number `.0` is out.
+    Ops(u64, Vec<CutOp>),
+}
+
+/// A fold's result for the cutter's thread: its object, the fold (or why not), seconds.
+#[cfg(feature = "native")]
+type FoldDone = (usize, Result<Folded, Error>, f64);
+
+/// The fold's thread: runs each job in turn, then makes again on it the cuts made while it
+/// ran (as they arrive), and hands it back once it has caught up; ends when the cutter's
+/// thread hangs up.
+#[cfg(feature = "native")]
+fn fold_thread(rx: std::sync::mpsc::Receiver<ToFold>, tx: std::sync::mpsc::Sender<FoldDone>) {
+    use std::collections::{HashMap, VecDeque};
+    let mut jobs: VecDeque<(u64, Box<FoldJob>)> = VecDeque::new();
+    let mut ops: HashMap<u64, Vec<CutOp>> = HashMap::new();
+    let take = |m: ToFold,
+                jobs: &mut VecDeque<(u64, Box<FoldJob>)>,
+                ops: &mut HashMap<u64, Vec<CutOp>>| {
+        match m {
+            ToFold::Job(id, job) => {
+                ops.entry(id).or_default();
+                jobs.push_back((id, job));
+            }
+            // (Cuts of a fold already handed back are the cutter's to make again.)
+            ToFold::Ops(id, more) => {
+                if let Some(v) = ops.get_mut(&id) {
+                    v.extend(more);
+                }
+            }
+        }
+    };
+    while let Ok(m) = rx.recv() {
+        take(m, &mut jobs, &mut ops);
+        while let Some((id, job)) = jobs.pop_front() {
+            let t = std::time::Instant::now();
+            let (o, r) = job.run();
+            let r = r.and_then(|mut f| loop {
+                while let Ok(m) = rx.try_recv() {
+                    take(m, &mut jobs, &mut ops);
+                }
+                let have = ops.get(&id).map_or(&[][..], |v| &v[..]);
+                if f.applied() >= have.len() {
+                    return Ok(f);
+                }
+                f.catch_up(have)?;
+            });
+            ops.remove(&id);
+            if tx.send((o, r, t.elapsed().as_secs_f64())).is_err() {
+                return;
+            }
+        }
+    }
 }
 
 #[cfg(feature = "native")]
@@ -80,8 +215,9 @@ impl CutThread {
             return Ok(None);
         }
         let plan = Cutter::plan(world)?;
-        let (sp, mut sc) = rtrb::RingBuffer::<Stroke>::new(1 << 14);
-        let (mut bp, bc) = rtrb::RingBuffer::<(usize, Arc<CutBody>)>::new(256);
+        let mode = fold_mode();
+        let (sp, mut sc) = rtrb::RingBuffer::<Stroke>::new(STROKE_RING);
+        let (mut bp, bc) = rtrb::RingBuffer::<(usize, Arc<CutBody>, u64)>::new(256);
         let (pp, mut pc) = rtrb::RingBuffer::<Arc<CutBody>>::new(256);
         let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
         let stop2 = stop.clone();
@@ -92,44 +228,131 @@ impl CutThread {
                 // Spawned from the haptic loop: off its core and out of its real-time class.
                 crate::threads::become_background_worker(&haptic_cpus);
                 let mut cutter = Cutter::from_plan(plan)?;
+                cutter.set_fold_mode(mode);
                 let mut stats = CutStats::default();
                 let mut pieces: Vec<usize> = Vec::new();
                 let mut pending = Vec::with_capacity(1 << 14);
-                loop {
+                // The fold's thread: jobs in, and the cuts made while each is out; folded
+                // compliances (caught up with those cuts, with their time) out.
+                let (job_tx, job_rx) = std::sync::mpsc::channel::<ToFold>();
+                let (done_tx, done_rx) = std::sync::mpsc::channel();
+                let cpus = haptic_cpus.clone();
+                let folder = std::thread::Builder::new()
+                    .name("touchfem-fold".into())
+                    .spawn(move || {
+                        crate::threads::become_background_worker(&cpus);
+                        fold_thread(job_rx, done_tx);
+                    })
+                    .map_err(|e| Error::Input(format!("cannot start the fold's thread: {e}")))?;
+                // Per object: the job out (its number) and how many of its cuts were sent.
+                let mut out: Vec<Option<(u64, usize)>> = Vec::new();
+                let mut jobs_made = 0u64;
+                // Strokes taken from the ring so far (the next one's number).
+                let mut taken = 0u64;
+                let mut publish =
+                    |o: usize, body: Arc<CutBody>, first: u64, stats: &mut CutStats| {
+                        stats.bodies += 1;
+                        stats.tets_removed = body.tets_removed;
+                        if pieces.len() <= o {
+                            pieces.resize(o + 1, 0);
+                        }
+                        pieces[o] = body.pieces_removed;
+                        stats.pieces_removed = pieces.iter().sum();
+                        feed.publish(o, body.clone());
+                        // The haptic thread takes what fits; it never waits.
+                        let _ = bp.push((o, body, first));
+                    };
+                let result = loop {
                     let stopping = stop2.load(std::sync::atomic::Ordering::Acquire);
+                    // Folds done since the last pass: adopted, each with a body of its own.
+                    while let Ok((o, r, secs)) = done_rx.try_recv() {
+                        let o: usize = o;
+                        if let Some(slot) = out.get_mut(o) {
+                            *slot = None;
+                        }
+                        stats.max_fold_s = stats.max_fold_s.max(secs);
+                        let t = std::time::Instant::now();
+                        let adopted = r.and_then(|f| cutter.adopt(f));
+                        match adopted.and_then(|()| cutter.body_now(o)) {
+                            Ok(body) => {
+                                stats.folds += 1;
+                                publish(o, body, NO_STROKE, &mut stats);
+                                stats.max_adopt_s =
+                                    stats.max_adopt_s.max(t.elapsed().as_secs_f64());
+                            }
+                            Err(e) => {
+                                log::warn!(
+                                    "a fold of object {o} failed (its cut is carried on): {e}"
+                                );
+                                cutter.drop_fold(o);
+                            }
+                        }
+                    }
                     pending.clear();
+                    let first = taken;
                     while let Ok(s) = sc.pop() {
                         pending.push(s);
+                        taken += 1;
                     }
                     while pc.pop().is_ok() {}
                     if !pending.is_empty() {
                         let t = std::time::Instant::now();
-                        for (o, body) in cutter.apply_all(&pending)? {
-                            stats.bodies += 1;
-                            stats.tets_removed = body.tets_removed;
-                            if pieces.len() <= o {
-                                pieces.resize(o + 1, 0);
-                            }
-                            pieces[o] = body.pieces_removed;
-                            stats.pieces_removed = pieces.iter().sum();
-                            feed.publish(o, body.clone());
-                            // The haptic thread takes what fits; it never waits.
-                            let _ = bp.push((o, body));
+                        let bodies = match cutter.apply_all(&pending) {
+                            Ok(b) => b,
+                            Err(e) => break Err(e),
+                        };
+                        let any = !bodies.is_empty();
+                        for (o, body) in bodies {
+                            publish(o, body, first, &mut stats);
                         }
                         stats.max_pass_s = stats.max_pass_s.max(t.elapsed().as_secs_f64());
-                        // Fold now, while the blade is still, rather than before its next cut.
+                        // Folds due go to the fold's thread (deferred), or run here (inline).
+                        if any {
+                            // The cuts made while a fold is out, to its thread to catch up.
+                            for (o, slot) in out.iter_mut().enumerate() {
+                                if let Some((id, sent)) = slot {
+                                    let ops = cutter.fold_ops(o);
+                                    if ops.len() > *sent {
+                                        let _ =
+                                            job_tx.send(ToFold::Ops(*id, ops[*sent..].to_vec()));
+                                        *sent = ops.len();
+                                    }
+                                }
+                            }
+                            match cutter.take_folds() {
+                                Ok(jobs) => {
+                                    for job in jobs {
+                                        let o = job.object();
+                                        if out.len() <= o {
+                                            out.resize(o + 1, None);
+                                        }
+                                        out[o] = Some((jobs_made, 0));
+                                        let _ = job_tx.send(ToFold::Job(jobs_made, Box::new(job)));
+                                        jobs_made += 1;
+                                    }
+                                }
+                                Err(e) => break Err(e),
+                            }
+                        }
                         let t = std::time::Instant::now();
-                        let n = cutter.fold_due()?;
-                        if n > 0 {
-                            stats.folds += n as u64;
-                            stats.max_fold_s = stats.max_fold_s.max(t.elapsed().as_secs_f64());
+                        match cutter.fold_due() {
+                            Ok(0) => {}
+                            Ok(n) => {
+                                stats.folds += n as u64;
+                                stats.max_fold_s = stats.max_fold_s.max(t.elapsed().as_secs_f64());
+                            }
+                            Err(e) => break Err(e),
                         }
                     } else if stopping {
-                        return Ok(stats);
+                        break Ok(stats);
                     } else {
                         std::thread::sleep(std::time::Duration::from_millis(1));
                     }
-                }
+                };
+                // A fold still out is not waited for beyond its own end.
+                drop(job_tx);
+                let _ = folder.join();
+                result
             })
             .map_err(|e| Error::Input(format!("cannot start the cutter's thread: {e}")))?;
         Ok(Some((
@@ -138,6 +361,9 @@ impl CutThread {
                 bodies: bc,
                 spent: pp,
                 strokes_dropped: 0,
+                sent_at: vec![None; STROKE_RING].into_boxed_slice(),
+                sent: 0,
+                delays: Vec::with_capacity(DELAYS_KEPT),
             },
             CutThread {
                 stop,

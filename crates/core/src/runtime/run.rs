@@ -146,9 +146,9 @@ pub fn run_haptic(
     out.stats.max_force_n = max_force;
     out.stats.contact_budget_exhausted = hw.budget_exhausted();
     out.records_dropped = recorder.map_or(0, |r| r.dropped());
-    if let Some((_, thread)) = cutting {
+    if let Some((link, thread)) = cutting {
         match thread.finish() {
-            Ok(s) => out.cuts = s,
+            Ok(s) => out.cuts = s.with_delays(link.delays()),
             Err(e) => log::warn!("the cutter failed: {e}"),
         }
     }

@@ -16,7 +16,10 @@
 //! tick's record is followed by a u32 count of the cut bodies installed after that tick, each
 //! as u32 object, u32 strokes, then per stroke 10 f64 (from, to, inward, depth; object
 //! frame, m). Replaying them at the same ticks builds the same bodies, so the forces replay
-//! bit for bit whatever the cutter's thread's timing was.
+//! bit for bit whatever the cutter's thread's timing was. Version 4 (written now) is version 3
+//! with bit 31 of the object word set on a body that follows a deferred fold's adoption
+//! ([`crate::haptic::cutter::FoldMode::Deferred`]): the replay adopts its fold there, where
+//! the live run did. A version 3 session replays with the folds inline, as it was recorded.
 //! The haptic loop pushes each tick into a wait-free ring ([`rtrb`]); a writer thread drains
 //! it to disk, so the loop never blocks on the file and allocates nothing.
 
@@ -167,6 +170,8 @@ pub struct CutEvent {
     pub object: usize,
     /// The strokes that built it from the object's previous body.
     pub strokes: Vec<super::cutting::Stroke>,
+    /// Whether a deferred fold was adopted before them (version 4).
+    pub fold_adopted: bool,
 }
 
 /// The haptic loop's end of a recording (wait-free push, no allocation).
@@ -201,7 +206,7 @@ impl Recorder {
 }
 
 /// Whether `world` can be cut (a blade finger and a cuttable object): its session records
-/// cuts (version 3).
+/// cuts (version 4).
 fn records_cuts(world: &World) -> bool {
     world.fingers.iter().any(|f| f.tool.blade_depth().is_some())
         && world.objects.iter().any(|o| o.cuttable.is_some())
@@ -223,7 +228,12 @@ pub fn record(
     let cuts = records_cuts(world);
     let header = SessionHeader {
         format: "touchfem-session".into(),
-        version: if cuts { 3 } else { 2 },
+        // (Folds made inline, `TOUCHFEM_FOLD=inline`, replay as version 3's.)
+        version: match (cuts, super::cutting::fold_mode()) {
+            (false, _) => 2,
+            (true, super::cutting::FoldMode::Inline) => 3,
+            (true, super::cutting::FoldMode::Deferred) => 4,
+        },
         touchfem: env!("CARGO_PKG_VERSION").into(),
         scene_name: world.name.clone(),
         scene_hash: format!("{:016x}", world.hash),
@@ -235,7 +245,7 @@ pub fn record(
         layout: format!(
             "per tick, little-endian f64: the seconds since the previous tick; then {n} finger position(s) [x, y, z] in m, scene frame; then {n} force(s) [fx, fy, fz] in N, as sent to the devices{}",
             if cuts {
-                "; then a u32 count of cut bodies installed after the tick, each u32 object, u32 strokes, and per stroke 10 f64: from, to, inward [x, y, z] and depth, object frame, m"
+                "; then a u32 count of cut bodies installed after the tick, each u32 object (bit 31 set: a deferred fold was adopted before the body's strokes), u32 strokes, and per stroke 10 f64: from, to, inward [x, y, z] and depth, object frame, m"
             } else {
                 ""
             }
@@ -292,7 +302,8 @@ pub fn record(
                         }
                         buf.extend_from_slice(&(events.len() as u32).to_le_bytes());
                         for e in &events {
-                            buf.extend_from_slice(&(e.object as u32).to_le_bytes());
+                            let adopted = if e.body.fold_adopted { 1u32 << 31 } else { 0 };
+                            buf.extend_from_slice(&(e.object as u32 | adopted).to_le_bytes());
                             buf.extend_from_slice(&(e.body.strokes.len() as u32).to_le_bytes());
                             for st in &e.body.strokes {
                                 for c in st
@@ -355,7 +366,7 @@ pub struct Session {
     pub header: SessionHeader,
     /// Its ticks.
     pub ticks: Vec<TickRecord>,
-    /// The cut bodies installed, in order (version 3).
+    /// The cut bodies installed, in order (versions 3 and 4).
     pub cuts: Vec<CutEvent>,
     /// Bytes at the end that did not make a whole record (a session cut off mid-write).
     pub trailing_bytes: usize,
@@ -387,12 +398,12 @@ pub fn read(path: &Path) -> Result<Session, Error> {
         serde_json::from_slice(&bytes[c..d]).map_err(|e| bad(format!("bad header: {e}")))?;
     let n = header.fingers;
     let with_dt = header.version >= 2;
-    let with_cuts = header.version == 3;
+    let with_cuts = header.version >= 3;
     let want_bytes = 48usize
         .saturating_mul(n)
         .saturating_add(if with_dt { 8 } else { 0 })
         .saturating_add(if with_cuts { 4 } else { 0 });
-    if !(1..=3).contains(&header.version)
+    if !(1..=4).contains(&header.version)
         || n == 0
         || n > MAX_FINGERS
         || header.record_bytes != want_bytes
@@ -442,7 +453,9 @@ pub fn read(path: &Path) -> Result<Session, Error> {
                     ok = false;
                     break;
                 }
-                let object = u32_at(body, end) as usize;
+                let word = u32_at(body, end);
+                let object = (word & !(1 << 31)) as usize;
+                let fold_adopted = header.version >= 4 && word >> 31 == 1;
                 let m = u32_at(body, end + 4) as usize;
                 end += 8;
                 if m > (body.len() - end) / 80 {
@@ -465,6 +478,7 @@ pub fn read(path: &Path) -> Result<Session, Error> {
                     after_tick: ticks.len() as u64,
                     object,
                     strokes,
+                    fold_adopted,
                 });
             }
             if !ok {
@@ -490,24 +504,36 @@ pub struct CutReplay<'s> {
     cutter: Option<super::cutting::Cutter>,
     events: &'s [CutEvent],
     next: usize,
+    /// Deferred folds run at their snapshot, waiting for the event that adopts them.
+    ready: Vec<super::cutting::Folded>,
 }
 
 impl<'s> CutReplay<'s> {
-    /// The cut replay of `session` on `world` (no cutter when the session holds no cut).
+    /// The cut replay of `session` on `world` (no cutter when the session holds no cut). A
+    /// version 3 session folds inline, as it was recorded; version 4 defers its folds and
+    /// adopts each where the recording says.
     pub fn new(world: &World, session: &'s Session) -> Result<CutReplay<'s>, Error> {
         let cutter = if session.cuts.is_empty() {
             None
         } else {
-            Some(super::cutting::Cutter::new(world)?)
+            let mut c = super::cutting::Cutter::new(world)?;
+            c.set_fold_mode(if session.header.version >= 4 {
+                super::cutting::FoldMode::Deferred
+            } else {
+                super::cutting::FoldMode::Inline
+            });
+            Some(c)
         };
         Ok(CutReplay {
             cutter,
             events: &session.cuts,
             next: 0,
+            ready: Vec::new(),
         })
     }
 
-    /// Installs in `hw` every body recorded after tick `i`, built again from its strokes.
+    /// Installs in `hw` every body recorded after tick `i`, built again from its strokes
+    /// (after adopting its fold, where it follows one).
     pub fn after_tick(&mut self, i: usize, hw: &mut HapticWorld) -> Result<(), Error> {
         let Some(cutter) = &mut self.cutter else {
             return Ok(());
@@ -516,8 +542,32 @@ impl<'s> CutReplay<'s> {
             if e.after_tick != i as u64 {
                 break;
             }
-            if let Some(body) = cutter.apply_strokes(e.object, &e.strokes)? {
+            if e.fold_adopted {
+                let k =
+                    (self.ready.iter().position(|f| f.object() == e.object)).ok_or_else(|| {
+                        Error::Session(format!(
+                            "a cut after tick {i} adopts a fold of object {} that was never due",
+                            e.object
+                        ))
+                    })?;
+                cutter.adopt(self.ready.swap_remove(k))?;
+            }
+            let body = if e.strokes.is_empty() && e.fold_adopted {
+                Some(cutter.body_now(e.object)?)
+            } else {
+                cutter.apply_strokes(e.object, &e.strokes)?
+            };
+            if let Some(body) = body {
                 hw.install_cut(e.object, body);
+                // Folds due now, as the live cutter handed them out after a pass: run here.
+                if !e.strokes.is_empty() {
+                    for job in cutter.take_folds()? {
+                        match job.run() {
+                            (_, Ok(f)) => self.ready.push(f),
+                            (o, Err(_)) => cutter.drop_fold(o),
+                        }
+                    }
+                }
             }
             self.next += 1;
         }
