@@ -273,6 +273,41 @@ pub fn become_background_worker(haptic_cpus: &[usize]) -> bool {
     }
 }
 
+/// [`become_background_worker`], then a real-time priority below the haptic loop's (Linux
+/// `SCHED_FIFO` 10) where permitted: for the cutter's passes, short bursts that the visual
+/// loop and its GPU driver's threads on the same core would otherwise starve (a pass took
+/// 0.15–0.25 s in the incision demo on 2 cores, against 10–40 ms alone). Returns whether it
+/// got the priority; without it the thread is a background worker.
+pub fn become_urgent_worker(haptic_cpus: &[usize]) -> bool {
+    become_background_worker(haptic_cpus);
+    try_realtime_priority_at(10)
+}
+
+/// Makes the calling thread run only when `cpus` (the haptic loop's cores) have nothing else
+/// to run (Linux `SCHED_IDLE`, pinned there): for long work such as a fold, which then takes
+/// the time the haptic loop sleeps between its ticks instead of the visual loop's, and yields
+/// its core the moment the loop wakes (a real-time thread preempts it). Where that is not
+/// possible (one core, no `SCHED_IDLE`), a background worker ([`become_background_worker`]).
+/// Returns whether it became an idle worker.
+pub fn become_idle_worker(haptic_cpus: &[usize]) -> bool {
+    #[cfg(all(feature = "native", target_os = "linux"))]
+    {
+        if available() >= 2 && !haptic_cpus.is_empty() && pin_current_thread(haptic_cpus) {
+            // SAFETY: plain FFI call on the current thread with a fully initialised parameter
+            // (priority 0 is the only one SCHED_IDLE takes).
+            let ok = unsafe {
+                let param = libc::sched_param { sched_priority: 0 };
+                libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_IDLE, &param) == 0
+            };
+            if ok {
+                return true;
+            }
+        }
+    }
+    become_background_worker(haptic_cpus);
+    false
+}
+
 /// The cores the calling thread may run on (empty where unknown).
 pub fn cpus_of_current_thread() -> Vec<usize> {
     current_cpus()

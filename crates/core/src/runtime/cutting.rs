@@ -110,8 +110,11 @@ pub struct CutStats {
     pub max_pass_s: f64,
     /// Folds of a correction into a new `L` (adopted).
     pub folds: u64,
-    /// The longest fold (with the new factorisation), s; on the fold's thread.
+    /// The longest fold (with the new factorisation), s; on the fold's thread when deferred.
     pub max_fold_s: f64,
+    /// The longest time from a deferred fold's start to its handing back, s: the fold, then
+    /// the cuts made meanwhile made again on it.
+    pub max_fold_handed_s: f64,
     /// The longest adoption of a fold (the cuts since its snapshot made again, and the
     /// body), s; on the cutter's thread, between two passes.
     pub max_adopt_s: f64,
@@ -153,9 +156,10 @@ enum ToFold {
     Ops(u64, Vec<CutOp>),
 }
 
-/// A fold's result for the cutter's thread: its object, the fold (or why not), seconds.
+/// A fold's result for the cutter's thread: its object, the fold (or why not), the seconds
+/// the fold took and those until it was handed back (its catching up included).
 #[cfg(feature = "native")]
-type FoldDone = (usize, Result<Folded, Error>, f64);
+type FoldDone = (usize, Result<Folded, Error>, f64, f64);
 
 /// The fold's thread: runs each job in turn, then makes again on it the cuts made while it
 /// ran (as they arrive), and hands it back once it has caught up; ends when the cutter's
@@ -186,6 +190,7 @@ fn fold_thread(rx: std::sync::mpsc::Receiver<ToFold>, tx: std::sync::mpsc::Sende
         while let Some((id, job)) = jobs.pop_front() {
             let t = std::time::Instant::now();
             let (o, r) = job.run();
+            let fold_s = t.elapsed().as_secs_f64();
             let r = r.and_then(|mut f| loop {
                 while let Ok(m) = rx.try_recv() {
                     take(m, &mut jobs, &mut ops);
@@ -197,7 +202,7 @@ fn fold_thread(rx: std::sync::mpsc::Receiver<ToFold>, tx: std::sync::mpsc::Sende
                 f.catch_up(have)?;
             });
             ops.remove(&id);
-            if tx.send((o, r, t.elapsed().as_secs_f64())).is_err() {
+            if tx.send((o, r, fold_s, t.elapsed().as_secs_f64())).is_err() {
                 return;
             }
         }
@@ -229,6 +234,11 @@ impl CutThread {
                 crate::threads::become_background_worker(&haptic_cpus);
                 let mut cutter = Cutter::from_plan(plan)?;
                 cutter.set_fold_mode(mode);
+                // Its passes now go before the visual loop on their core (the factorisation
+                // above did not: it is long). The fold's thread stays a background worker.
+                if mode == FoldMode::Deferred {
+                    crate::threads::become_urgent_worker(&haptic_cpus);
+                }
                 let mut stats = CutStats::default();
                 let mut pieces: Vec<usize> = Vec::new();
                 let mut pending = Vec::with_capacity(1 << 14);
@@ -240,7 +250,8 @@ impl CutThread {
                 let folder = std::thread::Builder::new()
                     .name("touchfem-fold".into())
                     .spawn(move || {
-                        crate::threads::become_background_worker(&cpus);
+                        // In the haptic loop's idle time (and out of the visual loop's).
+                        crate::threads::become_idle_worker(&cpus);
                         fold_thread(job_rx, done_tx);
                     })
                     .map_err(|e| Error::Input(format!("cannot start the fold's thread: {e}")))?;
@@ -265,12 +276,13 @@ impl CutThread {
                 let result = loop {
                     let stopping = stop2.load(std::sync::atomic::Ordering::Acquire);
                     // Folds done since the last pass: adopted, each with a body of its own.
-                    while let Ok((o, r, secs)) = done_rx.try_recv() {
+                    while let Ok((o, r, secs, until)) = done_rx.try_recv() {
                         let o: usize = o;
                         if let Some(slot) = out.get_mut(o) {
                             *slot = None;
                         }
                         stats.max_fold_s = stats.max_fold_s.max(secs);
+                        stats.max_fold_handed_s = stats.max_fold_handed_s.max(until);
                         let t = std::time::Instant::now();
                         let adopted = r.and_then(|f| cutter.adopt(f));
                         match adopted.and_then(|()| cutter.body_now(o)) {
