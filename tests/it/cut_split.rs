@@ -1,7 +1,7 @@
 //! Separating cuts (`Cut::split`, snap and split): the corrected compliance against a full
 //! recompute of the separated mesh (assembled, factored and solved through the public API),
 //! issue 39's table redone (the volume removed against today's removal, the walls' reach),
-//! the edge-entering blade, and hostile blades.
+//! the edge-entering blade, a blade in a grid plane (nothing to snap), and hostile blades.
 
 use std::time::Instant;
 
@@ -228,6 +228,31 @@ fn a_blade_entering_along_an_edge_separates() {
     let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
     assert!(v["nodes_split"].as_u64().unwrap() >= 25, "{v}");
     assert_eq!(v["pieces_removed"].as_u64(), Some(1), "{v}");
+}
+
+#[test]
+fn a_blade_along_a_grid_plane_splits_without_snapping() {
+    // The cube's nodes lie on the planes x = 0, 7.5, 15 … mm: a blade in x = 15 mm crosses no
+    // edge, so nothing is snapped, and the faces already in its plane are cut.
+    let mesh = cube();
+    let mut cut = Cut::new(&mesh).unwrap();
+    let rep = cut
+        .split(
+            &mesh,
+            &[quad(&mesh, [15.0, 2.0, 30.0], [15.0, 28.0, 30.0], 12.0)],
+        )
+        .unwrap();
+    eprintln!("cube, a blade in the plane x = 15 mm: {rep:?}");
+    assert_eq!(rep.nodes_snapped, 0, "{rep:?}");
+    assert!(rep.nodes_split > 0 && rep.faces_cut > 0, "{rep:?}");
+    assert_eq!((rep.slivers, rep.cut.tets_removed), (0, 0), "{rep:?}");
+    // Every copy lies in the plane, its node unmoved.
+    for c in mesh.nodes.len()..cut.node_count() {
+        let o = cut.origin()[c] as usize;
+        assert_eq!(cut.nodes()[c], mesh.nodes[o]);
+        assert!((cut.nodes()[c].x - 0.015).abs() < 1e-12);
+    }
+    assert!(check_exact("cube, a blade in a grid plane", &cut, &mesh) < 1e-9);
 }
 
 #[test]
