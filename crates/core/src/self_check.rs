@@ -143,36 +143,31 @@ pub fn all() -> Vec<Check> {
         check!(runtime::pacer::tests, the_floor_runs_at_its_rate),
         check!(scene::file::tests, lines_are_counted_from_one),
     ];
+    // The native runtime's checks (sockets, threads).
     #[cfg(feature = "native")]
-    v.push(check!(
-        devices::udp::gate_tests,
-        sequence_numbers_compare_in_serial_arithmetic
-    ));
-    #[cfg(feature = "native")]
-    v.push(check!(
-        devices::udp::gate_tests,
-        a_wrapping_counter_loses_no_packet
-    ));
-    #[cfg(feature = "native")]
-    v.push(check!(
-        devices::udp::gate_tests,
-        one_packet_with_seq_max_does_not_lock_the_client_out
-    ));
-    #[cfg(feature = "native")]
-    v.push(check!(
-        devices::udp::gate_tests,
-        keyed_packets_verify_and_others_are_rejected
-    ));
-    #[cfg(feature = "native")]
-    v.push(check!(
-        devices::udp::gate_tests,
-        random_and_mutated_datagrams_never_panic_the_gate
-    ));
-    #[cfg(feature = "native")]
-    v.push(check!(
-        haptic::sample::tests,
-        the_haptic_side_waits_for_the_visual_side_or_a_stop
-    ));
+    v.extend([
+        check!(
+            devices::udp::gate_tests,
+            sequence_numbers_compare_in_serial_arithmetic
+        ),
+        check!(devices::udp::gate_tests, a_wrapping_counter_loses_no_packet),
+        check!(
+            devices::udp::gate_tests,
+            one_packet_with_seq_max_does_not_lock_the_client_out
+        ),
+        check!(
+            devices::udp::gate_tests,
+            keyed_packets_verify_and_others_are_rejected
+        ),
+        check!(
+            devices::udp::gate_tests,
+            random_and_mutated_datagrams_never_panic_the_gate
+        ),
+        check!(
+            haptic::sample::tests,
+            the_haptic_side_waits_for_the_visual_side_or_a_stop
+        ),
+    ]);
     #[cfg(all(feature = "native", target_os = "linux"))]
     v.push(check!(threads::tests, pin_and_restore));
     v
