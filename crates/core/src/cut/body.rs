@@ -598,8 +598,10 @@ impl Cut {
         self.solve0(&mut b);
         let old = self.d.len();
         let m = old + new.len();
-        let mut ld = DMatrix::zeros(n, m);
-        ld.view_mut((0, 0), (n, old)).copy_from(&self.ld);
+        // Grown in place (column-major: the new columns go at the end of the same storage,
+        // which the allocator can extend without copying `L_D`'s old columns).
+        let ld = std::mem::replace(&mut self.ld, DMatrix::zeros(0, 0));
+        let mut ld = ld.resize_horizontally(m, 0.0);
         ld.view_mut((0, old), (n, new.len())).copy_from(&b);
         self.ld = ld;
         let mut dk = DMatrix::zeros(m, m);
@@ -1091,14 +1093,21 @@ impl Cut {
         };
         let mut rows = vec![0.0; 3 * nr * r];
         let mut dead_rows = vec![false; nr];
+        // (Each held row's place in a column of `U`, and its DOF: `L_D` read a column at a
+        // time, as it is stored.)
+        let mut at: Vec<(usize, usize)> = Vec::with_capacity(3 * nr);
         for (k, &node) in c.rows()[..nr].iter().enumerate() {
             dead_rows[k] = self.pinned.get(node as usize).copied().unwrap_or(true);
             for a in 0..3 {
                 if let Some(d) = dof(node, a) {
-                    for q in 0..r {
-                        rows[q * 3 * nr + 3 * k + a] = self.ld[(d, q)];
-                    }
+                    at.push((3 * k + a, d));
                 }
+            }
+        }
+        for (q, out) in rows.chunks_exact_mut(3 * nr.max(1)).enumerate().take(r) {
+            let col = self.ld.column(q);
+            for &(i, d) in &at {
+                out[i] = col[d];
             }
         }
         let mut u_cols = vec![0.0; 3 * nc * r];
@@ -1118,8 +1127,7 @@ impl Cut {
         // U's transpose column-major: Vᵀ = C Uᵀ).
         if r > 0 && nc > 0 {
             let ut = nalgebra::DMatrixView::from_slice(&u_cols, r, 3 * nc);
-            let vt = &self.cap * ut;
-            v_cols.copy_from_slice(vt.as_slice());
+            v_cols = (&self.cap * ut).data.into();
         }
         let mut k = Correction {
             rank: r,
