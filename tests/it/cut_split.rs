@@ -1,7 +1,7 @@
 //! Separating cuts (`Cut::split`, snap and split): the corrected compliance against a full
 //! recompute of the separated mesh (assembled, factored and solved through the public API),
 //! issue 39's table redone (the volume removed against today's removal, the walls' reach),
-//! the edge-entering blade, a blade in a grid plane (nothing to snap), and hostile blades.
+//! the edge-entering blade, a blade in a grid plane (nothing to snap), the slit's lips, and hostile blades.
 
 use std::time::Instant;
 
@@ -253,6 +253,91 @@ fn a_blade_along_a_grid_plane_splits_without_snapping() {
         assert!((cut.nodes()[c].x - 0.015).abs() < 1e-12);
     }
     assert!(check_exact("cube, a blade in a grid plane", &cut, &mesh) < 1e-9);
+}
+
+#[test]
+fn the_lips_of_a_separated_slit_part_when_pulled_and_step_when_one_is_pressed() {
+    // The cube slit in the plane x = 15 mm, 12 mm deep. Each split node and its copy sit at
+    // one place, one on each lip; the lip a copy belongs to is the side of its tets.
+    let mesh = cube();
+    let mut cut = Cut::new(&mesh).unwrap();
+    cut.split(
+        &mesh,
+        &[quad(&mesh, [15.0, 2.0, 30.0], [15.0, 28.0, 30.0], 12.0)],
+    )
+    .unwrap();
+    let n0 = mesh.nodes.len() as u32;
+    let side = |v: u32| -> f64 {
+        // The mean x of the tets around node v (m): < 15 mm on the left lip.
+        let (mut sum, mut n) = (0.0, 0.0);
+        for (t, tv) in cut.tets().iter().enumerate() {
+            if !cut.removed()[t] && tv.contains(&v) {
+                sum += tv.iter().map(|&w| cut.nodes()[w as usize].x).sum::<f64>() / 4.0;
+                n += 1.0;
+            }
+        }
+        sum / n
+    };
+    // (left, right) of each pair at the top face, where the slit is widest.
+    let pairs: Vec<(u32, u32)> = (n0..cut.node_count() as u32)
+        .filter(|&c| (cut.nodes()[c as usize].z - 0.03).abs() < 1e-9)
+        .map(|c| {
+            let o = cut.origin()[c as usize];
+            if side(c) < side(o) {
+                (c, o)
+            } else {
+                (o, c)
+            }
+        })
+        .collect();
+    assert!(!pairs.is_empty());
+    // Forces on the top nodes 7.5 mm either side of the slit, y = 15 mm.
+    let at = |x: f64| -> u32 {
+        (0..n0)
+            .min_by(|&a, &b| {
+                let d = |v: u32| cut.nodes()[v as usize].distance(DVec3::new(x, 0.015, 0.03));
+                d(a).total_cmp(&d(b))
+            })
+            .unwrap()
+    };
+    let (l, r) = (at(0.0075), at(0.0225));
+    // Opening (x gap, right lip minus left) of the widest pair, and the largest displacement.
+    let gap = |u: &[DVec3]| -> f64 {
+        (pairs.iter())
+            .map(|&(a, b)| u[b as usize].x - u[a as usize].x)
+            .fold(f64::NEG_INFINITY, f64::max)
+    };
+    let biggest = |u: &[DVec3]| u.iter().map(|v| v.length()).fold(0.0, f64::max);
+    // Pulled apart: the lips part, by a good share of the largest displacement.
+    let pull = [
+        (l, DVec3::new(-0.2, 0.0, 0.0)),
+        (r, DVec3::new(0.2, 0.0, 0.0)),
+    ];
+    let u = cut.displace(&pull);
+    let (g, m) = (gap(&u), biggest(&u));
+    eprintln!(
+        "slit pulled apart: lips {:.3} mm apart, largest displacement {:.3} mm",
+        g * 1e3,
+        m * 1e3
+    );
+    assert!(g > 0.3 * m, "{g} vs {m}");
+    // The right lip pressed down at the slit (the pair nearest y = 15 mm): it sinks, and the
+    // left lip, apart from it now, follows only through the material below the slit.
+    let &(a, b) = (pairs.iter())
+        .min_by(|p, q| {
+            let d = |v: u32| (cut.nodes()[v as usize].y - 0.015).abs();
+            d(p.1).total_cmp(&d(q.1))
+        })
+        .unwrap();
+    let u = cut.displace(&[(b, DVec3::new(0.0, 0.0, -0.05))]);
+    let step = u[a as usize].z - u[b as usize].z;
+    eprintln!(
+        "the right lip pressed: it sinks {:.3} mm, the left {:.3} mm",
+        -u[b as usize].z * 1e3,
+        -u[a as usize].z * 1e3
+    );
+    assert!(u[b as usize].z < 0.0);
+    assert!(step > 0.5 * -u[b as usize].z, "{step}");
 }
 
 #[test]
