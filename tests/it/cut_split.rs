@@ -1,7 +1,8 @@
 //! Separating cuts (`Cut::split`, snap and split): the corrected compliance against a full
 //! recompute of the separated mesh (assembled, factored and solved through the public API),
 //! issue 39's table redone (the volume removed against today's removal, the walls' reach),
-//! the edge-entering blade, a blade in a grid plane (nothing to snap), the slit's lips, and hostile blades.
+//! the edge-entering blade, a blade in a grid plane (nothing to snap), the slit's lips, and
+//! hostile blades.
 
 use std::time::Instant;
 
