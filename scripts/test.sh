@@ -15,25 +15,12 @@ export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 # packages, the page built for wasm32 (scripts/web.sh installs the target and wasm-bindgen-cli
 # when absent). Where that cannot be had the browser tests say they are skipped.
 # TOUCHFEM_SKIP_WEB=1 leaves the browser part out (on a machine without Chromium or wasm32).
-# The page builds beside the native build, in a target folder of its own (so neither waits
-# for the other's lock): together they keep both cores busy, as neither does alone.
-web_pid=""
 if [ "${TOUCHFEM_SKIP_WEB:-0}" = 1 ]; then
   echo "note: TOUCHFEM_SKIP_WEB=1: the browser tests are SKIPPED" >&2
-elif scripts/ensure-chromium.sh; then
-  CARGO_TARGET_DIR="$PWD/target/wasm" TOUCHFEM_WEB_NO_CACHES=1 \
-    scripts/web.sh --build-only --out target/web-test &
-  web_pid=$!
+elif scripts/ensure-chromium.sh && TOUCHFEM_WEB_NO_CACHES=1 scripts/web.sh --build-only --out target/web-test; then
+  export TOUCHFEM_WEB_DIR="$PWD/target/web-test"
 else
-  echo "note: Chromium could not be had; the browser tests are SKIPPED" >&2
-fi
-cargo test --workspace --all-features --no-run "$@"
-if [ -n "$web_pid" ]; then
-  if wait "$web_pid"; then
-    export TOUCHFEM_WEB_DIR="$PWD/target/web-test"
-  else
-    echo "note: the web page could not be built; the browser tests are SKIPPED" >&2
-  fi
+  echo "note: the web page could not be built; the browser tests are SKIPPED" >&2
 fi
 # Without target flags, `cargo test` runs the doc tests too.
 cargo test --workspace --all-features "$@"
