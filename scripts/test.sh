@@ -17,7 +17,7 @@ export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 # TOUCHFEM_SKIP_WEB=1 leaves the browser part out (on a machine without Chromium or wasm32).
 if [ "${TOUCHFEM_SKIP_WEB:-0}" = 1 ]; then
   echo "note: TOUCHFEM_SKIP_WEB=1: the browser tests are SKIPPED" >&2
-elif scripts/ensure-chromium.sh && TOUCHFEM_WEB_NO_CACHES=1 scripts/web.sh --build-only --out target/web-test --profile wasm-test; then
+elif scripts/ensure-chromium.sh && TOUCHFEM_WEB_NO_CACHES=1 scripts/web.sh --build-only --out target/web-test; then
   export TOUCHFEM_WEB_DIR="$PWD/target/web-test"
 else
   echo "note: the web page could not be built; the browser tests are SKIPPED" >&2

@@ -3,10 +3,7 @@
 # crates/web, bound with wasm-bindgen, and the static files of web/) into DIR, then serves it on
 # http://127.0.0.1:PORT/ until interrupted.
 #
-#   scripts/web.sh [--build-only] [--out DIR] [--port P] [--profile NAME]
-#
-# --profile: the Cargo profile of the wasm (default web-release; the test command builds
-# wasm-test, the same with the GPU stack's shader compiler at opt-level 1, which builds faster).
+#   scripts/web.sh [--build-only] [--out DIR] [--port P]
 #
 # DIR defaults to target/web, P to 8080. The built folder is static: any web server can host
 # it (docs/guide/web.md). Installs what the build needs when it is absent: the
@@ -23,9 +20,8 @@ tdir="${CARGO_TARGET_DIR:-target}"
 out=target/web
 port=8080
 serve=1
-profile=web-release
 usage() {
-  echo "usage: scripts/web.sh [--build-only] [--out DIR] [--port P] [--profile NAME]" >&2
+  echo "usage: scripts/web.sh [--build-only] [--out DIR] [--port P]" >&2
   exit 2
 }
 while [ $# -gt 0 ]; do
@@ -33,7 +29,6 @@ while [ $# -gt 0 ]; do
     --build-only) serve=0 ;;
     --out) [ $# -ge 2 ] || usage; out=$2; shift ;;
     --port) [ $# -ge 2 ] || usage; port=$2; shift ;;
-    --profile) [ $# -ge 2 ] || usage; profile=$2; shift ;;
     -h|--help) usage ;;
     *) echo "error: unknown argument '$1'" >&2; usage ;;
   esac
@@ -57,9 +52,9 @@ if [ "$have" != "$want" ]; then
     || cargo install --quiet wasm-bindgen-cli --version "$want"
 fi
 
-cargo build --quiet -p touchfem-web --target "$target" --profile "$profile"
+cargo build --quiet -p touchfem-web --target "$target" --profile web-release
 mkdir -p "$out"
-wasm-bindgen --target web --no-typescript --out-dir "$out" "$tdir/$target/$profile/touchfem_web.wasm"
+wasm-bindgen --target web --no-typescript --out-dir "$out" "$tdir/$target/web-release/touchfem_web.wasm"
 cp web/index.html web/main.js web/worker.js "$out/"
 
 # The compliance caches, where a native program can make them.
