@@ -49,6 +49,10 @@ pub fn all() -> Vec<Check> {
             coincident_points_and_a_zero_matrix_build
         ),
         check!(
+            compliance::plan::tests,
+            every_method_gives_the_locking_free_compliance
+        ),
+        check!(
             compliance::near::tests,
             pairs_are_the_triangles_edges_and_the_diagonal
         ),

@@ -18,7 +18,7 @@ pub mod correction;
 mod error;
 pub mod hmatrix;
 pub mod near;
-mod plan;
+pub(crate) mod plan;
 pub mod precision;
 mod products;
 

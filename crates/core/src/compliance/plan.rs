@@ -955,3 +955,62 @@ impl ColumnPlan {
         Ok((residual, times, out))
     }
 }
+
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
+    use crate::compliance::{Compliance, Method, Selection};
+    use crate::fem::locking_free::{dense, stiffness, tests::two_region_block, Smoothing};
+    use crate::fem::FactorStore;
+    use nalgebra::DMatrix;
+
+    /// Every precompute method, both factor stores, on the locking-free formulation's
+    /// (stabilised) system: `L` against the inverse of its condensed stiffness, formed
+    /// densely (`fem::locking_free`'s check holds the system itself to it).
+    #[cfg_attr(test, test)]
+    pub(crate) fn every_method_gives_the_locking_free_compliance() {
+        let m = two_region_block();
+        let assembled = stiffness(&m, Smoothing::Nodal).expect("K");
+        let nf = assembled.n();
+        let kd = dense(&m, Smoothing::CHOSEN);
+        let owner = &assembled.dofs.owner;
+        let kff = DMatrix::from_fn(nf, nf, |i, j| {
+            let (a, x) = owner[i];
+            let (b, y) = owner[j];
+            kd[3 * a as usize + x as usize][3 * b as usize + y as usize]
+        });
+        let dense_inv = kff.cholesky().expect("positive definite").inverse();
+        let dscale = (0..nf).map(|i| dense_inv[(i, i)]).fold(0.0f64, f64::max);
+        // The factor in a file needs the `native` feature.
+        let mut stores = vec![FactorStore::Heap];
+        if cfg!(feature = "native") {
+            stores.push(FactorStore::File {
+                dir: std::env::temp_dir(),
+                threads: 2,
+            });
+        }
+        let sel = Selection::default();
+        for how in [Method::Columns, Method::Full, Method::Gram] {
+            for store in &stores {
+                let c = Compliance::compute_in(&m, &sel, how, store, &mut |_, _| {}).expect("L");
+                let mut worst = 0.0f64;
+                for (ci, &cn) in c.cols().iter().enumerate() {
+                    for (ri, &rn) in c.rows().iter().enumerate() {
+                        let got = c.block(ri, ci);
+                        for a in 0..3 {
+                            for b in 0..3 {
+                                let (Some(r), Some(k)) =
+                                    (assembled.dofs.free(rn, a), assembled.dofs.free(cn, b))
+                                else {
+                                    continue;
+                                };
+                                let g = got.col(b)[a];
+                                worst = worst.max((g - dense_inv[(r, k)]).abs());
+                            }
+                        }
+                    }
+                }
+                assert!(worst <= 1e-9 * dscale, "{how:?} {store:?}: {worst:e}");
+            }
+        }
+    }
+}
