@@ -103,18 +103,23 @@ enum Op {
 /// Makes `op` again on `cut` (of `mesh`, cut within `region`): the same tets as when it was
 /// first made, since `cut` has removed the same ones before it.
 fn redo(cut: &mut Cut, mesh: &crate::Mesh, region: &CutRegion, op: &CutOp) -> Result<(), Error> {
-    let tets: Vec<usize> = match &op.0 {
+    let tets = match &op.0 {
         Op::Stroke(st) => blade_tets(mesh, st.from, st.to, st.inward, st.depth),
         Op::Tets(t) => t.clone(),
     };
-    let removed = cut.removed();
-    let tets: Vec<usize> = (tets.into_iter())
-        .filter(|&t| region.contains(t) && !removed[t])
-        .collect();
+    let tets = still_to_cut(cut, region, tets);
     if !tets.is_empty() {
         cut.remove(mesh, &tets)?;
     }
     Ok(())
+}
+
+/// Those of `tets` that `cut` may still remove: in its `region`, and not removed yet.
+fn still_to_cut(cut: &Cut, region: &CutRegion, tets: Vec<usize>) -> Vec<usize> {
+    let removed = cut.removed();
+    (tets.into_iter())
+        .filter(|&t| region.contains(t) && !removed[t])
+        .collect()
 }
 
 /// A fold taken off a [`Cutter`] ([`Cutter::take_folds`]): the object's compliance with its
@@ -521,17 +526,14 @@ impl Cutter {
         let Some(Some(oc)) = self.objects.get_mut(stroke.object) else {
             return Ok(false);
         };
-        let removed = oc.cut.removed();
-        let tets: Vec<usize> = blade_tets(
+        let swept = blade_tets(
             &oc.mesh,
             stroke.from,
             stroke.to,
             stroke.inward,
             stroke.depth,
-        )
-        .into_iter()
-        .filter(|&t| oc.region.contains(t) && !removed[t])
-        .collect();
+        );
+        let tets = still_to_cut(&oc.cut, &oc.region, swept);
         if tets.is_empty() {
             return Ok(false);
         }
