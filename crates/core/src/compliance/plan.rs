@@ -959,9 +959,9 @@ impl ColumnPlan {
 #[cfg(any(test, feature = "self-check"))]
 pub(crate) mod tests {
     use crate::compliance::{Compliance, Method, Selection};
-    use crate::fem::locking_free::{dense, stiffness, tests::two_region_block, Smoothing};
+    use crate::fem::locking_free::tests::{condensed_inverse, two_region_block};
+    use crate::fem::locking_free::{stiffness, Smoothing};
     use crate::fem::FactorStore;
-    use nalgebra::DMatrix;
 
     /// Every precompute method, both factor stores, on the locking-free formulation's
     /// (stabilised) system: `L` against the inverse of its condensed stiffness, formed
@@ -970,16 +970,7 @@ pub(crate) mod tests {
     pub(crate) fn every_method_gives_the_locking_free_compliance() {
         let m = two_region_block();
         let assembled = stiffness(&m, Smoothing::Nodal).expect("K");
-        let nf = assembled.n();
-        let kd = dense(&m, Smoothing::CHOSEN);
-        let owner = &assembled.dofs.owner;
-        let kff = DMatrix::from_fn(nf, nf, |i, j| {
-            let (a, x) = owner[i];
-            let (b, y) = owner[j];
-            kd[3 * a as usize + x as usize][3 * b as usize + y as usize]
-        });
-        let dense_inv = kff.cholesky().expect("positive definite").inverse();
-        let dscale = (0..nf).map(|i| dense_inv[(i, i)]).fold(0.0f64, f64::max);
+        let (dense_inv, dscale) = condensed_inverse(&m, &assembled, Smoothing::CHOSEN);
         // The factor in a file needs the `native` feature.
         let mut stores = vec![FactorStore::Heap];
         if cfg!(feature = "native") {

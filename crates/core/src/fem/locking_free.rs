@@ -757,6 +757,26 @@ pub(crate) mod tests {
         worst
     }
 
+    /// The inverse of `m`'s condensed stiffness under `s`, formed densely on `assembled`'s free
+    /// DOFs, and its largest diagonal entry.
+    pub(crate) fn condensed_inverse(
+        m: &Mesh,
+        assembled: &Stiffness,
+        s: Smoothing,
+    ) -> (DMatrix<f64>, f64) {
+        let nf = assembled.n();
+        let kd = dense(m, s);
+        let owner = &assembled.dofs.owner;
+        let kff = DMatrix::from_fn(nf, nf, |i, j| {
+            let (a, x) = owner[i];
+            let (b, y) = owner[j];
+            kd[3 * a as usize + x as usize][3 * b as usize + y as usize]
+        });
+        let dense_inv = kff.cholesky().expect("positive definite").inverse();
+        let dscale = (0..nf).map(|i| dense_inv[(i, i)]).fold(0.0f64, f64::max);
+        (dense_inv, dscale)
+    }
+
     /// A distorted 4×3×5 block with a stiffer, nearly incompressible top region (also the
     /// compliance room's check of every precompute method on this formulation).
     pub(crate) fn two_region_block() -> Mesh {
@@ -839,15 +859,7 @@ pub(crate) mod tests {
         // The stabilised systems against their condensed stiffness, formed densely.
         for s in [Smoothing::Bubble, Smoothing::Projection] {
             let stab = super::mixed(&m, s).expect("stabilised");
-            let kd = dense(&m, s);
-            let owner = &assembled.dofs.owner;
-            let kff = DMatrix::from_fn(nf, nf, |i, j| {
-                let (a, x) = owner[i];
-                let (b, y) = owner[j];
-                kd[3 * a as usize + x as usize][3 * b as usize + y as usize]
-            });
-            let dense_inv = kff.cholesky().expect("positive definite").inverse();
-            let dscale = (0..nf).map(|i| dense_inv[(i, i)]).fold(0.0f64, f64::max);
+            let (dense_inv, dscale) = condensed_inverse(&m, &assembled, s);
             for store in &stores {
                 let (f, _, _) = stab.factorize_in(Ordering::Metis, store).expect("LDLᵀ");
                 let worst = inverse_error(&f, stab.n(), nf, |i, j| dense_inv[(i, j)]);
