@@ -15,31 +15,16 @@ export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 # packages, the page built for wasm32 (scripts/web.sh installs the target and wasm-bindgen-cli
 # when absent). Where that cannot be had the browser tests say they are skipped.
 # TOUCHFEM_SKIP_WEB=1 leaves the browser part out (on a machine without Chromium or wasm32).
-#
-# The page is built at the lowest CPU priority beside the native build (in its own target
-# folder: two cargo runs do not share one), so that it takes only the cores the native build
-# leaves idle and costs the command little time of its own
-# (docs/measurements/2026-12-06-cold-test.md).
-web=""
 if [ "${TOUCHFEM_SKIP_WEB:-0}" = 1 ]; then
   echo "note: TOUCHFEM_SKIP_WEB=1: the browser tests are SKIPPED" >&2
-elif scripts/ensure-chromium.sh; then
-  CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$PWD/target}/web-build" TOUCHFEM_WEB_NO_CACHES=1 \
-    nice -n 19 scripts/web.sh --build-only --out target/web-test &
-  web=$!
+elif scripts/ensure-chromium.sh && TOUCHFEM_WEB_NO_CACHES=1 scripts/web.sh --build-only --out target/web-test; then
+  export TOUCHFEM_WEB_DIR="$PWD/target/web-test"
 else
-  echo "note: Chromium could not be installed; the browser tests are SKIPPED" >&2
+  echo "note: the web page could not be built; the browser tests are SKIPPED" >&2
 fi
-# Without target flags, `cargo test` runs the doc tests too. The tests run three at a time on
-# any machine with fewer cores: some of them wait on real time (the UDP and window loops, the
-# browser) and would leave a core idle.
+# Without target flags, `cargo test` runs the doc tests too. On a machine with fewer than
+# three cores the tests run three at a time: some of them wait on real time (the UDP and
+# window loops, the browser) and would leave a core idle
+# (docs/measurements/2026-12-06-cold-test.md).
 [ "$(nproc)" -ge 3 ] || export RUST_TEST_THREADS="${RUST_TEST_THREADS:-3}"
-cargo test --workspace --all-features --no-run "$@"
-if [ -n "$web" ]; then
-  if wait "$web"; then
-    export TOUCHFEM_WEB_DIR="$PWD/target/web-test"
-  else
-    echo "note: the web page could not be built; the browser tests are SKIPPED" >&2
-  fi
-fi
 cargo test --workspace --all-features "$@"
