@@ -18,14 +18,14 @@ use crate::common::touchfem_status as touchfem;
 
 /// A full recompute of a cut body: its separated mesh (each node left with no tet clamped:
 /// it does not move) assembled and factored afresh.
-struct Recompute {
+pub(crate) struct Recompute {
     k: Stiffness,
     factor: Factor,
     nodes: usize,
 }
 
 impl Recompute {
-    fn new(cut: &Cut, mesh: &Mesh) -> Recompute {
+    pub(crate) fn new(cut: &Cut, mesh: &Mesh) -> Recompute {
         let mut m = cut.separated_mesh(mesh);
         let mut has = vec![false; m.nodes.len()];
         for t in &m.tets {
@@ -46,7 +46,7 @@ impl Recompute {
     }
 
     /// Every node's displacement under `forces`.
-    fn solve(&self, forces: &[(u32, DVec3)]) -> Vec<DVec3> {
+    pub(crate) fn solve(&self, forces: &[(u32, DVec3)]) -> Vec<DVec3> {
         let mut b = faer::Mat::<f64>::zeros(self.k.dofs.n_free, 1);
         for &(v, f) in forces {
             for a in 0..3 {
@@ -65,7 +65,7 @@ impl Recompute {
 }
 
 /// The largest entry of a 3×3 block.
-fn max_abs(m: glam::DMat3) -> f64 {
+pub(crate) fn max_abs(m: glam::DMat3) -> f64 {
     m.abs().to_cols_array().iter().cloned().fold(0.0, f64::max)
 }
 
@@ -131,7 +131,7 @@ fn check_exact(name: &str, cut: &Cut, mesh: &Mesh) -> f64 {
 }
 
 /// The quad of a blade drawn on `mesh`'s surface between two points and its depth (mm).
-fn quad(mesh: &Mesh, a: [f64; 3], b: [f64; 3], depth_mm: f64) -> BladeQuad {
+pub(crate) fn quad(mesh: &Mesh, a: [f64; 3], b: [f64; 3], depth_mm: f64) -> BladeQuad {
     let s = Surface::new(mesh);
     BladeQuad::on_surface(
         &s,
@@ -364,7 +364,7 @@ fn a_separating_cut_equals_a_recompute_on_the_mouse() {
 }
 
 /// The mouse's blade of issue 39's table (mm): along its back.
-const MOUSE_BLADE: ([f64; 3], [f64; 3]) = ([-27.0, 0.0, 45.0], [6.0, 0.0, 45.0]);
+pub(crate) const MOUSE_BLADE: ([f64; 3], [f64; 3]) = ([-27.0, 0.0, 45.0], [6.0, 0.0, 45.0]);
 
 /// Today's removal along a blade (as `poke --cut` drew it before separating): the tets
 /// `blade_tets` sweeps, and their volume (m³).

@@ -8,6 +8,7 @@ mod contact_force;
 mod core_checks;
 mod coupling;
 mod cut;
+mod cut_grown;
 mod cut_hostile;
 mod cut_live;
 mod cut_split;

@@ -874,7 +874,7 @@ fn poke(a: &PokeArgs) -> Result<(), Error> {
     let nodal: Vec<(u32, DVec3)> = out
         .forces
         .iter()
-        .map(|&(c, f)| (scene.compliance.cols()[c as usize], f))
+        .map(|&(c, f)| (scene.compliance.col_node(c as usize), f))
         .collect();
     let u = touchfem_core::fem::solve_static(&scene.mesh, &nodal)?;
     let max_u = u.iter().map(|v| v.length()).fold(0.0, f64::max);

@@ -16,6 +16,7 @@
 pub mod conditioning;
 pub mod correction;
 mod error;
+mod grown;
 pub mod hmatrix;
 pub mod near;
 pub(crate) mod plan;
@@ -502,12 +503,20 @@ impl Compliance {
         let r = *self.row_of_node.get(node as usize)?;
         (r != u32::MAX).then_some(r as usize)
     }
-    /// Column index of a mesh node, if touchable.
+    /// Column index of a mesh node, if touchable: one of [`Compliance::cols`], or past them
+    /// an extra column of a grown correction ([`Correction::extra`]: a node a cut made
+    /// touchable).
     #[inline]
     pub fn col_of(&self, node: u32) -> Option<usize> {
-        let c = *self.col_of_node.get(node as usize)?;
+        let c = self
+            .col_of_node
+            .get(node as usize)
+            .copied()
+            .unwrap_or(u32::MAX);
         if c == u32::MAX {
-            return None;
+            let k = self.correction.as_deref()?;
+            let x = k.extra.binary_search(&node).ok()?;
+            return Some(self.cols.len() + x);
         }
         // A node a cut pinned is no longer touchable: the haptic path treats it as clamped.
         if let Some(k) = &self.correction {
@@ -517,7 +526,29 @@ impl Compliance {
         }
         Some(c as usize)
     }
-    /// Row index of column `c`'s node.
+    /// The number of touchable columns: [`Compliance::cols`] and a grown correction's extra
+    /// ones.
+    pub fn n_cols(&self) -> usize {
+        self.cols.len() + self.correction.as_deref().map_or(0, |k| k.extra.len())
+    }
+    /// The node of column `c` (one of [`Compliance::n_cols`]).
+    pub fn col_node(&self, c: usize) -> u32 {
+        match self.cols.get(c) {
+            Some(&n) => n,
+            None => self.correction.as_deref().map_or(u32::MAX, |k| {
+                k.extra
+                    .get(c - self.cols.len())
+                    .copied()
+                    .unwrap_or(u32::MAX)
+            }),
+        }
+    }
+    /// The extra nodes of a grown correction (empty when none): column `cols().len() + k`
+    /// is node `extra_nodes()[k]`.
+    pub fn extra_nodes(&self) -> &[u32] {
+        self.correction.as_deref().map_or(&[], |k| &k.extra[..])
+    }
+    /// Row index of column `c`'s node (a column of `L`).
     #[inline]
     pub fn col_row(&self, c: usize) -> usize {
         self.col_row[c] as usize
@@ -556,9 +587,16 @@ impl Compliance {
         let l = self.hier().map_or(&self.l[..], |h| h.values());
         l.iter().fold(0.0f32, |m, &v| m.max((v as f32).abs()))
     }
-    /// The 3×3 block L(row r, column c), m/N.
+    /// The 3×3 block L(row r, column c), m/N (`c` may be an extra column of a grown
+    /// correction).
     #[inline]
     pub fn block(&self, r: usize, c: usize) -> DMat3 {
+        if c >= self.cols.len() {
+            return match &self.correction {
+                Some(k) if r < self.l_rows => k.row_extra_block(r, c - self.cols.len()),
+                _ => DMat3::ZERO,
+            };
+        }
         if let Some(h) = self.hier() {
             // Exact where the pair is near (a dense block), within the tolerance elsewhere.
             return h.block(r, c).map_or(DMat3::ZERO, |b| b.0);
@@ -592,6 +630,13 @@ impl Compliance {
     /// The 3×3 block between two touchable columns, L(node of column i, column j).
     #[inline]
     pub fn touch_block(&self, i: usize, j: usize) -> DMat3 {
+        let nc = self.cols.len();
+        if i >= nc || j >= nc {
+            return self
+                .correction
+                .as_deref()
+                .map_or(DMat3::ZERO, |k| k.extra_block(i, j));
+        }
         match self.near() {
             // A far pair is not held: zero (lean compliances are made for one finger, whose
             // solve reads only near pairs).
@@ -603,6 +648,7 @@ impl Compliance {
     #[inline]
     pub fn diag_inv(&self, c: usize) -> DMat3 {
         match &self.correction {
+            Some(k) if c >= self.cols.len() => k.extra_diag_inv[c - self.cols.len()],
             Some(k) => k.diag_inv[c],
             None => self.diag_inv[c],
         }
@@ -650,6 +696,27 @@ impl Compliance {
                 k.dead_cols.len()
             )));
         }
+        let nx = k.extra.len();
+        let grows = k.u_extra.len() == 3 * nx * r
+            && k.v_extra.len() == 3 * nx * r
+            && k.extra_place.len() == nx
+            && k.extra_row.len() == nx
+            && k.extra_diag_inv.len() == nx
+            && k.extra.windows(2).all(|w| w[0] < w[1])
+            && (k.extra.iter()).all(|&x| {
+                self.col_of_node
+                    .get(x as usize)
+                    .is_none_or(|&c| c == u32::MAX)
+            })
+            && (k.extra_place.iter()).all(|p| p.iter().all(|&q| (q as usize) < r))
+            && (k.extra_row.iter().zip(&k.extra)).all(|(&row, &x)| {
+                row == u32::MAX || self.rows.get(row as usize) == Some(&x) && (row as usize) < nr
+            });
+        if !grows {
+            return Err(FemError::BadSelection(format!(
+                "a correction's {nx} extra columns are not consistent (sizes, order, places or rows)"
+            )));
+        }
         let mut c = self.clone();
         c.correction = Some(correction);
         Ok(c)
@@ -659,7 +726,9 @@ impl Compliance {
     /// rows and columns (so every column index stays valid), and a rank-0 correction that
     /// still marks the pinned ones. Exact, like the correction; made off the haptic thread
     /// when the correction has grown too large to carry. A compliance with no correction
-    /// comes back as it is (sharing `L`).
+    /// comes back as it is (sharing `L`). A correction with extra nodes
+    /// ([`Correction::extra`]) grows `L` by them: each gets a column (after the old ones)
+    /// and, if it had none, a row (after the free rows).
     pub fn folded(&self) -> Result<Compliance, FemError> {
         let Some(k) = &self.correction else {
             return Ok(self.clone());
@@ -668,6 +737,9 @@ impl Compliance {
             return Err(FemError::BadSelection(
                 "folding a correction needs a dense L on the host (not a lean or hierarchical compliance)".into(),
             ));
+        }
+        if !k.extra.is_empty() {
+            return self.folded_grown(k);
         }
         let (nr3, nc3) = (3 * self.l_rows, 3 * self.cols.len());
         let mut l = nalgebra::DMatrix::from_column_slice(nr3, nc3, &self.l);
@@ -791,7 +863,8 @@ impl Compliance {
         }
         let nr = self.l_rows;
         let nr3 = 3 * nr;
-        for &(c, f) in forces {
+        let nc = self.cols.len();
+        for &(c, f) in forces.iter().filter(|&&(c, _)| (c as usize) < nc) {
             let f = f.to_array();
             for (b, fb) in f.iter().enumerate() {
                 if *fb == 0.0 {
@@ -807,6 +880,19 @@ impl Compliance {
             let mut z = vec![0.0; k.rank];
             k.weights(forces, &mut z);
             k.add_rows(&z, out);
+        }
+    }
+
+    /// The displacements of a grown correction's extra nodes that have no row
+    /// ([`Correction::extra_rows`]), in [`Compliance::extra_nodes`]' order, into `out`
+    /// (zero for the others, whose rows [`Compliance::displace`] gives; nothing without a
+    /// correction). Metres.
+    pub fn displace_extra(&self, forces: &[(u32, DVec3)], out: &mut [DVec3]) {
+        out.fill(DVec3::ZERO);
+        if let Some(k) = &self.correction {
+            let mut z = vec![0.0; k.rank];
+            k.weights(forces, &mut z);
+            k.extra_rows(forces, &z, out);
         }
     }
 
@@ -843,7 +929,8 @@ impl Compliance {
             return;
         }
         let nr = self.l_rows;
-        for &(c, f) in forces {
+        let nc = self.cols.len();
+        for &(c, f) in forces.iter().filter(|&&(c, _)| (c as usize) < nc) {
             let f = f.as_vec3() * scale;
             for b in 0..3 {
                 let run = &self.l[(3 * c as usize + b) * 3 * nr..][..3 * nr];

@@ -104,14 +104,14 @@ pub struct Cut {
     /// Per node: pinned (no tet left, or in a removed piece).
     pub(super) pinned: Vec<bool>,
     /// The DOFs the correction touches, in order; and each DOF's place (or MAX).
-    d: Vec<usize>,
-    place: Vec<u32>,
+    pub(super) d: Vec<usize>,
+    pub(super) place: Vec<u32>,
     /// `ΔK′` on `D`.
     dk: DMatrix<f64>,
     /// `L_D`: every DOF's row of `L₀`, `D`'s columns.
-    ld: DMatrix<f64>,
+    pub(super) ld: DMatrix<f64>,
     /// `C = (I − ΔK′ L_DD)⁻¹ ΔK′`.
-    cap: DMatrix<f64>,
+    pub(super) cap: DMatrix<f64>,
 }
 
 /// A cut's rebase, planned ([`Cut::rebase_plan`]) and not yet run: the separated body and
@@ -1161,6 +1161,7 @@ impl Cut {
             dead_rows,
             dead_cols,
             diag_inv: Vec::new(),
+            ..Correction::default()
         };
         let mut diag_inv = Vec::with_capacity(nc);
         for ci in 0..nc {

@@ -29,6 +29,7 @@
 
 mod blade;
 mod body;
+mod grown;
 mod split;
 
 pub use blade::{blade_tets, BladeQuad};

@@ -376,7 +376,7 @@ impl Body {
     pub fn nodal_forces(&self, bc: &ForceBc) -> Vec<(u32, DVec3)> {
         bc.entries()
             .iter()
-            .map(|&(c, f)| (self.compliance.cols()[c as usize], f))
+            .map(|&(c, f)| (self.compliance.col_node(c as usize), f))
             .collect()
     }
 }

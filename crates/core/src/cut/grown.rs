@@ -1,0 +1,113 @@
+//! A cut's correction that grows the compliance by the nodes the cut made touchable: the
+//! copies a split made and the nodes its faces exposed (see
+//! [`crate::compliance::correction`]). Each of them has its DOFs in `D`, so its column of `L₀`
+//! is a column of `L_D` and no solve is needed beyond those the cut made.
+
+use std::collections::HashMap;
+
+use super::body::Cut;
+use crate::compliance::correction::Correction;
+use crate::compliance::{invert3, Compliance};
+use crate::mesh::TET_FACES;
+use crate::Error;
+
+impl Cut {
+    /// [`Cut::correction`], grown by the nodes this cut made touchable: every node on the
+    /// separated body's surface that moves, is not one of `c`'s columns, and is a copy or an
+    /// exposed node that `c` does not display (so a displayed node the scene did not make
+    /// touchable stays so). Column `c.cols().len() + k` of the corrected compliance is then
+    /// node `extra[k]`: its blocks, `L′_xx⁻¹` and its displacement
+    /// ([`Compliance::displace_extra`]) are exact. Costs `3·rank²` multiply-adds a node more
+    /// than [`Cut::correction`].
+    pub fn grown_correction(&self, c: &Compliance) -> Result<Correction, Error> {
+        let mut k = self.correction(c)?;
+        let r = k.rank;
+        let nc = c.cols().len();
+        // The surface of the remaining tets: faces that one tet alone has.
+        let mut faces: HashMap<[u32; 3], u32> = HashMap::new();
+        for (t, nodes) in self.tets.iter().enumerate() {
+            if self.removed[t] {
+                continue;
+            }
+            for f in TET_FACES {
+                let mut key = f.map(|i| nodes[i]);
+                key.sort_unstable();
+                *faces.entry(key).or_default() += 1;
+            }
+        }
+        let mut on_surface = vec![false; self.nodes.len()];
+        for (key, n) in faces {
+            if n == 1 {
+                for v in key {
+                    on_surface[v as usize] = true;
+                }
+            }
+        }
+        let mut extra = Vec::new();
+        let mut places = Vec::new();
+        for (v, _) in on_surface.iter().enumerate().filter(|(_, &s)| s) {
+            let v = v as u32;
+            if self.holds_still(v) || c.col_of(v).is_some() {
+                continue;
+            }
+            let origin = self.origin[v as usize];
+            // A node the scene displays but did not make touchable (nor its copies) stays so.
+            if c.row_of(origin).is_some() && c.col_of(origin).is_none() {
+                continue;
+            }
+            let p = [0, 1, 2].map(|a| self.dof(v, a).map(|f| self.place[f]));
+            let [Some(p0), Some(p1), Some(p2)] = p else {
+                continue;
+            };
+            if [p0, p1, p2].contains(&u32::MAX) {
+                continue;
+            }
+            extra.push(v);
+            places.push([p0, p1, p2]);
+        }
+        let nx = extra.len();
+        // U at the extra nodes: their rows of L_D (by symmetry, L₀ at D's columns).
+        let mut u_extra = vec![0.0; 3 * nx * r];
+        for (x, p) in places.iter().enumerate() {
+            for a in 0..3 {
+                let f = self.d[p[a] as usize];
+                for q in 0..r {
+                    u_extra[(3 * x + a) * r + q] = self.ld[(f, q)];
+                }
+            }
+        }
+        // V = C U_xᵀ + e_p(x) (their L₀ column, which L does not hold, is U e_p(x)).
+        let mut v_extra = vec![0.0; 3 * nx * r];
+        if r > 0 && nx > 0 {
+            let ut = nalgebra::DMatrixView::from_slice(&u_extra, r, 3 * nx);
+            v_extra = (&self.cap * ut).data.into();
+        }
+        for (x, p) in places.iter().enumerate() {
+            for a in 0..3 {
+                v_extra[(3 * x + a) * r + p[a] as usize] += 1.0;
+            }
+        }
+        k.extra_row = (extra.iter())
+            .map(|&v| match c.row_of(v) {
+                Some(row) if row < c.l_rows() => row as u32,
+                _ => u32::MAX,
+            })
+            .collect();
+        k.extra = extra;
+        k.u_extra = u_extra;
+        k.v_extra = v_extra;
+        k.extra_place = places;
+        let mut diag_inv = Vec::with_capacity(nx);
+        for x in 0..nx {
+            let b = k.extra_block(nc + x, nc + x);
+            diag_inv.push(invert3(b).ok_or_else(|| {
+                Error::Input(format!(
+                    "the cut left node {} with a singular compliance",
+                    k.extra[x]
+                ))
+            })?);
+        }
+        k.extra_diag_inv = diag_inv;
+        Ok(k)
+    }
+}
