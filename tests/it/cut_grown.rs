@@ -38,7 +38,6 @@ fn check_grown(name: &str, cut: &Cut, mesh: &Mesh, c: &Compliance) -> f64 {
         assert_eq!(g.col_node(col), *v);
     }
     let exposed = extra.iter().filter(|&&v| v < n0).count();
-    assert!(exposed > 0, "{name}: no exposed node of the uncut mesh");
     assert_eq!(g.n_cols(), c.cols().len() + extra.len());
     let re = Recompute::new(cut, mesh);
     // Nodes to check: two copies, an exposed node, an old column near the cut and one far.
@@ -51,7 +50,10 @@ fn check_grown(name: &str, cut: &Cut, mesh: &Mesh, c: &Compliance) -> f64 {
         .filter(|&v| !cut.holds_still(v))
         .max_by(|&a, &b| dist(a).total_cmp(&dist(b)))
         .unwrap();
-    let exposed0 = *extra.iter().find(|&&v| v < n0).unwrap();
+    // (An exposed node of the uncut mesh where the cut made one, else a second copy.)
+    let exposed0 = (extra.iter().copied())
+        .find(|&v| v < n0)
+        .unwrap_or(copies[copies.len() - 1]);
     let nodes = [copies[0], copies[copies.len() / 2], exposed0, old_near, far];
     let col = |v: u32| g.col_of(v).unwrap();
     let scale = max_abs(g.touch_block(col(copies[0]), col(copies[0])));
@@ -101,14 +103,14 @@ fn check_grown(name: &str, cut: &Cut, mesh: &Mesh, c: &Compliance) -> f64 {
         .map(|&v| reference[v as usize])
         .collect();
     worst = worst.max(rel_err(&got, &want));
-    // A point finger on a cut face (a triangle of copies and exposed nodes): the grown
+    // A point finger on a cut face (a triangle with a copy): the grown
     // compliance's exact force equals the cut's own.
     let sep = cut.separated_mesh(mesh);
     let tri = *sep
         .surface
         .iter()
-        .find(|t| t.iter().all(|v| extra.contains(v)) && t.iter().any(|&v| v >= n0))
-        .expect("a cut face of extra nodes");
+        .find(|t| t.iter().all(|&v| g.col_of(v).is_some()) && t.iter().any(|&v| v >= n0))
+        .expect("a cut face with a copy");
     let alpha = [0.5, 0.3, 0.2];
     let p = (0..3).fold(DVec3::ZERO, |s, a| {
         s + cut.nodes()[tri[a] as usize] * alpha[a]
@@ -146,6 +148,12 @@ fn a_grown_compliance_equals_a_recompute_at_the_copies_and_the_exposed_nodes() {
     )
     .unwrap();
     assert!(check_grown("cube, a cut ending inside", &cut, &mesh, &c) < 1e-9);
+    // (Nodes of the uncut mesh inside the body that the cut exposed are extra columns too.)
+    let k = cut.grown_correction(&c).unwrap();
+    assert!(k
+        .extra
+        .iter()
+        .any(|&v| v < mesh.nodes.len() as u32 && c.row_of(v).is_none()));
     cut.split(
         &mesh,
         &[quad(&mesh, [2.0, 15.0, 30.0], [28.0, 15.0, 30.0], 16.0)],
@@ -270,4 +278,219 @@ fn a_grown_fold_keeps_the_new_columns_and_the_next_cut_reads_a_recompute() {
             &folded
         ) < 1e-9
     );
+}
+
+/// The cube (mm scene, E = 1 MPa) with every tet cuttable.
+fn cuttable_cube() -> touchfem::scene::World {
+    use touchfem::scene::SceneSource;
+    touchfem::scene::World::from_source_with(
+        &SceneSource {
+            name: "cut-cube".into(),
+            text: "unit = \"mm\"\n[[object]]\nmesh = \"cube\"\nyoung = 1.0e6\ncuttable = \"all\"\n[[finger]]\ndevice = \"pointer\"\n".into(),
+            dir: ".".into(),
+            label: "cuttable cube".into(),
+        },
+        None,
+    )
+    .unwrap()
+}
+
+/// A blade's chord on the cube's top (z = 30 mm), hanging `depth` mm down (metres out).
+fn top_stroke(a: [f64; 2], b: [f64; 2], depth: f64) -> touchfem::runtime::cutting::Stroke {
+    touchfem::runtime::cutting::Stroke {
+        object: 0,
+        from: DVec3::new(a[0], a[1], 30.0) * 1e-3,
+        to: DVec3::new(b[0], b[1], 30.0) * 1e-3,
+        inward: DVec3::NEG_Z,
+        depth: depth * 1e-3,
+    }
+}
+
+#[test]
+fn a_separating_cutter_hands_the_haptic_path_a_slit_that_a_recompute_agrees_with() {
+    use touchfem::contact::GodObject;
+    use touchfem::cut::BladeQuad;
+    use touchfem::runtime::cutting::{CutMode, Cutter};
+    let world = cuttable_cube();
+    let mesh = world.objects[0].body.mesh.clone();
+    let mut cutter = Cutter::new(&world).unwrap();
+    cutter.set_cut_mode(CutMode::Separate);
+    // Two strokes of one blade across the top: joined into one chord.
+    let strokes = [
+        top_stroke([11.0, 5.0], [11.0, 14.0], 12.0),
+        top_stroke([11.0, 14.0], [11.0, 22.0], 12.0),
+    ];
+    let bodies = cutter.apply_all(&strokes).unwrap();
+    assert_eq!(bodies.len(), 1);
+    let body = &bodies[0].1;
+    // Nothing removed but slivers; the copies are in the body's surface and columns.
+    let n0 = mesh.nodes.len() as u32;
+    assert!(body.nodes_split > 0, "{}", body.nodes_split);
+    assert!(body.tets_removed <= 2, "{}", body.tets_removed);
+    assert_eq!(body.rest.len(), n0 as usize + body.nodes_split);
+    let extra = body.compliance.extra_nodes().to_vec();
+    assert!(body.triangles.iter().flatten().any(|&v| v >= n0));
+    for t in &body.triangles {
+        for &v in t {
+            assert!(
+                body.compliance.col_of(v).is_some()
+                    || body.compliance.row_of(v).is_some()
+                    || extra.contains(&v),
+                "triangle node {v} is neither displayed nor touchable"
+            );
+        }
+    }
+    // The same blade by hand on a cut of its own: the same separated body.
+    let mut cut = Cut::new(&mesh).unwrap();
+    let quad = BladeQuad::new(strokes[0].from, strokes[1].to, DVec3::NEG_Z, 12e-3).unwrap();
+    cut.split(&mesh, &[quad]).unwrap();
+    assert_eq!(cut.nodes(), &body.rest[..]);
+    // Its compliance at the copies against a recompute (independent assembly and factor).
+    let c = &world.objects[0].body.compliance;
+    assert!(check_grown("cube, a separating cutter", &cut, &mesh, c) < 1e-9);
+    let re = Recompute::new(&cut, &mesh);
+    let copy = (n0..body.rest.len() as u32)
+        .find(|&v| !cut.holds_still(v))
+        .unwrap();
+    let cc = body.compliance.col_of(copy).unwrap();
+    let f = DVec3::new(0.0, 0.01, -0.02);
+    let x = re.solve(&[(copy, f)]);
+    let got = body.compliance.touch_block(cc, cc) * f;
+    assert!((got - x[copy as usize]).length() < 1e-9 * x[copy as usize].length());
+    // A point finger pressing one lip beside the slit, through the body's surface and the
+    // haptic path's force solve: the cut's own exact force.
+    let at = DVec3::new(11.0 + 1.0, 13.0, 30.0) * 1e-3;
+    let (tri, p0) = body.surface.closest_global(at);
+    let mut god = GodObject::touching(tri);
+    let contact = god
+        .update(&body.surface, p0 + DVec3::new(0.0, 0.0, -0.8e-3))
+        .unwrap();
+    let mut bc = ForceBc::default();
+    let felt = finger_force(&body.compliance, &contact, ForceModel::Exact, &mut bc).feedback;
+    let (own, _, _) =
+        point_poke(&cut, contact.nodes, contact.alpha, contact.displacement()).unwrap();
+    let e = (felt - own).length() / own.length();
+    eprintln!("separating cutter: {} copies, {} extra columns, lip press {felt} N ({e:.1e} from the cut's own)", body.nodes_split, extra.len());
+    assert!(e < 1e-9 && felt.z > 0.0, "{felt} vs {own}");
+}
+
+#[test]
+fn a_separating_cut_confined_to_a_region_changes_no_tet_outside_it() {
+    let mesh = cube();
+    // The tets whose centroids lie at x < 15 mm.
+    let region: Vec<bool> = (mesh.tets.iter())
+        .map(|t| t.iter().map(|&v| mesh.nodes[v as usize].x).sum::<f64>() / 4.0 < 15e-3)
+        .collect();
+    let mut cut = Cut::new(&mesh).unwrap();
+    // Blades along x, across the region's border: one in the grid plane y = 15 mm (it
+    // splits), one beside it at y = 8.5 mm (it snaps nodes of the region onto its plane).
+    let rep = cut
+        .split_within(
+            &mesh,
+            &[quad(&mesh, [2.0, 15.0, 30.0], [28.0, 15.0, 30.0], 12.0)],
+            Some(&region),
+        )
+        .unwrap();
+    assert!(rep.nodes_split > 0, "{rep:?}");
+    let rep = cut
+        .split_within(
+            &mesh,
+            &[quad(&mesh, [2.0, 8.5, 30.0], [28.0, 8.5, 30.0], 20.0)],
+            Some(&region),
+        )
+        .unwrap();
+    assert!(rep.nodes_snapped > 0, "{rep:?}");
+    for (t, &inside) in region.iter().enumerate() {
+        if !inside {
+            assert_eq!(
+                cut.tets()[t],
+                mesh.tets[t],
+                "tet {t} outside the region changed"
+            );
+            for &v in &mesh.tets[t] {
+                assert_eq!(
+                    cut.nodes()[v as usize],
+                    mesh.nodes[v as usize],
+                    "node {v} moved"
+                );
+            }
+            assert!(!cut.removed()[t]);
+        }
+    }
+    // Still exact, confined.
+    let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
+    assert!(check_grown("cube, a cut confined to x < 15 mm", &cut, &mesh, &c) < 1e-9);
+    // A region of the wrong length is refused, typed.
+    assert!(cut
+        .split_within(
+            &mesh,
+            &[quad(&mesh, [2.0, 20.0, 30.0], [28.0, 20.0, 30.0], 5.0)],
+            Some(&region[1..])
+        )
+        .is_err());
+}
+
+#[test]
+fn a_separating_cutter_that_folds_feels_what_one_that_carries_feels() {
+    use touchfem::runtime::cutting::{CutMode, Cutter};
+    let world = cuttable_cube();
+    let strokes = [
+        top_stroke([11.0, 5.0], [11.0, 22.0], 12.0),
+        top_stroke([3.0, 16.0], [27.0, 16.0], 10.0),
+        top_stroke([19.0, 2.0], [19.0, 26.0], 8.0),
+    ];
+    let make = |fold_rank: usize| {
+        let mut c = Cutter::new(&world).unwrap();
+        c.set_cut_mode(CutMode::Separate);
+        c.set_fold_rank(fold_rank);
+        c
+    };
+    let (mut carry, mut fold) = (make(usize::MAX), make(1));
+    let mut last = (None, None);
+    let mut adopted = 0;
+    for s in &strokes {
+        last.0 = carry.apply_all(&[*s]).unwrap().pop().or(last.0);
+        last.1 = fold.apply_all(&[*s]).unwrap().pop().or(last.1);
+        // A deferred fold of each body, run and caught up, then adopted before the next cut.
+        for job in fold.take_folds().unwrap() {
+            let (o, done) = job.run();
+            let mut done = done.unwrap();
+            done.catch_up(fold.fold_ops(o)).unwrap();
+            fold.adopt(done).unwrap();
+            last.1 = Some((o, fold.body_now(o).unwrap()));
+            adopted += 1;
+        }
+    }
+    assert!(adopted >= 2, "{adopted} folds adopted");
+    let (a, b) = (last.0.unwrap().1, last.1.unwrap().1);
+    assert!(b.folds >= 2 && a.folds == 0, "{} {}", a.folds, b.folds);
+    assert_eq!(a.rest, b.rest);
+    assert_eq!(a.triangles, b.triangles);
+    // Every touchable node of the carried body is one of the folded body's, with the same
+    // compliance.
+    let (ca, cb) = (&a.compliance, &b.compliance);
+    let nodes: Vec<u32> = (0..ca.n_cols())
+        .step_by(5)
+        .map(|c| ca.col_node(c))
+        .collect();
+    let scale = nodes
+        .iter()
+        .map(|&v| max_abs(ca.touch_block(ca.col_of(v).unwrap(), ca.col_of(v).unwrap())))
+        .fold(0.0, f64::max);
+    let mut worst = 0.0f64;
+    for &i in &nodes {
+        for &j in nodes.iter().step_by(3) {
+            let (ai, aj) = (ca.col_of(i).unwrap(), ca.col_of(j).unwrap());
+            let (bi, bj) = (
+                cb.col_of(i).expect("touchable after the fold"),
+                cb.col_of(j).unwrap(),
+            );
+            worst = worst.max(max_abs(ca.touch_block(ai, aj) - cb.touch_block(bi, bj)) / scale);
+        }
+    }
+    eprintln!(
+        "separating cutter, {adopted} folds against none: {} columns, worst {worst:.1e}",
+        nodes.len()
+    );
+    assert!(worst < 1e-9, "{worst}");
 }

@@ -118,7 +118,7 @@ impl CutFollower {
                         uploaded,
                         &body.compliance,
                         &body.triangles,
-                        &obj.body.mesh,
+                        &body.rest,
                         g.options,
                     )
                     .map_err(|e| e.to_string()),

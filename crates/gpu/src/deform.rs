@@ -642,13 +642,15 @@ pub struct DeformerStats {
     pub smooth_triangles: u32,
 }
 
-/// Puts a cut body on `deformer`, which was built from `uploaded` for an object whose rest mesh
-/// is `mesh`: `L` again (a new [`Deformer`] with `options`) when the body's `compliance` does
-/// not hold the `L` uploaded ([`Compliance::shares_l`]: a cut folded into a new `L`), then its
-/// correction and its opened surface `triangles` (mesh nodes). Triangles whose nodes are not
-/// displayed rows (a cut beyond the `cuttable` region's nodes) are left out with a warning. The
-/// caller rebuilds what it derived from the deformer's triangles (its wireframe). On an error
-/// the deformer may hold part of the body: draw from the CPU's `displace` then.
+/// Puts a cut body on `deformer`, which was built from `uploaded`: `L` again (a new
+/// [`Deformer`] with `options`, its nodes at `rest`, the body's rest positions of every node)
+/// when the body's `compliance` does not hold the `L` uploaded ([`Compliance::shares_l`]: a
+/// cut folded into a new `L`), then its correction and its opened surface `triangles` (node
+/// triples). Triangles whose nodes are not displayed rows (a cut beyond the `cuttable`
+/// region's nodes, or a separating cut's copies before a fold makes them rows) are left out
+/// with a warning. The caller rebuilds what it derived from the deformer's triangles (its
+/// wireframe). On an error the deformer may hold part of the body: draw from the CPU's
+/// `displace` then.
 #[allow(clippy::too_many_arguments)]
 pub fn install_cut(
     device: &wgpu::Device,
@@ -657,23 +659,16 @@ pub fn install_cut(
     uploaded: &Compliance,
     compliance: &Compliance,
     triangles: &[[u32; 3]],
-    mesh: &touchfem_core::Mesh,
+    rest: &[DVec3],
     options: &DeformerOptions,
 ) -> Result<(), GpuError> {
+    let (drawn, left_out): (Vec<[u32; 3]>, Vec<[u32; 3]>) = triangles.iter().partition(|t| {
+        (t.iter()).all(|&v| compliance.row_of(v).is_some() && (v as usize) < rest.len())
+    });
     if !compliance.shares_l(uploaded) {
         log::info!("a cut body holds a new L; uploading it");
-        *deformer = Deformer::new(
-            device,
-            queue,
-            compliance,
-            &mesh.nodes,
-            &mesh.surface,
-            options,
-        )?;
+        *deformer = Deformer::new(device, queue, compliance, rest, &drawn, options)?;
     }
-    let (drawn, left_out): (Vec<[u32; 3]>, Vec<[u32; 3]>) = triangles
-        .iter()
-        .partition(|t| t.iter().all(|&v| deformer.row_of(v).is_some()));
     if !left_out.is_empty() {
         log::warn!(
             "{} of the cut surface's {} triangles use nodes that are not displayed rows; \

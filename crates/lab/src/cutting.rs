@@ -222,7 +222,7 @@ pub fn rows(gpu: Option<&touchfem_gpu::Gpu>, quick: bool) -> Result<Vec<CutRow>,
                         &obj.body.compliance,
                         &body.compliance,
                         &body.triangles,
-                        mesh,
+                        &body.rest,
                         &opts,
                     )?;
                     crate::tradeoff::gpu_frame(g, &mut d, &forces)?;

@@ -442,7 +442,7 @@ impl Page {
                 uploaded,
                 &body.compliance,
                 &body.triangles,
-                &obj.body.mesh,
+                &body.rest,
                 &g.options,
             )
             .map_err(|e| JsError::new(&format!("cannot draw the cut of '{}': {e}", obj.name)))?;

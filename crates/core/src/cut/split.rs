@@ -80,6 +80,8 @@ impl NodeTets {
 struct Ctx<'a> {
     b: &'a BladeQuad,
     eps: f64,
+    /// Per node: it has a tet outside the region the cut is confined to (it may not move).
+    frozen: Vec<bool>,
     normals: HashMap<u32, Vec<DVec3>>,
     twins: HashMap<u32, Vec<u32>>,
 }
@@ -98,7 +100,27 @@ impl Cut {
     /// blade that is not finite or not a quad ([`BladeQuad::new`] makes only good ones), a
     /// mesh that is not this cut's, or a correction that cannot be made.
     pub fn split(&mut self, mesh: &Mesh, blades: &[BladeQuad]) -> Result<SplitReport, Error> {
+        self.split_within(mesh, blades, None)
+    }
+
+    /// [`Cut::split`] confined to the tets `region` marks (per tet of `mesh`; `None`: all):
+    /// only faces between two of them are cut, and only nodes whose every tet is one of them
+    /// are snapped, so no other tet changes. Errors as [`Cut::split`] does, and on a region
+    /// of another length.
+    pub fn split_within(
+        &mut self,
+        mesh: &Mesh,
+        blades: &[BladeQuad],
+        region: Option<&[bool]>,
+    ) -> Result<SplitReport, Error> {
         self.check_mesh(mesh)?;
+        if region.is_some_and(|r| r.len() != self.tets.len()) {
+            return Err(Error::Input(format!(
+                "a cut region of {} tets for a mesh of {}",
+                region.map_or(0, |r| r.len()),
+                self.tets.len()
+            )));
+        }
         for b in blades {
             let unit = |v: DVec3| v.is_finite() && (v.length() - 1.0).abs() < 1e-9;
             let good = b.from.is_finite()
@@ -124,7 +146,7 @@ impl Cut {
         );
         let eps = 1e-9 * (hi - lo).length();
         for b in blades {
-            self.split_one(b, eps, &mut changes, &mut report);
+            self.split_one(b, eps, region, &mut changes, &mut report);
         }
         report.nodes_split = self.nodes.len() - born;
         if changes.list.is_empty() {
@@ -143,10 +165,13 @@ impl Cut {
         &mut self,
         b: &BladeQuad,
         eps: f64,
+        region: Option<&[bool]>,
         changes: &mut Changes,
         report: &mut SplitReport,
     ) {
-        let near = self.tets_near(b, eps);
+        let inside = |t: usize| region.is_none_or(|r| r[t]);
+        let mut near = self.tets_near(b, eps);
+        near.retain(|&t| inside(t));
         if near.is_empty() {
             return;
         }
@@ -173,9 +198,20 @@ impl Cut {
             let o = self.origin[c];
             twins.entry(o).or_insert_with(|| vec![o]).push(c as u32);
         }
+        let mut frozen = vec![false; self.nodes.len()];
+        if region.is_some() {
+            for (t, tv) in self.tets.iter().enumerate() {
+                if !self.removed[t] && !inside(t) {
+                    for &v in tv {
+                        frozen[v as usize] = true;
+                    }
+                }
+            }
+        }
         let cx = Ctx {
             b,
             eps,
+            frozen,
             normals: self.boundary_normals(),
             twins,
         };
@@ -224,7 +260,8 @@ impl Cut {
             }
         }
         // 2. Cut faces.
-        let near = self.tets_near(b, eps);
+        let mut near = self.tets_near(b, eps);
+        near.retain(|&t| inside(t));
         let on = |v: u32| b.coords(self.nodes[v as usize]).2.abs() <= eps;
         let mut cut_faces: HashMap<[u32; 3], u32> = HashMap::new();
         for &t in &near {
@@ -270,7 +307,9 @@ impl Cut {
                     match seen.get(&key) {
                         Some(&j) => {
                             union(&mut all, i, j);
-                            if !cut.contains(&key) {
+                            // (A face is cut only between two tets of the region.)
+                            let both = inside(t as usize) && inside(star[j] as usize);
+                            if !cut.contains(&key) || !both {
                                 union(&mut open, i, j);
                             }
                         }
@@ -412,6 +451,9 @@ impl Cut {
         let p = self.nodes[v as usize];
         let m = cx.b.normal;
         let s = cx.b.coords(p).2;
+        if self.group(cx, v).iter().any(|&w| cx.frozen[w as usize]) {
+            return None;
+        }
         if self.fixed[v as usize] {
             let n = self.clamp_normal[v as usize];
             if n == DVec3::ZERO || n.dot(m).abs() > 1e-9 {

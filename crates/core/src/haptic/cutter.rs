@@ -24,7 +24,7 @@ use glam::DVec3;
 
 use crate::compliance::Compliance;
 use crate::contact::Surface;
-use crate::cut::{blade_tets, Cut, CutReport};
+use crate::cut::{blade_tets, BladeQuad, Cut, CutReport};
 use crate::scene::{CutRegion, World};
 use crate::Error;
 
@@ -43,6 +43,19 @@ pub struct Stroke {
     pub depth: f64,
 }
 
+/// What a blade does to the material it passes ([`Cutter::set_cut_mode`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum CutMode {
+    /// It removes the tets its quad sweeps (the live demos, the window and the page today).
+    #[default]
+    Remove,
+    /// It separates the material along its quad ([`Cut::split_within`], snap and split):
+    /// nothing is removed but slivers, and the body's compliance grows by the copies and the
+    /// exposed nodes ([`Cut::grown_correction`]), which its surface then holds. Folds are
+    /// deferred only ([`FoldMode::Deferred`]; [`FoldMode::Inline`] does not fold).
+    Separate,
+}
+
 /// A cut object as both paths read it: the compliance with the cut's correction carried
 /// beside `L`, and the opened rest surface.
 #[derive(Debug)]
@@ -51,14 +64,20 @@ pub struct CutBody {
     pub compliance: Compliance,
     /// The rest surface of the remaining tets (the cut's faces included).
     pub surface: Surface,
-    /// The surface's triangles as mesh node triples (what a renderer draws).
+    /// The surface's triangles as mesh node triples (what a renderer draws; a separating
+    /// cut's name its copies, past the mesh's nodes).
     pub triangles: Vec<[u32; 3]>,
+    /// Every node's rest position now (m): the mesh's, snapped onto a separating blade's
+    /// plane where it moved, then the copies ([`CutMode::Separate`]).
+    pub rest: Arc<Vec<DVec3>>,
     /// What the whole cut so far did.
     pub report: CutReport,
     /// Tets removed so far (every pass), the pieces' included.
     pub tets_removed: usize,
     /// Pieces cut off so far (left with no clamp: removed, their nodes pinned still).
     pub pieces_removed: usize,
+    /// Copies a separating blade made so far ([`CutMode::Separate`]).
+    pub nodes_split: usize,
     /// 1 for the first cut body of the object, then one more a body.
     pub generation: u64,
     /// The strokes (chords) that made it from the object's previous body, in order: what a
@@ -96,6 +115,8 @@ pub struct CutOp(Op);
 enum Op {
     /// A blade's chord.
     Stroke(Stroke),
+    /// A separating blade's chord ([`CutMode::Separate`]).
+    Separate(Stroke),
     /// Tets removed by [`Cutter::remove_tets`].
     Tets(Vec<usize>),
 }
@@ -106,12 +127,30 @@ fn redo(cut: &mut Cut, mesh: &crate::Mesh, region: &CutRegion, op: &CutOp) -> Re
     let tets = match &op.0 {
         Op::Stroke(st) => blade_tets(mesh, st.from, st.to, st.inward, st.depth),
         Op::Tets(t) => t.clone(),
+        Op::Separate(st) => return separate(cut, mesh, region, st).map(|_| ()),
     };
     let tets = still_to_cut(cut, region, tets);
     if !tets.is_empty() {
         cut.remove(mesh, &tets)?;
     }
     Ok(())
+}
+
+/// Separates `cut` (of `mesh`, within `region`) along `stroke`'s quad; the report when it
+/// changed anything. A stroke that makes no quad (too short, not finite) changes nothing.
+fn separate(
+    cut: &mut Cut,
+    mesh: &crate::Mesh,
+    region: &CutRegion,
+    st: &Stroke,
+) -> Result<Option<crate::cut::SplitReport>, Error> {
+    let Ok(quad) = BladeQuad::new(st.from, st.to, st.inward, st.depth) else {
+        return Ok(None);
+    };
+    let rep = cut.split_within(mesh, &[quad], Some(region.mask()))?;
+    let changed =
+        rep.nodes_snapped > 0 || rep.nodes_split > 0 || rep.slivers > 0 || rep.cut.tets_removed > 0;
+    Ok(changed.then_some(rep))
 }
 
 /// Those of `tets` that `cut` may still remove: in its `region`, and not removed yet.
@@ -202,6 +241,8 @@ struct ObjectCut {
     generation: u64,
     tets_removed: usize,
     pieces_removed: usize,
+    /// Copies made so far (a separating cut's).
+    nodes_split: usize,
     last: CutReport,
     since: Vec<Stroke>,
     folds: u32,
@@ -247,6 +288,7 @@ pub struct Cutter {
     objects: Vec<Option<ObjectCut>>,
     fold_rank: usize,
     mode: FoldMode,
+    cut_mode: CutMode,
 }
 
 impl Cutter {
@@ -296,6 +338,7 @@ impl Cutter {
                     generation: 0,
                     tets_removed: 0,
                     pieces_removed: 0,
+                    nodes_split: 0,
                     last: CutReport::default(),
                     since: Vec::new(),
                     folds: 0,
@@ -309,6 +352,7 @@ impl Cutter {
             objects,
             fold_rank: FOLD_RANK,
             mode: FoldMode::default(),
+            cut_mode: CutMode::default(),
         })
     }
 
@@ -320,6 +364,16 @@ impl Cutter {
     /// How the cutter folds.
     pub fn fold_mode(&self) -> FoldMode {
         self.mode
+    }
+
+    /// Sets what a blade does (default [`CutMode::Remove`]). Set it before the first cut.
+    pub fn set_cut_mode(&mut self, mode: CutMode) {
+        self.cut_mode = mode;
+    }
+
+    /// What a blade does.
+    pub fn cut_mode(&self) -> CutMode {
+        self.cut_mode
     }
 
     /// In [`FoldMode::Deferred`]: a [`FoldJob`] for every object whose rank has reached the
@@ -437,7 +491,7 @@ impl Cutter {
 
     /// Folds object `o` when its rank has reached the fold rank; true when it did.
     fn fold_object(&mut self, o: usize) -> Result<bool, Error> {
-        if self.mode != FoldMode::Inline {
+        if self.mode != FoldMode::Inline || self.cut_mode == CutMode::Separate {
             return Ok(false);
         }
         let Some(Some(oc)) = self.objects.get_mut(o) else {
@@ -526,6 +580,20 @@ impl Cutter {
         let Some(Some(oc)) = self.objects.get_mut(stroke.object) else {
             return Ok(false);
         };
+        if self.cut_mode == CutMode::Separate {
+            let Some(rep) = separate(&mut oc.cut, &oc.mesh, &oc.region, stroke)? else {
+                return Ok(false);
+            };
+            oc.tets_removed += rep.cut.tets_removed;
+            oc.pieces_removed += rep.cut.pieces_removed;
+            oc.nodes_split += rep.nodes_split;
+            oc.last = rep.cut;
+            oc.since.push(*stroke);
+            if let Some(ops) = &mut oc.in_flight {
+                ops.push(CutOp(Op::Separate(*stroke)));
+            }
+            return Ok(true);
+        }
         let swept = blade_tets(
             &oc.mesh,
             stroke.from,
@@ -555,23 +623,35 @@ impl Cutter {
         let Some(Some(oc)) = self.objects.get_mut(o) else {
             return Err(Error::Input(format!("object {o} is not cuttable")));
         };
-        let correction = oc.cut.correction(&oc.base)?;
+        let separating = oc.cut.copies() > 0 || self.cut_mode == CutMode::Separate;
+        let correction = if separating {
+            oc.cut.grown_correction(&oc.base)?
+        } else {
+            oc.cut.correction(&oc.base)?
+        };
         let compliance = oc
             .base
             .with_correction(Arc::new(correction))
             .map_err(Error::from)?;
-        let mut open = oc.mesh.clone();
-        open.surface = oc.mesh.open_surface(oc.cut.removed());
+        let open = if separating {
+            oc.cut.separated_mesh(&oc.mesh)
+        } else {
+            let mut open = oc.mesh.clone();
+            open.surface = oc.mesh.open_surface(oc.cut.removed());
+            open
+        };
         let surface = Surface::new(&open);
         oc.generation += 1;
         oc.current = Some(compliance.clone());
         Ok(Arc::new(CutBody {
             compliance,
             surface,
+            rest: Arc::new(open.nodes),
             triangles: open.surface,
             report: oc.last.clone(),
             tets_removed: oc.tets_removed,
             pieces_removed: oc.pieces_removed,
+            nodes_split: oc.nodes_split,
             generation: oc.generation,
             strokes: std::mem::take(&mut oc.since),
             folds: oc.folds,

@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 pub use crate::haptic::cutter::{
-    CutBody, CutFeed, CutOp, CutPlan, Cutter, FoldJob, FoldMode, Folded, Stroke, FOLD_RANK,
+    CutBody, CutFeed, CutMode, CutOp, CutPlan, Cutter, FoldJob, FoldMode, Folded, Stroke, FOLD_RANK,
 };
 #[cfg(feature = "native")]
 use crate::scene::World;

@@ -34,6 +34,10 @@ impl CutRegion {
     pub fn new(tets: Vec<bool>) -> CutRegion {
         CutRegion { tets }
     }
+    /// Per tet of the object's mesh: whether it may be cut.
+    pub fn mask(&self) -> &[bool] {
+        &self.tets
+    }
     /// Whether tet `t` may be cut.
     pub fn contains(&self, t: usize) -> bool {
         self.tets.get(t).copied().unwrap_or(false)
