@@ -388,7 +388,7 @@ impl<'a> App<'a> {
     }
 
     /// The legend for the current colouring.
-    fn legend_image(&self) -> Option<image::RgbaImage> {
+    fn legend_image(&self) -> Option<touchfem_gpu::render::RgbaPixels> {
         touchfem_gpu::render::legend_image(&touchfem_gpu::render::LegendSpec {
             bar_px: touchfem_gpu::render::LegendSpec::bar_for(self.size[1]),
             displacement: self.colors.then_some(self.color_scale),

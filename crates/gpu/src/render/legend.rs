@@ -2,6 +2,8 @@
 //! for small displacements, and the force arrow's scale in mm per N or a readable variant) and
 //! the "nice" scales both use.
 
+use super::pixels::RgbaPixels;
+
 /// Opacity of the legend's dark box (more than the status line's: it may lie over the object).
 const BOX_ALPHA: f32 = 0.75;
 
@@ -300,7 +302,7 @@ pub fn arrow_label(m_per_n: f64) -> String {
 }
 
 /// Alpha-blends white text into `img` with its top-left corner at (`x`, `y`).
-fn draw_text(img: &mut image::RgbaImage, x: f32, y: f32, text: &str, px: f32) -> f32 {
+fn draw_text(img: &mut RgbaPixels, x: f32, y: f32, text: &str, px: f32) -> f32 {
     let (w, h) = (i64::from(img.width()), i64::from(img.height()));
     super::text::rasterize(text, px, x, y, |px, py, v| {
         if (0..w).contains(&px) && (0..h).contains(&py) {
@@ -308,14 +310,14 @@ fn draw_text(img: &mut image::RgbaImage, x: f32, y: f32, text: &str, px: f32) ->
             // Over a straight-alpha pixel: white with coverage v.
             let a0 = f32::from(p[3]) / 255.0;
             let a = v + a0 * (1.0 - v);
-            for k in 0..3 {
-                let c0 = f32::from(p[k]) / 255.0;
+            for ch in p.iter_mut().take(3) {
+                let c0 = f32::from(*ch) / 255.0;
                 let c = if a > 0.0 {
                     (v + c0 * a0 * (1.0 - v)) / a
                 } else {
                     0.0
                 };
-                p[k] = (255.0 * c).round() as u8;
+                *ch = (255.0 * c).round() as u8;
             }
             p[3] = (255.0 * a).round() as u8;
         }
@@ -326,7 +328,7 @@ fn draw_text(img: &mut image::RgbaImage, x: f32, y: f32, text: &str, px: f32) ->
 /// dark box): `|u| (mm)` over a vertical viridis bar, 0 at the bottom, ticks every step; then
 /// the arrow's scale (`arrow 20 mm/N`) and the force (`|F| 0.676 N`). `None` when the spec shows
 /// nothing.
-pub fn legend_image(spec: &LegendSpec) -> Option<image::RgbaImage> {
+pub fn legend_image(spec: &LegendSpec) -> Option<RgbaPixels> {
     let px = text_px(spec.bar_px);
     let line = (px * 1.3).ceil() as u32;
     let mut lines: Vec<String> = Vec::new();
@@ -369,7 +371,7 @@ pub fn legend_image(spec: &LegendSpec) -> Option<image::RgbaImage> {
     };
     let h = MARGIN * 2 + bar_block + line * lines.len() as u32;
     let box_a = (255.0 * BOX_ALPHA).round() as u8;
-    let mut img = image::RgbaImage::from_pixel(w, h, image::Rgba([0, 0, 0, box_a]));
+    let mut img = RgbaPixels::from_pixel(w, h, [0, 0, 0, box_a]);
     let mut y = MARGIN as f32;
     if bar_h > 0 {
         draw_text(&mut img, MARGIN as f32, y, title, px);
@@ -379,13 +381,13 @@ pub fn legend_image(spec: &LegendSpec) -> Option<image::RgbaImage> {
             let t = 1.0 - f64::from(j) / f64::from(bar_h - 1);
             let [r, g, b] = viridis(t);
             for i in 0..BAR_W {
-                img.put_pixel(MARGIN + i, top + j, image::Rgba([r, g, b, 255]));
+                img.put_pixel(MARGIN + i, top + j, [r, g, b, 255]);
             }
         }
         for (t, s) in &ticks {
             let ty = top + ((1.0 - t) * f64::from(bar_h - 1)).round() as u32;
             for i in 0..4 {
-                img.put_pixel(MARGIN + BAR_W + i, ty, image::Rgba([255, 255, 255, 255]));
+                img.put_pixel(MARGIN + BAR_W + i, ty, [255, 255, 255, 255]);
             }
             let text_y = ty as f32 - px * 0.6;
             draw_text(&mut img, (MARGIN + BAR_W + 6) as f32, text_y, s, px);

@@ -36,6 +36,7 @@
 mod camera;
 mod legend;
 mod overlay;
+mod pixels;
 pub use text::FONT;
 mod pick;
 mod pipelines;
@@ -50,18 +51,23 @@ pub use legend::{
 };
 pub use overlay::{Anchor, Overlay};
 pub use pick::{pick, Hit};
+pub use pixels::RgbaPixels;
 pub use view::{
     frame_objects, median, rest_surfaces, PointerPress, SampleMarks, ViewScales, OUTSIDE_M,
 };
 
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
+#[cfg(feature = "png")]
 use std::path::Path;
 use thiserror::Error;
 use wgpu::util::DeviceExt;
 
-use crate::context::{Gpu, GpuError};
+#[cfg(feature = "png")]
+use crate::context::Gpu;
+use crate::context::GpuError;
 use crate::deform::Deformer;
+#[cfg(feature = "png")]
 use crate::input::DeformerOptions;
 use touchfem_core::compliance::Compliance;
 use touchfem_core::mesh::Mesh;
@@ -117,6 +123,7 @@ pub enum RenderError {
     /// The GPU side failed (no adapter, bad forces, …).
     #[error(transparent)]
     Gpu(#[from] GpuError),
+    #[cfg(feature = "png")]
     /// Writing the PNG failed.
     #[error("cannot write image: {0}")]
     Image(#[from] image::ImageError),
@@ -261,6 +268,7 @@ impl<'a> Picture<'a> {
     }
 
     /// What its legend shows (see [`Picture::legend`]) in an image `height` pixels high.
+    #[cfg(feature = "png")]
     pub(crate) fn legend_spec(&self, height: u32) -> LegendSpec {
         LegendSpec {
             bar_px: LegendSpec::bar_for(height),
@@ -334,6 +342,7 @@ pub fn wireframe_by_default(triangles: usize, size: [u32; 2]) -> bool {
     edges * WIREFRAME_PX_PER_EDGE <= u64::from(size[0]) * u64::from(size[1])
 }
 
+#[cfg(feature = "png")]
 /// Renders `scene` at `size` (width, height) on a headless GPU chosen by the environment
 /// (`WGPU_BACKEND`, `WGPU_ADAPTER_NAME`) and writes a PNG to `path`.
 pub fn render_png(path: &Path, size: [u32; 2], scene: &Picture<'_>) -> Result<(), RenderError> {
@@ -341,6 +350,7 @@ pub fn render_png(path: &Path, size: [u32; 2], scene: &Picture<'_>) -> Result<()
     Ok(())
 }
 
+#[cfg(feature = "png")]
 /// Renders `scene` at `size` on a headless GPU chosen by the environment.
 pub(crate) fn render_image(
     size: [u32; 2],
@@ -461,6 +471,7 @@ pub struct Frame<'a> {
 
 /// The union of the objects' rest bounds in the scene frame (each [`FrameObject::bounds`]
 /// moved by its offset).
+#[cfg(feature = "png")]
 pub(crate) fn union_bounds(objects: &[FrameObject<'_>]) -> (DVec3, DVec3) {
     objects.iter().fold(
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
@@ -506,6 +517,7 @@ pub struct Renderer {
     attachments: Attachments,
     /// Held from `draw` to `submit` by the offscreen renders, which take `&self` and may be
     /// called from several threads: the uniforms and attachments are the renderer's own.
+    #[cfg_attr(not(feature = "png"), allow(dead_code))]
     offscreen: std::sync::Mutex<()>,
 }
 
@@ -537,6 +549,7 @@ impl Renderer {
         Ok(())
     }
 
+    #[cfg(feature = "png")]
     /// Renders `scene`: uploads its compliance into a [`Deformer`], runs the deformation pass
     /// and draws, all in one submission, then reads the image back.
     pub fn render(
@@ -557,6 +570,7 @@ impl Renderer {
         self.render_with(device, queue, &deformer, scene)
     }
 
+    #[cfg(feature = "png")]
     /// Renders with a caller-kept [`Deformer`] (built for `scene`'s mesh and compliance) whose
     /// forces the caller has already set. `scene.forces` is not used here. With
     /// [`Picture::legend`] it builds the legend's overlay on every call: for a frame loop with a
@@ -648,6 +662,7 @@ impl Renderer {
         }
     }
 
+    #[cfg(feature = "png")]
     /// Renders several objects offscreen (their forces already set), the camera framing the
     /// union of their rest bounds from the fixed 3/4 view ([`Camera::framing`]); builds the
     /// wireframe's [`Edges`] of objects that have none when `wireframe` is set. Spheres:
@@ -697,6 +712,7 @@ impl Renderer {
         self.render_to_image(device, queue, &frame)
     }
 
+    #[cfg(feature = "png")]
     /// Draws `frame` offscreen in one submission and reads the image back (the renderer's
     /// format must be 8-bit RGBA or BGRA).
     pub fn render_to_image(
@@ -1107,6 +1123,7 @@ fn multisample(samples: u32) -> wgpu::MultisampleState {
 }
 
 /// Axis-aligned bounds of `pts`.
+#[cfg(feature = "png")]
 fn bounds(pts: &[DVec3]) -> (DVec3, DVec3) {
     pts.iter().fold(
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),

@@ -4,6 +4,8 @@
 
 use bytemuck::{Pod, Zeroable};
 
+use super::pixels::RgbaPixels;
+
 use super::{depth_state, multisample, uniform_layout, RenderOptions};
 
 /// The WGSL source of the overlay (`shaders/overlay.wgsl`).
@@ -31,7 +33,7 @@ pub(super) const TEXT_PX: f32 = 15.0;
 /// Rasterises one line of `text` at `px` pixels high: white glyphs on a translucent dark box
 /// (straight alpha), with a 4-pixel margin. Characters the font lacks draw its `.notdef`
 /// glyph.
-pub(crate) fn rasterize_text(text: &str, px: f32) -> image::RgbaImage {
+pub(crate) fn rasterize_text(text: &str, px: f32) -> RgbaPixels {
     let px = px.max(1.0);
     let (ascent, descent) = super::text::line_metrics(px);
     let w = (super::text::text_width(text, px) + 2.0 * PAD)
@@ -45,13 +47,13 @@ pub(crate) fn rasterize_text(text: &str, px: f32) -> image::RgbaImage {
             *c = c.max(v);
         }
     });
-    image::RgbaImage::from_fn(w, h, |x, y| {
+    RgbaPixels::from_fn(w, h, |x, y| {
         let c = coverage[(y * w + x) as usize];
         // White text over a black box of opacity BOX_ALPHA, as one straight-alpha layer.
         let a = c + (1.0 - c) * BOX_ALPHA;
         let v = if a > 0.0 { c / a } else { 0.0 };
         let v8 = (255.0 * v).round() as u8;
-        image::Rgba([v8, v8, v8, (255.0 * a).round() as u8])
+        [v8, v8, v8, (255.0 * a).round() as u8]
     })
 }
 
@@ -184,7 +186,7 @@ impl Overlay {
         &mut self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,
-        img: Option<&image::RgbaImage>,
+        img: Option<&RgbaPixels>,
     ) {
         self.text.clear();
         match img {
@@ -193,7 +195,7 @@ impl Overlay {
         }
     }
 
-    fn upload(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, img: &image::RgbaImage) {
+    fn upload(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, img: &RgbaPixels) {
         let size = wgpu::Extent3d {
             width: img.width(),
             height: img.height(),
