@@ -138,15 +138,8 @@ fn check_grown(name: &str, cut: &Cut, mesh: &Mesh, c: &Compliance) -> f64 {
 
 #[test]
 fn a_grown_compliance_equals_a_recompute_at_the_copies_and_the_exposed_nodes() {
-    let mesh = cube();
-    let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
-    let mut cut = Cut::new(&mesh).unwrap();
     // A cut ending inside the body, then a second one across it.
-    cut.split(
-        &mesh,
-        &[quad(&mesh, [11.0, 5.0, 30.0], [11.0, 22.0, 30.0], 12.0)],
-    )
-    .unwrap();
+    let (mesh, c, mut cut) = cube_cut_ending_inside();
     assert!(check_grown("cube, a cut ending inside", &cut, &mesh, &c) < 1e-9);
     // (Nodes of the uncut mesh inside the body that the cut exposed are extra columns too.)
     let k = cut.grown_correction(&c).unwrap();
@@ -169,10 +162,9 @@ fn a_grown_compliance_equals_a_recompute_at_the_copies_and_the_exposed_nodes() {
     assert!(check_grown("mouse, one blade", &cut, &mesh, &c) < 1e-9);
 }
 
-#[test]
-fn a_correction_that_does_not_grow_leaves_the_columns_as_they_were() {
-    // The removal's correction (and the plain one of a split) has no extra column: the
-    // exposed nodes stay untouchable, as before.
+/// The cube, its compliance (the default selection) and a cut ending inside it: along y from 5
+/// to 22 mm at x = 11 mm, 12 mm deep.
+fn cube_cut_ending_inside() -> (Mesh, Compliance, Cut) {
     let mesh = cube();
     let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
     let mut cut = Cut::new(&mesh).unwrap();
@@ -181,6 +173,14 @@ fn a_correction_that_does_not_grow_leaves_the_columns_as_they_were() {
         &[quad(&mesh, [11.0, 5.0, 30.0], [11.0, 22.0, 30.0], 12.0)],
     )
     .unwrap();
+    (mesh, c, cut)
+}
+
+#[test]
+fn a_correction_that_does_not_grow_leaves_the_columns_as_they_were() {
+    // The removal's correction (and the plain one of a split) has no extra column: the
+    // exposed nodes stay untouchable, as before.
+    let (mesh, c, cut) = cube_cut_ending_inside();
     let plain = c
         .with_correction(Arc::new(cut.correction(&c).unwrap()))
         .unwrap();
@@ -197,14 +197,7 @@ fn a_correction_that_does_not_grow_leaves_the_columns_as_they_were() {
 
 #[test]
 fn a_grown_fold_keeps_the_new_columns_and_the_next_cut_reads_a_recompute() {
-    let mesh = cube();
-    let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
-    let mut cut = Cut::new(&mesh).unwrap();
-    cut.split(
-        &mesh,
-        &[quad(&mesh, [11.0, 5.0, 30.0], [11.0, 22.0, 30.0], 12.0)],
-    )
-    .unwrap();
+    let (mesh, c, cut) = cube_cut_ending_inside();
     let g = c
         .with_correction(Arc::new(cut.grown_correction(&c).unwrap()))
         .unwrap();

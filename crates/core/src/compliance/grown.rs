@@ -50,21 +50,7 @@ impl Compliance {
                 }
             }
         }
-        for (c, &dead) in k.dead_cols.iter().enumerate() {
-            if dead {
-                l.columns_mut(3 * c, 3).fill(0.0);
-            }
-        }
-        for (row, &dead) in k.dead_rows.iter().enumerate() {
-            if dead {
-                l.rows_mut(3 * row, 3).fill(0.0);
-            }
-        }
-        if !l.iter().all(|v| v.is_finite()) {
-            return Err(FemError::BadSelection(
-                "the folded compliance is not finite".into(),
-            ));
-        }
+        pin_and_check(&mut l, k)?;
         let mut rows: Vec<u32> = self.rows[..nr].to_vec();
         rows.extend(new_rows.iter().map(|&x| k.extra[x]));
         rows.extend_from_slice(&self.rows[nr..]);
@@ -95,4 +81,25 @@ impl Compliance {
         }));
         Ok(c)
     }
+}
+
+/// Zeroes a folded `l`'s columns and rows that `k` marks dead (pinned nodes), and errors
+/// unless every entry is finite.
+pub(super) fn pin_and_check(l: &mut DMatrix<f64>, k: &Correction) -> Result<(), FemError> {
+    for (c, &dead) in k.dead_cols.iter().enumerate() {
+        if dead {
+            l.columns_mut(3 * c, 3).fill(0.0);
+        }
+    }
+    for (row, &dead) in k.dead_rows.iter().enumerate() {
+        if dead {
+            l.rows_mut(3 * row, 3).fill(0.0);
+        }
+    }
+    if !l.iter().all(|v| v.is_finite()) {
+        return Err(FemError::BadSelection(
+            "the folded compliance is not finite".into(),
+        ));
+    }
+    Ok(())
 }

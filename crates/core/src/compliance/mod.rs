@@ -748,21 +748,7 @@ impl Compliance {
             let vt = nalgebra::DMatrixView::from_slice(&k.v_cols, k.rank, nc3);
             l.gemm(1.0, &u, &vt, 1.0);
         }
-        for (c, &dead) in k.dead_cols.iter().enumerate() {
-            if dead {
-                l.columns_mut(3 * c, 3).fill(0.0);
-            }
-        }
-        for (r, &dead) in k.dead_rows.iter().enumerate() {
-            if dead {
-                l.rows_mut(3 * r, 3).fill(0.0);
-            }
-        }
-        if !l.iter().all(|v| v.is_finite()) {
-            return Err(FemError::BadSelection(
-                "the folded compliance is not finite".into(),
-            ));
-        }
+        grown::pin_and_check(&mut l, k)?;
         let mut c = self.clone();
         c.l = std::sync::Arc::new(l.data.into());
         c.correction = Some(std::sync::Arc::new(k.pins_only()));
