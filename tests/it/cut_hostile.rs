@@ -5,7 +5,7 @@
 
 use glam::DVec3;
 use touchfem::cut::{blade_tets, Cut};
-use touchfem::runtime::cutting::{Cutter, Stroke};
+use touchfem::runtime::cutting::{CutMode, Cutter, Stroke};
 use touchfem::runtime::{HapticWorld, WorldSample};
 use touchfem::scene::World;
 
@@ -43,6 +43,8 @@ struct Tally {
     strokes: usize,
     bodies: usize,
     tets_removed: usize,
+    /// The most copies a body of a separating cutter had made.
+    copies: usize,
     pieces: usize,
     folds: u32,
     max_force: f64,
@@ -79,6 +81,7 @@ fn drive(
             for (o, body) in tally.passes.pass(cutter, &strokes) {
                 tally.bodies += 1;
                 tally.tets_removed = tally.tets_removed.max(body.tets_removed);
+                tally.copies = tally.copies.max(body.nodes_split);
                 tally.pieces += body.report.pieces_removed;
                 tally.folds = tally.folds.max(body.folds);
                 assert!(body.surface.normals.iter().all(|n| n.is_finite()));
@@ -91,8 +94,9 @@ fn drive(
 
 /// `n` random blade paths over `world`'s object, each a few ticks from a random point near
 /// or inside the body to another (some start inside, some pass through NaN), with the
-/// fingertip pressing somewhere at random; a fresh cutter every 50 paths.
-fn fuzz(world: &World, n: usize, seed: u64) -> Tally {
+/// fingertip pressing somewhere at random; a fresh cutter every 50 paths, cutting as `mode`
+/// says.
+fn fuzz(world: &World, n: usize, seed: u64, mode: CutMode) -> Tally {
     let (lo, hi) = world.objects[0].body.mesh.bounds();
     let span = hi - lo;
     let mut s = seed;
@@ -100,11 +104,13 @@ fn fuzz(world: &World, n: usize, seed: u64) -> Tally {
     let mut tally = Tally::default();
     let mut cutter = Cutter::new(world).unwrap();
     cutter.set_fold_rank(200);
+    cutter.set_cut_mode(mode);
     let mut hw = HapticWorld::new(world);
     for path in 0..n {
         if path % 50 == 49 {
             cutter = Cutter::new(world).unwrap();
             cutter.set_fold_rank(200);
+            cutter.set_cut_mode(mode);
             hw = HapticWorld::new(world);
             // (Folds of the old cutter are not the new one's.)
             tally.passes = Default::default();
@@ -147,7 +153,7 @@ fn fuzz(world: &World, n: usize, seed: u64) -> Tally {
 fn a_thousand_fuzzed_blade_paths_on_the_cube_and_the_mouse_stay_finite_and_bounded() {
     for (mesh, n, seed) in [("cube", 850, 7u64), ("mouse", 150, 11)] {
         let world = scene(mesh, "3.0").unwrap();
-        let t = fuzz(&world, n, seed);
+        let t = fuzz(&world, n, seed, CutMode::Remove);
         eprintln!("{mesh}: {n} paths, {t:?}");
         // The fuzz did cut: strokes became bodies, and the bodies removed tets.
         assert!(t.strokes > n / 10, "{t:?}");
@@ -157,6 +163,19 @@ fn a_thousand_fuzzed_blade_paths_on_the_cube_and_the_mouse_stay_finite_and_bound
             assert!(t.pieces > 0, "{t:?}");
         }
     }
+}
+
+#[test]
+fn fuzzed_separating_blades_on_the_cube_stay_finite_and_bounded() {
+    // The engine's separating cutter (`CutMode::Separate`) under the same fuzz: every pass a
+    // body or nothing, never an error or a panic, every force finite and within the bound,
+    // its folds deferred and adopted.
+    let world = scene("cube", "10.0").unwrap();
+    let n = 1000;
+    let t = fuzz(&world, n, 23, CutMode::Separate);
+    eprintln!("cube, separating: {n} paths, {t:?}");
+    assert!(t.strokes > n / 10 && t.bodies > n / 20, "{t:?}");
+    assert!(t.copies > 0 && t.folds > 0, "{t:?}");
 }
 
 #[test]
