@@ -37,7 +37,7 @@ override DISPLACEMENT_WORD: u32 = 0xffffffffu;
 @group(0) @binding(3) var<storage, read_write> out: array<f32>;
 // Surface triangles as row indices, 3 per triangle (the normal pass reads their fans instead).
 @group(0) @binding(4) var<storage, read> tris: array<u32>;
-// Per vertex its triangle fans: offsets[0..=n_rows], then the neighbours, each chain's first
+// Per vertex its triangle fans: offsets[0..=n_vertices], then the neighbours, each chain's first
 // marked by FAN_START (touchfem_core::mesh::vertex_fans).
 @group(0) @binding(5) var<storage, read> adj: array<u32>;
 
@@ -92,13 +92,13 @@ const FAN_START: u32 = 0x80000000u;
 @compute @workgroup_size(64)
 fn normals(@builtin(global_invocation_id) gid: vec3<u32>) {
     let v = gid.x;
-    if v >= frame.n_rows || frame.normal_offset == 0xffffffffu {
+    if v >= frame.n_vertices || frame.normal_offset == 0xffffffffu {
         return;
     }
     let pv = position(v);
     var n = vec3<f32>(0.0);
     var prev = vec3<f32>(0.0);
-    let list = frame.n_rows + 1u;
+    let list = frame.n_vertices + 1u;
     for (var i = adj[v]; i < adj[v + 1u]; i += 1u) {
         // Consecutive neighbours a, b of a chain: the triangle (v, a, b), counter-clockwise.
         // |cross| is twice the area: the sum is area-weighted.

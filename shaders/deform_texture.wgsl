@@ -52,7 +52,8 @@ struct Frame {
     n_active: u32,
     // Rows that hold L (≤ n_rows): the first ones.
     l_rows: u32,
-    _pad1: u32,
+    // Vertices the normal pass shades (≥ n_rows; frame.wgsl's).
+    n_vertices: u32,
 }
 
 // One active column node of the force boundary condition: F_c (newtons) and c.
@@ -119,7 +120,7 @@ fn fan_step(e: u32, p: vec3<f32>, prev: ptr<function, vec3<f32>>, n: ptr<functio
 @compute @workgroup_size(64)
 fn normals(@builtin(global_invocation_id) gid: vec3<u32>) {
     let v = gid.x;
-    if v >= frame.n_rows || frame.normal_offset == 0xffffffffu {
+    if v >= frame.n_vertices || frame.normal_offset == 0xffffffffu {
         return;
     }
     let f0 = textureLoad(fan_tex, xy(2u * v));

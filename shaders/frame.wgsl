@@ -13,7 +13,9 @@ struct Frame {
     // Rows that hold L (R' ≤ n_rows): the first ones (the hierarchical layout: the row
     // positions of the cluster tree).
     l_rows: u32,
-    _pad0: u32,
+    // Vertices the normal pass shades (≥ n_rows): the rows, then the vertices reserved for
+    // the nodes a separating cut adds (correct.wgsl writes their positions).
+    n_vertices: u32,
     _pad1: u32,
     _pad2: u32,
 }

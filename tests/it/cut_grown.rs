@@ -164,7 +164,7 @@ fn a_grown_compliance_equals_a_recompute_at_the_copies_and_the_exposed_nodes() {
 
 /// The cube, its compliance (the default selection) and a cut ending inside it: along y from 5
 /// to 22 mm at x = 11 mm, 12 mm deep.
-fn cube_cut_ending_inside() -> (Mesh, Compliance, Cut) {
+pub(crate) fn cube_cut_ending_inside() -> (Mesh, Compliance, Cut) {
     let mesh = cube();
     let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
     let mut cut = Cut::new(&mesh).unwrap();

@@ -23,7 +23,7 @@ use touchfem::Mesh;
 /// their own error is `tests/it/gpu_f16.rs`'s).
 const LAYOUTS: [LStorage; 2] = [LStorage::Buffers, LStorage::Texture];
 
-fn gpu() -> &'static Gpu {
+pub(crate) fn gpu() -> &'static Gpu {
     static GPU: OnceLock<Gpu> = OnceLock::new();
     GPU.get_or_init(|| {
         Gpu::new_headless()
@@ -40,7 +40,7 @@ fn deformer(c: &Compliance, mesh: &Mesh, storage: LStorage) -> Deformer {
     Deformer::new(&g.device, &g.queue, c, &mesh.nodes, &mesh.surface, &opts).expect("deformer")
 }
 
-fn run(d: &Deformer) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+pub(crate) fn run(d: &Deformer) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
     let g = gpu();
     let mut enc = g.device.create_command_encoder(&Default::default());
     d.encode(&mut enc);
@@ -72,7 +72,7 @@ fn frame_us(d: &mut Deformer, forces: &[(u32, [f32; 3])]) -> f64 {
     t[t.len() / 2]
 }
 
-fn to_f64(v: [f32; 3]) -> DVec3 {
+pub(crate) fn to_f64(v: [f32; 3]) -> DVec3 {
     DVec3::from(v.map(f64::from))
 }
 

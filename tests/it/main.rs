@@ -20,6 +20,7 @@ mod gpu;
 mod gpu_cut;
 mod gpu_f16;
 mod gpu_hier;
+mod gpu_split;
 mod gram;
 mod haply;
 mod haptics;

@@ -1,10 +1,13 @@
 //! A cut's correction on the GPU (`shaders/correct.wgsl`): `U` on the rows that hold `L` as
 //! `rank` extra f32 columns, their weights `z = Σ_c V_cᵀ F_c` computed on the CPU from each
-//! frame's forces ([`Correction::weights`]), and the pinned rows put back at rest. One more
-//! dispatch of the deformer's compute pass, between the deformation and the normals, the same
-//! whatever layout `L` is stored in (`U` is always f32, a `vec4` a row and column: its
-//! `16·R'·rank` bytes are small beside `L`'s). The weights are one uniform binding of 16 KiB:
-//! a rank above [`MAX_CORRECTION_RANK`] is an error (draw that cut with the CPU's `displace`).
+//! frame's forces ([`Correction::weights`]), and the pinned rows put back at rest. A separating
+//! cut's correction also moves the rows whose rest position it snapped (a shift per row), and
+//! writes the vertices of the nodes it added that have no row (`rest + U_x z + w_p(x)`, into
+//! the vertices reserved after the rows). One more dispatch of the deformer's compute pass,
+//! between the deformation and the normals, the same whatever layout `L` is stored in (`U` is
+//! always f32, a `vec4` a row and column: its `16·(R'+X)·rank` bytes are small beside `L`'s).
+//! The weights are one uniform binding of 16 KiB: a rank above [`MAX_CORRECTION_RANK`] is an
+//! error (draw that cut with the CPU's `displace`).
 
 use glam::DVec3;
 use wgpu::util::DeviceExt;
@@ -26,10 +29,12 @@ const WEIGHT_BYTES: u64 = 4 * MAX_CORRECTION_RANK as u64;
 struct ParamsGpu {
     frame: FrameGpu,
     rank4: u32,
-    _pad: [u32; 3],
+    n_extra: u32,
+    u_stride: u32,
+    shift_base: u32,
 }
 
-/// Byte offset of `rank4` in [`ParamsGpu`].
+/// Byte offset of `rank4` in [`ParamsGpu`] (`n_extra` follows).
 const RANK4_OFFSET: u64 = std::mem::size_of::<FrameGpu>() as u64;
 
 /// Where the correction pass writes: the deformer's output binding, and for the texture layout
@@ -38,14 +43,24 @@ pub(crate) struct CorrectionTarget<'a> {
     /// Output buffer, binding start and size in bytes.
     pub out: (&'a wgpu::Buffer, u64, u64),
     /// The deformer's frame (first word of vertex 0 inside the binding, the stride in words,
-    /// the rows that hold `L`).
+    /// the rows, the rows that hold `L`, the vertices).
     pub frame: FrameGpu,
     /// The output is the deformer's own `Vertex` layout (|u| in word 3).
     pub vertex_layout: bool,
     /// The texture layout's deformed positions (`None` for the storage-buffer layout).
     pub positions: Option<&'a wgpu::TextureView>,
-    /// Rest positions of the rows that hold `L`, `w = 1`.
-    pub rest_rows: &'a [[f32; 4]],
+}
+
+/// What a correction draws beyond `U` on the rows: its extra nodes without a row, and the
+/// rows' rest positions as the cut left them.
+pub(crate) struct Extras<'a> {
+    /// Per extra vertex (in order after the rows), its index among [`Correction::extra`].
+    pub of: &'a [usize],
+    /// Per vertex (the rows, then the extra vertices), its rest position, `w = 1`.
+    pub rest: &'a [[f32; 4]],
+    /// Per row, how far the cut moved its rest position from the one the deformation pass
+    /// adds `u` to (`w = 0`).
+    pub shift: &'a [[f32; 4]],
 }
 
 /// The correction's buffers and its dispatch.
@@ -53,30 +68,41 @@ pub(crate) struct CorrectionPass {
     pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
     params: wgpu::Buffer,
-    rest: wgpu::Buffer,
+    /// Rest positions of the rows and extra vertices, then the rows' shifts.
+    points: wgpu::Buffer,
     dead: wgpu::Buffer,
+    places: wgpu::Buffer,
     out: (wgpu::Buffer, u64, u64),
     positions: Option<wgpu::TextureView>,
-    /// `U`, room for `capacity` columns (a multiple of 4), and the weights.
+    /// `U`, room for `capacity` columns (a multiple of 4), the weights `z` and `w`.
     u_rows: wgpu::Buffer,
     weights: wgpu::Buffer,
+    w_cols: wgpu::Buffer,
     capacity: usize,
     /// `U` in the shader's layout (kept to upload without allocating per cut).
     staging: Vec<[f32; 4]>,
     bind_group: wgpu::BindGroup,
+    n_rows: usize,
     l_rows: usize,
-    /// What the weights need of the correction (`rank`, `v_cols`, `dead_cols`; the rest empty).
+    /// Extra vertices reserved after the rows.
+    reserved: usize,
+    /// Extra vertices written now.
+    n_extra: usize,
+    /// What the weights need of the correction (`rank`, `u_cols`, `v_cols`, `dead_cols`,
+    /// `extra`, `v_extra`; the rest empty).
     weights_of: Correction,
-    /// Whether the dispatch does anything (a rank or a pinned row).
+    /// Whether the dispatch does anything (a rank, a pinned row, a shift, an extra vertex).
     active: bool,
     z: Vec<f64>,
     z32: Vec<f32>,
+    w: Vec<f64>,
+    w32: Vec<f32>,
     forces: Vec<(u32, DVec3)>,
 }
 
-/// `BufferTooLarge` if a rank-`rank` `U` on `l_rows` rows does not fit one binding or its
+/// `BufferTooLarge` if a rank-`rank` `U` on `u_rows` rows does not fit one binding or its
 /// weights the uniform array.
-pub(crate) fn check_size(l_rows: usize, rank: usize, max_binding: u64) -> Result<(), GpuError> {
+pub(crate) fn check_size(u_rows: usize, rank: usize, max_binding: u64) -> Result<(), GpuError> {
     if rank > MAX_CORRECTION_RANK {
         return Err(GpuError::BufferTooLarge {
             what: "the cut's correction weights (one uniform binding)",
@@ -84,7 +110,7 @@ pub(crate) fn check_size(l_rows: usize, rank: usize, max_binding: u64) -> Result
             limit: WEIGHT_BYTES,
         });
     }
-    let bytes = 16 * l_rows as u64 * rank.div_ceil(4) as u64 * 4;
+    let bytes = 16 * u_rows as u64 * rank.div_ceil(4) as u64 * 4;
     if bytes > max_binding {
         return Err(GpuError::BufferTooLarge {
             what: "the cut's correction (U on the displayed rows)",
@@ -100,10 +126,22 @@ fn f32_bytes(n: usize) -> u64 {
     (4 * n as u64).max(16)
 }
 
+/// A storage buffer of `bytes` (at least 16) that the host writes.
+fn storage(device: &wgpu::Device, label: &str, bytes: u64) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: bytes.max(16),
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
 impl CorrectionPass {
     /// Builds the pipeline and the buffers for rank `0` (nothing to do until [`Self::set`]).
     pub(crate) fn new(device: &wgpu::Device, t: &CorrectionTarget<'_>) -> CorrectionPass {
-        let l_rows = t.rest_rows.len();
+        let n_rows = t.frame.n_rows as usize;
+        let l_rows = t.frame.l_rows as usize;
+        let reserved = t.frame.n_vertices as usize - n_rows;
         let mut entries = vec![
             uniform_entry(0),
             storage_entry(1, true),
@@ -111,10 +149,12 @@ impl CorrectionPass {
             storage_entry(3, true),
             storage_entry(4, true),
             storage_entry(5, false),
+            storage_entry(6, true),
+            storage_entry(7, true),
         ];
         if t.positions.is_some() {
             entries.push(crate::bind::storage_texture_entry(
-                6,
+                8,
                 wgpu::StorageTextureAccess::WriteOnly,
                 wgpu::TextureFormat::Rgba32Float,
                 wgpu::TextureViewDimension::D2,
@@ -145,25 +185,21 @@ impl CorrectionPass {
             contents: bytemuck::bytes_of(&ParamsGpu {
                 frame: t.frame,
                 rank4: 0,
-                _pad: [0; 3],
+                n_extra: 0,
+                u_stride: (l_rows + reserved) as u32,
+                shift_base: (n_rows + reserved) as u32,
             }),
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
         });
-        let mut rest: Vec<[f32; 4]> = t.rest_rows.to_vec();
-        rest.resize(l_rows.max(1), [0.0; 4]);
-        let rest = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("touchfem correction rest rows"),
-            contents: bytemuck::cast_slice(&rest),
-            usage: wgpu::BufferUsages::STORAGE,
-        });
-        let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
-        let dead = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("touchfem correction pinned rows"),
-            size: f32_bytes(l_rows),
-            usage: storage,
-            mapped_at_creation: false,
-        });
-        let u_rows = Self::columns(device, l_rows, 0);
+        let points = storage(
+            device,
+            "touchfem correction rest and shifts",
+            16 * (2 * n_rows + reserved) as u64,
+        );
+        let dead = storage(device, "touchfem correction pinned rows", f32_bytes(l_rows));
+        let places = storage(device, "touchfem correction places", 16 * reserved as u64);
+        let u_rows = storage(device, "touchfem correction U", 0);
+        let w_cols = storage(device, "touchfem correction w", 0);
         let weights = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("touchfem correction weights"),
             size: WEIGHT_BYTES,
@@ -176,7 +212,7 @@ impl CorrectionPass {
         let bind_group = Self::group(
             device,
             &layout,
-            [&params, &u_rows, &weights, &dead, &rest],
+            [&params, &u_rows, &weights, &dead, &points, &w_cols, &places],
             &out,
             positions.as_ref(),
         );
@@ -184,49 +220,54 @@ impl CorrectionPass {
             pipeline,
             layout,
             params,
-            rest,
+            points,
             dead,
+            places,
             out,
             positions,
             u_rows,
             weights,
+            w_cols,
             capacity: 0,
             staging: Vec::new(),
             bind_group,
+            n_rows,
             l_rows,
+            reserved,
+            n_extra: 0,
             weights_of: Correction::default(),
             active: false,
             z: Vec::new(),
             z32: Vec::new(),
+            w: Vec::new(),
+            w32: Vec::new(),
             forces: Vec::with_capacity(crate::input::MAX_ACTIVE),
         }
     }
 
-    /// `U`'s buffer for `cols` columns.
-    fn columns(device: &wgpu::Device, l_rows: usize, cols: usize) -> wgpu::Buffer {
-        device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("touchfem correction U"),
-            size: f32_bytes(4 * l_rows * cols),
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        })
+    /// Rows of `U` a column: the rows that hold `L`, then the reserved extra vertices.
+    fn u_stride(&self) -> usize {
+        self.l_rows + self.reserved
     }
 
+    /// The bind group over `b` (params, `U`, `z`, pinned rows, points, `w`, places), the
+    /// output and the texture layout's positions.
     fn group(
         device: &wgpu::Device,
         layout: &wgpu::BindGroupLayout,
-        b: [&wgpu::Buffer; 5],
+        b: [&wgpu::Buffer; 7],
         out: &(wgpu::Buffer, u64, u64),
         positions: Option<&wgpu::TextureView>,
     ) -> wgpu::BindGroup {
+        let slots = [0u32, 1, 2, 3, 4, 6, 7];
         let mut entries: Vec<wgpu::BindGroupEntry<'_>> = b
             .iter()
-            .enumerate()
-            .map(|(i, buf)| buffer(i as u32, buf, 0, buf.size()))
+            .zip(slots)
+            .map(|(buf, i)| buffer(i, buf, 0, buf.size()))
             .collect();
         entries.push(buffer(5, &out.0, out.1, out.2));
         if let Some(v) = positions {
-            entries.push(crate::bind::view(6, v));
+            entries.push(crate::bind::view(8, v));
         }
         device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("touchfem correction"),
@@ -235,7 +276,8 @@ impl CorrectionPass {
         })
     }
 
-    /// Uploads `k` (already checked against the deformer's rows and columns); re-allocates
+    /// Uploads `k` (already checked against the deformer's rows and columns) and what it
+    /// draws beyond `U` on the rows (`x`: at most the reserved extra vertices); re-allocates
     /// when the rank outgrows the buffers (by half again, so that a growing cut re-allocates
     /// seldom).
     pub(crate) fn set(
@@ -243,19 +285,22 @@ impl CorrectionPass {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         k: &Correction,
+        x: &Extras<'_>,
         max_binding: u64,
     ) -> Result<(), GpuError> {
         let rank = k.rank;
         let rank4 = rank.div_ceil(4) * 4;
-        check_size(self.l_rows, rank, max_binding)?;
+        let stride = self.u_stride();
+        check_size(stride, rank, max_binding)?;
         if rank4 > self.capacity {
             let grown = rank4.max((self.capacity + self.capacity / 2).div_ceil(4) * 4);
-            let cap = if check_size(self.l_rows, grown, max_binding).is_ok() {
+            let cap = if check_size(stride, grown, max_binding).is_ok() {
                 grown
             } else {
                 rank4
             };
-            self.u_rows = Self::columns(device, self.l_rows, cap);
+            self.u_rows = storage(device, "touchfem correction U", f32_bytes(4 * stride * cap));
+            self.w_cols = storage(device, "touchfem correction w", f32_bytes(cap));
             self.capacity = cap;
             self.bind_group = Self::group(
                 device,
@@ -265,20 +310,30 @@ impl CorrectionPass {
                     &self.u_rows,
                     &self.weights,
                     &self.dead,
-                    &self.rest,
+                    &self.points,
+                    &self.w_cols,
+                    &self.places,
                 ],
                 &self.out,
                 self.positions.as_ref(),
             );
         }
+        let n_extra = x.of.len();
         if rank > 0 {
-            // Column q, row r at q·R' + r, (x, y, z, 0); the padding columns zero.
+            // Column q, row i at q·S + i, (x, y, z, 0); the padding columns zero.
             let n = self.l_rows;
             self.staging.clear();
-            self.staging.resize(rank4 * n, [0.0; 4]);
+            self.staging.resize(rank4 * stride, [0.0; 4]);
             for (q, col) in k.rows.chunks_exact(3 * n).enumerate().take(rank) {
                 for (r, u) in col.chunks_exact(3).enumerate() {
-                    self.staging[q * n + r] = [u[0] as f32, u[1] as f32, u[2] as f32, 0.0];
+                    self.staging[q * stride + r] = [u[0] as f32, u[1] as f32, u[2] as f32, 0.0];
+                }
+            }
+            for (j, &e) in x.of.iter().enumerate() {
+                let u = &k.u_extra[3 * e * rank..][..3 * rank];
+                for q in 0..rank {
+                    self.staging[q * stride + n + j] =
+                        [u[q] as f32, u[rank + q] as f32, u[2 * rank + q] as f32, 0.0];
                 }
             }
             queue.write_buffer(&self.u_rows, 0, bytemuck::cast_slice(&self.staging));
@@ -287,19 +342,49 @@ impl CorrectionPass {
         if !dead.is_empty() {
             queue.write_buffer(&self.dead, 0, bytemuck::cast_slice(&dead));
         }
-        let rank4_vec4s = (rank4 / 4) as u32;
-        queue.write_buffer(&self.params, RANK4_OFFSET, bytemuck::bytes_of(&rank4_vec4s));
+        // The points: the rows' and extra vertices' rest positions, then the rows' shifts.
+        let mut points = Vec::with_capacity(2 * self.n_rows + self.reserved);
+        points.extend_from_slice(&x.rest[..self.n_rows + n_extra]);
+        points.resize(self.n_rows + self.reserved, [0.0; 4]);
+        points.extend_from_slice(x.shift);
+        points.resize(2 * self.n_rows + self.reserved, [0.0; 4]);
+        queue.write_buffer(&self.points, 0, bytemuck::cast_slice(&points));
+        if n_extra > 0 {
+            let places: Vec<[u32; 4]> = (x.of.iter())
+                .map(|&e| {
+                    let p = k.extra_place[e];
+                    [p[0], p[1], p[2], 0]
+                })
+                .collect();
+            queue.write_buffer(&self.places, 0, bytemuck::cast_slice(&places));
+        }
+        let sizes = [(rank4 / 4) as u32, n_extra as u32];
+        queue.write_buffer(&self.params, RANK4_OFFSET, bytemuck::cast_slice(&sizes));
         self.weights_of = Correction {
             rank,
+            u_cols: if n_extra > 0 {
+                k.u_cols.clone()
+            } else {
+                Vec::new()
+            },
             v_cols: k.v_cols.clone(),
             dead_cols: k.dead_cols.clone(),
+            extra: k.extra.clone(),
+            v_extra: k.v_extra.clone(),
             ..Default::default()
         };
+        self.n_extra = n_extra;
         self.z.resize(rank, 0.0);
+        self.w.resize(rank, 0.0);
         // Padded to whole vec4s: the padding weights stay zero.
         self.z32.clear();
         self.z32.resize(rank4, 0.0);
-        self.active = rank > 0 || k.dead_rows.iter().any(|&d| d);
+        self.w32.clear();
+        self.w32.resize(rank4, 0.0);
+        self.active = rank > 0
+            || n_extra > 0
+            || k.dead_rows.iter().any(|&d| d)
+            || x.shift.iter().any(|s| s.iter().any(|&v| v != 0.0));
         Ok(())
     }
 
@@ -309,9 +394,11 @@ impl CorrectionPass {
     }
 
     /// Computes this frame's weights from `forces` (validated) and uploads them (`4·rank`
-    /// bytes, rounded up to 16; nothing at rank 0).
+    /// bytes, rounded up to 16, and as many again for the extra vertices' `w`; nothing at
+    /// rank 0).
     pub(crate) fn set_forces(&mut self, queue: &wgpu::Queue, forces: &[(u32, [f32; 3])]) {
-        let rank = self.weights_of.rank;
+        let k = &self.weights_of;
+        let rank = k.rank;
         if rank == 0 {
             return;
         }
@@ -321,20 +408,42 @@ impl CorrectionPass {
                 .iter()
                 .map(|&(c, f)| (c, DVec3::from(f.map(f64::from)))),
         );
-        self.weights_of.weights(&self.forces, &mut self.z);
+        k.weights(&self.forces, &mut self.z);
         for (o, &z) in self.z32.iter_mut().zip(&self.z) {
             *o = z as f32;
         }
         queue.write_buffer(&self.weights, 0, bytemuck::cast_slice(&self.z32));
+        if self.n_extra > 0 {
+            // w = Σ_c U_cᵀ F_c over the live columns of L.
+            self.w.fill(0.0);
+            let nc = k.dead_cols.len();
+            for &(c, f) in &self.forces {
+                let c = c as usize;
+                if c >= nc || k.dead_cols[c] {
+                    continue;
+                }
+                for a in 0..3 {
+                    let u = &k.u_cols[(3 * c + a) * rank..][..rank];
+                    for (wq, &uq) in self.w.iter_mut().zip(u) {
+                        *wq += uq * f[a];
+                    }
+                }
+            }
+            for (o, &w) in self.w32.iter_mut().zip(&self.w) {
+                *o = w as f32;
+            }
+            queue.write_buffer(&self.w_cols, 0, bytemuck::cast_slice(&self.w32));
+        }
     }
 
     /// Records the dispatch (nothing when the correction does nothing).
     pub(crate) fn record(&self, pass: &mut wgpu::ComputePass<'_>) {
-        if !self.active || self.l_rows == 0 {
+        if !self.active || self.n_rows == 0 {
             return;
         }
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &self.bind_group, &[]);
-        pass.dispatch_workgroups((self.l_rows as u32).div_ceil(WORKGROUP), 1, 1);
+        let lanes = (self.n_rows + self.n_extra) as u32;
+        pass.dispatch_workgroups(lanes.div_ceil(WORKGROUP), 1, 1);
     }
 }

@@ -40,7 +40,15 @@ enum Path {
 /// [`LStorage`]; [`set_triangles`](Self::set_triangles) takes the opened surface.
 pub struct Deformer {
     n_rows: u32,
+    /// The rows and the vertices reserved for a separating cut's extra nodes
+    /// ([`DeformerOptions::extra_vertices`]).
+    n_vertices: u32,
     n_cols: usize,
+    /// Extra columns the correction carried adds ([`Correction::extra`]): forces on columns
+    /// `n_cols..n_cols + extra_cols` go to the correction alone.
+    extra_cols: usize,
+    /// Extra vertices the correction carried draws (its extra nodes without a row).
+    extra_drawn: usize,
     l_rows: usize,
     path: Path,
     target: OutputTarget,
@@ -50,6 +58,8 @@ pub struct Deformer {
     normals: NormalPass,
     /// Rest positions per row (the correction pass puts pinned rows back there).
     rest_rows: Vec<[f32; 4]>,
+    /// The mesh node of each row.
+    row_nodes: Vec<u32>,
     /// The output binding: start and size in bytes.
     out_binding: (u64, u64),
     /// The frame uniform every layout starts from (the correction pass's too).
@@ -60,6 +70,8 @@ pub struct Deformer {
     correction: Option<CorrectionPass>,
     /// This frame's forces (the correction's weights are recomputed from them when it changes).
     forces: Vec<(u32, [f32; 3])>,
+    /// This frame's forces on columns of `L` (what the layouts take).
+    l_forces: Vec<(u32, [f32; 3])>,
 }
 
 impl std::fmt::Debug for Deformer {
@@ -94,6 +106,7 @@ impl Deformer {
         let nr = input.rows.len();
         let nc = input.n_cols;
         let nl = input.l_rows;
+        let nv = nr + options.extra_vertices;
         if nr == 0 {
             return Err(GpuError::BadInput("no displayed rows".into()));
         }
@@ -119,10 +132,10 @@ impl Deformer {
             });
         }
         let max_groups = u64::from(limits.max_compute_workgroups_per_dimension);
-        if (nr as u64).div_ceil(u64::from(WORKGROUP)) > max_groups {
+        if (nv as u64).div_ceil(u64::from(WORKGROUP)) > max_groups || nv > u32::MAX as usize / 2 {
             return Err(GpuError::BufferTooLarge {
-                what: "the displayed rows (one invocation each)",
-                bytes: nr as u64,
+                what: "the displayed rows and reserved vertices (one invocation each)",
+                bytes: nv as u64,
                 limit: max_groups * u64::from(WORKGROUP),
             });
         }
@@ -146,14 +159,15 @@ impl Deformer {
         let target = match &options.output {
             Some(t) => t.clone(),
             None => {
-                let init: Vec<Vertex> = rest_rows
+                let mut init: Vec<Vertex> = rest_rows
                     .iter()
                     .map(|&[x, y, z, _]| Vertex {
                         position: [x, y, z, 0.0],
                         normal: [0.0, 0.0, 1.0, 0.0],
                     })
                     .collect();
-                let bytes = VERTEX_STRIDE * nr as u64;
+                init.resize(nv, Vertex::default());
+                let bytes = VERTEX_STRIDE * nv as u64;
                 if bytes > max_binding {
                     return Err(GpuError::BufferTooLarge {
                         what: "vertex buffer",
@@ -177,12 +191,12 @@ impl Deformer {
             }
         };
         let (out_start, mut out_size, out_word, normal_word) =
-            validate_target(&target, nr as u64, &limits)?;
+            validate_target(&target, nv as u64, &limits)?;
         // The deformer's own buffer holds whole `Vertex`es: the texture layout writes them one
         // vec4 at a time and binds all of it.
         let vertex_layout = options.output.is_none();
         if vertex_layout {
-            out_size = VERTEX_STRIDE * nr as u64;
+            out_size = VERTEX_STRIDE * nv as u64;
         }
 
         let frame = FrameGpu {
@@ -191,7 +205,8 @@ impl Deformer {
             out_stride: (target.stride / 4) as u32,
             normal_offset: normal_word,
             l_rows: nl as u32,
-            _pad: [0; 3],
+            n_vertices: nv as u32,
+            _pad: [0; 2],
         };
         let shared = Shared {
             half: matches!(
@@ -298,7 +313,7 @@ impl Deformer {
                     Path::Texture(p) => Some(p.positions()),
                     Path::Buffers(_) | Path::Hier(_) => None,
                 },
-                n_rows: nr,
+                n_vertices: nv,
                 max_binding,
             },
             &surface,
@@ -306,7 +321,10 @@ impl Deformer {
 
         let mut d = Deformer {
             n_rows: nr as u32,
+            n_vertices: nv as u32,
             n_cols: nc,
+            extra_cols: 0,
+            extra_drawn: 0,
             l_rows: nl,
             path,
             write_normals: target.normal_offset.is_some(),
@@ -314,12 +332,14 @@ impl Deformer {
             surface,
             normals,
             rest_rows,
+            row_nodes: input.rows.to_vec(),
             out_binding: (out_start, out_size),
             frame,
             vertex_layout,
             max_binding,
             correction: None,
             forces: Vec::with_capacity(MAX_ACTIVE),
+            l_forces: Vec::with_capacity(MAX_ACTIVE),
         };
         d.set_forces(queue, &[])?;
         Ok(d)
@@ -343,21 +363,29 @@ impl Deformer {
                 max: MAX_ACTIVE,
             });
         }
+        let n_cols = self.n_cols + self.extra_cols;
         for &(col, force) in forces {
-            if col as usize >= self.n_cols {
-                return Err(GpuError::ColumnOutOfRange {
-                    col,
-                    n_cols: self.n_cols,
-                });
+            if col as usize >= n_cols {
+                return Err(GpuError::ColumnOutOfRange { col, n_cols });
             }
             if !force.iter().all(|v| v.is_finite()) {
                 return Err(GpuError::NonFiniteForce { col, force });
             }
         }
+        // The extra columns of a grown correction are the correction's alone.
+        let l_forces = if self.extra_cols == 0 {
+            forces
+        } else {
+            self.l_forces.clear();
+            let nc = self.n_cols as u32;
+            self.l_forces
+                .extend(forces.iter().filter(|f| f.0 < nc).copied());
+            &self.l_forces[..]
+        };
         match &mut self.path {
-            Path::Buffers(p) => p.set_forces(queue, forces),
-            Path::Texture(p) => p.set_forces(queue, forces),
-            Path::Hier(p) => p.set_forces(queue, forces),
+            Path::Buffers(p) => p.set_forces(queue, l_forces),
+            Path::Texture(p) => p.set_forces(queue, l_forces),
+            Path::Hier(p) => p.set_forces(queue, l_forces),
         }
         if let Some(c) = &mut self.correction {
             c.set_forces(queue, forces);
@@ -375,10 +403,12 @@ impl Deformer {
     /// [`Compliance::displace`](touchfem_core::compliance::Compliance::displace) of a compliance
     /// that carries `correction`. Uploads `16·R'·rank` bytes, re-allocating only when the rank
     /// outgrows what was allocated; a rank-0 correction that pins nothing costs no dispatch.
+    /// A separating cut's correction needs its body's rest positions:
+    /// [`set_correction_at`](Self::set_correction_at).
     ///
     /// Errors (and then changes nothing): a correction whose sizes do not fit this deformer's
-    /// rows and columns ([`GpuError::BadInput`]), a rank above
-    /// 4,096 or `U` larger than a storage binding
+    /// rows and columns, or one that adds nodes without a row ([`GpuError::BadInput`]), a
+    /// rank above 4,096 or `U` larger than a storage binding
     /// ([`GpuError::BufferTooLarge`]; draw that cut with the CPU's `displace`).
     pub fn set_correction(
         &mut self,
@@ -386,10 +416,62 @@ impl Deformer {
         queue: &wgpu::Queue,
         correction: Option<&Correction>,
     ) -> Result<(), GpuError> {
+        self.carry(device, queue, correction, None)
+    }
+
+    /// [`set_correction`](Self::set_correction) for a cut body whose nodes' rest positions
+    /// are `rest` (by **mesh node**, the copies of split nodes included: e.g.
+    /// `CutBody::rest`), which a separating cut needs:
+    ///
+    /// * the rows whose rest position the cut moved (snapped onto the cut) are drawn from
+    ///   there (`rest[node] + u`);
+    /// * the nodes the correction adds that have no row of `L` ([`Correction::extra`] with no
+    ///   [`Correction::extra_row`]: the copies) are drawn as the vertices reserved after the
+    ///   rows ([`DeformerOptions::extra_vertices`]), `rest + U_x z + w_p(x)`
+    ///   ([`Correction::extra_rows`]); [`row_of`](Self::row_of) gives their vertices, and
+    ///   [`set_triangles`](Self::set_triangles) takes triangles over them;
+    /// * [`set_forces`](Self::set_forces) takes forces on the extra columns (the grown
+    ///   compliance's `n_cols`): they act through the correction alone.
+    ///
+    /// Errors (and then changes nothing): as [`set_correction`](Self::set_correction); a node
+    /// `rest` lacks, or more nodes without a row than [`extra_capacity`](Self::extra_capacity)
+    /// ([`GpuError::BadInput`]).
+    pub fn set_correction_at(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        correction: Option<&Correction>,
+        rest: &[DVec3],
+    ) -> Result<(), GpuError> {
+        self.carry(device, queue, correction, Some(rest))
+    }
+
+    /// How many vertices this deformer reserves for a separating cut's added nodes
+    /// ([`DeformerOptions::extra_vertices`]).
+    pub fn extra_capacity(&self) -> usize {
+        (self.n_vertices - self.n_rows) as usize
+    }
+
+    /// [`set_correction_at`](Self::set_correction_at), `rest` optional.
+    fn carry(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        correction: Option<&Correction>,
+        rest: Option<&[DVec3]>,
+    ) -> Result<(), GpuError> {
+        let nr = self.n_rows as usize;
         let Some(k) = correction else {
             if let Some(c) = &mut self.correction {
-                c.set(device, queue, &Correction::default(), self.max_binding)?;
+                let x = crate::correct::Extras {
+                    of: &[],
+                    rest: &self.rest_rows,
+                    shift: &[],
+                };
+                c.set(device, queue, &Correction::default(), &x, self.max_binding)?;
             }
+            self.surface.set_extras(&[], self.n_rows);
+            (self.extra_cols, self.extra_drawn) = (0, 0);
             return Ok(());
         };
         if matches!(self.path, Path::Hier(_)) {
@@ -400,19 +482,76 @@ impl Deformer {
             ));
         }
         let (nl, nc, r) = (self.l_rows, self.n_cols, k.rank);
+        let ne = k.extra.len();
         if k.rows.len() != 3 * nl * r
             || k.v_cols.len() != 3 * nc * r
+            || k.u_cols.len() != 3 * nc * r
             || k.dead_rows.len() != nl
             || k.dead_cols.len() != nc
+            || k.u_extra.len() != 3 * ne * r
+            || k.v_extra.len() != 3 * ne * r
+            || k.extra_place.len() != ne
+            || k.extra_row.len() != ne
         {
             return Err(GpuError::BadInput(format!(
-                "a correction of rank {r} for {} rows and {} columns does not fit the \
-                 deformer's {nl} rows that hold L and {nc} columns",
+                "a correction of rank {r} for {} rows, {} columns and {ne} extra nodes does \
+                 not fit the deformer's {nl} rows that hold L and {nc} columns",
                 k.dead_rows.len(),
                 k.dead_cols.len()
             )));
         }
-        crate::correct::check_size(nl, r, self.max_binding)?;
+        // The extra nodes without a row, each a reserved vertex.
+        let of: Vec<usize> = (0..ne).filter(|&e| k.extra_row[e] == u32::MAX).collect();
+        if of.len() > self.extra_capacity() {
+            return Err(GpuError::BadInput(format!(
+                "the cut adds {} nodes without a row; the deformer reserves {} vertices for \
+                 them (DeformerOptions::extra_vertices)",
+                of.len(),
+                self.extra_capacity()
+            )));
+        }
+        if let Some(&e) = (of.iter()).find(|&&e| k.extra_place[e].iter().any(|&p| p as usize >= r))
+        {
+            return Err(GpuError::BadInput(format!(
+                "extra node {} has a place beyond the correction's rank {r}",
+                k.extra[e]
+            )));
+        }
+        // Rest positions: the rows' (and how far the cut moved them), the extra vertices'.
+        let mut points = self.rest_rows.clone();
+        let mut shift = Vec::new();
+        match rest {
+            None if !of.is_empty() => {
+                return Err(GpuError::BadInput(
+                    "a correction that adds nodes without a row needs their rest positions \
+                     (Deformer::set_correction_at)"
+                        .into(),
+                ))
+            }
+            None => {}
+            Some(rest) => {
+                let at = |node: u32| {
+                    rest.get(node as usize).copied().ok_or_else(|| {
+                        GpuError::BadInput(format!(
+                            "node {node} has no rest position ({} given)",
+                            rest.len()
+                        ))
+                    })
+                };
+                shift.reserve(nr);
+                for (p, &node) in points.iter_mut().zip(&self.row_nodes) {
+                    let x = at(node)?;
+                    let s = x - DVec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                    shift.push([s.x as f32, s.y as f32, s.z as f32, 0.0]);
+                    *p = [x.x as f32, x.y as f32, x.z as f32, 1.0];
+                }
+                for &e in &of {
+                    let x = at(k.extra[e])?;
+                    points.push([x.x as f32, x.y as f32, x.z as f32, 1.0]);
+                }
+            }
+        }
+        crate::correct::check_size(nl + self.extra_capacity(), r, self.max_binding)?;
         if self.correction.is_none() {
             let (start, size) = self.out_binding;
             let positions = match &self.path {
@@ -426,13 +565,23 @@ impl Deformer {
                     frame: self.frame,
                     vertex_layout: self.vertex_layout,
                     positions,
-                    rest_rows: &self.rest_rows[..nl],
                 },
             );
             self.correction = Some(pass);
         }
         let c = self.correction.as_mut().expect("just made");
-        c.set(device, queue, k, self.max_binding)?;
+        let x = crate::correct::Extras {
+            of: &of,
+            rest: &points,
+            shift: &shift,
+        };
+        c.set(device, queue, k, &x, self.max_binding)?;
+        let drawn: Vec<u32> = of.iter().map(|&e| k.extra[e]).collect();
+        self.surface.set_extras(&drawn, self.n_rows);
+        (self.extra_cols, self.extra_drawn) = (ne, of.len());
+        // The forces kept may name extra columns this correction no longer has.
+        let n = (nc + ne) as u32;
+        self.forces.retain(|f| f.0 < n);
         c.set_forces(queue, &self.forces);
         Ok(())
     }
@@ -465,7 +614,8 @@ impl Deformer {
         self.surface.generation()
     }
 
-    /// The vertex (row) index of mesh node `node`, if it is displayed.
+    /// The vertex index of mesh node `node`, if it is drawn: its row, or the extra vertex of
+    /// a node a separating cut added ([`set_correction_at`](Self::set_correction_at)).
     pub fn row_of(&self, node: u32) -> Option<u32> {
         self.surface.row_of(node)
     }
@@ -489,7 +639,7 @@ impl Deformer {
             c.record(&mut pass);
         }
         if self.write_normals {
-            self.normals.record(&mut pass, self.n_rows);
+            self.normals.record(&mut pass, self.n_vertices);
         }
     }
 
@@ -522,9 +672,16 @@ impl Deformer {
         self.surface.triangles()
     }
 
-    /// Number of displayed vertices R.
+    /// Number of displayed rows R: the vertices `0..R`. A separating cut's added nodes are
+    /// drawn as the vertices after them ([`extra_vertex_count`](Self::extra_vertex_count)).
     pub fn vertex_count(&self) -> u32 {
         self.n_rows
+    }
+
+    /// How many vertices after the rows the correction carried draws (the nodes a separating
+    /// cut added without a row; [`set_correction_at`](Self::set_correction_at)).
+    pub fn extra_vertex_count(&self) -> u32 {
+        self.extra_drawn as u32
     }
 
     /// What the deformer holds and how it runs: its layout of `L`, chunks and bytes, the last
@@ -574,8 +731,9 @@ impl Deformer {
         }
     }
 
-    /// Reads the vertices back (waits for the GPU): positions, and normals if written. The
-    /// output buffer needs `COPY_SRC`. For tests and tools, not for the frame loop.
+    /// Reads the vertices back (waits for the GPU): positions, and normals if written, of the
+    /// rows and then the extra vertices in use ([`extra_vertex_count`](Self::extra_vertex_count)).
+    /// The output buffer needs `COPY_SRC`. For tests and tools, not for the frame loop.
     #[allow(clippy::type_complexity)]
     pub fn read_back(
         &self,
@@ -586,7 +744,7 @@ impl Deformer {
         if !t.buffer.usage().contains(wgpu::BufferUsages::COPY_SRC) {
             return Err(crate::context::ReadbackError::NotCopySource.into_gpu());
         }
-        let n = u64::from(self.n_rows);
+        let n = u64::from(self.n_rows) + self.extra_drawn as u64;
         let end = t.offset + (n - 1) * t.stride + t.normal_offset.unwrap_or(0) + 12;
         let start = t.offset & !3;
         let bytes =
@@ -645,10 +803,12 @@ pub struct DeformerStats {
 /// Puts a cut body on `deformer`, which was built from `uploaded`: `L` again (a new
 /// [`Deformer`] with `options`, its nodes at `rest`, the body's rest positions of every node)
 /// when the body's `compliance` does not hold the `L` uploaded ([`Compliance::shares_l`]: a
-/// cut folded into a new `L`), then its correction and its opened surface `triangles` (node
-/// triples). Triangles whose nodes are not displayed rows (a cut beyond the `cuttable`
-/// region's nodes, or a separating cut's copies before a fold makes them rows) are left out
-/// with a warning. The caller rebuilds what it derived from the deformer's triangles (its
+/// cut folded into a new `L`), or when the deformer reserves too few vertices for the nodes a
+/// separating cut added (then with twice the room needed); then its correction
+/// ([`Deformer::set_correction_at`]: the snapped rows moved, the copies drawn) and its opened
+/// surface `triangles` (node triples). Triangles whose nodes are neither displayed rows nor
+/// nodes the correction added (a cut beyond the `cuttable` region's nodes) are left out with
+/// a warning. The caller rebuilds what it derived from the deformer's triangles (its
 /// wireframe). On an error the deformer may hold part of the body: draw from the CPU's
 /// `displace` then.
 #[allow(clippy::too_many_arguments)]
@@ -662,12 +822,27 @@ pub fn install_cut(
     rest: &[DVec3],
     options: &DeformerOptions,
 ) -> Result<(), GpuError> {
-    let (drawn, left_out): (Vec<[u32; 3]>, Vec<[u32; 3]>) = triangles.iter().partition(|t| {
-        (t.iter()).all(|&v| compliance.row_of(v).is_some() && (v as usize) < rest.len())
+    let k = compliance.correction();
+    let added = k.map_or(0, |k| {
+        (k.extra_row.iter()).filter(|&&r| r == u32::MAX).count()
     });
-    if !compliance.shares_l(uploaded) {
-        log::info!("a cut body holds a new L; uploading it");
-        *deformer = Deformer::new(device, queue, compliance, rest, &drawn, options)?;
+    let drawable = |v: u32| {
+        (v as usize) < rest.len()
+            && (compliance.row_of(v).is_some()
+                || k.is_some_and(|k| k.extra.binary_search(&v).is_ok()))
+    };
+    let (drawn, left_out): (Vec<[u32; 3]>, Vec<[u32; 3]>) = triangles
+        .iter()
+        .partition(|t| t.iter().all(|&v| drawable(v)));
+    if !compliance.shares_l(uploaded) || added > deformer.extra_capacity() {
+        log::info!("a cut body holds a new L, or adds more nodes than reserved; uploading L");
+        let mut options = options.clone();
+        options.extra_vertices = options.extra_vertices.max(2 * added);
+        let rows: Vec<[u32; 3]> = (drawn.iter())
+            .filter(|t| t.iter().all(|&v| compliance.row_of(v).is_some()))
+            .copied()
+            .collect();
+        *deformer = Deformer::new(device, queue, compliance, rest, &rows, &options)?;
     }
     if !left_out.is_empty() {
         log::warn!(
@@ -677,8 +852,8 @@ pub fn install_cut(
             triangles.len()
         );
     }
-    deformer.set_triangles(device, queue, &drawn)?;
-    deformer.set_correction(device, queue, compliance.correction())
+    deformer.set_correction_at(device, queue, k, rest)?;
+    deformer.set_triangles(device, queue, &drawn)
 }
 
 /// Checks an output target; returns (binding start, binding size, word offset of vertex 0

@@ -264,6 +264,12 @@ pub struct DeformerOptions {
     /// [`wgpu::Features::IMMEDIATES`] (the texture layout uses them by default; see
     /// [`DeformerStats::uses_immediates`](crate::DeformerStats::uses_immediates)).
     pub no_immediates: bool,
+    /// Vertices reserved after the displayed rows for the nodes a separating cut adds (the
+    /// copies of split nodes, and exposed nodes that are not displayed rows): a grown
+    /// correction ([`Deformer::set_correction_at`](crate::Deformer::set_correction_at)) draws
+    /// up to this many. The vertex buffer holds `rows + extra_vertices` vertices (an
+    /// [`OutputTarget`] must too). 0 (the default): none.
+    pub extra_vertices: usize,
 }
 
 /// The fixed part of the pass parameters (`shaders/frame.wgsl`'s `Frame`), shared by the
@@ -277,7 +283,9 @@ pub(crate) struct FrameGpu {
     pub normal_offset: u32,
     /// Rows that hold `L` (the first ones; the others stay at rest).
     pub l_rows: u32,
-    pub _pad: [u32; 3],
+    /// Vertices the normal pass shades: the rows and the reserved extra vertices.
+    pub n_vertices: u32,
+    pub _pad: [u32; 2],
 }
 
 /// What [`Deformer::new`] hands to a layout: validated input, in row indices.

@@ -84,11 +84,11 @@ pub(crate) fn deform_texture_source(immediates: bool, vertex_layout: bool, half:
 pub(crate) const CORRECT_WGSL: &str = include_str!("../../../shaders/correct.wgsl");
 
 /// The complete correction shader: [`CORRECT_WGSL`] after [`FRAME_WGSL`], with `store_texture` storing each corrected
-/// position into the texture layout's deformed-position texture (`positions`, binding 6, read by
+/// position into the texture layout's deformed-position texture (`positions`, binding 8, read by
 /// its normal pass) or doing nothing (the storage-buffer layout's normals read `out`).
 pub(crate) fn correct_source(positions: bool) -> String {
     let store = if positions {
-        "@group(0) @binding(6) var pos_out: texture_storage_2d<rgba32float, write>;\n\n\
+        "@group(0) @binding(8) var pos_out: texture_storage_2d<rgba32float, write>;\n\n\
          fn store_texture(r: u32, p: vec3<f32>) {\n\
          \x20   textureStore(pos_out, vec2<u32>(r & 1023u, r >> 10u), vec4<f32>(p, 1.0));\n\
          }\n"

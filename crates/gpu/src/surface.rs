@@ -33,6 +33,8 @@ pub(crate) struct Surface {
     smooth: u32,
     /// Bumped by each [`set_triangles`](Self::set_triangles).
     generation: u64,
+    /// The mesh nodes mapped to extra vertices ([`set_extras`](Self::set_extras)).
+    extras: Vec<u32>,
 }
 
 impl Surface {
@@ -67,6 +69,7 @@ impl Surface {
             index_words,
             smooth: n_smooth,
             generation: 0,
+            extras: Vec::new(),
         })
     }
 
@@ -92,7 +95,27 @@ impl Surface {
         Ok(())
     }
 
-    /// The vertex (row) index of mesh node `node`, if it is displayed.
+    /// Maps `nodes` (without a row) to the vertices `base..` after the rows, in order,
+    /// instead of the nodes mapped before; the triangles stay until
+    /// [`set_triangles`](Self::set_triangles).
+    pub(crate) fn set_extras(&mut self, nodes: &[u32], base: u32) {
+        for &n in &self.extras {
+            self.row_of[n as usize] = u32::MAX;
+        }
+        self.extras.clear();
+        for (k, &n) in nodes.iter().enumerate() {
+            let n = n as usize;
+            if n >= self.row_of.len() {
+                self.row_of.resize(n + 1, u32::MAX);
+            }
+            if self.row_of[n] == u32::MAX {
+                self.row_of[n] = base + k as u32;
+                self.extras.push(n as u32);
+            }
+        }
+    }
+
+    /// The vertex index of mesh node `node`: its row, or its extra vertex.
     pub(crate) fn row_of(&self, node: u32) -> Option<u32> {
         self.row_of
             .get(node as usize)
@@ -134,7 +157,7 @@ pub(crate) struct NormalsIo<'a> {
     pub frame: &'a wgpu::Buffer,
     pub out: (&'a wgpu::Buffer, u64, u64),
     pub positions: Option<&'a wgpu::TextureView>,
-    pub n_rows: usize,
+    pub n_vertices: usize,
     pub max_binding: u64,
 }
 
@@ -155,7 +178,7 @@ pub(crate) struct BufferNormals {
     pipeline: wgpu::ComputePipeline,
     frame: wgpu::Buffer,
     out: (wgpu::Buffer, u64, u64),
-    n_rows: usize,
+    n_vertices: usize,
     max_binding: u64,
 }
 
@@ -167,7 +190,7 @@ pub(crate) struct TextureNormals {
     frame: wgpu::Buffer,
     out: (wgpu::Buffer, u64, u64),
     positions: wgpu::TextureView,
-    n_rows: usize,
+    n_vertices: usize,
 }
 
 impl NormalPass {
@@ -193,7 +216,7 @@ impl NormalPass {
                     ],
                 });
                 let adj = checked_adjacency(
-                    io.n_rows,
+                    io.n_vertices,
                     surface.triangles(),
                     surface.index().1,
                     io.max_binding,
@@ -205,7 +228,7 @@ impl NormalPass {
                     group,
                     frame: io.frame.clone(),
                     out,
-                    n_rows: io.n_rows,
+                    n_vertices: io.n_vertices,
                     max_binding: io.max_binding,
                 }))
             }
@@ -229,7 +252,7 @@ impl NormalPass {
                         ),
                     ],
                 });
-                let fans = fan_texture(device, queue, io.n_rows, surface.triangles())?;
+                let fans = fan_texture(device, queue, io.n_vertices, surface.triangles())?;
                 let group = texture_group(device, &layout, io.frame, &out, positions, &fans);
                 Ok(NormalPass::Texture(TextureNormals {
                     pipeline: compute_pipeline(device, io.module, "normals", &[&layout], 0),
@@ -238,7 +261,7 @@ impl NormalPass {
                     frame: io.frame.clone(),
                     out,
                     positions: positions.clone(),
-                    n_rows: io.n_rows,
+                    n_vertices: io.n_vertices,
                 }))
             }
         }
@@ -256,11 +279,11 @@ impl NormalPass {
     ) -> Result<(), GpuError> {
         match self {
             NormalPass::Buffers(p) => {
-                let adj = checked_adjacency(p.n_rows, tris, index.1, p.max_binding)?;
+                let adj = checked_adjacency(p.n_vertices, tris, index.1, p.max_binding)?;
                 p.group = buffer_group(device, &p.layout, &p.frame, &p.out, index, &adj);
             }
             NormalPass::Texture(p) => {
-                let fans = fan_texture(device, queue, p.n_rows, tris)?;
+                let fans = fan_texture(device, queue, p.n_vertices, tris)?;
                 p.group = texture_group(device, &p.layout, &p.frame, &p.out, &p.positions, &fans);
             }
         }
@@ -268,14 +291,14 @@ impl NormalPass {
     }
 
     /// Records the normal pass (one dispatch, a thread a vertex).
-    pub(crate) fn record(&self, pass: &mut wgpu::ComputePass<'_>, n_rows: u32) {
+    pub(crate) fn record(&self, pass: &mut wgpu::ComputePass<'_>, n_vertices: u32) {
         let (pipeline, group) = match self {
             NormalPass::Buffers(p) => (&p.pipeline, &p.group),
             NormalPass::Texture(p) => (&p.pipeline, &p.group),
         };
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, group, &[]);
-        pass.dispatch_workgroups(n_rows.div_ceil(WORKGROUP), 1, 1);
+        pass.dispatch_workgroups(n_vertices.div_ceil(WORKGROUP), 1, 1);
     }
 }
 

@@ -38,7 +38,7 @@ struct FrameGpu {
     log_h: u32,
     n_active: u32,
     l_rows: u32,
-    _pad: u32,
+    n_vertices: u32,
 }
 
 /// Byte offset of `n_active` in [`FrameGpu`].
@@ -138,7 +138,8 @@ impl TexturePath {
         let rgba = wgpu::TextureFormat::Rgba32Float;
         let rest_bytes: &[u8] = bytemuck::cast_slice(sh.rest_rows);
         let rest = texture_2d("touchfem rest positions", rgba, tb, nr, rest_bytes)?;
-        let pos = texture_2d("touchfem deformed positions", rgba, tb, nr, rest_bytes)?;
+        let nv = u64::from(sh.frame.n_vertices);
+        let pos = texture_2d("touchfem deformed positions", rgba, tb, nv, rest_bytes)?;
 
         // L: texel t = (3c + b)·R + r, W texels a row, 2^log_h rows a layer; four f32 (16
         // bytes) or, with half floats, four f16 (8 bytes) a texel.
@@ -253,7 +254,7 @@ impl TexturePath {
             log_h,
             n_active: 0,
             l_rows: sh.frame.l_rows,
-            _pad: 0,
+            n_vertices: sh.frame.n_vertices,
         };
         let frame_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("touchfem frame"),
