@@ -94,7 +94,11 @@ pub struct IncisionRun {
 
 /// See [`IncisionRun`]; every force is checked finite and within the bound on the way.
 pub fn run_incision(fold_rank: usize) -> IncisionRun {
-    run_incision_in(fold_rank, touchfem::runtime::cutting::FoldMode::Deferred)
+    run_incision_in(
+        fold_rank,
+        touchfem::runtime::cutting::FoldMode::Deferred,
+        touchfem::runtime::cutting::CutMode::Remove,
+    )
 }
 
 /// A cutter's passes as its thread makes them, synchronously: the folds finished since the
@@ -152,10 +156,11 @@ impl CutPasses {
     }
 }
 
-/// [`run_incision`] with the cutter folding in `mode`.
+/// [`run_incision`] with the cutter folding in `mode` and its blade cutting as `cut` says.
 pub fn run_incision_in(
     fold_rank: usize,
     mode: touchfem::runtime::cutting::FoldMode,
+    cut: touchfem::runtime::cutting::CutMode,
 ) -> IncisionRun {
     use glam::DVec3;
     use touchfem::runtime::cutting::Cutter;
@@ -182,6 +187,7 @@ pub fn run_incision_in(
     let mut cutter = Cutter::new(&world).unwrap();
     cutter.set_fold_rank(fold_rank);
     cutter.set_fold_mode(mode);
+    cutter.set_cut_mode(cut);
     let mut passes = CutPasses::default();
     let bound = world.haptics.max_force_n;
     let (sample, before, after, body) = {

@@ -373,7 +373,8 @@ fn presses_beside_a_cut_stay_passive_through_the_coupling_and_the_bound() {
             .map(|e| e - cut.work[2000])
             .fold(f64::NEG_INFINITY, f64::max);
         eprintln!(
-            "beside a cut ({} tets), {}: p-p {late:.2e} m, energy growth {grow:.2e} J, max F {:.3} N (uncut {:.3} N)",
+            "beside a cut ({} copies, {} tets), {}: p-p {late:.2e} m, energy growth {grow:.2e} J, max F {:.3} N (uncut {:.3} N)",
+            body.nodes_split,
             body.tets_removed,
             if tool.is_empty() { "point" } else { "fingertip" },
             cut.max_force,

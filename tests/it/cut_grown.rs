@@ -302,8 +302,7 @@ fn top_stroke(a: [f64; 2], b: [f64; 2], depth: f64) -> touchfem::runtime::cuttin
 #[test]
 fn a_separating_cutter_hands_the_haptic_path_a_slit_that_a_recompute_agrees_with() {
     use touchfem::contact::GodObject;
-    use touchfem::cut::BladeQuad;
-    use touchfem::runtime::cutting::{CutMode, Cutter};
+    use touchfem::runtime::cutting::{blade_quads, mean_edge, CutMode, Cutter, Stroke};
     let world = cuttable_cube();
     let mesh = world.objects[0].body.mesh.clone();
     let mut cutter = Cutter::new(&world).unwrap();
@@ -334,9 +333,16 @@ fn a_separating_cutter_hands_the_haptic_path_a_slit_that_a_recompute_agrees_with
         }
     }
     // The same blade by hand on a cut of its own: the same separated body.
+    // (The cutter's quads for the joined chord: reaching out of the body and down to the
+    // nearest layer of nodes, `blade_quads`.)
     let mut cut = Cut::new(&mesh).unwrap();
-    let quad = BladeQuad::new(strokes[0].from, strokes[1].to, DVec3::NEG_Z, 12e-3).unwrap();
-    cut.split(&mesh, &[quad]).unwrap();
+    let chord = Stroke {
+        to: strokes[1].to,
+        ..strokes[0]
+    };
+    let quads = blade_quads(&[chord], mean_edge(&mesh));
+    assert_eq!(quads.len(), 1);
+    cut.split(&mesh, &quads).unwrap();
     assert_eq!(cut.nodes(), &body.rest[..]);
     // Its compliance at the copies against a recompute (independent assembly and factor).
     let c = &world.objects[0].body.compliance;

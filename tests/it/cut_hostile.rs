@@ -181,71 +181,87 @@ fn fuzzed_separating_blades_on_the_cube_stay_finite_and_bounded() {
 #[test]
 fn a_cut_along_the_clamp_and_one_that_cuts_a_piece_off_leave_the_rest_touchable() {
     let world = scene("cube", "6.0").unwrap();
-    let mut cutter = Cutter::new(&world).unwrap();
-    let mut hw = HapticWorld::new(&world);
     let mm = |x: f64, y: f64, z: f64| DVec3::new(x, y, z) * 1e-3;
     let far = mm(15.0, 15.0, 100.0);
-    let mut t = Tally::default();
-    // Along the clamp: the blade enters the side face y = 0 at z = 1 mm (the clamp is z = 0)
-    // and is drawn along x, 6 mm deep into the cube.
-    let mut xs: Vec<[DVec3; 2]> = vec![[mm(1.0, -2.0, 1.0), far]];
-    xs.extend((0..=56).map(|k| [mm(1.0 + 0.5 * k as f64, 0.5, 1.0), far]));
-    xs.push([mm(29.0, -20.0, 1.0), far]);
-    drive(&world, &mut cutter, &mut hw, &xs, 5, &mut t);
-    let along_clamp = t.tets_removed;
-    assert!(along_clamp > 0, "{t:?}");
-    // Then the top corner block cut off: two cuts 6 mm deep down the faces x = 6 and y = 6
-    // from the top... each drawn across the whole top, with the same blade.
-    for path in [
-        (0..=40)
-            .map(|k| [mm(6.0, 0.75 * k as f64, 29.8), far])
-            .collect::<Vec<_>>(),
-        (0..=40)
-            .map(|k| [mm(0.75 * k as f64, 6.0, 29.8), far])
-            .collect(),
-    ] {
-        let mut xs = path;
-        xs.push([mm(15.0, 15.0, 100.0), far]);
+    for mode in [CutMode::Remove, CutMode::Separate] {
+        let mut cutter = Cutter::new(&world).unwrap();
+        cutter.set_cut_mode(mode);
+        let mut hw = HapticWorld::new(&world);
+        let mut t = Tally::default();
+        // Along the clamp: the blade enters the side face y = 0 at z = 1 mm (the clamp is
+        // z = 0) and is drawn along x, 6 mm deep into the cube.
+        let mut xs: Vec<[DVec3; 2]> = vec![[mm(1.0, -2.0, 1.0), far]];
+        xs.extend((0..=56).map(|k| [mm(1.0 + 0.5 * k as f64, 0.5, 1.0), far]));
+        xs.push([mm(29.0, -20.0, 1.0), far]);
         drive(&world, &mut cutter, &mut hw, &xs, 5, &mut t);
+        let along_clamp = (t.tets_removed, t.copies);
+        match mode {
+            CutMode::Remove => assert!(along_clamp.0 > 0, "{t:?}"),
+            // A cut 1 mm above the clamp, in a mesh of 7.5 mm cells, separates nothing: the
+            // clamped nodes may not leave the clamp's plane, the others are more than half an
+            // edge away. It changes nothing, and errs nowhere.
+            CutMode::Separate => assert_eq!(along_clamp, (0, 0), "{t:?}"),
+        }
+        // Then two blade paths 0.2 mm under the top along x = 6 and y = 6, each drawn across
+        // the whole top, with the same blade.
+        for path in [
+            (0..=40)
+                .map(|k| [mm(6.0, 0.75 * k as f64, 29.8), far])
+                .collect::<Vec<_>>(),
+            (0..=40)
+                .map(|k| [mm(0.75 * k as f64, 6.0, 29.8), far])
+                .collect(),
+        ] {
+            let mut xs = path;
+            xs.push([mm(15.0, 15.0, 100.0), far]);
+            drive(&world, &mut cutter, &mut hw, &xs, 5, &mut t);
+        }
+        eprintln!("{mode:?}: clamp {along_clamp:?}; then {t:?}");
+        // Pressing the cube's top centre after all of that: a finite, non-zero force.
+        let press: Vec<[DVec3; 2]> = (0..=300)
+            .map(|k| {
+                [
+                    mm(15.0, -20.0, 100.0),
+                    mm(20.0, 20.0, 34.0 - 7.0 * (k as f64 / 300.0)),
+                ]
+            })
+            .collect();
+        let mut sample = WorldSample::default();
+        let mut f = [DVec3::ZERO; 2];
+        for x in &press {
+            hw.step(x, &mut f, &mut sample);
+            assert!(f.iter().all(|v| v.is_finite() && v.length() <= 8.5 + 1e-12));
+        }
+        assert!(f[1].length() > 0.01, "{}", f[1]);
     }
-    eprintln!("clamp {along_clamp} tets; then {t:?}");
-    // Pressing the cube's top centre after all of that: a finite, non-zero force.
-    let press: Vec<[DVec3; 2]> = (0..=300)
-        .map(|k| {
-            [
-                mm(15.0, -20.0, 100.0),
-                mm(20.0, 20.0, 34.0 - 7.0 * (k as f64 / 300.0)),
-            ]
-        })
-        .collect();
-    let mut sample = WorldSample::default();
-    let mut f = [DVec3::ZERO; 2];
-    for x in &press {
-        hw.step(x, &mut f, &mut sample);
-
-        assert!(f.iter().all(|v| v.is_finite() && v.length() <= 8.5 + 1e-12));
-    }
-    assert!(f[1].length() > 0.01, "{}", f[1]);
 }
 
 #[test]
 fn a_blade_that_starts_inside_engages_where_it_is_and_cuts() {
     let world = scene("cube", "4.0").unwrap();
-    let mut cutter = Cutter::new(&world).unwrap();
-    let mut hw = HapticWorld::new(&world);
     let mm = |x: f64, y: f64, z: f64| DVec3::new(x, y, z) * 1e-3;
     let far = mm(15.0, 15.0, 100.0);
-    // The blade appears 2 mm under the top face and is drawn across it. (Not along y = 15
-    // mm: that is a plane of the cube's faces, which no tet crosses, so a blade drawn exactly
-    // in it removes nothing.)
+    // The blade appears 2 mm under the top face and is drawn across it, a pass every 5 ticks
+    // (0.5 mm a tick). (Not along y = 15 mm: that is a plane of the cube's faces, which no tet
+    // crosses, so a blade drawn exactly in it removes nothing.)
     let xs: Vec<[DVec3; 2]> = (0..=40)
         .map(|k| [mm(5.0 + 0.5 * k as f64, 14.0, 28.0), far])
         .collect();
-    let mut t = Tally::default();
-    drive(&world, &mut cutter, &mut hw, &xs, 5, &mut t);
-    eprintln!("started inside: {t:?}");
-    assert!(t.strokes >= 30, "{t:?}");
-    assert!(t.tets_removed > 0, "{t:?}");
+    for mode in [CutMode::Remove, CutMode::Separate] {
+        let mut cutter = Cutter::new(&world).unwrap();
+        cutter.set_cut_mode(mode);
+        let mut hw = HapticWorld::new(&world);
+        let mut t = Tally::default();
+        drive(&world, &mut cutter, &mut hw, &xs, 5, &mut t);
+        eprintln!("started inside, {mode:?}: {t:?}");
+        assert!(t.strokes >= 30, "{t:?}");
+        match mode {
+            CutMode::Remove => assert!(t.tets_removed > 0, "{t:?}"),
+            // Its 2.5 mm chords, each shorter than the cube's 7.5 mm cells, part the top face
+            // between them: the node mid-way along the slit's top edge gets its copy.
+            CutMode::Separate => assert!(t.copies >= 1 && t.tets_removed == 0, "{t:?}"),
+        }
+    }
 }
 
 #[test]

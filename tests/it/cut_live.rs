@@ -140,13 +140,19 @@ fn cutting_folding_and_cutting_again_reads_a_full_recompute() {
 
 #[test]
 fn a_cutter_that_folds_feels_what_one_that_carries_feels() {
-    // The incision with the cutter folding whenever the rank reaches 60 (several folds) and
+    // The incision (blades that remove) with the cutter folding whenever the rank reaches 60 (several folds) and
     // with no fold: the press after the cut and every block read the same to round-off.
     // Deferred (the default: each fold adopted a pass after its snapshot, that pass's cuts
     // made again on the folded L) and inline.
-    let (_, carried_f, carried) = incision_folding_at(usize::MAX);
-    let (_, folded_f, folded) = incision_folding_at(60);
-    let inline = crate::common::run_incision_in(60, touchfem::runtime::cutting::FoldMode::Inline);
+    // (Blades that remove; `cut_grown.rs` has a separating cutter's folds.)
+    use touchfem::runtime::cutting::{CutMode, FoldMode};
+    let removing =
+        |fold_rank, mode| crate::common::run_incision_in(fold_rank, mode, CutMode::Remove);
+    let run = removing(usize::MAX, FoldMode::Deferred);
+    let (carried_f, carried) = (run.after, run.body);
+    let run = removing(60, FoldMode::Deferred);
+    let (folded_f, folded) = (run.after, run.body);
+    let inline = removing(60, FoldMode::Inline);
     let e_inline = (carried_f - inline.after).length() / carried_f.length();
     eprintln!(
         "inline: {} folds, press {} ({e_inline:.1e})",
@@ -282,7 +288,10 @@ fn a_blade_opens_the_body_and_the_haptic_path_reads_the_cut_from_the_next_tick()
     use touchfem::runtime::{HapticWorld, WorldSample};
     let w = crate::common::world_from_text(CUT_SCENE).unwrap();
     let bound = w.haptics.max_force_n;
+    // (A blade that removes: the press is checked against a recompute of the remaining tets
+    // below; a separating blade's against its recompute is `cut_grown.rs`'s.)
     let mut cutter = Cutter::new(&w).unwrap();
+    cutter.set_cut_mode(touchfem::runtime::cutting::CutMode::Remove);
     let mut hw = HapticWorld::new(&w);
     let mut sample = WorldSample::default();
     let away = mm(15.0, 15.0, 60.0);
@@ -376,18 +385,7 @@ fn incision_through_the_haptic_path() -> (
     DVec3,
     std::sync::Arc<touchfem::runtime::cutting::CutBody>,
 ) {
-    incision_folding_at(usize::MAX)
-}
-
-/// [`incision_through_the_haptic_path`] with the cutter folding at `fold_rank`.
-fn incision_folding_at(
-    fold_rank: usize,
-) -> (
-    DVec3,
-    DVec3,
-    std::sync::Arc<touchfem::runtime::cutting::CutBody>,
-) {
-    let run = crate::common::run_incision(fold_rank);
+    let run = crate::common::run_incision(usize::MAX);
     (run.before, run.after, run.body)
 }
 
@@ -404,6 +402,71 @@ fn the_incision_scene_opens_a_cut_and_the_same_press_beside_it_needs_less_force(
         after.length() < 0.95 * before.length(),
         "{after} against {before}"
     );
+    // The same incision with a blade that separates (`CutMode::Separate`): copies of the
+    // nodes along its path, slivers dropped. A closed slit barely changes a press beside it
+    // that does not part its lips (their opening under a press that spreads them is
+    // `the_lips_of_a_cut_open…`).
+    let run = crate::common::run_incision_in(
+        usize::MAX,
+        touchfem::runtime::cutting::FoldMode::Deferred,
+        touchfem::runtime::cutting::CutMode::Separate,
+    );
+    let b = &run.body;
+    eprintln!(
+        "incision, separating: {} copies, {} slivers, rank {}; press before {}, after {}",
+        b.nodes_split, b.tets_removed, b.report.rank, run.before, run.after
+    );
+    assert!(b.nodes_split > 10, "{}", b.nodes_split);
+    assert!(b.tets_removed <= 3 * b.nodes_split, "{}", b.tets_removed);
+    assert!(
+        (run.after - run.before).length() < 0.02 * run.before.length(),
+        "{} against {}",
+        run.after,
+        run.before
+    );
+}
+
+#[test]
+fn a_recorded_separating_incision_is_version_5_and_replays_bit_for_bit() {
+    // `TOUCHFEM_CUT=separate`: the live cutter's blade separates the mouse's back; its session
+    // is version 5 and replays (the cuts rebuilt from their chords, the trails of the blade
+    // included) bit for bit.
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("incision.tfsession");
+    let report = dir.path().join("report.json");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
+        .args(["demo", "incision", "--seconds", "6", "--out"])
+        .arg(dir.path().join("out"))
+        .arg("--record")
+        .arg(&rec)
+        .arg("--report")
+        .arg(&report)
+        .env("TOUCHFEM_CUT", "separate")
+        .env(
+            "WGPU_BACKEND",
+            std::env::var("WGPU_BACKEND").unwrap_or("vulkan".into()),
+        )
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    let cuts = &r["objects"][0]["cuts"];
+    eprintln!("separating incision: {cuts}");
+    // Copies, and no tet removed but slivers (a few per copy).
+    let split = cuts["nodes_split"].as_u64().unwrap();
+    assert!(split >= 1, "{cuts}");
+    assert!(
+        cuts["tets_removed"].as_u64().unwrap() <= 3 * split,
+        "{cuts}"
+    );
+    let s = touchfem::runtime::session::read(&rec).unwrap();
+    assert_eq!(s.header.version, 5);
+    assert!(!s.cuts.is_empty());
+    let w = touchfem::runtime::session::world(&s, "test").unwrap();
+    let rep = touchfem::runtime::session::replay(&w, &s).unwrap();
+    assert_eq!(rep.max_force_diff_n, 0.0, "{rep:?}");
+    assert_eq!(rep.ticks, s.ticks.len());
 }
 
 #[test]
@@ -563,23 +626,23 @@ path = [[0.0, 15.0, 11.25, 40.0]]
         .collect::<std::collections::BTreeSet<u32>>()
         .into_iter()
         .chain(on_cube.iter().copied().filter(|&v| {
-            let p = mesh.nodes[v as usize];
+            let p = body.rest[v as usize];
             (p.z - 0.03).abs() < 1e-9 && (p.y - 0.0075).abs() < 1e-9 || (p.y - 0.015).abs() < 1e-9
         }))
         .filter(|&v| {
-            let p = mesh.nodes[v as usize];
+            let p = body.rest[v as usize];
             p.z > 0.02 && p.x > 0.004 && p.x < 0.026 && body.compliance.row_of(v).is_some()
         })
         .collect();
     let left: Vec<u32> = lips
         .iter()
         .copied()
-        .filter(|&v| mesh.nodes[v as usize].y < 0.0113)
+        .filter(|&v| body.rest[v as usize].y < 0.0113)
         .collect();
     let right: Vec<u32> = lips
         .iter()
         .copied()
-        .filter(|&v| mesh.nodes[v as usize].y > 0.0113)
+        .filter(|&v| body.rest[v as usize].y > 0.0113)
         .collect();
     assert!(!left.is_empty() && !right.is_empty(), "{left:?} {right:?}");
     // The same press on the cut cube and on the uncut one.

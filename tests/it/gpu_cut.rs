@@ -248,24 +248,39 @@ struct Incision {
     removed: Vec<bool>,
 }
 
+/// The incision, its correction carried whole (not folded): what the GPU pass is tested on.
+/// Its blade separates the material (the default).
 fn incision() -> &'static Incision {
     static I: OnceLock<Incision> = OnceLock::new();
-    I.get_or_init(|| {
-        // The correction carried whole (rank 357), not folded: what the GPU pass is tested on.
-        let run = crate::common::run_incision(usize::MAX);
-        Incision {
-            world: run.world,
-            sample: run.sample,
-            body: run.body,
-            removed: run.removed,
-        }
-    })
+    I.get_or_init(|| incision_as(touchfem::runtime::cutting::CutMode::Separate))
+}
+
+/// [`incision`] with a blade that removes the tets it sweeps (rank 357).
+fn incision_removing() -> &'static Incision {
+    static I: OnceLock<Incision> = OnceLock::new();
+    I.get_or_init(|| incision_as(touchfem::runtime::cutting::CutMode::Remove))
+}
+
+fn incision_as(cut: touchfem::runtime::cutting::CutMode) -> Incision {
+    let run = crate::common::run_incision_in(
+        usize::MAX,
+        touchfem::runtime::cutting::FoldMode::Deferred,
+        cut,
+    );
+    Incision {
+        world: run.world,
+        sample: run.sample,
+        body: run.body,
+        removed: run.removed,
+    }
 }
 
 #[test]
 fn the_opened_incision_is_drawn_with_outward_normals() {
+    // (A blade that removes: its faces are the remaining tets'. A separating blade's copies
+    // are drawn in `gpu_split.rs`.)
     let g = gpu();
-    let inc = incision();
+    let inc = incision_removing();
     let obj = &inc.world.objects[0];
     let (mesh, base) = (&obj.body.mesh, &obj.body.compliance);
     let body = &inc.body;
@@ -352,10 +367,14 @@ fn the_opened_incision_is_drawn_with_outward_normals() {
 /// The incision's frame at t = 6 s through the visual path: uncut, or following a feed that
 /// holds the cut body. Returns the image and the camera.
 fn incision_frame(cut: bool) -> (image::RgbaImage, touchfem::render::Camera) {
+    incision_frame_of(incision_removing(), cut)
+}
+
+/// [`incision_frame`] of `inc`.
+fn incision_frame_of(inc: &Incision, cut: bool) -> (image::RgbaImage, touchfem::render::Camera) {
     use touchfem::render::{Camera, Coloring, Edges, Frame, FrameObject, Renderer};
     use touchfem_app::visual::{frame_objects, SampleMarks, Visual};
     let g = gpu();
-    let inc = incision();
     let w = &inc.world;
     let mut visual = Visual::new(w, Some(g));
     if cut {
@@ -423,6 +442,35 @@ fn golden_incision_open() {
     let (open, camera) = incision_frame(true);
     let (uncut, _) = incision_frame(false);
     crate::golden::check_golden("incision_open", &open);
+    let in_cut = line_differs(&open, &uncut, &camera);
+    assert!(in_cut.0 > 0.3, "{in_cut:?}");
+}
+
+/// `golden/incision_separated.png`: the incision after a blade that separates the material
+/// (`CutMode::Separate`), through the visual path (the copies drawn as the deformer's extra
+/// vertices), the fingertip pressing beside it.
+#[test]
+fn golden_incision_separated() {
+    let (open, camera) = incision_frame_of(incision(), true);
+    let (uncut, _) = incision_frame_of(incision(), false);
+    crate::golden::check_golden("incision_separated", &open);
+    // A closed slit, whose lips part only where pressed: the line shows where the cut's faces
+    // meet the surface; away from it the frame is the uncut one.
+    let (in_cut, elsewhere) = line_differs(&open, &uncut, &camera);
+    assert!(
+        in_cut > 0.02 && in_cut > 3.0 * elsewhere,
+        "{in_cut} {elsewhere}"
+    );
+}
+
+/// The fractions of the pixels within 4 px of the blade's line (scene frame: x from −25 to −5
+/// mm at y = 0, z = 20 mm, projected by `camera`) and beyond 40 px of it where `open` differs
+/// from `uncut`.
+fn line_differs(
+    open: &image::RgbaImage,
+    uncut: &image::RgbaImage,
+    camera: &touchfem::render::Camera,
+) -> (f64, f64) {
     // The cut's line on the top face (the blade's path, scene frame: x from −25 to −5 mm at
     // y = 0, z = 20 mm), projected: the pixels within 4 px of it differ from the uncut frame.
     let size = [open.width(), open.height()];
@@ -432,26 +480,29 @@ fn golden_incision_open() {
         [b[0] - a[0], b[1] - a[1]],
         (b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2),
     );
-    let (mut near, mut differ) = (0usize, 0usize);
+    let (mut near, mut differ, mut far, mut far_differ) = (0usize, 0usize, 0usize, 0usize);
     for (x, y, p) in open.enumerate_pixels() {
         let q = [f64::from(x) + 0.5 - a[0], f64::from(y) + 0.5 - a[1]];
         let t = ((q[0] * ab[0] + q[1] * ab[1]) / len2).clamp(0.0, 1.0);
         let d = ((q[0] - t * ab[0]).powi(2) + (q[1] - t * ab[1]).powi(2)).sqrt();
+        let u = uncut.get_pixel(x, y);
+        let differs = (0..3).any(|c| p[c].abs_diff(u[c]) > 24);
         if d <= 4.0 {
             near += 1;
-            let u = uncut.get_pixel(x, y);
-            if (0..3).any(|c| p[c].abs_diff(u[c]) > 24) {
-                differ += 1;
-            }
+            differ += usize::from(differs);
+        } else if d > 40.0 {
+            far += 1;
+            far_differ += usize::from(differs);
         }
     }
     let in_cut = differ as f64 / near.max(1) as f64;
+    let elsewhere = far_differ as f64 / far.max(1) as f64;
     eprintln!(
         "the cut's line {a:?}..{b:?}: {differ} of the {near} pixels within 4 px differ from \
-         the uncut frame"
+         the uncut frame, {far_differ} of the {far} beyond 40 px"
     );
     assert!(near > 200, "{near}");
-    assert!(in_cut > 0.3, "{in_cut}");
+    (in_cut, elsewhere)
 }
 
 /// A cuttable cube of Young's modulus `young` (Pa) and a point finger.

@@ -28,6 +28,22 @@ use touchfem_gpu::{install_cut, Deformer, DeformerOptions, Gpu, LStorage};
 /// How long the visual loop waits for one GPU update before it gives the GPU up.
 pub const GPU_TIMEOUT: Duration = Duration::from_secs(2);
 
+/// Vertices a deformer reserves for a separating cut's copies when the scene has a cuttable
+/// object ([`DeformerOptions::extra_vertices`]): room for the copies a cut makes between two
+/// folds (a fold makes them rows); more re-uploads `L` with twice the room needed.
+pub const CUT_VERTICES: usize = 256;
+
+/// The deformer options of a scene's visual path: `storage`, and room for a separating cut's
+/// copies when an object is cuttable ([`CUT_VERTICES`]).
+pub fn deformer_options(world: &World, storage: LStorage) -> DeformerOptions {
+    let cuttable = world.objects.iter().any(|o| o.cuttable.is_some());
+    DeformerOptions {
+        storage,
+        extra_vertices: if cuttable { CUT_VERTICES } else { 0 },
+        ..Default::default()
+    }
+}
+
 /// The cut bodies a visual path draws, followed from the cutter's feed: the one cut install of
 /// the demo's [`Visual`] and the window.
 #[derive(Debug)]
@@ -99,9 +115,11 @@ impl CutFollower {
                 continue;
             }
             let obj = &world.objects[o];
-            if body.compliance.rows() != obj.body.compliance.rows() {
+            // A separating cut's fold adds rows (its copies); it drops none of the scene's.
+            let shown = &body.compliance;
+            if (obj.body.compliance.rows().iter()).any(|&v| shown.row_of(v).is_none()) {
                 log::warn!(
-                    "a cut body of '{}' displays other rows than the scene; not drawn",
+                    "a cut body of '{}' does not display every row of the scene; not drawn",
                     obj.name
                 );
                 continue;
@@ -174,10 +192,7 @@ impl<'a> Visual<'a> {
         };
         if let Some(g) = gpu {
             let options = match LStorage::from_env() {
-                Ok(storage) => DeformerOptions {
-                    storage,
-                    ..Default::default()
-                },
+                Ok(storage) => deformer_options(world, storage),
                 Err(e) => {
                     v.give_up(e.to_string());
                     return v;
@@ -281,8 +296,8 @@ impl<'a> Visual<'a> {
         }
     }
 
-    /// The CPU displacement of object `o` (rows of its compliance), valid after an update on the
-    /// CPU.
+    /// The CPU displacement of object `o` (rows of its compliance, [`compliance`](Self::compliance)),
+    /// valid after an update on the CPU.
     pub fn cpu_displacement(&self, o: usize) -> &[DVec3] {
         &self.cpu[o]
     }
@@ -314,6 +329,8 @@ impl<'a> Visual<'a> {
                 None => &self.world.objects[o].body.compliance,
             };
             if c.holds_l() || c.hier().is_some() {
+                // (A separating cut's fold adds rows.)
+                self.cpu[o].resize(c.rows().len(), DVec3::ZERO);
                 c.displace(sample.bc(o).entries(), &mut self.cpu[o]);
             }
         }

@@ -1,6 +1,6 @@
 //! The engine's settings from the environment, read in this one place (a leaf: it names no
 //! other module). `TOUCHFEM_CACHE_DIR` (where compliances are cached; empty: off),
-//! `TOUCHFEM_PRECOMPUTE`, `TOUCHFEM_ORDERING`, `TOUCHFEM_FACTOR`, `TOUCHFEM_HOST_L` and `TOUCHFEM_FOLD`
+//! `TOUCHFEM_PRECOMPUTE`, `TOUCHFEM_ORDERING`, `TOUCHFEM_FACTOR`, `TOUCHFEM_HOST_L`, `TOUCHFEM_FOLD` and `TOUCHFEM_CUT`
 //! (expert switches of the precompute and of what a session holds; the docs list them).
 //! Without the `native` feature (e.g. on `wasm32-unknown-unknown`) nothing is read: every
 //! setting is its default and caching is off.

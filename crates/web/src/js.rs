@@ -197,7 +197,17 @@ impl Page {
             force_n: None,
         });
         legend.set_image(&device, &queue, img.as_ref());
-        let dopts = DeformerOptions::default();
+        // Room for a separating cut's copies (touchfem-app's `CUT_VERTICES`).
+        let cuttable = self
+            .world
+            .world
+            .objects
+            .iter()
+            .any(|o| o.cuttable.is_some());
+        let dopts = DeformerOptions {
+            extra_vertices: if cuttable { 256 } else { 0 },
+            ..Default::default()
+        };
         let mut deformers = Vec::new();
         for o in &self.world.world.objects {
             let b = &o.body;

@@ -349,10 +349,8 @@ impl<'a> App<'a> {
         let mut legend = Overlay::new(&device, options);
         legend.set_anchor(touchfem_gpu::render::Anchor::TopRight);
         let mut deformers = Vec::with_capacity(self.world.objects.len());
-        let deformer_options = DeformerOptions {
-            storage: touchfem_gpu::LStorage::from_env()?,
-            ..Default::default()
-        };
+        let deformer_options =
+            crate::visual::deformer_options(&self.world, touchfem_gpu::LStorage::from_env()?);
         for o in &self.world.objects {
             deformers.push(Deformer::new(
                 &device,

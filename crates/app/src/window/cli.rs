@@ -167,7 +167,10 @@ pub(crate) fn view_command(args: &crate::args::ViewArgs) -> Result<(), Error> {
         );
     }
     let cuts = if run.cuts.bodies > 0 {
-        format!(", cut {} tets", run.cuts.tets_removed)
+        match run.cuts.nodes_split {
+            0 => format!(", cut {} tets", run.cuts.tets_removed),
+            n => format!(", cut {} tets, {n} copies", run.cuts.tets_removed),
+        }
     } else {
         String::new()
     };

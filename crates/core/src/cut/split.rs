@@ -145,9 +145,19 @@ impl Cut {
             |(lo, hi), &p| (lo.min(p), hi.max(p)),
         );
         let eps = 1e-9 * (hi - lo).length();
+        // Each blade snaps and finds its cut faces; the nodes are split once, over the faces
+        // of every blade (a face cut by one quad and one cut by the next may part a node
+        // between them: a continuous blade's chords, a polyline's quads).
+        let mut faces: HashMap<[u32; 3], u32> = HashMap::new();
         for b in blades {
-            self.split_one(b, eps, region, &mut changes, &mut report);
+            for (k, n) in self.split_one(b, eps, region, &mut changes, &mut report) {
+                let e = faces.entry(k).or_insert(0);
+                *e = (*e).max(n);
+            }
         }
+        report.faces_cut = faces.values().filter(|&&n| n == 2).count();
+        let cut: HashSet<[u32; 3]> = faces.into_keys().collect();
+        self.split_nodes(&cut, region, &mut changes);
         report.nodes_split = self.nodes.len() - born;
         if changes.list.is_empty() {
             report.cut.rank = self.rank();
@@ -159,8 +169,8 @@ impl Cut {
         Ok(report)
     }
 
-    /// One blade's snap, slivers, cut faces and split (`eps`: the distance that counts as on
-    /// the plane, m).
+    /// One blade's snap, slivers and cut faces (`eps`: the distance that counts as on the
+    /// plane, m): returns each cut face (sorted nodes) with the number of its tets near.
     fn split_one(
         &mut self,
         b: &BladeQuad,
@@ -168,12 +178,12 @@ impl Cut {
         region: Option<&[bool]>,
         changes: &mut Changes,
         report: &mut SplitReport,
-    ) {
+    ) -> HashMap<[u32; 3], u32> {
         let inside = |t: usize| region.is_none_or(|r| r[t]);
         let mut near = self.tets_near(b, eps);
         near.retain(|&t| inside(t));
         if near.is_empty() {
-            return;
+            return HashMap::new();
         }
         let adj = self.node_tets();
         // 1. Snap.
@@ -280,9 +290,18 @@ impl Cut {
                 }
             }
         }
-        report.faces_cut += cut_faces.values().filter(|&&n| n == 2).count();
-        let cut: HashSet<[u32; 3]> = cut_faces.into_keys().collect();
-        // 3. Split, from the tets as they stand (relabelled once every node is decided).
+        cut_faces
+    }
+
+    /// 3. Splits the nodes of the `cut` faces, from the tets as they stand (relabelled once
+    /// every node is decided).
+    fn split_nodes(
+        &mut self,
+        cut: &HashSet<[u32; 3]>,
+        region: Option<&[bool]>,
+        changes: &mut Changes,
+    ) {
+        let inside = |t: usize| region.is_none_or(|r| r[t]);
         let mut on_cut: Vec<u32> = cut.iter().flatten().copied().collect();
         on_cut.sort_unstable();
         on_cut.dedup();

@@ -46,13 +46,15 @@ pub struct Stroke {
 /// What a blade does to the material it passes ([`Cutter::set_cut_mode`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum CutMode {
-    /// It removes the tets its quad sweeps (the live demos, the window and the page today).
+    /// It removes the tets its quad sweeps (the live default: see
+    /// `docs/measurements/2026-12-06-separating-cut.md` for why not yet [`CutMode::Separate`]).
     #[default]
     Remove,
     /// It separates the material along its quad ([`Cut::split_within`], snap and split):
     /// nothing is removed but slivers, and the body's compliance grows by the copies and the
-    /// exposed nodes ([`Cut::grown_correction`]), which its surface then holds. Folds are
-    /// deferred only ([`FoldMode::Deferred`]; [`FoldMode::Inline`] does not fold).
+    /// exposed nodes ([`Cut::grown_correction`]), which its surface then holds. In
+    /// [`FoldMode::Inline`] a fold due runs before the object's next cut, as the deferred
+    /// one does, then is adopted at once. The live cutter's with `TOUCHFEM_CUT=separate`.
     Separate,
 }
 
@@ -115,8 +117,8 @@ pub struct CutOp(Op);
 enum Op {
     /// A blade's chord.
     Stroke(Stroke),
-    /// A separating blade's chord ([`CutMode::Separate`]).
-    Separate(Stroke),
+    /// A separating blade's chord after the chords of its trail ([`CutMode::Separate`]).
+    Separate(Vec<Stroke>),
     /// Tets removed by [`Cutter::remove_tets`].
     Tets(Vec<usize>),
 }
@@ -127,7 +129,7 @@ fn redo(cut: &mut Cut, mesh: &crate::Mesh, region: &CutRegion, op: &CutOp) -> Re
     let tets = match &op.0 {
         Op::Stroke(st) => blade_tets(mesh, st.from, st.to, st.inward, st.depth),
         Op::Tets(t) => t.clone(),
-        Op::Separate(st) => return separate(cut, mesh, region, st).map(|_| ()),
+        Op::Separate(trail) => return separate(cut, mesh, region, trail).map(|_| ()),
     };
     let tets = still_to_cut(cut, region, tets);
     if !tets.is_empty() {
@@ -136,21 +138,59 @@ fn redo(cut: &mut Cut, mesh: &crate::Mesh, region: &CutRegion, op: &CutOp) -> Re
     Ok(())
 }
 
-/// Separates `cut` (of `mesh`, within `region`) along `stroke`'s quad; the report when it
-/// changed anything. A stroke that makes no quad (too short, not finite) changes nothing.
+/// The quads a separating blade cuts along for the last of `trail`'s chords (the chords
+/// before it are the same blade's, just before, each ending where the next begins): one a
+/// chord, each reaching back out of the body by the blade's depth (the blade's shank: a blade
+/// drawn under the surface came in through it, where a convex body has no material) and down
+/// to the nearest layer of nodes (`edge`: the mesh's mean edge; the faces a cut opens are the
+/// mesh's, so a cut is as deep as the blade to within half an edge). The trail's chords are
+/// cut again: a face whose nodes reached the plane only under a later chord is cut then.
+/// Empty when the last chord makes no quad (too short, not finite, a depth ≤ 0).
+pub fn blade_quads(trail: &[Stroke], edge: f64) -> Vec<BladeQuad> {
+    let Some(last) = trail.last() else {
+        return Vec::new();
+    };
+    if BladeQuad::new(last.from, last.to, last.inward, last.depth).is_err() {
+        return Vec::new();
+    }
+    (trail.iter())
+        .filter_map(|st| {
+            let along = (st.to - st.from).normalize_or_zero();
+            let up = -(st.inward - along * along.dot(st.inward)).normalize_or_zero();
+            let (from, to) = (st.from + up * st.depth, st.to + up * st.depth);
+            BladeQuad::new(from, to, st.inward, 2.0 * st.depth + 0.5 * edge).ok()
+        })
+        .collect()
+}
+
+/// Separates `cut` (of `mesh`, within `region`) along the last of `trail`'s chords
+/// ([`blade_quads`]); the report when it changed anything. A chord that makes no quad (too
+/// short, not finite) changes nothing.
 fn separate(
     cut: &mut Cut,
     mesh: &crate::Mesh,
     region: &CutRegion,
-    st: &Stroke,
+    trail: &[Stroke],
 ) -> Result<Option<crate::cut::SplitReport>, Error> {
-    let Ok(quad) = BladeQuad::new(st.from, st.to, st.inward, st.depth) else {
+    let quads = blade_quads(trail, mean_edge(mesh));
+    if quads.is_empty() {
         return Ok(None);
-    };
-    let rep = cut.split_within(mesh, &[quad], Some(region.mask()))?;
+    }
+    let rep = cut.split_within(mesh, &quads, Some(region.mask()))?;
     let changed =
         rep.nodes_snapped > 0 || rep.nodes_split > 0 || rep.slivers > 0 || rep.cut.tets_removed > 0;
     Ok(changed.then_some(rep))
+}
+
+/// The mean length of `mesh`'s tets' edges (each counted once per tet), m.
+pub fn mean_edge(mesh: &crate::Mesh) -> f64 {
+    let mut sum = 0.0;
+    for t in &mesh.tets {
+        for (a, b) in [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)] {
+            sum += mesh.nodes[t[a] as usize].distance(mesh.nodes[t[b] as usize]);
+        }
+    }
+    sum / (6 * mesh.tets.len()).max(1) as f64
 }
 
 /// Those of `tets` that `cut` may still remove: in its `region`, and not removed yet.
@@ -252,6 +292,10 @@ struct ObjectCut {
     in_flight: Option<Vec<CutOp>>,
     /// A fold was adopted since the last body.
     adopted: bool,
+    /// A separating blade's chords just before the next ([`blade_quads`]).
+    trail: Vec<Stroke>,
+    /// The mesh's mean edge, m.
+    edge: f64,
 }
 
 impl ObjectCut {
@@ -332,6 +376,8 @@ impl Cutter {
                 None => None,
                 Some((mesh, base, region)) => Some(ObjectCut {
                     cut: Cut::new(&mesh)?,
+                    trail: Vec::new(),
+                    edge: mean_edge(&mesh),
                     base,
                     mesh,
                     region,
@@ -491,7 +537,7 @@ impl Cutter {
 
     /// Folds object `o` when its rank has reached the fold rank; true when it did.
     fn fold_object(&mut self, o: usize) -> Result<bool, Error> {
-        if self.mode != FoldMode::Inline || self.cut_mode == CutMode::Separate {
+        if self.mode != FoldMode::Inline {
             return Ok(false);
         }
         let Some(Some(oc)) = self.objects.get_mut(o) else {
@@ -499,6 +545,28 @@ impl Cutter {
         };
         if oc.cut.rank() < self.fold_rank.max(1) {
             return Ok(false);
+        }
+        if self.cut_mode == CutMode::Separate {
+            // The deferred fold (a grown correction's), run here and adopted at once: a
+            // replay that defers it adopts it at the same body.
+            let Some(compliance) = oc.current.clone() else {
+                return Ok(false);
+            };
+            let job = FoldJob {
+                object: o,
+                compliance,
+                rebase: oc.cut.rebase_plan(&oc.mesh)?,
+                mesh: oc.mesh.clone(),
+                region: oc.region.clone(),
+            };
+            oc.in_flight = Some(Vec::new());
+            return match job.run() {
+                (_, Ok(f)) => self.adopt(f).map(|()| true),
+                (_, Err(e)) => {
+                    self.drop_fold(o);
+                    Err(e)
+                }
+            };
         }
         let folded = oc.cut.fold(&oc.base)?;
         oc.cut = oc.cut.rebase(&oc.mesh)?;
@@ -581,16 +649,43 @@ impl Cutter {
             return Ok(false);
         };
         if self.cut_mode == CutMode::Separate {
-            let Some(rep) = separate(&mut oc.cut, &oc.mesh, &oc.region, stroke)? else {
+            self.fold_object(stroke.object)?;
+            let Some(Some(oc)) = self.objects.get_mut(stroke.object) else {
+                return Ok(false);
+            };
+            if blade_quads(std::slice::from_ref(stroke), oc.edge).is_empty() {
+                return Ok(false);
+            }
+            // The blade's trail: its chords just before, back to one and a half edges.
+            let joined = oc.trail.last().is_some_and(|p| {
+                p.object == stroke.object && p.to == stroke.from && p.depth == stroke.depth
+            });
+            if !joined {
+                oc.trail.clear();
+            }
+            oc.trail.push(*stroke);
+            let mut behind = 0.0;
+            let keep = (oc.trail.iter().rev())
+                .take_while(|st| {
+                    let inside = behind <= 1.5 * oc.edge;
+                    behind += st.from.distance(st.to);
+                    inside
+                })
+                .count();
+            oc.trail.drain(..oc.trail.len() - keep);
+            let trail = oc.trail.clone();
+            // (Every chord joins the next body's strokes, those that cut nothing too: a
+            // replay makes the same trails.)
+            oc.since.push(*stroke);
+            let Some(rep) = separate(&mut oc.cut, &oc.mesh, &oc.region, &trail)? else {
                 return Ok(false);
             };
             oc.tets_removed += rep.cut.tets_removed;
             oc.pieces_removed += rep.cut.pieces_removed;
             oc.nodes_split += rep.nodes_split;
             oc.last = rep.cut;
-            oc.since.push(*stroke);
             if let Some(ops) = &mut oc.in_flight {
-                ops.push(CutOp(Op::Separate(*stroke)));
+                ops.push(CutOp(Op::Separate(trail)));
             }
             return Ok(true);
         }

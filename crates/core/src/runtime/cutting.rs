@@ -4,7 +4,8 @@
 use std::sync::Arc;
 
 pub use crate::haptic::cutter::{
-    CutBody, CutFeed, CutMode, CutOp, CutPlan, Cutter, FoldJob, FoldMode, Folded, Stroke, FOLD_RANK,
+    blade_quads, mean_edge, CutBody, CutFeed, CutMode, CutOp, CutPlan, Cutter, FoldJob, FoldMode,
+    Folded, Stroke, FOLD_RANK,
 };
 #[cfg(feature = "native")]
 use crate::scene::World;
@@ -102,8 +103,10 @@ pub struct CutThread {
 pub struct CutStats {
     /// Cut bodies built.
     pub bodies: u64,
-    /// Tets removed.
+    /// Tets removed (a separating blade's: slivers, and pieces cut off).
     pub tets_removed: usize,
+    /// Copies of nodes a separating blade made (its last body's).
+    pub nodes_split: usize,
     /// Pieces cut off (every object).
     pub pieces_removed: usize,
     /// The longest pass (strokes to cut body), s.
@@ -144,6 +147,15 @@ pub fn fold_mode() -> FoldMode {
     match crate::options::var("TOUCHFEM_FOLD").as_deref() {
         Some("inline") => FoldMode::Inline,
         _ => FoldMode::Deferred,
+    }
+}
+
+/// What a live cutter's blade does: [`CutMode::Remove`], unless `TOUCHFEM_CUT=separate` (it
+/// separates the material along its path; its sessions are version 5).
+pub fn cut_mode() -> CutMode {
+    match crate::options::var("TOUCHFEM_CUT").as_deref() {
+        Some("separate") => CutMode::Separate,
+        _ => CutMode::Remove,
     }
 }
 
@@ -221,6 +233,7 @@ impl CutThread {
         }
         let plan = Cutter::plan(world)?;
         let mode = fold_mode();
+        let cut = cut_mode();
         let (sp, mut sc) = rtrb::RingBuffer::<Stroke>::new(STROKE_RING);
         let (mut bp, bc) = rtrb::RingBuffer::<(usize, Arc<CutBody>, u64)>::new(256);
         let (pp, mut pc) = rtrb::RingBuffer::<Arc<CutBody>>::new(256);
@@ -234,6 +247,7 @@ impl CutThread {
                 crate::threads::become_background_worker(&haptic_cpus);
                 let mut cutter = Cutter::from_plan(plan)?;
                 cutter.set_fold_mode(mode);
+                cutter.set_cut_mode(cut);
                 // Its passes now go before the visual loop on their core (the factorisation
                 // above did not: it is long). The fold's thread stays a background worker.
                 if mode == FoldMode::Deferred {
@@ -264,6 +278,7 @@ impl CutThread {
                     |o: usize, body: Arc<CutBody>, first: u64, stats: &mut CutStats| {
                         stats.bodies += 1;
                         stats.tets_removed = body.tets_removed;
+                        stats.nodes_split = body.nodes_split;
                         if pieces.len() <= o {
                             pieces.resize(o + 1, 0);
                         }

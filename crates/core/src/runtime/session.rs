@@ -16,10 +16,13 @@
 //! tick's record is followed by a u32 count of the cut bodies installed after that tick, each
 //! as u32 object, u32 strokes, then per stroke 10 f64 (from, to, inward, depth; object
 //! frame, m). Replaying them at the same ticks builds the same bodies, so the forces replay
-//! bit for bit whatever the cutter's thread's timing was. Version 4 (written now) is version 3
+//! bit for bit whatever the cutter's thread's timing was. Version 4 is version 3
 //! with bit 31 of the object word set on a body that follows a deferred fold's adoption
 //! ([`crate::haptic::cutter::FoldMode::Deferred`]): the replay adopts its fold there, where
 //! the live run did. A version 3 session replays with the folds inline, as it was recorded.
+//! Version 5 is version 4 for blades that separate the material ([`CutMode::Separate`],
+//! `TOUCHFEM_CUT=separate`); versions 3 and 4 replay with blades that remove the tets they
+//! sweep.
 //! The haptic loop pushes each tick into a wait-free ring ([`rtrb`]); a writer thread drains
 //! it to disk, so the loop never blocks on the file and allocates nothing.
 
@@ -28,6 +31,7 @@ use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use super::cutting::{CutMode, FoldMode};
 use crate::haptic::HapticWorld;
 use crate::haptic::WorldSample;
 use crate::limits::MAX_FINGERS;
@@ -170,7 +174,7 @@ pub struct CutEvent {
     pub object: usize,
     /// The strokes that built it from the object's previous body.
     pub strokes: Vec<super::cutting::Stroke>,
-    /// Whether a deferred fold was adopted before them (version 4).
+    /// Whether a deferred fold was adopted before them (versions 4 and 5).
     pub fold_adopted: bool,
 }
 
@@ -206,7 +210,7 @@ impl Recorder {
 }
 
 /// Whether `world` can be cut (a blade finger and a cuttable object): its session records
-/// cuts (version 4).
+/// cuts (version 5; 4 or 3 for blades that remove).
 fn records_cuts(world: &World) -> bool {
     world.fingers.iter().any(|f| f.tool.blade_depth().is_some())
         && world.objects.iter().any(|o| o.cuttable.is_some())
@@ -228,11 +232,13 @@ pub fn record(
     let cuts = records_cuts(world);
     let header = SessionHeader {
         format: "touchfem-session".into(),
-        // (Folds made inline, `TOUCHFEM_FOLD=inline`, replay as version 3's.)
-        version: match (cuts, super::cutting::fold_mode()) {
-            (false, _) => 2,
-            (true, super::cutting::FoldMode::Inline) => 3,
-            (true, super::cutting::FoldMode::Deferred) => 4,
+        // (Blades that separate, `TOUCHFEM_CUT=separate`, replay as version 5's; folds made
+        // inline, `TOUCHFEM_FOLD=inline`, as version 3's.)
+        version: match (cuts, super::cutting::cut_mode(), super::cutting::fold_mode()) {
+            (false, _, _) => 2,
+            (true, CutMode::Remove, FoldMode::Inline) => 3,
+            (true, CutMode::Remove, FoldMode::Deferred) => 4,
+            (true, CutMode::Separate, _) => 5,
         },
         touchfem: env!("CARGO_PKG_VERSION").into(),
         scene_name: world.name.clone(),
@@ -403,7 +409,7 @@ pub fn read(path: &Path) -> Result<Session, Error> {
         .saturating_mul(n)
         .saturating_add(if with_dt { 8 } else { 0 })
         .saturating_add(if with_cuts { 4 } else { 0 });
-    if !(1..=4).contains(&header.version)
+    if !(1..=5).contains(&header.version)
         || n == 0
         || n > MAX_FINGERS
         || header.record_bytes != want_bytes
@@ -518,9 +524,14 @@ impl<'s> CutReplay<'s> {
         } else {
             let mut c = super::cutting::Cutter::new(world)?;
             c.set_fold_mode(if session.header.version >= 4 {
-                super::cutting::FoldMode::Deferred
+                FoldMode::Deferred
             } else {
-                super::cutting::FoldMode::Inline
+                FoldMode::Inline
+            });
+            c.set_cut_mode(if session.header.version >= 5 {
+                CutMode::Separate
+            } else {
+                CutMode::Remove
             });
             Some(c)
         };
