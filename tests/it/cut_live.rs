@@ -703,4 +703,8 @@ fn bench_cut_rows_hold_the_cut_and_the_fold_to_a_full_recompute() {
     }
     assert_eq!(get("recompute").rel_error, 0.0);
     assert!(get("tick-point-exact").time_us > 0.0);
+    // A separating blade's step: a correction, nothing removed (no sliver there).
+    let sep = get("separate-pass");
+    assert!(sep.rank > 0 && sep.time_us > 0.0, "{sep:?}");
+    assert_eq!(sep.tets_removed, 0, "{sep:?}");
 }

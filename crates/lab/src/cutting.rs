@@ -25,7 +25,9 @@ use crate::tradeoff::median_us;
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct CutRow {
     /// What was timed: `recompute`, `cut-pass`, `fold`, `tick-point-exact`,
-    /// `gpu-install-and-pass`, `blade-to-vertex-buffer`.
+    /// `gpu-install-and-pass`, `blade-to-vertex-buffer`; for a blade that separates
+    /// (`CutMode::Separate`, a 3 mm chord continuing one before it), `separate-pass`,
+    /// `separate-gpu-install-and-pass` and `separate-blade-to-vertex-buffer`.
     pub method: String,
     /// Mesh name.
     pub mesh: String,
@@ -37,7 +39,9 @@ pub struct CutRow {
     pub rank: usize,
     /// Median time, µs.
     pub time_us: f64,
-    /// Relative displacement error against the recompute (0 for the recompute itself).
+    /// Relative displacement error against the recompute (0 for the recompute itself); for
+    /// the separating GPU rows, the GPU's vertices (rows and copies) against the f64 CPU
+    /// product of the same body (0 for `separate-pass`).
     pub rel_error: f64,
 }
 
@@ -249,7 +253,129 @@ pub fn rows(gpu: Option<&touchfem_gpu::Gpu>, quick: bool) -> Result<Vec<CutRow>,
             }
         }
     }
+    if let Some(&(name, at_mm, radius_mm, _)) = cases.iter().find(|c| c.0 == "mouse") {
+        separate_rows(gpu, name, at_mm, radius_mm, reps, &mut rows)?;
+    }
     Ok(rows)
+}
+
+/// The separating blade's rows on `name`: a 3 mm chord along the top 1.5 mm beside
+/// `at_mm`, 8 mm deep, after the 3 mm chord before it (a blade moving at 3 mm a pass), on a
+/// fresh cutter each time; then, with a GPU, the body put on a deformer (with room for its
+/// copies) and one pass.
+fn separate_rows(
+    gpu: Option<&touchfem_gpu::Gpu>,
+    name: &str,
+    at_mm: DVec3,
+    radius_mm: f64,
+    reps: usize,
+    rows: &mut Vec<CutRow>,
+) -> Result<(), Error> {
+    use touchfem_core::runtime::cutting::{CutMode, Stroke};
+    let w = world(name, at_mm, radius_mm)?;
+    let obj = &w.objects[0];
+    let mesh = &obj.body.mesh;
+    let surf = Surface::new(mesh);
+    let on = |x_mm: f64| {
+        let (_, p) = surf.closest_global(DVec3::new(x_mm, at_mm.y, at_mm.z + 20.0) * 1e-3);
+        p
+    };
+    let stroke = |a: f64, b: f64| Stroke {
+        object: 0,
+        from: on(a),
+        to: on(b),
+        inward: DVec3::NEG_Z,
+        depth: 8e-3,
+    };
+    let (first, second) = (stroke(-6.0, -3.0), stroke(-3.0, 0.0));
+    let mut times = Vec::new();
+    let mut body: Option<Arc<CutBody>> = None;
+    for _ in 0..reps {
+        let mut cutter = Cutter::new(&w)?;
+        cutter.set_cut_mode(CutMode::Separate);
+        cutter.apply(&first)?;
+        let t = Instant::now();
+        let b = cutter.apply(&second)?;
+        times.push(t.elapsed().as_secs_f64() * 1e6);
+        body = b.or(body);
+    }
+    times.sort_by(f64::total_cmp);
+    let body = body.ok_or_else(|| Error::Study("the separating blade cut nothing".into()))?;
+    let row = |method: &str, time_us: f64, rel_error: f64| CutRow {
+        method: method.into(),
+        mesh: name.into(),
+        nodes: mesh.nodes.len(),
+        tets_removed: body.tets_removed,
+        rank: body.report.rank,
+        time_us,
+        rel_error,
+    };
+    let pass = times[times.len() / 2];
+    rows.push(row("separate-pass", pass, 0.0));
+    let Some(g) = gpu else {
+        return Ok(());
+    };
+    let c = &body.compliance;
+    let node = *c.cols().first().ok_or_else(|| Error::Study("no column".into()))?;
+    let copy = (mesh.nodes.len() as u32..body.rest.len() as u32).find(|&v| c.col_of(v).is_some());
+    let mut forces = vec![(c.col_of(node).unwrap_or(0) as u32, [0.0f32, 0.0, -0.05])];
+    if let Some(v) = copy {
+        forces.push((c.col_of(v).unwrap_or(0) as u32, [0.0, 0.02, -0.02]));
+    }
+    let opts = touchfem_gpu::DeformerOptions {
+        extra_vertices: 256,
+        ..Default::default()
+    };
+    let mut times = Vec::new();
+    let mut err = 0.0;
+    for _ in 0..reps {
+        let mut d = touchfem_gpu::Deformer::new(
+            &g.device,
+            &g.queue,
+            &obj.body.compliance,
+            &mesh.nodes,
+            &mesh.surface,
+            &opts,
+        )?;
+        crate::tradeoff::gpu_frame(g, &mut d, &[])?;
+        let t = Instant::now();
+        touchfem_gpu::install_cut(
+            &g.device,
+            &g.queue,
+            &mut d,
+            &obj.body.compliance,
+            c,
+            &body.triangles,
+            &body.rest,
+            &opts,
+        )?;
+        crate::tradeoff::gpu_frame(g, &mut d, &forces)?;
+        times.push(t.elapsed().as_secs_f64() * 1e6);
+        // The GPU's vertices against the f64 product: rows, then the copies drawn.
+        let (pos, _) = d.read_back(&g.device, &g.queue)?;
+        let f64f: Vec<(u32, DVec3)> = (forces.iter())
+            .map(|&(c, f)| (c, glam::Vec3::from(f).as_dvec3()))
+            .collect();
+        let mut u = vec![DVec3::ZERO; c.rows().len()];
+        c.displace(&f64f, &mut u);
+        let mut ue = vec![DVec3::ZERO; c.extra_nodes().len()];
+        c.displace_extra(&f64f, &mut ue);
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        let no_row = |v: u32| c.row_of(v).is_none();
+        let want = (c.rows().iter().zip(&u))
+            .chain((c.extra_nodes().iter().zip(&ue)).filter(|p| no_row(*p.0)))
+            .filter_map(|(&v, &du)| Some((d.row_of(v)?, body.rest[v as usize] + du, du)));
+        for (vert, x, du) in want {
+            num = num.max((glam::Vec3::from(pos[vert as usize]).as_dvec3() - x).length());
+            den = den.max(du.length());
+        }
+        err = if den > 0.0 { num / den } else { f64::INFINITY };
+    }
+    times.sort_by(f64::total_cmp);
+    let install = times[times.len() / 2];
+    rows.push(row("separate-gpu-install-and-pass", install, err));
+    rows.push(row("separate-blade-to-vertex-buffer", pass + install, err));
+    Ok(())
 }
 
 /// `touchfem bench --cut`: the rows as a table (and as JSON `{"rows": [...]}` into `json`).
@@ -262,13 +388,13 @@ pub fn bench(
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "{:<24} {:<6} {:>6} {:>5} {:>5} {:>12} {:>10}",
+        "{:<32} {:<6} {:>6} {:>5} {:>5} {:>12} {:>10}",
         "method", "mesh", "nodes", "tets", "rank", "time_us", "rel_error"
     );
     for r in &rows {
         let _ = writeln!(
             out,
-            "{:<24} {:<6} {:>6} {:>5} {:>5} {:>12.2} {:>10.1e}",
+            "{:<32} {:<6} {:>6} {:>5} {:>5} {:>12.2} {:>10.1e}",
             r.method, r.mesh, r.nodes, r.tets_removed, r.rank, r.time_us, r.rel_error
         );
     }

@@ -350,7 +350,7 @@ impl<'a> App<'a> {
         legend.set_anchor(touchfem_gpu::render::Anchor::TopRight);
         let mut deformers = Vec::with_capacity(self.world.objects.len());
         let deformer_options =
-            crate::visual::deformer_options(&self.world, touchfem_gpu::LStorage::from_env()?);
+            crate::visual::deformer_options(self.world, touchfem_gpu::LStorage::from_env()?);
         for o in &self.world.objects {
             deformers.push(Deformer::new(
                 &device,

@@ -1149,9 +1149,17 @@ impl Cut {
         }
         // V = U Cᵀ for every column at once (a matrix product; u_cols is U row by row, so
         // U's transpose column-major: Vᵀ = C Uᵀ).
+        // (faer's product, sequential: the same bits every run.)
         if r > 0 && nc > 0 {
-            let ut = nalgebra::DMatrixView::from_slice(&u_cols, r, 3 * nc);
-            v_cols = (&self.cap * ut).data.into();
+            use faer::{Accum, MatMut, MatRef, Par};
+            faer::linalg::matmul::matmul(
+                MatMut::from_column_major_slice_mut(&mut v_cols, r, 3 * nc),
+                Accum::Replace,
+                MatRef::from_column_major_slice(self.cap.as_slice(), r, r),
+                MatRef::from_column_major_slice(&u_cols, r, 3 * nc),
+                1.0,
+                Par::Seq,
+            );
         }
         let mut k = Correction {
             rank: r,

@@ -79,8 +79,15 @@ impl Cut {
         // V = C U_xᵀ + e_p(x) (their L₀ column, which L does not hold, is U e_p(x)).
         let mut v_extra = vec![0.0; 3 * nx * r];
         if r > 0 && nx > 0 {
-            let ut = nalgebra::DMatrixView::from_slice(&u_extra, r, 3 * nx);
-            v_extra = (&self.cap * ut).data.into();
+            use faer::{Accum, MatMut, MatRef, Par};
+            faer::linalg::matmul::matmul(
+                MatMut::from_column_major_slice_mut(&mut v_extra, r, 3 * nx),
+                Accum::Replace,
+                MatRef::from_column_major_slice(self.cap.as_slice(), r, r),
+                MatRef::from_column_major_slice(&u_extra, r, 3 * nx),
+                1.0,
+                Par::Seq,
+            );
         }
         for (x, p) in places.iter().enumerate() {
             for a in 0..3 {

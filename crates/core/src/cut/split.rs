@@ -113,6 +113,20 @@ impl Cut {
         blades: &[BladeQuad],
         region: Option<&[bool]>,
     ) -> Result<SplitReport, Error> {
+        self.split_after(mesh, &[], blades, region)
+    }
+
+    /// [`Cut::split_within`] along `blades` after `before`: quads already cut (a continuous
+    /// blade's chords just before), which snap nothing again but whose faces now on their
+    /// plane (their nodes snapped by `blades`) are cut too, the nodes split once over every
+    /// quad's faces. Errors as [`Cut::split_within`] does.
+    pub fn split_after(
+        &mut self,
+        mesh: &Mesh,
+        before: &[BladeQuad],
+        blades: &[BladeQuad],
+        region: Option<&[bool]>,
+    ) -> Result<SplitReport, Error> {
         self.check_mesh(mesh)?;
         if region.is_some_and(|r| r.len() != self.tets.len()) {
             return Err(Error::Input(format!(
@@ -121,7 +135,7 @@ impl Cut {
                 self.tets.len()
             )));
         }
-        for b in blades {
+        for b in before.iter().chain(blades) {
             let unit = |v: DVec3| v.is_finite() && (v.length() - 1.0).abs() < 1e-9;
             let good = b.from.is_finite()
                 && unit(b.along)
@@ -151,6 +165,12 @@ impl Cut {
         let mut faces: HashMap<[u32; 3], u32> = HashMap::new();
         for b in blades {
             for (k, n) in self.split_one(b, eps, region, &mut changes, &mut report) {
+                let e = faces.entry(k).or_insert(0);
+                *e = (*e).max(n);
+            }
+        }
+        for b in before {
+            for (k, n) in self.cut_faces(b, eps, region) {
                 let e = faces.entry(k).or_insert(0);
                 *e = (*e).max(n);
             }
@@ -269,7 +289,18 @@ impl Cut {
                 report.sliver_volume += vol.abs();
             }
         }
-        // 2. Cut faces.
+        self.cut_faces(b, eps, region)
+    }
+
+    /// Step 2: the faces of the alive tets in `region` whose three nodes lie on `b`'s plane
+    /// and whose centroid lies in the quad (sorted nodes), with the number of their tets near.
+    fn cut_faces(
+        &self,
+        b: &BladeQuad,
+        eps: f64,
+        region: Option<&[bool]>,
+    ) -> HashMap<[u32; 3], u32> {
+        let inside = |t: usize| region.is_none_or(|r| r[t]);
         let mut near = self.tets_near(b, eps);
         near.retain(|&t| inside(t));
         let on = |v: u32| b.coords(self.nodes[v as usize]).2.abs() <= eps;
@@ -293,8 +324,8 @@ impl Cut {
         cut_faces
     }
 
-    /// 3. Splits the nodes of the `cut` faces, from the tets as they stand (relabelled once
-    /// every node is decided).
+    /// Step 3: splits the nodes of the `cut` faces, from the tets as they stand (relabelled
+    /// once every node is decided).
     fn split_nodes(
         &mut self,
         cut: &HashSet<[u32; 3]>,

@@ -143,8 +143,9 @@ fn redo(cut: &mut Cut, mesh: &crate::Mesh, region: &CutRegion, op: &CutOp) -> Re
 /// chord, each reaching back out of the body by the blade's depth (the blade's shank: a blade
 /// drawn under the surface came in through it, where a convex body has no material) and down
 /// to the nearest layer of nodes (`edge`: the mesh's mean edge; the faces a cut opens are the
-/// mesh's, so a cut is as deep as the blade to within half an edge). The trail's chords are
-/// cut again: a face whose nodes reached the plane only under a later chord is cut then.
+/// mesh's, so a cut is as deep as the blade to within half an edge). The trail's faces are
+/// cut again ([`Cut::split_after`]): a face whose nodes reached the plane only under a later
+/// chord is cut then.
 /// Empty when the last chord makes no quad (too short, not finite, a depth ≤ 0).
 pub fn blade_quads(trail: &[Stroke], edge: f64) -> Vec<BladeQuad> {
     let Some(last) = trail.last() else {
@@ -176,7 +177,9 @@ fn separate(
     if quads.is_empty() {
         return Ok(None);
     }
-    let rep = cut.split_within(mesh, &quads, Some(region.mask()))?;
+    // (The last chord snaps; the trail's only adds the faces now on their planes.)
+    let (before, last) = quads.split_at(quads.len() - 1);
+    let rep = cut.split_after(mesh, before, last, Some(region.mask()))?;
     let changed =
         rep.nodes_snapped > 0 || rep.nodes_split > 0 || rep.slivers > 0 || rep.cut.tets_removed > 0;
     Ok(changed.then_some(rep))
