@@ -428,14 +428,14 @@ fn the_incision_scene_opens_a_cut_and_the_same_press_beside_it_needs_less_force(
 
 #[test]
 fn a_recorded_separating_incision_is_version_5_and_replays_bit_for_bit() {
-    // `TOUCHFEM_CUT=separate`: the live cutter's blade separates the mouse's back; its session
-    // is version 5 and replays (the cuts rebuilt from their chords, the trails of the blade
-    // included) bit for bit.
+    // `TOUCHFEM_CUT=separate`: the live cutter's blade separates the phantom's top (it cuts
+    // from 2 to 3.5 s: four seconds hold it); its session is version 5 and replays (the cuts
+    // rebuilt from their chords, the trails of the blade included) bit for bit.
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("incision.tfsession");
     let report = dir.path().join("report.json");
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
-        .args(["demo", "incision", "--seconds", "6", "--out"])
+        .args(["demo", "incision", "--seconds", "4", "--out"])
         .arg(dir.path().join("out"))
         .arg("--record")
         .arg(&rec)

@@ -591,11 +591,12 @@ impl Deformer {
     /// surface, [`touchfem_core::Mesh::open_surface`]). Makes a new
     /// [`index_buffer`](Self::index_buffer) ([`index_count`](Self::index_count) follows) and
     /// the normal pass's adjacency, so that new faces get their normals from the next
-    /// [`encode`](Self::encode)d pass. The vertices stay one per displayed row: every node of
-    /// `triangles` must be one (a cuttable region's nodes are, see the scene key `cuttable`).
+    /// [`encode`](Self::encode)d pass. Every node of `triangles` must have a vertex: a
+    /// displayed row (a cuttable region's nodes are, see the scene key `cuttable`), or a node
+    /// the correction carried added ([`set_correction_at`](Self::set_correction_at)).
     ///
-    /// Errors (and then changes nothing): a node that is not a displayed row
-    /// ([`GpuError::BadInput`]), adjacency beyond the device's limits.
+    /// Errors (and then changes nothing): a node without a vertex ([`GpuError::BadInput`]),
+    /// adjacency beyond the device's limits.
     pub fn set_triangles(
         &mut self,
         device: &wgpu::Device,

@@ -316,7 +316,10 @@ fn separate_rows(
         return Ok(());
     };
     let c = &body.compliance;
-    let node = *c.cols().first().ok_or_else(|| Error::Study("no column".into()))?;
+    let node = *c
+        .cols()
+        .first()
+        .ok_or_else(|| Error::Study("no column".into()))?;
     let copy = (mesh.nodes.len() as u32..body.rest.len() as u32).find(|&v| c.col_of(v).is_some());
     let mut forces = vec![(c.col_of(node).unwrap_or(0) as u32, [0.0f32, 0.0, -0.05])];
     if let Some(v) = copy {

@@ -537,7 +537,8 @@ impl Page {
             .deformers
             .first()
             .ok_or_else(|| JsError::new("no object"))?;
-        let size = d.vertex_buffer().size();
+        // (The displayed rows; the vertices reserved for a separating cut's copies follow.)
+        let size = VERTEX_STRIDE * u64::from(d.vertex_count());
         let staging = g.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("touchfem web readback"),
             size,
