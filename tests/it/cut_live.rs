@@ -426,22 +426,23 @@ fn the_incision_scene_opens_a_cut_and_the_same_press_beside_it_needs_less_force(
     );
 }
 
-#[test]
-fn a_recorded_separating_incision_is_version_5_and_replays_bit_for_bit() {
-    // `TOUCHFEM_CUT=separate`: the live cutter's blade separates the phantom's top (it cuts
-    // from 2 to 3.5 s: four seconds hold it); its session is version 5 and replays (the cuts
-    // rebuilt from their chords, the trails of the blade included) bit for bit.
-    let dir = tempfile::tempdir().unwrap();
-    let rec = dir.path().join("incision.tfsession");
-    let report = dir.path().join("report.json");
+/// `touchfem demo incision --seconds SECONDS` under `TOUCHFEM_CUT=CUT`, recorded into `dir`:
+/// its report and the session's path.
+fn record_incision(
+    dir: &std::path::Path,
+    seconds: &str,
+    cut: &str,
+) -> (serde_json::Value, std::path::PathBuf) {
+    let rec = dir.join("incision.tfsession");
+    let report = dir.join("report.json");
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_touchfem"))
-        .args(["demo", "incision", "--seconds", "4", "--out"])
-        .arg(dir.path().join("out"))
+        .args(["demo", "incision", "--seconds", seconds, "--out"])
+        .arg(dir.join("out"))
         .arg("--record")
         .arg(&rec)
         .arg("--report")
         .arg(&report)
-        .env("TOUCHFEM_CUT", "separate")
+        .env("TOUCHFEM_CUT", cut)
         .env(
             "WGPU_BACKEND",
             std::env::var("WGPU_BACKEND").unwrap_or("vulkan".into()),
@@ -449,8 +450,17 @@ fn a_recorded_separating_incision_is_version_5_and_replays_bit_for_bit() {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let r: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    let r = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    (r, rec)
+}
+
+#[test]
+fn a_recorded_separating_incision_is_version_5_and_replays_bit_for_bit() {
+    // `TOUCHFEM_CUT=separate`: the live cutter's blade separates the phantom's top (it cuts
+    // from 2 to 3.5 s: four seconds hold it); its session is version 5 and replays (the cuts
+    // rebuilt from their chords, the trails of the blade included) bit for bit.
+    let dir = tempfile::tempdir().unwrap();
+    let (r, rec) = record_incision(dir.path(), "4", "separate");
     let cuts = &r["objects"][0]["cuts"];
     eprintln!("separating incision: {cuts}");
     // Copies, and no tet removed but slivers (a few per copy).
@@ -471,27 +481,8 @@ fn a_recorded_separating_incision_is_version_5_and_replays_bit_for_bit() {
 
 #[test]
 fn a_recorded_incision_holds_its_cuts_and_replays_bit_for_bit() {
-    use std::process::Command;
     let dir = tempfile::tempdir().unwrap();
-    let rec = dir.path().join("incision.tfsession");
-    let out = dir.path().join("out");
-    let report = dir.path().join("report.json");
-    let o = Command::new(env!("CARGO_BIN_EXE_touchfem"))
-        .args(["demo", "incision", "--seconds", "6", "--out"])
-        .arg(&out)
-        .arg("--record")
-        .arg(&rec)
-        .arg("--report")
-        .arg(&report)
-        .env(
-            "WGPU_BACKEND",
-            std::env::var("WGPU_BACKEND").unwrap_or("vulkan".into()),
-        )
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let r: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    let (r, rec) = record_incision(dir.path(), "6", "remove");
     let cuts = &r["objects"][0]["cuts"];
     assert!(cuts["bodies"].as_u64().unwrap() >= 1, "{cuts}");
     assert!(cuts["tets_removed"].as_u64().unwrap() > 20, "{cuts}");
@@ -564,7 +555,8 @@ fn a_recorded_incision_holds_its_cuts_and_replays_bit_for_bit() {
         "last cut after tick {last_cut}: {rep:?}"
     );
     // The trace the demo wrote (the session replayed) shows the softer press after the cut.
-    let csv = std::fs::read_to_string(out.join("incision_tissue_force.csv")).unwrap();
+    let csv =
+        std::fs::read_to_string(dir.path().join("out").join("incision_tissue_force.csv")).unwrap();
     let f: Vec<f64> = csv
         .lines()
         .skip(1)

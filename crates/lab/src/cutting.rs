@@ -209,28 +209,8 @@ pub fn rows(gpu: Option<&touchfem_gpu::Gpu>, quick: bool) -> Result<Vec<CutRow>,
                 let mut times = Vec::new();
                 let mut err = 0.0;
                 for _ in 0..reps {
-                    let mut d = touchfem_gpu::Deformer::new(
-                        &g.device,
-                        &g.queue,
-                        &obj.body.compliance,
-                        &mesh.nodes,
-                        &mesh.surface,
-                        &opts,
-                    )?;
-                    crate::tradeoff::gpu_frame(g, &mut d, &forces)?;
-                    let t = Instant::now();
-                    touchfem_gpu::install_cut(
-                        &g.device,
-                        &g.queue,
-                        &mut d,
-                        &obj.body.compliance,
-                        &body.compliance,
-                        &body.triangles,
-                        &body.rest,
-                        &opts,
-                    )?;
-                    crate::tradeoff::gpu_frame(g, &mut d, &forces)?;
-                    times.push(t.elapsed().as_secs_f64() * 1e6);
+                    let (us, d) = install_timed(g, obj, &body, &opts, &forces, &forces)?;
+                    times.push(us);
                     let (pos, _) = d.read_back(&g.device, &g.queue)?;
                     let c = &body.compliance;
                     let got: Vec<DVec3> = pos
@@ -257,6 +237,36 @@ pub fn rows(gpu: Option<&touchfem_gpu::Gpu>, quick: bool) -> Result<Vec<CutRow>,
         separate_rows(gpu, name, at_mm, radius_mm, reps, &mut rows)?;
     }
     Ok(rows)
+}
+
+/// A deformer of `obj`'s uncut compliance, one frame of `warm` forces, then the time (µs) to
+/// put `body` on it ([`touchfem_gpu::install_cut`]) and draw one frame of `forces`.
+fn install_timed(
+    g: &touchfem_gpu::Gpu,
+    obj: &touchfem_core::scene::Object,
+    body: &CutBody,
+    opts: &touchfem_gpu::DeformerOptions,
+    warm: &[(u32, [f32; 3])],
+    forces: &[(u32, [f32; 3])],
+) -> Result<(f64, touchfem_gpu::Deformer), Error> {
+    let mesh = &obj.body.mesh;
+    let uncut = &obj.body.compliance;
+    let mut d =
+        touchfem_gpu::Deformer::new(&g.device, &g.queue, uncut, &mesh.nodes, &mesh.surface, opts)?;
+    crate::tradeoff::gpu_frame(g, &mut d, warm)?;
+    let t = Instant::now();
+    touchfem_gpu::install_cut(
+        &g.device,
+        &g.queue,
+        &mut d,
+        uncut,
+        &body.compliance,
+        &body.triangles,
+        &body.rest,
+        opts,
+    )?;
+    crate::tradeoff::gpu_frame(g, &mut d, forces)?;
+    Ok((t.elapsed().as_secs_f64() * 1e6, d))
 }
 
 /// The separating blade's rows on `name`: a 3 mm chord along the top 1.5 mm beside
@@ -332,28 +342,8 @@ fn separate_rows(
     let mut times = Vec::new();
     let mut err = 0.0;
     for _ in 0..reps {
-        let mut d = touchfem_gpu::Deformer::new(
-            &g.device,
-            &g.queue,
-            &obj.body.compliance,
-            &mesh.nodes,
-            &mesh.surface,
-            &opts,
-        )?;
-        crate::tradeoff::gpu_frame(g, &mut d, &[])?;
-        let t = Instant::now();
-        touchfem_gpu::install_cut(
-            &g.device,
-            &g.queue,
-            &mut d,
-            &obj.body.compliance,
-            c,
-            &body.triangles,
-            &body.rest,
-            &opts,
-        )?;
-        crate::tradeoff::gpu_frame(g, &mut d, &forces)?;
-        times.push(t.elapsed().as_secs_f64() * 1e6);
+        let (us, d) = install_timed(g, obj, &body, &opts, &[], &forces)?;
+        times.push(us);
         // The GPU's vertices against the f64 product: rows, then the copies drawn.
         let (pos, _) = d.read_back(&g.device, &g.queue)?;
         let f64f: Vec<(u32, DVec3)> = (forces.iter())

@@ -302,6 +302,22 @@ struct ObjectCut {
 }
 
 impl ObjectCut {
+    /// A fold of object `o`'s last body (a snapshot), now out (`None`: no body yet).
+    fn fold_job(&mut self, o: usize) -> Result<Option<FoldJob>, Error> {
+        let Some(compliance) = self.current.clone() else {
+            return Ok(None);
+        };
+        let job = FoldJob {
+            object: o,
+            compliance,
+            rebase: self.cut.rebase_plan(&self.mesh)?,
+            mesh: self.mesh.clone(),
+            region: self.region.clone(),
+        };
+        self.in_flight = Some(Vec::new());
+        Ok(Some(job))
+    }
+
     /// Removes `tets` from object `o` (and any piece left with no clamp) and counts them.
     fn remove(&mut self, o: usize, tets: &[usize]) -> Result<(), Error> {
         let report = self.cut.remove(&self.mesh, tets)?;
@@ -440,17 +456,9 @@ impl Cutter {
             if oc.in_flight.is_some() || oc.cut.rank() < due {
                 continue;
             }
-            let Some(compliance) = oc.current.clone() else {
-                continue;
-            };
-            jobs.push(FoldJob {
-                object: o,
-                compliance,
-                rebase: oc.cut.rebase_plan(&oc.mesh)?,
-                mesh: oc.mesh.clone(),
-                region: oc.region.clone(),
-            });
-            oc.in_flight = Some(Vec::new());
+            if let Some(job) = oc.fold_job(o)? {
+                jobs.push(job);
+            }
         }
         Ok(jobs)
     }
@@ -552,17 +560,9 @@ impl Cutter {
         if self.cut_mode == CutMode::Separate {
             // The deferred fold (a grown correction's), run here and adopted at once: a
             // replay that defers it adopts it at the same body.
-            let Some(compliance) = oc.current.clone() else {
+            let Some(job) = oc.fold_job(o)? else {
                 return Ok(false);
             };
-            let job = FoldJob {
-                object: o,
-                compliance,
-                rebase: oc.cut.rebase_plan(&oc.mesh)?,
-                mesh: oc.mesh.clone(),
-                region: oc.region.clone(),
-            };
-            oc.in_flight = Some(Vec::new());
             return match job.run() {
                 (_, Ok(f)) => self.adopt(f).map(|()| true),
                 (_, Err(e)) => {
