@@ -241,6 +241,19 @@ fn a_deformer_with_too_little_room_refuses_and_install_cut_makes_room() {
     assert_eq!(d.triangles().len(), sep.surface.len());
     d.set_forces(&gp.queue, &[(extra_col, [0.0, 0.0, -0.05])])
         .unwrap();
+    // A sample of a newer body's columns: `keep_known` leaves them out, the others in order.
+    assert_eq!(d.column_count(), c.cols().len() + k.extra.len());
+    let beyond = d.column_count() as u32;
+    let mut f = [
+        (beyond, [0.0, 0.0, -0.05]),
+        (extra_col, [0.0, 0.0, -0.05]),
+        (beyond + 7, [0.0; 3]),
+        (0, [0.01, 0.0, 0.0]),
+    ];
+    let n = d.keep_known(&mut f);
+    assert_eq!(n, 2);
+    assert_eq!((f[0].0, f[1].0), (extra_col, 0));
+    d.set_forces(&gp.queue, &f[..n]).unwrap();
     // Back to no correction: the copies are no longer drawn, the rows at their old rest.
     d.set_correction(&gp.device, &gp.queue, None).unwrap();
     assert_eq!(d.extra_vertex_count(), 0);

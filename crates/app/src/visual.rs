@@ -341,7 +341,9 @@ impl<'a> Visual<'a> {
         let g = self.gpu.expect("checked");
         let mut enc = g.device.create_command_encoder(&Default::default());
         for (o, d) in self.deformers.iter_mut().enumerate() {
-            let (f, n) = sample.bc(o).to_f32();
+            let (mut f, n) = sample.bc(o).to_f32();
+            // (A newer separating body's copies: left out for this frame.)
+            let n = d.keep_known(&mut f[..n]);
             d.set_forces(&g.queue, &f[..n]).map_err(|e| e.to_string())?;
             d.encode(&mut enc);
         }

@@ -446,6 +446,28 @@ impl Deformer {
         self.carry(device, queue, correction, Some(rest))
     }
 
+    /// The columns [`set_forces`](Self::set_forces) takes: those of `L`, and the extra
+    /// columns of the correction carried ([`set_correction_at`](Self::set_correction_at)).
+    pub fn column_count(&self) -> usize {
+        self.n_cols + self.extra_cols
+    }
+
+    /// Moves the entries of `forces` on columns this deformer takes
+    /// ([`column_count`](Self::column_count)) to its front, in order, and returns how many:
+    /// a haptic sample taken from a separating cut's newer body than the one drawn may press
+    /// its new copies' columns; a visual loop leaves them out for that frame.
+    pub fn keep_known(&self, forces: &mut [(u32, [f32; 3])]) -> usize {
+        let cols = self.column_count() as u32;
+        let mut k = 0;
+        for i in 0..forces.len() {
+            if forces[i].0 < cols {
+                forces.swap(k, i);
+                k += 1;
+            }
+        }
+        k
+    }
+
     /// How many vertices this deformer reserves for a separating cut's added nodes
     /// ([`DeformerOptions::extra_vertices`]).
     pub fn extra_capacity(&self) -> usize {

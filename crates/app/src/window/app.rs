@@ -478,11 +478,13 @@ impl<'a> App<'a> {
             }
         }
         for (o, d) in g.deformers.iter_mut().enumerate() {
-            let (f, n) = if o < sample.n_objects {
+            let (mut f, n) = if o < sample.n_objects {
                 sample.bcs[o].to_f32()
             } else {
                 touchfem_core::contact::force::ForceBc::default().to_f32()
             };
+            // (A newer separating body's copies: left out for this frame.)
+            let n = d.keep_known(&mut f[..n]);
             d.set_forces(&g.queue, &f[..n])?;
         }
         if let Some((text, notice)) = &status_text {
