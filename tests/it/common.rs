@@ -156,6 +156,19 @@ impl CutPasses {
     }
 }
 
+/// The incision with a blade that separates (`CutMode::Separate`), its correction carried
+/// whole: run once for every test that reads it.
+pub fn separated_incision() -> &'static IncisionRun {
+    static RUN: std::sync::OnceLock<IncisionRun> = std::sync::OnceLock::new();
+    RUN.get_or_init(|| {
+        run_incision_in(
+            usize::MAX,
+            touchfem::runtime::cutting::FoldMode::Deferred,
+            touchfem::runtime::cutting::CutMode::Separate,
+        )
+    })
+}
+
 /// [`run_incision`] with the cutter folding in `mode` and its blade cutting as `cut` says.
 pub fn run_incision_in(
     fold_rank: usize,

@@ -406,11 +406,7 @@ fn the_incision_scene_opens_a_cut_and_the_same_press_beside_it_needs_less_force(
     // nodes along its path, slivers dropped. A closed slit barely changes a press beside it
     // that does not part its lips (their opening under a press that spreads them is
     // `the_lips_of_a_cut_open…`).
-    let run = crate::common::run_incision_in(
-        usize::MAX,
-        touchfem::runtime::cutting::FoldMode::Deferred,
-        touchfem::runtime::cutting::CutMode::Separate,
-    );
+    let run = crate::common::separated_incision();
     let b = &run.body;
     eprintln!(
         "incision, separating: {} copies, {} slivers, rank {}; press before {}, after {}",
@@ -457,10 +453,10 @@ fn record_incision(
 #[test]
 fn a_recorded_separating_incision_is_version_5_and_replays_bit_for_bit() {
     // `TOUCHFEM_CUT=separate`: the live cutter's blade separates the phantom's top (it cuts
-    // from 2 to 3.5 s: four seconds hold it); its session is version 5 and replays (the cuts
+    // from 2 to 3.5 s); its session is version 5 and replays (the cuts
     // rebuilt from their chords, the trails of the blade included) bit for bit.
     let dir = tempfile::tempdir().unwrap();
-    let (r, rec) = record_incision(dir.path(), "4", "separate");
+    let (r, rec) = record_incision(dir.path(), "3.6", "separate");
     let cuts = &r["objects"][0]["cuts"];
     eprintln!("separating incision: {cuts}");
     // Copies, and no tet removed but slivers (a few per copy).

@@ -241,38 +241,24 @@ fn a_correction_that_does_not_fit_is_refused_and_changes_nothing() {
 /// The bundled `incision` scene run through the haptic path with the cutter applied in step
 /// (a pass every 20 ms): the world, the sample at t = 6 s (the fingertip pressing beside the
 /// open cut), the final cut body and the tets it removed.
-struct Incision {
-    world: World,
-    sample: WorldSample,
-    body: Arc<CutBody>,
-    removed: Vec<bool>,
-}
+use crate::common::IncisionRun as Incision;
 
-/// The incision, its correction carried whole (not folded): what the GPU pass is tested on.
-/// Its blade separates the material (the default).
+/// The incision, its correction carried whole (not folded), with a blade that separates the
+/// material (`common::separated_incision`).
 fn incision() -> &'static Incision {
-    static I: OnceLock<Incision> = OnceLock::new();
-    I.get_or_init(|| incision_as(touchfem::runtime::cutting::CutMode::Separate))
+    crate::common::separated_incision()
 }
 
 /// [`incision`] with a blade that removes the tets it sweeps (rank 357).
 fn incision_removing() -> &'static Incision {
     static I: OnceLock<Incision> = OnceLock::new();
-    I.get_or_init(|| incision_as(touchfem::runtime::cutting::CutMode::Remove))
-}
-
-fn incision_as(cut: touchfem::runtime::cutting::CutMode) -> Incision {
-    let run = crate::common::run_incision_in(
-        usize::MAX,
-        touchfem::runtime::cutting::FoldMode::Deferred,
-        cut,
-    );
-    Incision {
-        world: run.world,
-        sample: run.sample,
-        body: run.body,
-        removed: run.removed,
-    }
+    I.get_or_init(|| {
+        crate::common::run_incision_in(
+            usize::MAX,
+            touchfem::runtime::cutting::FoldMode::Deferred,
+            touchfem::runtime::cutting::CutMode::Remove,
+        )
+    })
 }
 
 #[test]
