@@ -156,6 +156,13 @@ impl CutPasses {
     }
 }
 
+/// The incision with a blade that removes (the default), its correction carried whole
+/// (`run_incision(usize::MAX)`): run once for every test that reads it.
+pub fn removing_incision() -> &'static IncisionRun {
+    static RUN: std::sync::OnceLock<IncisionRun> = std::sync::OnceLock::new();
+    RUN.get_or_init(|| run_incision(usize::MAX))
+}
+
 /// The incision with a blade that separates (`CutMode::Separate`), its correction carried
 /// whole: run once for every test that reads it.
 pub fn separated_incision() -> &'static IncisionRun {

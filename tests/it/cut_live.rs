@@ -148,8 +148,8 @@ fn a_cutter_that_folds_feels_what_one_that_carries_feels() {
     use touchfem::runtime::cutting::{CutMode, FoldMode};
     let removing =
         |fold_rank, mode| crate::common::run_incision_in(fold_rank, mode, CutMode::Remove);
-    let run = removing(usize::MAX, FoldMode::Deferred);
-    let (carried_f, carried) = (run.after, run.body);
+    let run = crate::common::removing_incision();
+    let (carried_f, carried) = (run.after, run.body.clone());
     let run = removing(60, FoldMode::Deferred);
     let (folded_f, folded) = (run.after, run.body);
     let inline = removing(60, FoldMode::Inline);
@@ -385,8 +385,8 @@ fn incision_through_the_haptic_path() -> (
     DVec3,
     std::sync::Arc<touchfem::runtime::cutting::CutBody>,
 ) {
-    let run = crate::common::run_incision(usize::MAX);
-    (run.before, run.after, run.body)
+    let run = crate::common::removing_incision();
+    (run.before, run.after, run.body.clone())
 }
 
 #[test]
@@ -452,11 +452,11 @@ fn record_incision(
 
 #[test]
 fn a_recorded_separating_incision_is_version_5_and_replays_bit_for_bit() {
-    // `TOUCHFEM_CUT=separate`: the live cutter's blade separates the phantom's top (it cuts
-    // from 2 to 3.5 s); its session is version 5 and replays (the cuts
+    // `TOUCHFEM_CUT=separate`: the live cutter's blade separates the phantom's top (the
+    // script stretched to 2 s); its session is version 5 and replays (the cuts
     // rebuilt from their chords, the trails of the blade included) bit for bit.
     let dir = tempfile::tempdir().unwrap();
-    let (r, rec) = record_incision(dir.path(), "3.6", "separate");
+    let (r, rec) = record_incision(dir.path(), "2", "separate");
     let cuts = &r["objects"][0]["cuts"];
     eprintln!("separating incision: {cuts}");
     // Copies, and no tet removed but slivers (a few per copy).

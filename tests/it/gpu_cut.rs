@@ -251,14 +251,7 @@ fn incision() -> &'static Incision {
 
 /// [`incision`] with a blade that removes the tets it sweeps (rank 357).
 fn incision_removing() -> &'static Incision {
-    static I: OnceLock<Incision> = OnceLock::new();
-    I.get_or_init(|| {
-        crate::common::run_incision_in(
-            usize::MAX,
-            touchfem::runtime::cutting::FoldMode::Deferred,
-            touchfem::runtime::cutting::CutMode::Remove,
-        )
-    })
+    crate::common::removing_incision()
 }
 
 #[test]

@@ -372,7 +372,7 @@ pub struct Session {
     pub header: SessionHeader,
     /// Its ticks.
     pub ticks: Vec<TickRecord>,
-    /// The cut bodies installed, in order (versions 3 and 4).
+    /// The cut bodies installed, in order (versions 3 to 5).
     pub cuts: Vec<CutEvent>,
     /// Bytes at the end that did not make a whole record (a session cut off mid-write).
     pub trailing_bytes: usize,
@@ -516,8 +516,8 @@ pub struct CutReplay<'s> {
 
 impl<'s> CutReplay<'s> {
     /// The cut replay of `session` on `world` (no cutter when the session holds no cut). A
-    /// version 3 session folds inline, as it was recorded; version 4 defers its folds and
-    /// adopts each where the recording says.
+    /// version 3 session folds inline, as it was recorded; versions 4 and 5 defer their folds
+    /// and adopt each where the recording says; version 5's blades separate.
     pub fn new(world: &World, session: &'s Session) -> Result<CutReplay<'s>, Error> {
         let cutter = if session.cuts.is_empty() {
             None
