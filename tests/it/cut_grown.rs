@@ -302,7 +302,7 @@ fn top_stroke(a: [f64; 2], b: [f64; 2], depth: f64) -> touchfem::runtime::cuttin
 #[test]
 fn a_separating_cutter_hands_the_haptic_path_a_slit_that_a_recompute_agrees_with() {
     use touchfem::contact::GodObject;
-    use touchfem::runtime::cutting::{blade_quads, mean_edge, CutMode, Cutter, Stroke};
+    use touchfem::runtime::cutting::{blade_quads, CutMode, Cutter, Stroke};
     let world = cuttable_cube();
     let mesh = world.objects[0].body.mesh.clone();
     let mut cutter = Cutter::new(&world).unwrap();
@@ -340,7 +340,7 @@ fn a_separating_cutter_hands_the_haptic_path_a_slit_that_a_recompute_agrees_with
         to: strokes[1].to,
         ..strokes[0]
     };
-    let quads = blade_quads(&[chord], mean_edge(&mesh));
+    let quads = blade_quads(&[chord], mesh.mean_edge());
     assert_eq!(quads.len(), 1);
     cut.split(&mesh, &quads).unwrap();
     assert_eq!(cut.nodes(), &body.rest[..]);

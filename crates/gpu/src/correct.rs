@@ -414,21 +414,7 @@ impl CorrectionPass {
         }
         queue.write_buffer(&self.weights, 0, bytemuck::cast_slice(&self.z32));
         if self.n_extra > 0 {
-            // w = Σ_c U_cᵀ F_c over the live columns of L.
-            self.w.fill(0.0);
-            let nc = k.dead_cols.len();
-            for &(c, f) in &self.forces {
-                let c = c as usize;
-                if c >= nc || k.dead_cols[c] {
-                    continue;
-                }
-                for a in 0..3 {
-                    let u = &k.u_cols[(3 * c + a) * rank..][..rank];
-                    for (wq, &uq) in self.w.iter_mut().zip(u) {
-                        *wq += uq * f[a];
-                    }
-                }
-            }
+            k.column_weights(&self.forces, &mut self.w);
             for (o, &w) in self.w32.iter_mut().zip(&self.w) {
                 *o = w as f32;
             }

@@ -523,7 +523,7 @@ impl Deformer {
             )));
         }
         // The extra nodes without a row, each a reserved vertex.
-        let of: Vec<usize> = (0..ne).filter(|&e| k.extra_row[e] == u32::MAX).collect();
+        let of: Vec<usize> = k.rowless_extras().collect();
         if of.len() > self.extra_capacity() {
             return Err(GpuError::BadInput(format!(
                 "the cut adds {} nodes without a row; the deformer reserves {} vertices for \
@@ -846,9 +846,7 @@ pub fn install_cut(
     options: &DeformerOptions,
 ) -> Result<(), GpuError> {
     let k = compliance.correction();
-    let added = k.map_or(0, |k| {
-        (k.extra_row.iter()).filter(|&&r| r == u32::MAX).count()
-    });
+    let added = k.map_or(0, |k| k.rowless_extras().count());
     let drawable = |v: u32| {
         (v as usize) < rest.len()
             && (compliance.row_of(v).is_some()

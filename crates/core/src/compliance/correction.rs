@@ -195,20 +195,8 @@ impl Correction {
     /// `w = Σ_c U_cᵀ F_c` over the columns of `L` in `forces`.
     pub fn extra_rows(&self, forces: &[(u32, DVec3)], z: &[f64], out: &mut [DVec3]) {
         let r = self.rank;
-        let nc = self.dead_cols.len();
         let mut w = vec![0.0; r];
-        for &(c, f) in forces {
-            let c = c as usize;
-            if c >= nc || self.dead_cols[c] {
-                continue;
-            }
-            for a in 0..3 {
-                let u = &self.u_cols[(3 * c + a) * r..][..r];
-                for (wq, &uq) in w.iter_mut().zip(u) {
-                    *wq += uq * f[a];
-                }
-            }
-        }
+        self.column_weights(forces, &mut w);
         for (k, o) in out.iter_mut().enumerate().take(self.extra.len()) {
             if self.extra_row[k] != u32::MAX {
                 *o = DVec3::ZERO;
@@ -222,6 +210,34 @@ impl Correction {
                 dot(&u[2 * r..], &z[..r]) + w[p[2] as usize],
             );
         }
+    }
+
+    /// `w = Σ_c U_cᵀ F_c` over the live columns of `L` in `forces` (column index, N) into `w`
+    /// (`rank` long): what the extra nodes without a row add to `U_x z`
+    /// ([`Correction::extra_rows`]).
+    pub fn column_weights(&self, forces: &[(u32, DVec3)], w: &mut [f64]) {
+        let r = self.rank;
+        let nc = self.dead_cols.len();
+        w[..r].fill(0.0);
+        for &(c, f) in forces {
+            let c = c as usize;
+            if c >= nc || self.dead_cols[c] {
+                continue;
+            }
+            for a in 0..3 {
+                let u = &self.u_cols[(3 * c + a) * r..][..r];
+                for (wq, &uq) in w[..r].iter_mut().zip(u) {
+                    *wq += uq * f[a];
+                }
+            }
+        }
+    }
+
+    /// The indices into [`Correction::extra`] of the extra nodes without a held row (their
+    /// displacement is [`Correction::extra_rows`]'s; a renderer draws each as a vertex of its
+    /// own), in order.
+    pub fn rowless_extras(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..self.extra.len()).filter(|&k| self.extra_row[k] == u32::MAX)
     }
 
     /// `out[r] += U_r z` over the held rows, and dead rows set to zero.

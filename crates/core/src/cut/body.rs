@@ -1149,18 +1149,7 @@ impl Cut {
         }
         // V = U Cᵀ for every column at once (a matrix product; u_cols is U row by row, so
         // U's transpose column-major: Vᵀ = C Uᵀ).
-        // (faer's product, sequential: the same bits every run.)
-        if r > 0 && nc > 0 {
-            use faer::{Accum, MatMut, MatRef, Par};
-            faer::linalg::matmul::matmul(
-                MatMut::from_column_major_slice_mut(&mut v_cols, r, 3 * nc),
-                Accum::Replace,
-                MatRef::from_column_major_slice(self.cap.as_slice(), r, r),
-                MatRef::from_column_major_slice(&u_cols, r, 3 * nc),
-                1.0,
-                Par::Seq,
-            );
-        }
+        self.cap_times(&u_cols, &mut v_cols);
         let mut k = Correction {
             rank: r,
             rows,

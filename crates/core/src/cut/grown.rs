@@ -12,6 +12,26 @@ use crate::mesh::TET_FACES;
 use crate::Error;
 
 impl Cut {
+    /// `out = C U` for `u`, `rank` rows a column, column-major (`Vᵀ = C Uᵀ` of the columns
+    /// whose `U` rows `u` holds row by row): faer's product, sequential, so the same bits every
+    /// run. Nothing at rank 0 or without columns.
+    pub(super) fn cap_times(&self, u: &[f64], out: &mut [f64]) {
+        use faer::{Accum, MatMut, MatRef, Par};
+        let r = self.cap.nrows();
+        if r == 0 || u.is_empty() {
+            return;
+        }
+        let n = u.len() / r;
+        faer::linalg::matmul::matmul(
+            MatMut::from_column_major_slice_mut(out, r, n),
+            Accum::Replace,
+            MatRef::from_column_major_slice(self.cap.as_slice(), r, r),
+            MatRef::from_column_major_slice(u, r, n),
+            1.0,
+            Par::Seq,
+        );
+    }
+
     /// [`Cut::correction`], grown by the nodes this cut made touchable: every node on the
     /// separated body's surface that moves, is not one of `c`'s columns, and is a copy or an
     /// exposed node that `c` does not display (so a displayed node the scene did not make
@@ -78,17 +98,7 @@ impl Cut {
         }
         // V = C U_xᵀ + e_p(x) (their L₀ column, which L does not hold, is U e_p(x)).
         let mut v_extra = vec![0.0; 3 * nx * r];
-        if r > 0 && nx > 0 {
-            use faer::{Accum, MatMut, MatRef, Par};
-            faer::linalg::matmul::matmul(
-                MatMut::from_column_major_slice_mut(&mut v_extra, r, 3 * nx),
-                Accum::Replace,
-                MatRef::from_column_major_slice(self.cap.as_slice(), r, r),
-                MatRef::from_column_major_slice(&u_extra, r, 3 * nx),
-                1.0,
-                Par::Seq,
-            );
-        }
+        self.cap_times(&u_extra, &mut v_extra);
         for (x, p) in places.iter().enumerate() {
             for a in 0..3 {
                 v_extra[(3 * x + a) * r + p[a] as usize] += 1.0;

@@ -117,8 +117,9 @@ pub struct CutOp(Op);
 enum Op {
     /// A blade's chord.
     Stroke(Stroke),
-    /// A separating blade's chord after the chords of its trail ([`CutMode::Separate`]).
-    Separate(Vec<Stroke>),
+    /// A separating blade's chord after the chords of its trail ([`CutMode::Separate`]), and
+    /// the mesh's mean edge ([`blade_quads`]).
+    Separate(Vec<Stroke>, f64),
     /// Tets removed by [`Cutter::remove_tets`].
     Tets(Vec<usize>),
 }
@@ -129,7 +130,7 @@ fn redo(cut: &mut Cut, mesh: &crate::Mesh, region: &CutRegion, op: &CutOp) -> Re
     let tets = match &op.0 {
         Op::Stroke(st) => blade_tets(mesh, st.from, st.to, st.inward, st.depth),
         Op::Tets(t) => t.clone(),
-        Op::Separate(trail) => return separate(cut, mesh, region, trail).map(|_| ()),
+        Op::Separate(trail, edge) => return separate(cut, mesh, region, trail, *edge).map(|_| ()),
     };
     let tets = still_to_cut(cut, region, tets);
     if !tets.is_empty() {
@@ -165,15 +166,16 @@ pub fn blade_quads(trail: &[Stroke], edge: f64) -> Vec<BladeQuad> {
 }
 
 /// Separates `cut` (of `mesh`, within `region`) along the last of `trail`'s chords
-/// ([`blade_quads`]); the report when it changed anything. A chord that makes no quad (too
-/// short, not finite) changes nothing.
+/// ([`blade_quads`], `edge` the mesh's mean edge); the report when it changed anything. A
+/// chord that makes no quad (too short, not finite) changes nothing.
 fn separate(
     cut: &mut Cut,
     mesh: &crate::Mesh,
     region: &CutRegion,
     trail: &[Stroke],
+    edge: f64,
 ) -> Result<Option<crate::cut::SplitReport>, Error> {
-    let quads = blade_quads(trail, mean_edge(mesh));
+    let quads = blade_quads(trail, edge);
     if quads.is_empty() {
         return Ok(None);
     }
@@ -183,17 +185,6 @@ fn separate(
     let changed =
         rep.nodes_snapped > 0 || rep.nodes_split > 0 || rep.slivers > 0 || rep.cut.tets_removed > 0;
     Ok(changed.then_some(rep))
-}
-
-/// The mean length of `mesh`'s tets' edges (each counted once per tet), m.
-pub fn mean_edge(mesh: &crate::Mesh) -> f64 {
-    let mut sum = 0.0;
-    for t in &mesh.tets {
-        for (a, b) in [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)] {
-            sum += mesh.nodes[t[a] as usize].distance(mesh.nodes[t[b] as usize]);
-        }
-    }
-    sum / (6 * mesh.tets.len()).max(1) as f64
 }
 
 /// Those of `tets` that `cut` may still remove: in its `region`, and not removed yet.
@@ -396,7 +387,7 @@ impl Cutter {
                 Some((mesh, base, region)) => Some(ObjectCut {
                     cut: Cut::new(&mesh)?,
                     trail: Vec::new(),
-                    edge: mean_edge(&mesh),
+                    edge: mesh.mean_edge(),
                     base,
                     mesh,
                     region,
@@ -680,7 +671,7 @@ impl Cutter {
             // (Every chord joins the next body's strokes, those that cut nothing too: a
             // replay makes the same trails.)
             oc.since.push(*stroke);
-            let Some(rep) = separate(&mut oc.cut, &oc.mesh, &oc.region, &trail)? else {
+            let Some(rep) = separate(&mut oc.cut, &oc.mesh, &oc.region, &trail, oc.edge)? else {
                 return Ok(false);
             };
             oc.tets_removed += rep.cut.tets_removed;
@@ -688,7 +679,7 @@ impl Cutter {
             oc.nodes_split += rep.nodes_split;
             oc.last = rep.cut;
             if let Some(ops) = &mut oc.in_flight {
-                ops.push(CutOp(Op::Separate(trail)));
+                ops.push(CutOp(Op::Separate(trail, oc.edge)));
             }
             return Ok(true);
         }

@@ -300,6 +300,17 @@ pub fn vertex_fans(n: usize, tris: &[[u32; 3]], pad4: bool) -> (Vec<[u32; 2]>, V
 pub(crate) const DEGENERATE_QUALITY: f64 = 1e-8;
 
 impl Mesh {
+    /// The mean length of the tets' edges (each counted once per tet), in the mesh's unit.
+    pub fn mean_edge(&self) -> f64 {
+        let mut sum = 0.0;
+        for t in &self.tets {
+            for (a, b) in [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)] {
+                sum += self.nodes[t[a] as usize].distance(self.nodes[t[b] as usize]);
+            }
+        }
+        sum / (6 * self.tets.len()).max(1) as f64
+    }
+
     /// Validates a raw mesh: converts to metres, checks coordinates and indices, reorients
     /// inverted tets, rejects degenerate ones, drops unused nodes and extracts the boundary.
     /// No node is fixed yet: see [`Mesh::set_fixed_group`].

@@ -4,8 +4,8 @@
 use std::sync::Arc;
 
 pub use crate::haptic::cutter::{
-    blade_quads, mean_edge, CutBody, CutFeed, CutMode, CutOp, CutPlan, Cutter, FoldJob, FoldMode,
-    Folded, Stroke, FOLD_RANK,
+    blade_quads, CutBody, CutFeed, CutMode, CutOp, CutPlan, Cutter, FoldJob, FoldMode, Folded,
+    Stroke, FOLD_RANK,
 };
 #[cfg(feature = "native")]
 use crate::scene::World;
