@@ -26,6 +26,8 @@ pub struct CutLink {
     sent_at: Box<[Option<std::time::Instant>]>,
     /// Strokes sent so far (the next one's number).
     sent: u64,
+    /// Strokes the cutter's passes have finished with (their bodies handed over).
+    done: Arc<std::sync::atomic::AtomicU64>,
     /// Each body's delay (s, in order, up to [`DELAYS_KEPT`]): from the sending of the first
     /// stroke of the pass that made it to its installation.
     delays: Vec<f64>,
@@ -78,6 +80,13 @@ impl CutLink {
                 let _ = self.spent.push(old);
             }
         }
+    }
+
+    /// Whether a stroke sent is still being cut, or a body made of it waits in the ring: a
+    /// run ending on time ticks on until it is not ([`super::run::run_haptic`]), so that no
+    /// stroke's cut is lost to the recording or the report.
+    pub fn pending(&self) -> bool {
+        self.done.load(std::sync::atomic::Ordering::Acquire) < self.sent || !self.bodies.is_empty()
     }
 
     /// Each cut body's delay so far (s, in order; at most [`DELAYS_KEPT`]): from the sending
@@ -239,6 +248,8 @@ impl CutThread {
         let (pp, mut pc) = rtrb::RingBuffer::<Arc<CutBody>>::new(256);
         let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
         let stop2 = stop.clone();
+        let done = Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let done2 = done.clone();
         let haptic_cpus = crate::threads::cpus_of_current_thread();
         let handle = std::thread::Builder::new()
             .name("touchfem-cutter".into())
@@ -333,6 +344,8 @@ impl CutThread {
                             publish(o, body, first, &mut stats);
                         }
                         stats.max_pass_s = stats.max_pass_s.max(t.elapsed().as_secs_f64());
+                        // After the bodies are in the ring (the haptic thread's `pending`).
+                        done2.store(taken, std::sync::atomic::Ordering::Release);
                         // Folds due go to the fold's thread (deferred), or run here (inline).
                         if any {
                             // The cuts made while a fold is out, to its thread to catch up.
@@ -390,6 +403,7 @@ impl CutThread {
                 strokes_dropped: 0,
                 sent_at: vec![None; STROKE_RING].into_boxed_slice(),
                 sent: 0,
+                done,
                 delays: Vec::with_capacity(DELAYS_KEPT),
             },
             CutThread {

@@ -19,6 +19,10 @@ use crate::Error;
 /// device's own watchdog may be shorter) and looks at its stop flag.
 const CLOCKED_WAIT: std::time::Duration = std::time::Duration::from_millis(20);
 
+/// The longest a run that ended on time ticks on for the cutter to finish the strokes
+/// already sent ([`super::cutting::CutLink::pending`]).
+pub const CUT_DRAIN: std::time::Duration = std::time::Duration::from_secs(5);
+
 /// What a haptic run measured.
 #[derive(Clone, Debug, Default)]
 pub struct HapticRun {
@@ -34,7 +38,8 @@ pub struct HapticRun {
 
 /// Runs the haptic loop on the calling thread at the scene's rate — or, for a device that
 /// clocks it ([`FingerDevices::clocked`]), at each of its readings — until `seconds` have
-/// passed (`None`: until `status.stop`). Each tick reads every finger's device, steps the god-objects
+/// passed (`None`: until `status.stop`), and then while the cutter finishes the blade's
+/// strokes already sent (at most [`CUT_DRAIN`]). Each tick reads every finger's device, steps the god-objects
 /// and forces, sends each device its force, publishes the [`WorldSample`](crate::runtime::WorldSample) and, if recording,
 /// queues the tick's positions and forces. Allocates nothing per tick.
 pub fn run_haptic(
@@ -77,7 +82,17 @@ pub fn run_haptic(
         (true, _, Some(u)) => p.elapsed() < u,
         _ => true,
     };
-    while more(&pacer) && !status.stop.load(Ordering::Relaxed) {
+    // When the run's time is up, the cutter's strokes in flight are waited for (ticking on,
+    // up to `CUT_DRAIN`), so that a cut the blade made is in the recording and the report.
+    let mut drain_from: Option<std::time::Duration> = None;
+    while !status.stop.load(Ordering::Relaxed) {
+        if !more(&pacer) {
+            let pending = cutting.as_ref().is_some_and(|(l, _)| l.pending());
+            let from = *drain_from.get_or_insert(pacer.elapsed());
+            if !pending || pacer.elapsed() >= from + CUT_DRAIN {
+                break;
+            }
+        }
         let (start, t) = if clocked {
             let reading = devices.wait_reading(CLOCKED_WAIT);
             pacer.arrived(reading)
