@@ -90,6 +90,8 @@ pub struct IncisionRun {
     pub body: std::sync::Arc<touchfem::runtime::cutting::CutBody>,
     /// The tets it removed.
     pub removed: Vec<bool>,
+    /// The strokes of each pass of the cutter, in order.
+    pub passes: Vec<Vec<touchfem::runtime::cutting::Stroke>>,
 }
 
 /// See [`IncisionRun`]; every force is checked finite and within the bound on the way.
@@ -209,6 +211,7 @@ pub fn run_incision_in(
     cutter.set_fold_mode(mode);
     cutter.set_cut_mode(cut);
     let mut passes = CutPasses::default();
+    let mut strokes_of = Vec::new();
     let bound = world.haptics.max_force_n;
     let (sample, before, after, body) = {
         let mut hw = HapticWorld::new(&world);
@@ -224,6 +227,7 @@ pub fn run_incision_in(
                 .all(|v| v.is_finite() && v.length() <= bound + 1e-12));
             strokes.extend_from_slice(hw.strokes());
             if k % 20 == 0 {
+                strokes_of.push(strokes.clone());
                 for (o, body) in passes.pass(&mut cutter, &strokes) {
                     hw.install_cut(o, body);
                 }
@@ -244,6 +248,7 @@ pub fn run_incision_in(
         after,
         body,
         removed,
+        passes: strokes_of,
     }
 }
 

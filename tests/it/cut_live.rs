@@ -420,6 +420,26 @@ fn the_incision_scene_opens_a_cut_and_the_same_press_beside_it_needs_less_force(
         run.after,
         run.before
     );
+    // The same passes on a fresh cutter: the same body to the bit (a replay's is the live
+    // run's; each cut's hash maps iterate in their own order, and the snap once summed the
+    // boundary normals in that order).
+    let mut cutter = touchfem::runtime::cutting::Cutter::new(&run.world).unwrap();
+    cutter.set_cut_mode(touchfem::runtime::cutting::CutMode::Separate);
+    let mut last = None;
+    for strokes in &run.passes {
+        for (_, body) in cutter.apply_all(strokes).unwrap() {
+            last = Some(body);
+        }
+    }
+    let bits = |b: &touchfem::runtime::cutting::CutBody| -> Vec<[u64; 3]> {
+        (b.rest.iter())
+            .map(|p| p.to_array().map(f64::to_bits))
+            .collect()
+    };
+    assert!(
+        bits(&last.unwrap()) == bits(b),
+        "the same strokes separated to other bits"
+    );
 }
 
 /// `touchfem demo incision --seconds SECONDS` under `TOUCHFEM_CUT=CUT`, recorded into `dir`:

@@ -535,7 +535,8 @@ impl Cut {
         }
     }
 
-    /// The outward normals of the boundary faces of the tets alive, at each of their nodes.
+    /// The outward normals of the boundary faces of the tets alive, at each of their nodes
+    /// (sorted).
     fn boundary_normals(&self) -> HashMap<u32, Vec<DVec3>> {
         let mut faces: HashMap<[u32; 3], ([u32; 3], u32)> = HashMap::new();
         for (t, tv) in self.tets.iter().enumerate() {
@@ -561,6 +562,15 @@ impl Cut {
                     out.entry(v).or_default().push(n);
                 }
             }
+        }
+        // In an order that does not depend on the map's (a snap sums them: a replay must
+        // snap to the same bits as the live run).
+        for ns in out.values_mut() {
+            ns.sort_by(|a, b| {
+                (a.x.total_cmp(&b.x))
+                    .then(a.y.total_cmp(&b.y))
+                    .then(a.z.total_cmp(&b.z))
+            });
         }
         out
     }
