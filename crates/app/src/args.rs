@@ -168,7 +168,9 @@ pub struct BenchArgs {
     #[arg(long, default_value = "out/ladder")]
     pub ladder_dir: PathBuf,
     /// Add rows for this scene's objects (a scene file, bundled scene or mesh): its precompute
-    /// (time, memory, peak RSS; the JSON's `scene` array) and the displacement methods.
+    /// (time, memory, peak RSS; the JSON's `scene` array) and the displacement methods. With
+    /// `--cut`: a mesh file in mm (an organ from scripts/make_organ.py), only its separating
+    /// blade step.
     #[arg(long)]
     pub scene: Option<String>,
     /// The hierarchical `L`'s rows at this tolerance only (0 < EPS < 1) instead of 10⁻²,

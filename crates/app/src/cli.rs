@@ -112,7 +112,12 @@ fn bench(a: &BenchArgs) -> Result<(), Error> {
         let (gpu, _) = bench_gpu("no GPU rows");
         print!(
             "{}",
-            touchfem_lab::cutting::bench(gpu.as_ref(), a.quick, a.json.as_deref())?
+            touchfem_lab::cutting::bench(
+                gpu.as_ref(),
+                a.quick,
+                a.json.as_deref(),
+                a.scene.as_deref()
+            )?
         );
         return Ok(());
     }

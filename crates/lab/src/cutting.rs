@@ -45,10 +45,16 @@ pub struct CutRow {
     pub rel_error: f64,
 }
 
-/// A scene of a bundled mesh, cuttable in a ball of `radius_mm` around `at_mm`.
+/// A scene of a bundled mesh or a mesh file in mm, cuttable in a ball of `radius_mm` around `at_mm`.
 fn world(mesh: &str, at_mm: DVec3, radius_mm: f64) -> Result<World, Error> {
+    // (A mesh file is in mm too.)
+    let file_unit = if matches!(mesh, "cube" | "mouse") {
+        ""
+    } else {
+        "mesh_unit = \"mm\"\n"
+    };
     let text = format!(
-        "unit = \"mm\"\n[[object]]\nmesh = \"{mesh}\"\ncuttable = {{ center = [{}, {}, {}], radius = {radius_mm} }}\n[[finger]]\ndevice = \"script\"\npath = [[0.0, 0.0, 0.0, 200.0]]\n",
+        "unit = \"mm\"\n[[object]]\nmesh = \"{mesh}\"\n{file_unit}cuttable = {{ center = [{}, {}, {}], radius = {radius_mm} }}\n[[finger]]\ndevice = \"script\"\npath = [[0.0, 0.0, 0.0, 200.0]]\n",
         at_mm.x, at_mm.y, at_mm.z
     );
     Ok(World::from_source_with(
@@ -234,8 +240,51 @@ pub fn rows(gpu: Option<&touchfem_gpu::Gpu>, quick: bool) -> Result<Vec<CutRow>,
         }
     }
     if let Some(&(name, at_mm, radius_mm, _)) = cases.iter().find(|c| c.0 == "mouse") {
-        separate_rows(gpu, name, at_mm, radius_mm, reps, &mut rows)?;
+        separate_rows(
+            gpu,
+            name,
+            at_mm,
+            radius_mm,
+            [-6.0, -3.0, 0.0],
+            reps,
+            &mut rows,
+        )?;
     }
+    Ok(rows)
+}
+
+/// The separating blade's rows on a mesh file (`mesh`, in mm: an organ from
+/// `scripts/make_organ.py`): a 3 mm chord after the one before it, along x to its highest
+/// node, 8 mm deep, cuttable within 15 mm of a point 10 mm below that node.
+pub fn scene_rows(
+    gpu: Option<&touchfem_gpu::Gpu>,
+    mesh: &str,
+    quick: bool,
+) -> Result<Vec<CutRow>, Error> {
+    let (m, _) = touchfem_core::scene::load_mesh(
+        mesh,
+        &touchfem_core::scene::LoadOptions {
+            unit: Some(touchfem_core::mesh::units::LengthUnit::Millimetre),
+            ..Default::default()
+        },
+    )?;
+    let top = (m.nodes.iter())
+        .copied()
+        .max_by(|a, b| a.z.total_cmp(&b.z))
+        .ok_or_else(|| Error::Study(format!("{mesh} has no node")))?
+        * 1e3;
+    let at_mm = top - DVec3::Z * 10.0;
+    let xs = [top.x - 6.0, top.x - 3.0, top.x];
+    let mut rows = Vec::new();
+    separate_rows(
+        gpu,
+        mesh,
+        at_mm,
+        15.0,
+        xs,
+        if quick { 3 } else { 5 },
+        &mut rows,
+    )?;
     Ok(rows)
 }
 
@@ -269,8 +318,8 @@ fn install_timed(
     Ok((t.elapsed().as_secs_f64() * 1e6, d))
 }
 
-/// The separating blade's rows on `name`: a 3 mm chord along the top 1.5 mm beside
-/// `at_mm`, 8 mm deep, after the 3 mm chord before it (a blade moving at 3 mm a pass), on a
+/// The separating blade's rows on `name`: a 3 mm chord along the top (from `xs[1]` to
+/// `xs[2]`, mm, at `at_mm`'s y), 8 mm deep, after the 3 mm chord before it (a blade moving at 3 mm a pass), on a
 /// fresh cutter each time; then, with a GPU, the body put on a deformer (with room for its
 /// copies) and one pass.
 fn separate_rows(
@@ -278,6 +327,7 @@ fn separate_rows(
     name: &str,
     at_mm: DVec3,
     radius_mm: f64,
+    xs: [f64; 3],
     reps: usize,
     rows: &mut Vec<CutRow>,
 ) -> Result<(), Error> {
@@ -297,7 +347,7 @@ fn separate_rows(
         inward: DVec3::NEG_Z,
         depth: 8e-3,
     };
-    let (first, second) = (stroke(-6.0, -3.0), stroke(-3.0, 0.0));
+    let (first, second) = (stroke(xs[0], xs[1]), stroke(xs[1], xs[2]));
     let mut times = Vec::new();
     let mut body: Option<Arc<CutBody>> = None;
     for _ in 0..reps {
@@ -371,13 +421,18 @@ fn separate_rows(
     Ok(())
 }
 
-/// `touchfem bench --cut`: the rows as a table (and as JSON `{"rows": [...]}` into `json`).
+/// `touchfem bench --cut`: the rows as a table (and as JSON `{"rows": [...]}` into `json`);
+/// with `scene` (a mesh file in mm), only that mesh's separating rows ([`scene_rows`]).
 pub fn bench(
     gpu: Option<&touchfem_gpu::Gpu>,
     quick: bool,
     json: Option<&std::path::Path>,
+    scene: Option<&str>,
 ) -> Result<String, Error> {
-    let rows = rows(gpu, quick)?;
+    let rows = match scene {
+        Some(mesh) => scene_rows(gpu, mesh, quick)?,
+        None => rows(gpu, quick)?,
+    };
     let mut out = String::new();
     let _ = writeln!(
         out,

@@ -11,6 +11,9 @@ use crate::fem::{element_stiffness, Dofs, Factor, Stiffness};
 use crate::mesh::{tet_volume, Mesh};
 use crate::Error;
 
+/// Copies of nodes whose rows `L_D` holds beyond those made so far (zero rows).
+const LD_ROOM: usize = 128;
+
 /// What one [`Cut::remove`] (or the removal part of a [`Cut::split`]) did.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct CutReport {
@@ -156,7 +159,9 @@ pub(super) struct Saved {
     d: Vec<usize>,
     place: Vec<u32>,
     dk: DMatrix<f64>,
-    ld: DMatrix<f64>,
+    /// `L_D`'s shape: a cut only adds rows (zero in the old columns: a copy's DOFs are
+    /// decoupled in `K₀`) and columns, so a failed one truncates it back.
+    ld_shape: (usize, usize),
     cap: DMatrix<f64>,
 }
 
@@ -375,7 +380,7 @@ impl Cut {
             d: self.d.clone(),
             place: self.place.clone(),
             dk: self.dk.clone(),
-            ld: self.ld.clone(),
+            ld_shape: self.ld.shape(),
             cap: self.cap.clone(),
         }
     }
@@ -395,7 +400,10 @@ impl Cut {
         self.d = s.d;
         self.place = s.place;
         self.dk = s.dk;
-        self.ld = s.ld;
+        if self.ld.shape() != s.ld_shape {
+            let ld = std::mem::replace(&mut self.ld, DMatrix::zeros(0, 0));
+            self.ld = ld.resize(s.ld_shape.0, s.ld_shape.1, 0.0);
+        }
         self.cap = s.cap;
     }
 
@@ -505,8 +513,10 @@ impl Cut {
             }
         }
         if self.ld.nrows() < self.n_dofs() {
+            // Room for the copies of the next cuts too (their rows are zero in the old
+            // columns): `L_D` is moved once per `LD_ROOM` copies, not at every cut.
             let ld = std::mem::replace(&mut self.ld, DMatrix::zeros(0, 0));
-            self.ld = ld.resize_vertically(self.n_dofs(), 0.0);
+            self.ld = ld.resize_vertically(self.n_dofs() + 3 * LD_ROOM, 0.0);
         }
         if !new_d.is_empty() {
             self.grow(&new_d);

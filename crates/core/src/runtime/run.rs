@@ -21,7 +21,7 @@ const CLOCKED_WAIT: std::time::Duration = std::time::Duration::from_millis(20);
 
 /// The longest a run that ended on time ticks on for the cutter to finish the strokes
 /// already sent ([`super::cutting::CutLink::pending`]).
-pub const CUT_DRAIN: std::time::Duration = std::time::Duration::from_secs(5);
+pub(crate) const CUT_DRAIN: std::time::Duration = std::time::Duration::from_secs(5);
 
 /// What a haptic run measured.
 #[derive(Clone, Debug, Default)]
@@ -39,7 +39,7 @@ pub struct HapticRun {
 /// Runs the haptic loop on the calling thread at the scene's rate — or, for a device that
 /// clocks it ([`FingerDevices::clocked`]), at each of its readings — until `seconds` have
 /// passed (`None`: until `status.stop`), and then while the cutter finishes the blade's
-/// strokes already sent (at most [`CUT_DRAIN`]). Each tick reads every finger's device, steps the god-objects
+/// strokes already sent (at most `CUT_DRAIN`, 5 s). Each tick reads every finger's device, steps the god-objects
 /// and forces, sends each device its force, publishes the [`WorldSample`](crate::runtime::WorldSample) and, if recording,
 /// queues the tick's positions and forces. Allocates nothing per tick.
 pub fn run_haptic(
