@@ -340,7 +340,7 @@ fn a_separating_cutter_hands_the_haptic_path_a_slit_that_a_recompute_agrees_with
         to: strokes[1].to,
         ..strokes[0]
     };
-    let quads = blade_quads(&[chord], mesh.mean_edge());
+    let quads = blade_quads(&[], &[chord], mesh.mean_edge());
     assert_eq!(quads.len(), 1);
     cut.split(&mesh, &quads).unwrap();
     assert_eq!(cut.nodes(), &body.rest[..]);

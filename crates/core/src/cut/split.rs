@@ -91,6 +91,10 @@ struct Ctx<'a> {
 /// moves only when the quad's normal lies along every face there.
 const SMOOTH: f64 = 0.9;
 
+/// A face across the joint of two quads is cut when its centroid lies within this fraction
+/// of its longest edge of one of them ([`Cut::split_after`]).
+const JOINT: f64 = 0.1;
+
 impl Cut {
     /// Separates the body along each blade's quad in turn (a polyline's quads, or one), and
     /// updates the correction exactly: snaps, drops the slivers, cuts the faces and splits
@@ -175,6 +179,14 @@ impl Cut {
                 *e = (*e).max(n);
             }
         }
+        // Faces across the joint of two quads (a path's segments, a polyline's bends).
+        if blades.len() + before.len() > 1 {
+            let quads: Vec<&BladeQuad> = blades.iter().chain(before).collect();
+            for (k, n) in self.joint_faces(&quads, eps, region) {
+                let e = faces.entry(k).or_insert(0);
+                *e = (*e).max(n);
+            }
+        }
         report.faces_cut = faces.values().filter(|&&n| n == 2).count();
         let cut: HashSet<[u32; 3]> = faces.into_keys().collect();
         self.split_nodes(&cut, region, &mut changes);
@@ -242,7 +254,7 @@ impl Cut {
             b,
             eps,
             frozen,
-            normals: self.boundary_normals(),
+            normals: self.boundary_normals(&near, &adj, &twins),
             twins,
         };
         loop {
@@ -322,6 +334,55 @@ impl Cut {
             }
         }
         cut_faces
+    }
+
+    /// The faces of the alive tets in `region` near any of `quads` whose every node lies on
+    /// one of them (on its plane to `eps`, within the face's longest edge of it: a snap moves
+    /// the end of an edge that crosses the quad) and whose centroid lies within a tenth of
+    /// that edge of one of them: the faces across a joint, whose nodes were snapped onto two
+    /// quads' planes (sorted nodes, with the number of their tets near). Where the planes
+    /// turn by a few degrees, such a face lies on the blade's path to well within an edge;
+    /// at a sharp bend its centroid is too far off both planes and it stays whole.
+    fn joint_faces(
+        &self,
+        quads: &[&BladeQuad],
+        eps: f64,
+        region: Option<&[bool]>,
+    ) -> HashMap<[u32; 3], u32> {
+        let inside = |t: usize| region.is_none_or(|r| r[t]);
+        let mut near: Vec<usize> = (quads.iter())
+            .flat_map(|b| self.tets_near(b, eps))
+            .filter(|&t| inside(t))
+            .collect();
+        near.sort_unstable();
+        near.dedup();
+        let on = |p: DVec3, within: f64, plane: f64| {
+            quads.iter().any(|b| {
+                let (u, v, s) = b.coords(p);
+                s.abs() <= plane && b.contains(u, v, within)
+            })
+        };
+        let mut out: HashMap<[u32; 3], u32> = HashMap::new();
+        for &t in &near {
+            let tv = self.tets[t];
+            for lf in TET_FACES {
+                let f = lf.map(|k| tv[k]);
+                let p = f.map(|v| self.nodes[v as usize]);
+                let longest = (p[0].distance(p[1]))
+                    .max(p[1].distance(p[2]))
+                    .max(p[2].distance(p[0]));
+                let tol = (JOINT * longest).max(eps);
+                if !p.iter().all(|&q| on(q, longest, eps)) {
+                    continue;
+                }
+                if on((p[0] + p[1] + p[2]) / 3.0, tol, tol) {
+                    let mut key = f;
+                    key.sort_unstable();
+                    *out.entry(key).or_insert(0) += 1;
+                }
+            }
+        }
+        out
     }
 
     /// Step 3: splits the nodes of the `cut` faces, from the tets as they stand (relabelled
@@ -535,14 +596,29 @@ impl Cut {
         }
     }
 
-    /// The outward normals of the boundary faces of the tets alive, at each of their nodes
-    /// (sorted).
-    fn boundary_normals(&self) -> HashMap<u32, Vec<DVec3>> {
-        let mut faces: HashMap<[u32; 3], ([u32; 3], u32)> = HashMap::new();
-        for (t, tv) in self.tets.iter().enumerate() {
-            if self.removed[t] {
-                continue;
+    /// The outward normals of the boundary faces of the tets alive at the nodes of the `near`
+    /// tets and their copies (sorted): from the faces of those nodes' tets alone (`adj`), since
+    /// every tet of a face holds each of its nodes.
+    fn boundary_normals(
+        &self,
+        near: &[usize],
+        adj: &NodeTets,
+        twins: &HashMap<u32, Vec<u32>>,
+    ) -> HashMap<u32, Vec<DVec3>> {
+        let mut nodes: Vec<u32> = near.iter().flat_map(|&t| self.tets[t]).collect();
+        for k in 0..nodes.len() {
+            if let Some(g) = twins.get(&self.origin[nodes[k] as usize]) {
+                nodes.extend_from_slice(g);
             }
+        }
+        nodes.sort_unstable();
+        nodes.dedup();
+        let mut ring: Vec<u32> = nodes.iter().flat_map(|&v| adj.of(v)).copied().collect();
+        ring.sort_unstable();
+        ring.dedup();
+        let mut faces: HashMap<[u32; 3], ([u32; 3], u32)> = HashMap::new();
+        for &t in &ring {
+            let tv = self.tets[t as usize];
             for lf in TET_FACES {
                 let f = lf.map(|k| tv[k]);
                 let mut key = f;
@@ -559,7 +635,9 @@ impl Cut {
             let n = (b - a).cross(c - a).normalize_or_zero();
             if n != DVec3::ZERO {
                 for v in f {
-                    out.entry(v).or_default().push(n);
+                    if nodes.binary_search(&v).is_ok() {
+                        out.entry(v).or_default().push(n);
+                    }
                 }
             }
         }

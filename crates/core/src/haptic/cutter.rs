@@ -117,9 +117,9 @@ pub struct CutOp(Op);
 enum Op {
     /// A blade's chord.
     Stroke(Stroke),
-    /// A separating blade's chord after the chords of its trail ([`CutMode::Separate`]), and
-    /// the mesh's mean edge ([`blade_quads`]).
-    Separate(Vec<Stroke>, f64),
+    /// A separating blade's segment so far after the segment before it
+    /// ([`CutMode::Separate`], [`blade_quads`]), and the mesh's mean edge.
+    Separate(Vec<Stroke>, Vec<Stroke>, f64),
     /// Tets removed by [`Cutter::remove_tets`].
     Tets(Vec<usize>),
 }
@@ -130,7 +130,9 @@ fn redo(cut: &mut Cut, mesh: &crate::Mesh, region: &CutRegion, op: &CutOp) -> Re
     let tets = match &op.0 {
         Op::Stroke(st) => blade_tets(mesh, st.from, st.to, st.inward, st.depth),
         Op::Tets(t) => t.clone(),
-        Op::Separate(trail, edge) => return separate(cut, mesh, region, trail, *edge).map(|_| ()),
+        Op::Separate(before, segment, edge) => {
+            return separate(cut, mesh, region, before, segment, *edge).map(|_| ())
+        }
     };
     let tets = still_to_cut(cut, region, tets);
     if !tets.is_empty() {
@@ -139,47 +141,56 @@ fn redo(cut: &mut Cut, mesh: &crate::Mesh, region: &CutRegion, op: &CutOp) -> Re
     Ok(())
 }
 
-/// The quads a separating blade cuts along for the last of `trail`'s chords (the chords
-/// before it are the same blade's, just before, each ending where the next begins): one a
-/// chord, each reaching back out of the body by the blade's depth (the blade's shank: a blade
-/// drawn under the surface came in through it, where a convex body has no material) and down
-/// to the nearest layer of nodes (`edge`: the mesh's mean edge; the faces a cut opens are the
-/// mesh's, so a cut is as deep as the blade to within half an edge). The trail's faces are
-/// cut again ([`Cut::split_after`]): a face whose nodes reached the plane only under a later
-/// chord is cut then.
-/// Empty when the last chord makes no quad (too short, not finite, a depth ≤ 0).
-pub fn blade_quads(trail: &[Stroke], edge: f64) -> Vec<BladeQuad> {
-    let Some(last) = trail.last() else {
+/// The quads a separating blade cuts along: the blade's path in segments of about an edge
+/// (`edge`: the mesh's mean edge), each cut as one straight quad from its first point to its
+/// last; `segment` the chords of the one it is drawing (the last quad, which snaps) and
+/// `before` those of the one before it (whose faces it completes across their joint). A
+/// hand's blade wanders across its path by a fraction of a millimetre, so that a chord of
+/// one pass turns by tens of degrees from the next; over an edge it turns by a few, and the
+/// nodes snapped along a segment lie on one plane, which makes faces to cut. Each quad
+/// reaches back out of the body by the blade's depth (the blade's shank: a blade drawn under
+/// the surface came in through it, where a convex body has no material) and down to the
+/// nearest layer of nodes (the faces a cut opens are the mesh's, so a cut is as deep as the
+/// blade to within half an edge). Empty when the segment makes no quad (too short, not
+/// finite, a depth ≤ 0).
+pub fn blade_quads(before: &[Stroke], segment: &[Stroke], edge: f64) -> Vec<BladeQuad> {
+    let span = |chords: &[Stroke]| -> Option<BladeQuad> {
+        let (first, last) = (chords.first()?, chords.last()?);
+        let along = (last.to - first.from).normalize_or_zero();
+        let up = -(last.inward - along * along.dot(last.inward)).normalize_or_zero();
+        let (from, to) = (first.from + up * last.depth, last.to + up * last.depth);
+        BladeQuad::new(from, to, last.inward, 2.0 * last.depth + 0.5 * edge).ok()
+    };
+    let Some(last) = span(segment) else {
         return Vec::new();
     };
-    if BladeQuad::new(last.from, last.to, last.inward, last.depth).is_err() {
-        return Vec::new();
-    }
-    (trail.iter())
-        .filter_map(|st| {
-            let along = (st.to - st.from).normalize_or_zero();
-            let up = -(st.inward - along * along.dot(st.inward)).normalize_or_zero();
-            let (from, to) = (st.from + up * st.depth, st.to + up * st.depth);
-            BladeQuad::new(from, to, st.inward, 2.0 * st.depth + 0.5 * edge).ok()
-        })
-        .collect()
+    span(before).into_iter().chain([last]).collect()
 }
 
-/// Separates `cut` (of `mesh`, within `region`) along the last of `trail`'s chords
-/// ([`blade_quads`], `edge` the mesh's mean edge); the report when it changed anything. A
-/// chord that makes no quad (too short, not finite) changes nothing.
+/// The length a segment of a separating blade's path spans ([`blade_quads`]), m.
+fn span_length(chords: &[Stroke]) -> f64 {
+    match (chords.first(), chords.last()) {
+        (Some(a), Some(b)) => a.from.distance(b.to),
+        _ => 0.0,
+    }
+}
+
+/// Separates `cut` (of `mesh`, within `region`) along a blade's segment after the segment
+/// before it ([`blade_quads`], `edge` the mesh's mean edge); the report when it changed
+/// anything. A segment that makes no quad (too short, not finite) changes nothing.
 fn separate(
     cut: &mut Cut,
     mesh: &crate::Mesh,
     region: &CutRegion,
-    trail: &[Stroke],
+    before: &[Stroke],
+    segment: &[Stroke],
     edge: f64,
 ) -> Result<Option<crate::cut::SplitReport>, Error> {
-    let quads = blade_quads(trail, edge);
+    let quads = blade_quads(before, segment, edge);
     if quads.is_empty() {
         return Ok(None);
     }
-    // (The last chord snaps; the trail's only adds the faces now on their planes.)
+    // (The segment snaps; the one before only adds the faces now on its plane.)
     let (before, last) = quads.split_at(quads.len() - 1);
     let rep = cut.split_after(mesh, before, last, Some(region.mask()))?;
     let changed =
@@ -286,8 +297,10 @@ struct ObjectCut {
     in_flight: Option<Vec<CutOp>>,
     /// A fold was adopted since the last body.
     adopted: bool,
-    /// A separating blade's chords just before the next ([`blade_quads`]).
-    trail: Vec<Stroke>,
+    /// A separating blade's segment before the one it draws, and the chords of that one
+    /// so far ([`blade_quads`]).
+    before: Vec<Stroke>,
+    segment: Vec<Stroke>,
     /// The mesh's mean edge, m.
     edge: f64,
 }
@@ -386,7 +399,8 @@ impl Cutter {
                 None => None,
                 Some((mesh, base, region)) => Some(ObjectCut {
                     cut: Cut::new(&mesh)?,
-                    trail: Vec::new(),
+                    before: Vec::new(),
+                    segment: Vec::new(),
                     edge: mesh.mean_edge(),
                     base,
                     mesh,
@@ -636,6 +650,19 @@ impl Cutter {
         self.body(o).map(Some)
     }
 
+    /// Object `o`'s strokes that came before a fold's adoption (a session's adopting body's
+    /// strokes: a separating blade's chords that changed nothing, kept for its segments and
+    /// for the next body), fed to the cutter as when they were made, before
+    /// [`Cutter::adopt`]. True when one of them changed something (then the session does not
+    /// match its scene).
+    pub fn feed_strokes(&mut self, o: usize, strokes: &[Stroke]) -> Result<bool, Error> {
+        let mut any = false;
+        for s in strokes.iter().filter(|s| s.object == o) {
+            any |= self.cut_only(s)?;
+        }
+        Ok(any)
+    }
+
     /// Removes what `stroke` sweeps; true when it removed something (and then records it
     /// among the strokes of the object's next body).
     fn cut_only(&mut self, stroke: &Stroke) -> Result<bool, Error> {
@@ -647,31 +674,36 @@ impl Cutter {
             let Some(Some(oc)) = self.objects.get_mut(stroke.object) else {
                 return Ok(false);
             };
-            if blade_quads(std::slice::from_ref(stroke), oc.edge).is_empty() {
+            if blade_quads(&[], std::slice::from_ref(stroke), oc.edge).is_empty() {
                 return Ok(false);
             }
-            // The blade's trail: its chords just before, back to one and a half edges.
-            let joined = oc.trail.last().is_some_and(|p| {
+            // The blade's segments: a chord that goes on from the last one extends the
+            // segment being drawn (another starts the path afresh).
+            let joined = oc.segment.last().or(oc.before.last()).is_some_and(|p| {
                 p.object == stroke.object && p.to == stroke.from && p.depth == stroke.depth
             });
             if !joined {
-                oc.trail.clear();
+                oc.before.clear();
+                oc.segment.clear();
             }
-            oc.trail.push(*stroke);
-            let mut behind = 0.0;
-            let keep = (oc.trail.iter().rev())
-                .take_while(|st| {
-                    let inside = behind <= 1.5 * oc.edge;
-                    behind += st.from.distance(st.to);
-                    inside
-                })
-                .count();
-            oc.trail.drain(..oc.trail.len() - keep);
-            let trail = oc.trail.clone();
+            oc.segment.push(*stroke);
+            let (before, segment) = (oc.before.clone(), oc.segment.clone());
+            // Once it spans an edge, the segment is done: the next chord starts the next.
+            if span_length(&oc.segment) >= oc.edge {
+                oc.before = std::mem::take(&mut oc.segment);
+            }
             // (Every chord joins the next body's strokes, those that cut nothing too: a
-            // replay makes the same trails.)
+            // replay makes the same segments.)
             oc.since.push(*stroke);
-            let Some(rep) = separate(&mut oc.cut, &oc.mesh, &oc.region, &trail, oc.edge)? else {
+            let Some(rep) = separate(
+                &mut oc.cut,
+                &oc.mesh,
+                &oc.region,
+                &before,
+                &segment,
+                oc.edge,
+            )?
+            else {
                 return Ok(false);
             };
             oc.tets_removed += rep.cut.tets_removed;
@@ -679,7 +711,7 @@ impl Cutter {
             oc.nodes_split += rep.nodes_split;
             oc.last = rep.cut;
             if let Some(ops) = &mut oc.in_flight {
-                ops.push(CutOp(Op::Separate(trail, oc.edge)));
+                ops.push(CutOp(Op::Separate(before, segment, oc.edge)));
             }
             return Ok(true);
         }

@@ -561,9 +561,16 @@ impl<'s> CutReplay<'s> {
                             e.object
                         ))
                     })?;
+                // Its strokes were made before the adoption, and changed nothing (a
+                // separating blade's chords; a removing blade's body has none).
+                if cutter.feed_strokes(e.object, &e.strokes)? {
+                    return Err(Error::Session(format!(
+                        "a cut after tick {i} adopts a fold after strokes that cut"
+                    )));
+                }
                 cutter.adopt(self.ready.swap_remove(k))?;
             }
-            let body = if e.strokes.is_empty() && e.fold_adopted {
+            let body = if e.fold_adopted {
                 Some(cutter.body_now(e.object)?)
             } else {
                 cutter.apply_strokes(e.object, &e.strokes)?
