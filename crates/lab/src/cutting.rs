@@ -372,6 +372,36 @@ fn separate_rows(
     };
     let pass = times[times.len() / 2];
     rows.push(row("separate-pass", pass, 0.0));
+    // The point finger's exact tick pressing 0.5 mm at the touchable node nearest the blade's
+    // end, on the separated body (its correction carried: rank above, copies as columns).
+    let c = &body.compliance;
+    let end = on(xs[2]);
+    let node = (c.cols().iter().copied())
+        .min_by(|&a, &b| {
+            let d = |v: u32| body.rest[v as usize].distance(end);
+            d(a).total_cmp(&d(b))
+        })
+        .ok_or_else(|| Error::Study("no column".into()))?;
+    let (p, nrm) = (body.rest[node as usize], body.surface.vertex_normal(node));
+    let mut finger = Finger::new(p + nrm * 1e-3);
+    let press =
+        |finger: &mut Finger, x: DVec3| finger.step(&body.surface, c, x, ForceModel::Exact, 8.5);
+    let mut first = DVec3::ZERO;
+    for _ in 0..4 {
+        first = press(&mut finger, p - nrm * 5e-4);
+    }
+    if first.length() < 1e-6 {
+        return Err(Error::Study(format!(
+            "the {name}'s press beside the slit does not touch ({first})"
+        )));
+    }
+    let mut i = 0usize;
+    let tick = median_us(if reps < 5 { 200 } else { 2000 }, || {
+        i = (i + 1) & 63;
+        let x = p - nrm * 5e-4 + DVec3::X * (1e-6 * i as f64 / 64.0);
+        std::hint::black_box(press(&mut finger, x));
+    });
+    rows.push(row("separate-tick-point-exact", tick, 0.0));
     let Some(g) = gpu else {
         return Ok(());
     };
