@@ -718,4 +718,9 @@ fn bench_cut_rows_hold_the_cut_and_the_fold_to_a_full_recompute() {
     let sep = get("separate-pass");
     assert!(sep.rank > 0 && sep.time_us > 0.0, "{sep:?}");
     assert_eq!(sep.tets_removed, 0, "{sep:?}");
+    // The finger's tick beside the slit (the press touched, or the rows are an error).
+    let tick = get("separate-tick-point-exact");
+    assert!(tick.time_us > 0.0 && tick.rank == sep.rank, "{tick:?}");
+    // `--scene` with a mesh file that is not there: a typed error, no rows.
+    assert!(touchfem_lab::cutting::scene_rows(None, "no/such/organ.msh", true).is_err());
 }
