@@ -177,36 +177,8 @@ pub fn rows(gpu: Option<&touchfem_gpu::Gpu>, quick: bool) -> Result<Vec<CutRow>,
             ));
             // The point finger's exact tick pressing 0.5 mm at that node, on the cut body.
             let p = mesh.nodes[node as usize];
-            let nrm = body.surface.vertex_normal(node);
-            let surf: &Surface = &body.surface;
-            let mut finger = Finger::new(p + nrm * 1e-3);
-            let mut first = DVec3::ZERO;
-            for _ in 0..4 {
-                first = finger.step(
-                    surf,
-                    &body.compliance,
-                    p - nrm * 5e-4,
-                    ForceModel::Exact,
-                    8.5,
-                );
-            }
-            if first.length() < 1e-6 {
-                return Err(Error::Study(format!(
-                    "the {name}'s press beside the cut does not touch ({first})"
-                )));
-            }
-            let mut i = 0usize;
-            let tick = median_us(if quick { 200 } else { 2000 }, || {
-                i = (i + 1) & 63;
-                let x = p - nrm * 5e-4 + DVec3::X * (1e-6 * i as f64 / 64.0);
-                std::hint::black_box(finger.step(
-                    surf,
-                    &body.compliance,
-                    x,
-                    ForceModel::Exact,
-                    8.5,
-                ));
-            });
+            let what = format!("the {name}'s press beside the cut");
+            let tick = tick_us(&body, node, p, &what, quick)?;
             rows.push(row("tick-point-exact", tick, 0.0));
             if let Some(g) = gpu {
                 let opts = touchfem_gpu::DeformerOptions::default();
@@ -286,6 +258,28 @@ pub fn scene_rows(
         &mut rows,
     )?;
     Ok(rows)
+}
+
+/// The median time (µs, of 200 ticks when `quick`, else 2000) of a point finger's exact tick
+/// on `body` pressing 0.5 mm at `node` (at `p`, along its normal); an error naming `what` when
+/// the press does not touch.
+fn tick_us(body: &CutBody, node: u32, p: DVec3, what: &str, quick: bool) -> Result<f64, Error> {
+    let nrm = body.surface.vertex_normal(node);
+    let (surf, c) = (&body.surface, &body.compliance);
+    let mut finger = Finger::new(p + nrm * 1e-3);
+    let mut first = DVec3::ZERO;
+    for _ in 0..4 {
+        first = finger.step(surf, c, p - nrm * 5e-4, ForceModel::Exact, 8.5);
+    }
+    if first.length() < 1e-6 {
+        return Err(Error::Study(format!("{what} does not touch ({first})")));
+    }
+    let mut i = 0usize;
+    Ok(median_us(if quick { 200 } else { 2000 }, || {
+        i = (i + 1) & 63;
+        let x = p - nrm * 5e-4 + DVec3::X * (1e-6 * i as f64 / 64.0);
+        std::hint::black_box(finger.step(surf, c, x, ForceModel::Exact, 8.5));
+    }))
 }
 
 /// A deformer of `obj`'s uncut compliance, one frame of `warm` forces, then the time (µs) to
@@ -382,25 +376,8 @@ fn separate_rows(
             d(a).total_cmp(&d(b))
         })
         .ok_or_else(|| Error::Study("no column".into()))?;
-    let (p, nrm) = (body.rest[node as usize], body.surface.vertex_normal(node));
-    let mut finger = Finger::new(p + nrm * 1e-3);
-    let press =
-        |finger: &mut Finger, x: DVec3| finger.step(&body.surface, c, x, ForceModel::Exact, 8.5);
-    let mut first = DVec3::ZERO;
-    for _ in 0..4 {
-        first = press(&mut finger, p - nrm * 5e-4);
-    }
-    if first.length() < 1e-6 {
-        return Err(Error::Study(format!(
-            "the {name}'s press beside the slit does not touch ({first})"
-        )));
-    }
-    let mut i = 0usize;
-    let tick = median_us(if reps < 5 { 200 } else { 2000 }, || {
-        i = (i + 1) & 63;
-        let x = p - nrm * 5e-4 + DVec3::X * (1e-6 * i as f64 / 64.0);
-        std::hint::black_box(press(&mut finger, x));
-    });
+    let what = format!("the {name}'s press beside the slit");
+    let tick = tick_us(&body, node, body.rest[node as usize], &what, reps < 5)?;
     rows.push(row("separate-tick-point-exact", tick, 0.0));
     let Some(g) = gpu else {
         return Ok(());

@@ -173,13 +173,9 @@ impl Cut {
                 *e = (*e).max(n);
             }
         }
-        for b in before {
-            for (k, n) in self.cut_faces(b, eps, region) {
-                let e = faces.entry(k).or_insert(0);
-                *e = (*e).max(n);
-            }
-        }
-        // Faces across the joint of two quads (a path's segments, a polyline's bends).
+        // The faces of the quads before, and those across the joint of two quads (a path's
+        // segments, a polyline's bends): `joint_faces` finds every face `cut_faces` finds on
+        // one of its quads, and those across their joints.
         if blades.len() + before.len() > 1 {
             let quads: Vec<&BladeQuad> = blades.iter().chain(before).collect();
             for (k, n) in self.joint_faces(&quads, eps, region) {
@@ -339,8 +335,9 @@ impl Cut {
     /// The faces of the alive tets in `region` near any of `quads` whose every node lies on
     /// one of them (on its plane to `eps`, within the face's longest edge of it: a snap moves
     /// the end of an edge that crosses the quad) and whose centroid lies within a tenth of
-    /// that edge of one of them: the faces across a joint, whose nodes were snapped onto two
-    /// quads' planes (sorted nodes, with the number of their tets near). Where the planes
+    /// that edge of one of them: every face [`Cut::cut_faces`] finds on one of them, and the
+    /// faces across a joint, whose nodes were snapped onto two quads' planes (sorted nodes,
+    /// with the number of their tets near). Where the planes
     /// turn by a few degrees, such a face lies on the blade's path to well within an edge;
     /// at a sharp bend its centroid is too far off both planes and it stays whole.
     fn joint_faces(

@@ -640,11 +640,7 @@ impl Cutter {
         o: usize,
         strokes: &[Stroke],
     ) -> Result<Option<Arc<CutBody>>, Error> {
-        let mut any = false;
-        for s in strokes.iter().filter(|s| s.object == o) {
-            any |= self.cut_only(s)?;
-        }
-        if !any {
+        if !self.feed_strokes(o, strokes)? {
             return Ok(None);
         }
         self.body(o).map(Some)
