@@ -124,6 +124,13 @@ fn fs_line() -> @location(0) vec4<f32> {
     return cam.line_color;
 }
 
+// A closed slit's line (where a separating cut's faces meet the surface): opaque, the red of
+// cut tissue, over the surface colours and the wireframe alike.
+@fragment
+fn fs_slit() -> @location(0) vec4<f32> {
+    return vec4<f32>(0.80, 0.06, 0.04, 1.0);
+}
+
 struct SphereOut {
     @builtin(position) clip: vec4<f32>,
     @location(0) world: vec3<f32>,

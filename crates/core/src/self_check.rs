@@ -142,6 +142,10 @@ pub fn all() -> Vec<Check> {
         check!(mesh::cube::tests, phantom_has_a_conforming_nodule),
         check!(mesh::cube::tests, cube_volume_is_exact),
         check!(mesh::tests, fans_cover_every_triangle_once),
+        check!(
+            mesh::slit::tests,
+            the_slit_is_where_twinned_faces_meet_the_rest
+        ),
         check!(mesh::tests, single_tet_surface_is_outward),
         check!(runtime::pacer::tests, quantiles_of_a_histogram),
         check!(runtime::pacer::tests, the_floor_runs_at_its_rate),

@@ -630,6 +630,19 @@ impl Deformer {
         Ok(())
     }
 
+    /// Sets the line a separating cut's closed slit shows (mesh node pairs, e.g.
+    /// [`touchfem_core::mesh::slit_edges`]; [`install_cut`] sets it), drawn by a renderer's
+    /// [`Edges`](crate::render::Edges); cleared by [`set_triangles`](Self::set_triangles).
+    /// An edge with a node that has no vertex is left out.
+    pub fn set_slit(&mut self, edges: &[[u32; 2]]) {
+        self.surface.set_slit(edges);
+    }
+
+    /// The slit's line ([`set_slit`](Self::set_slit)) in vertex indices.
+    pub fn slit(&self) -> &[[u32; 2]] {
+        self.surface.slit()
+    }
+
     /// How many times [`set_triangles`](Self::set_triangles) replaced the surface (0 after
     /// [`new`](Self::new)): what a renderer compares to know when to rebuild what it derived
     /// from [`triangles`](Self::triangles) (e.g. its wireframe).
@@ -829,7 +842,8 @@ pub struct DeformerStats {
 /// cut folded into a new `L`), or when the deformer reserves too few vertices for the nodes a
 /// separating cut added (then with twice the room needed); then its correction
 /// ([`Deformer::set_correction_at`]: the snapped rows moved, the copies drawn) and its opened
-/// surface `triangles` (node triples). Triangles whose nodes are neither displayed rows nor
+/// surface `triangles` (node triples), with the line where a closed slit's faces meet the
+/// surface ([`Deformer::set_slit`]). Triangles whose nodes are neither displayed rows nor
 /// nodes the correction added (a cut beyond the `cuttable` region's nodes) are left out with
 /// a warning. The caller rebuilds what it derived from the deformer's triangles (its
 /// wireframe). On an error the deformer may hold part of the body: draw from the CPU's
@@ -874,7 +888,9 @@ pub fn install_cut(
         );
     }
     deformer.set_correction_at(device, queue, k, rest)?;
-    deformer.set_triangles(device, queue, &drawn)
+    deformer.set_triangles(device, queue, &drawn)?;
+    deformer.set_slit(&touchfem_core::mesh::slit_edges(&drawn, rest));
+    Ok(())
 }
 
 /// Checks an output target; returns (binding start, binding size, word offset of vertex 0

@@ -35,6 +35,8 @@ pub(crate) struct Surface {
     generation: u64,
     /// The mesh nodes mapped to extra vertices ([`set_extras`](Self::set_extras)).
     extras: Vec<u32>,
+    /// A closed slit's line: edges in vertex indices ([`set_slit`](Self::set_slit)).
+    slit: Vec<[u32; 2]>,
 }
 
 impl Surface {
@@ -70,6 +72,7 @@ impl Surface {
             smooth: n_smooth,
             generation: 0,
             extras: Vec::new(),
+            slit: Vec::new(),
         })
     }
 
@@ -92,7 +95,22 @@ impl Surface {
         self.triangles = tris;
         self.generation += 1;
         self.smooth = 0;
+        self.slit.clear();
         Ok(())
+    }
+
+    /// Sets the slit's line ([`touchfem_core::mesh::slit_edges`], mesh nodes) over the
+    /// triangles now (cleared by [`set_triangles`](Self::set_triangles)); an edge with a node
+    /// that has no vertex is left out.
+    pub(crate) fn set_slit(&mut self, edges: &[[u32; 2]]) {
+        self.slit = (edges.iter())
+            .filter_map(|e| Some([self.row_of(e[0])?, self.row_of(e[1])?]))
+            .collect();
+    }
+
+    /// The slit's line in vertex indices.
+    pub(crate) fn slit(&self) -> &[[u32; 2]] {
+        &self.slit
     }
 
     /// Maps `nodes` (without a row) to the vertices `base..` after the rows, in order,

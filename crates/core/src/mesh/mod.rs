@@ -8,9 +8,11 @@
 
 pub(crate) mod cube;
 pub mod io;
+pub(crate) mod slit;
 pub mod units;
 
 pub use cube::{cube, cube_with, graded_block, grid_raw, mouse, phantom, CUBE_EDGE_MM};
+pub use slit::slit_edges;
 
 use glam::DVec3;
 use std::collections::{BTreeMap, HashMap};

@@ -34,6 +34,7 @@
 //! ```
 
 mod camera;
+mod edges;
 mod legend;
 mod overlay;
 mod pixels;
@@ -45,6 +46,7 @@ mod view;
 
 pub(crate) use camera::FULL_FRAME;
 pub use camera::{Camera, Orbit, VIEW_DIR};
+pub use edges::Edges;
 pub use legend::{
     arrow_label, arrow_scale, displacement_scale, format_significant, legend_image, length_ticks,
     viridis, LegendSpec, LengthTicks, VIRIDIS,
@@ -61,7 +63,6 @@ use glam::DVec3;
 #[cfg(feature = "png")]
 use std::path::Path;
 use thiserror::Error;
-use wgpu::util::DeviceExt;
 
 #[cfg(feature = "png")]
 use crate::context::Gpu;
@@ -389,36 +390,6 @@ struct SphereInstance {
     color: [f32; 4],
 }
 
-/// The surface edges of a [`Deformer`]'s triangles as a line-list index buffer, for the
-/// wireframe overlay. Build once per deformer and keep it with the frame loop.
-#[derive(Debug)]
-pub struct Edges {
-    buffer: Option<wgpu::Buffer>,
-    count: u32,
-}
-
-impl Edges {
-    /// The unique undirected edges of `deformer`'s triangles.
-    pub fn new(device: &wgpu::Device, deformer: &Deformer) -> Edges {
-        let e = edge_list(deformer.triangles());
-        Edges {
-            buffer: (!e.is_empty()).then(|| {
-                device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("touchfem edges"),
-                    contents: bytemuck::cast_slice(&e),
-                    usage: wgpu::BufferUsages::INDEX,
-                })
-            }),
-            count: e.len() as u32,
-        }
-    }
-
-    /// Number of indices (two per edge).
-    pub fn index_count(&self) -> u32 {
-        self.count
-    }
-}
-
 /// One object of a [`Frame`].
 #[derive(Clone, Copy, Debug)]
 pub struct FrameObject<'a> {
@@ -500,6 +471,8 @@ pub struct Renderer {
     /// The surface without the per-pixel facet normal ([`DeformerStats::smooth_triangles`](crate::DeformerStats::smooth_triangles)).
     surface_smooth: wgpu::RenderPipeline,
     lines: wgpu::RenderPipeline,
+    /// A closed slit's line ([`Edges`]), drawn with or without the wireframe.
+    slit: wgpu::RenderPipeline,
     sphere: wgpu::RenderPipeline,
     sphere_hidden: wgpu::RenderPipeline,
     sphere_vertices: wgpu::Buffer,
@@ -977,20 +950,20 @@ impl Renderer {
                 }
             }
         }
-        if frame.wireframe {
-            pass.set_pipeline(&self.lines);
+        // The wireframe where asked, a closed slit's line always (its own colour, over it).
+        for (pipeline, slit) in [(&self.lines, false), (&self.slit, true)] {
+            if !slit && !frame.wireframe {
+                continue;
+            }
+            pass.set_pipeline(pipeline);
             for (i, o) in frame.objects.iter().enumerate() {
-                let Some(Edges {
-                    buffer: Some(buf),
-                    count,
-                }) = o.edges
-                else {
+                let Some((buf, range)) = o.edges.and_then(|e| e.lines(slit)) else {
                     continue;
                 };
                 pass.set_bind_group(0, &self.bind_group, &[record(i)]);
                 pass.set_vertex_buffer(0, o.deformer.vertex_buffer().slice(..));
                 pass.set_index_buffer(buf.slice(..), wgpu::IndexFormat::Uint32);
-                pass.draw_indexed(0..*count, 0, 0..1);
+                pass.draw_indexed(range, 0, 0..1);
             }
         }
         if count > 0 {
@@ -1131,18 +1104,6 @@ fn bounds(pts: &[DVec3]) -> (DVec3, DVec3) {
     )
 }
 
-/// Unique undirected edges of `tris`, as a line-list index array.
-fn edge_list(tris: &[[u32; 3]]) -> Vec<u32> {
-    let mut e: Vec<(u32, u32)> = tris
-        .iter()
-        .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
-        .map(|(a, b)| (a.min(b), a.max(b)))
-        .collect();
-    e.sort_unstable();
-    e.dedup();
-    e.into_iter().flat_map(|(a, b)| [a, b]).collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1157,12 +1118,6 @@ mod tests {
         assert!(wireframe_by_default(20_172, [1920, 1080]));
         // The paper's cube (192 triangles) even in a small window.
         assert!(wireframe_by_default(192, [160, 120]));
-    }
-
-    #[test]
-    fn edges_are_unique() {
-        let e = edge_list(&[[0, 1, 2], [2, 1, 3]]);
-        assert_eq!(e, vec![0, 1, 0, 2, 1, 2, 1, 3, 2, 3]);
     }
 
     #[test]

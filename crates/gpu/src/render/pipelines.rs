@@ -158,6 +158,17 @@ impl Renderer {
             C::LessEqual,
             Some(wgpu::BlendState::ALPHA_BLENDING),
         );
+        let slit = pipeline(
+            "touchfem slit",
+            "vs_line",
+            "fs_slit",
+            &surface_buffers,
+            T::LineList,
+            None,
+            false,
+            C::LessEqual,
+            None,
+        );
         let sphere = pipeline(
             "touchfem spheres",
             "vs_sphere",
@@ -245,6 +256,7 @@ impl Renderer {
             surface,
             surface_smooth,
             lines,
+            slit,
             sphere,
             sphere_hidden,
             sphere_vertices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
