@@ -20,10 +20,9 @@ impl Compliance {
         let new_rows: Vec<usize> = (0..nx).filter(|&x| k.extra_row[x] == u32::MAX).collect();
         let (nr2, nc2) = (nr + new_rows.len(), nc + nx);
         let (nr3, nc3, nx3) = (3 * nr, 3 * nc, 3 * nx);
-        // Uᵀ and Vᵀ column-major (`rank × 3·n`, one column a DOF), as stored.
-        let urows = DMatrixView::from_slice(&k.rows, nr3, r);
+        // `U_R` column-major (`3·R × rank`); `Uᵀ` and `Vᵀ` of the columns column-major
+        // (`rank × 3·n`, one column a DOF), as stored.
         let uct = DMatrixView::from_slice(&k.u_cols, r, nc3);
-        let vct = DMatrixView::from_slice(&k.v_cols, r, nc3);
         let uxt = DMatrixView::from_slice(&k.u_extra, r, nx3);
         let vxt = DMatrixView::from_slice(&k.v_extra, r, nx3);
         let mut l = DMatrix::<f64>::zeros(3 * nr2, 3 * nc2);
@@ -31,9 +30,17 @@ impl Compliance {
         l.view_mut((0, 0), (nr3, nc3))
             .copy_from(&DMatrixView::from_slice(&self.l, nr3, nc3));
         if r > 0 {
-            l.view_mut((0, 0), (nr3, nc3)).gemm(1.0, &urows, &vct, 1.0);
-            l.view_mut((0, nc3), (nr3, nx3))
-                .gemm(1.0, &urows, &vxt, 0.0);
+            let ld = 3 * nr2;
+            let dst = l.as_mut_slice();
+            gemm_seq(dst, (nr3, nc3, ld), &k.rows, &k.v_cols, r, true);
+            gemm_seq(
+                &mut dst[nc3 * ld..],
+                (nr3, nx3, ld),
+                &k.rows,
+                &k.v_extra,
+                r,
+                false,
+            );
             // New rows: × old columns `(U_C V_xᵀ)ᵀ = V_x U_Cᵀ` (symmetry: an extra node's row
             // of `L₀` is not in `U_x V_Cᵀ`), × extra columns `U_x V_Xᵀ`.
             let vx_uc = vxt.transpose() * uct;
@@ -81,6 +88,36 @@ impl Compliance {
         }));
         Ok(c)
     }
+}
+
+/// `dst = a·b` (`accumulate`: `dst += a·b`) for `a` (`m × k`) and `b` (`k × n`) column-major,
+/// into the `m × n` block at the start of `dst` whose columns are `ld` apart: faer's product
+/// on this thread alone (the same bits on every run, so that a replay folds to the same `L`),
+/// about twice nalgebra's on one core. Nothing when a dimension is 0.
+pub(super) fn gemm_seq(
+    dst: &mut [f64],
+    (m, n, ld): (usize, usize, usize),
+    a: &[f64],
+    b: &[f64],
+    k: usize,
+    accumulate: bool,
+) {
+    use faer::{Accum, MatMut, MatRef, Par};
+    if m == 0 || n == 0 || k == 0 {
+        return;
+    }
+    faer::linalg::matmul::matmul(
+        MatMut::from_column_major_slice_with_stride_mut(&mut dst[..(n - 1) * ld + m], m, n, ld),
+        if accumulate {
+            Accum::Add
+        } else {
+            Accum::Replace
+        },
+        MatRef::from_column_major_slice(&a[..m * k], m, k),
+        MatRef::from_column_major_slice(&b[..k * n], k, n),
+        1.0,
+        Par::Seq,
+    );
 }
 
 /// Zeroes a folded `l`'s columns and rows that `k` marks dead (pinned nodes), and errors

@@ -743,11 +743,8 @@ impl Compliance {
         }
         let (nr3, nc3) = (3 * self.l_rows, 3 * self.cols.len());
         let mut l = nalgebra::DMatrix::from_column_slice(nr3, nc3, &self.l);
-        if k.rank > 0 {
-            let u = nalgebra::DMatrixView::from_slice(&k.rows, nr3, k.rank);
-            let vt = nalgebra::DMatrixView::from_slice(&k.v_cols, k.rank, nc3);
-            l.gemm(1.0, &u, &vt, 1.0);
-        }
+        let dst = l.as_mut_slice();
+        grown::gemm_seq(dst, (nr3, nc3, nr3), &k.rows, &k.v_cols, k.rank, true);
         grown::pin_and_check(&mut l, k)?;
         let mut c = self.clone();
         c.l = std::sync::Arc::new(l.data.into());
