@@ -493,3 +493,51 @@ fn a_separating_cutter_that_folds_feels_what_one_that_carries_feels() {
     );
     assert!(worst < 1e-9, "{worst}");
 }
+
+/// `C` and `V` carried from cut to cut (each cut's term of rank `|T|` added to the last ones,
+/// `cut/carry.rs`) against `V` made afresh: the same cuts on two cuts of the cube, one asked
+/// for its correction after every cut (so each `V` is the last one plus the updates since),
+/// the other only at the end (its updates are not kept: `V` afresh); both against a recompute
+/// of the separated cube.
+#[test]
+fn v_carried_from_cut_to_cut_equals_v_made_afresh() {
+    let mesh = cube();
+    let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
+    let (mut carried, mut afresh) = (Cut::new(&mesh).unwrap(), Cut::new(&mesh).unwrap());
+    // A long blade across the cube at y = 20 mm, then one drawn along x = 11 mm in short
+    // steps (each touches far fewer DOFs than the rank: its `V` is carried).
+    let steps = [
+        ([2.0, 20.0], [28.0, 20.0]),
+        ([11.0, 3.0], [11.0, 6.0]),
+        ([11.0, 6.0], [11.0, 9.0]),
+        ([11.0, 9.0], [11.0, 12.0]),
+        ([11.0, 12.0], [11.0, 15.0]),
+    ];
+    let mut ranks = Vec::new();
+    for (a, b) in steps {
+        let q = quad(&mesh, [a[0], a[1], 30.0], [b[0], b[1], 30.0], 10.0);
+        carried.split(&mesh, std::slice::from_ref(&q)).unwrap();
+        afresh.split(&mesh, &[q]).unwrap();
+        ranks.push(carried.rank());
+        carried.correction(&c).unwrap();
+    }
+    let (kc, ka) = (
+        carried.correction(&c).unwrap(),
+        afresh.correction(&c).unwrap(),
+    );
+    assert_eq!(kc.rank, ka.rank);
+    let scale = ka.v_cols.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let worst = (kc.v_cols.iter().zip(&ka.v_cols)).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    eprintln!(
+        "ranks {ranks:?}: V carried against V afresh {:.1e} (of {scale:.2e})",
+        worst / scale
+    );
+    assert!(scale > 0.0 && worst <= 1e-10 * scale, "{worst} of {scale}");
+    // (Not the same bits: the carried `V` was made another way.)
+    assert!(worst > 0.0);
+    assert!(
+        ranks.windows(2).all(|w| w[1] >= w[0]) && ranks[4] > ranks[0],
+        "{ranks:?}"
+    );
+    assert!(check_grown("cube, carried over five cuts", &carried, &mesh, &c) < 1e-9);
+}

@@ -110,11 +110,13 @@ pub struct Cut {
     pub(super) d: Vec<usize>,
     pub(super) place: Vec<u32>,
     /// `ΔK′` on `D`.
-    dk: DMatrix<f64>,
+    pub(super) dk: DMatrix<f64>,
     /// `L_D`: every DOF's row of `L₀`, `D`'s columns.
     pub(super) ld: DMatrix<f64>,
     /// `C = (I − ΔK′ L_DD)⁻¹ ΔK′`.
     pub(super) cap: DMatrix<f64>,
+    /// What [`Cut::correction`]'s `V` is made from next (`cut/carry.rs`).
+    pub(super) carried: std::sync::Mutex<super::carried::Carried>,
 }
 
 /// A cut's rebase, planned ([`Cut::rebase_plan`]) and not yet run: the separated body and
@@ -270,6 +272,7 @@ impl Cut {
             dk: DMatrix::zeros(0, 0),
             ld: DMatrix::zeros(n_free, 0),
             cap: DMatrix::zeros(0, 0),
+            carried: Default::default(),
         })
     }
 
@@ -405,6 +408,8 @@ impl Cut {
             self.ld = ld.resize(s.ld_shape.0, s.ld_shape.1, 0.0);
         }
         self.cap = s.cap;
+        // (The updates since the last `V` went with the cut undone: `V` is made afresh.)
+        *self.carried.get_mut().unwrap_or_else(|e| e.into_inner()) = Default::default();
     }
 
     /// Removes `tets` (indices into `mesh.tets`; repeats and removed ones are ignored), and any
@@ -521,6 +526,7 @@ impl Cut {
         if !new_d.is_empty() {
             self.grow(&new_d);
         }
+        let before = self.dk.clone();
         // ΔK′ = K₀ − K′: each changed tet's stiffness before, less its stiffness now.
         for b in &changes.list {
             let mat = mesh.tet_material(b.tet);
@@ -540,7 +546,7 @@ impl Cut {
         for &v in &new_pins {
             self.add_diagonal(v, -1.0);
         }
-        self.capacitance()?;
+        self.update_capacitance(&before)?;
         report.rank = self.d.len();
         Ok(report)
     }
@@ -618,57 +624,6 @@ impl Cut {
         dk.view_mut((0, 0), (old, old)).copy_from(&self.dk);
         self.dk = dk;
         self.d.extend_from_slice(new);
-    }
-
-    /// `C = (I − ΔK′ L_DD)⁻¹ ΔK′`.
-    fn capacitance(&mut self) -> Result<(), Error> {
-        use faer::dyn_stack::{MemBuffer, MemStack};
-        use faer::linalg::lu::partial_pivoting::{factor, solve};
-        let m = self.d.len();
-        let mut ldd = DMatrix::zeros(m, m);
-        for b in 0..m {
-            let col = self.ld.column(b);
-            for (a, &fa) in self.d.iter().enumerate() {
-                ldd[(a, b)] = col[fa];
-            }
-        }
-        let mmat = DMatrix::identity(m, m) - &self.dk * ldd;
-        // (On failure `C` is left zero, of the right size: the cut reads `L₀` then, and
-        // nothing panics.)
-        self.cap = DMatrix::zeros(m, m);
-        // faer's blocked LU with partial pivoting, on this thread alone (the same bits on
-        // every run, so that a replay rebuilds the same bodies): 2.5 times nalgebra's at the
-        // incision's ranks.
-        let par = faer::Par::Seq;
-        let mut lu = faer::Mat::<f64>::from_fn(m, m, |i, j| mmat[(i, j)]);
-        let (mut perm, mut perm_inv) = (vec![0usize; m], vec![0usize; m]);
-        let mut buf = MemBuffer::new(
-            factor::lu_in_place_scratch::<usize, f64>(m, m, par, Default::default())
-                .or(solve::solve_in_place_scratch::<usize, f64>(m, m, par)),
-        );
-        let stack = MemStack::new(&mut buf);
-        let (_, p) = factor::lu_in_place(
-            lu.as_mut(),
-            &mut perm,
-            &mut perm_inv,
-            par,
-            stack,
-            Default::default(),
-        );
-        if (0..m).any(|i| !(lu[(i, i)] != 0.0 && lu[(i, i)].is_finite())) {
-            return Err(Error::Input(
-                "the cut left a singular stiffness (a piece that no clamp holds was not found)"
-                    .into(),
-            ));
-        }
-        let mut x = faer::Mat::<f64>::from_fn(m, m, |i, j| self.dk[(i, j)]);
-        solve::solve_in_place(lu.as_ref(), lu.as_ref(), p, x.as_mut(), par, stack);
-        let cap = DMatrix::from_fn(m, m, |i, j| x[(i, j)]);
-        if !cap.iter().all(|v| v.is_finite()) {
-            return Err(Error::Input("the cut's correction is not finite".into()));
-        }
-        self.cap = cap;
-        Ok(())
     }
 
     /// The pieces of the remaining tets that nothing holds rigidly: each a list of tets.
@@ -1159,7 +1114,7 @@ impl Cut {
         }
         // V = U Cᵀ for every column at once (a matrix product; u_cols is U row by row, so
         // U's transpose column-major: Vᵀ = C Uᵀ).
-        self.cap_times(&u_cols, &mut v_cols);
+        self.v_times(c, &u_cols, &mut v_cols);
         let mut k = Correction {
             rank: r,
             rows,

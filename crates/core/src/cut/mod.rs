@@ -29,6 +29,8 @@
 
 mod blade;
 mod body;
+mod carried;
+mod carry;
 mod grown;
 mod split;
 

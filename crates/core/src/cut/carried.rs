@@ -1,0 +1,22 @@
+//! What a [`super::Cut`] carries from one cut to the next for its `V` (made in
+//! [`super::carry`]).
+
+use nalgebra::DMatrix;
+
+use crate::compliance::Compliance;
+
+/// One cut's term of the capacitance: `S G Sᵀ`.
+pub(super) struct Update {
+    /// `S`, `rank × |T|` at the rank of its cut.
+    pub(super) s: DMatrix<f64>,
+    /// `G`, `|T| × |T|`.
+    pub(super) g: DMatrix<f64>,
+}
+
+/// The last `V` made and the updates since.
+#[derive(Default)]
+pub(super) struct Carried {
+    pub(super) pending: Vec<Update>,
+    /// `Vᵀ` (`rank × 3·C`, column-major) of the compliance `L` it was made for, at `rank`.
+    pub(super) v: Option<(Compliance, usize, Vec<f64>)>,
+}

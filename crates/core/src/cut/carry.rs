@@ -1,0 +1,196 @@
+//! The capacitance and `V` carried from one cut to the next. A cut changes `ΔK′` only on
+//! the DOFs `T` its tets touch (`E = ΔK′₁ − ΔK′₀`, zero outside `T × T`), so the new
+//! capacitance is the old one plus a term of rank `|T|`:
+//!
+//! `C₁ = C₀ + S G Sᵀ`, `S = P_T + C₀ L_DD[:, T]`, `G = (I − E_TT L′₀[T, T])⁻¹ E_TT`,
+//! `L′₀[T, T] = L_DD[T, :] S`
+//!
+//! (`L′₁ = L′₀ + L′₀[:, T] G L′₀[T, :]` with `L′₀[:, T] = U S`: the Woodbury identity once
+//! more, on the body as cut so far). That costs about `2·rank²·|T|` multiply-adds where the
+//! capacitance afresh (an LU and its solve) costs about `2.7·rank³`; and `V = U C` follows
+//! the same way, `V₁ = V₀ + (U S) G Sᵀ`, `3·C·(2·rank·|T| + |T|²)` where `V` afresh costs
+//! `3·C·rank²`. Past rank 300 a pass of the incision spent most of its time on those two.
+//!
+//! The updates made since the last `V` wait in `Cut::carried` until [`Cut::correction`] asks for
+//! `V` again with the same `L`; a cut undone, another `L`, or updates that would cost more
+//! than `V` afresh make it afresh. Both ways depend only on the cuts made, never on timing, so a replay
+//! makes the same bits.
+
+use faer::{Accum, MatMut, MatRef, Par};
+use nalgebra::DMatrix;
+
+use super::body::Cut;
+use super::carried::Update;
+use crate::compliance::Compliance;
+use crate::Error;
+
+/// `dst (+)= a · b` by faer's product on this thread (the same bits on every run).
+fn product(dst: MatMut<'_, f64>, a: MatRef<'_, f64>, b: MatRef<'_, f64>, add: bool) {
+    let accum = if add { Accum::Add } else { Accum::Replace };
+    faer::linalg::matmul::matmul(dst, accum, a, b, 1.0, Par::Seq);
+}
+
+/// `m` as a faer view (nalgebra stores column-major).
+fn view(m: &DMatrix<f64>) -> MatRef<'_, f64> {
+    MatRef::from_column_major_slice(m.as_slice(), m.nrows(), m.ncols())
+}
+
+/// `m` as a mutable faer view.
+fn view_mut(m: &mut DMatrix<f64>) -> MatMut<'_, f64> {
+    let (r, c) = m.shape();
+    MatMut::from_column_major_slice_mut(m.as_mut_slice(), r, c)
+}
+
+/// `G = M⁻¹ E` by faer's LU with partial pivoting on this thread; `None` when `M` is
+/// singular or the result not finite.
+fn lu_solve(m: &DMatrix<f64>, e: &DMatrix<f64>) -> Option<DMatrix<f64>> {
+    use faer::dyn_stack::{MemBuffer, MemStack};
+    use faer::linalg::lu::partial_pivoting::{factor, solve};
+    let n = m.nrows();
+    let par = Par::Seq;
+    let mut lu = faer::Mat::<f64>::from_fn(n, n, |i, j| m[(i, j)]);
+    let (mut perm, mut perm_inv) = (vec![0usize; n], vec![0usize; n]);
+    let mut buf = MemBuffer::new(
+        factor::lu_in_place_scratch::<usize, f64>(n, n, par, Default::default()).or(
+            solve::solve_in_place_scratch::<usize, f64>(n, e.ncols(), par),
+        ),
+    );
+    let stack = MemStack::new(&mut buf);
+    let (_, p) = factor::lu_in_place(
+        lu.as_mut(),
+        &mut perm,
+        &mut perm_inv,
+        par,
+        stack,
+        Default::default(),
+    );
+    if (0..n).any(|i| !(lu[(i, i)] != 0.0 && lu[(i, i)].is_finite())) {
+        return None;
+    }
+    let mut x = faer::Mat::<f64>::from_fn(n, e.ncols(), |i, j| e[(i, j)]);
+    solve::solve_in_place(lu.as_ref(), lu.as_ref(), p, x.as_mut(), par, stack);
+    let g = DMatrix::from_fn(n, e.ncols(), |i, j| x[(i, j)]);
+    g.iter().all(|v| v.is_finite()).then_some(g)
+}
+
+impl Cut {
+    /// The capacitance after a cut that changed `ΔK′` from `before` (`L_D` and `ΔK′` grown
+    /// to the new rank already): `C₀ + S G Sᵀ`, the update kept for `V`. Errors where
+    /// the stiffness became singular or the result is not finite (then `C` is the old one,
+    /// grown by zeros).
+    pub(super) fn update_capacitance(&mut self, before: &DMatrix<f64>) -> Result<(), Error> {
+        let r = self.d.len();
+        let r0 = self.cap.nrows().min(r);
+        let mut c = DMatrix::zeros(r, r);
+        c.view_mut((0, 0), (r0, r0))
+            .copy_from(&self.cap.view((0, 0), (r0, r0)));
+        // T: the places whose row of ΔK′ changed.
+        let t: Vec<usize> = (0..r)
+            .filter(|&i| (0..r).any(|j| self.dk[(i, j)] != before[(i, j)]))
+            .collect();
+        let carried = self.carried.get_mut().unwrap_or_else(|e| e.into_inner());
+        if t.is_empty() {
+            self.cap = c;
+            return Ok(());
+        }
+        let n = t.len();
+        // L_DD[:, T] (r × |T|) from L_D's columns at T, rows at D.
+        let mut a_t = DMatrix::zeros(r, n);
+        for (j, &q) in t.iter().enumerate() {
+            let col = self.ld.column(q);
+            for (a, &fa) in self.d.iter().enumerate() {
+                a_t[(a, j)] = col[fa];
+            }
+        }
+        // S = P_T + C₀ L_DD[:, T] (C₀ is zero past r0).
+        let mut s = DMatrix::zeros(r, n);
+        product(
+            MatMut::from_column_major_slice_with_stride_mut(s.as_mut_slice(), r0, n, r),
+            view(&c).submatrix(0, 0, r0, r0),
+            view(&a_t).submatrix(0, 0, r0, n),
+            false,
+        );
+        for (j, &q) in t.iter().enumerate() {
+            s[(q, j)] += 1.0;
+        }
+        // L′₀[T, T] = L_DD[T, :] S; M = I − E_TT L′₀[T, T].
+        let mut lt = DMatrix::zeros(n, n);
+        product(view_mut(&mut lt), view(&a_t).transpose(), view(&s), false);
+        let e = DMatrix::from_fn(n, n, |i, j| self.dk[(t[i], t[j])] - before[(t[i], t[j])]);
+        let m = DMatrix::identity(n, n) - &e * &lt;
+        let Some(g) = lu_solve(&m, &e) else {
+            self.cap = c;
+            carried.pending.clear();
+            carried.v = None;
+            return Err(Error::Input(
+                "the cut left a singular stiffness (a piece that no clamp holds was not found)"
+                    .into(),
+            ));
+        };
+        // C₁ = C₀ + S (G Sᵀ).
+        let mut gst = DMatrix::zeros(n, r);
+        product(view_mut(&mut gst), view(&g), view(&s).transpose(), false);
+        product(view_mut(&mut c), view(&s), view(&gst), true);
+        if !c.iter().all(|v| v.is_finite()) {
+            self.cap = DMatrix::zeros(r, r);
+            carried.pending.clear();
+            carried.v = None;
+            return Err(Error::Input("the cut's correction is not finite".into()));
+        }
+        self.cap = c;
+        // Kept for V while the updates cost less than making it afresh (`2·rank·|T| + |T|²`
+        // against `rank²` multiply-adds a column).
+        let cost = |t: usize| 2 * r * t + t * t;
+        let waiting: usize = carried
+            .pending
+            .iter()
+            .map(|u| cost(u.g.nrows()))
+            .sum::<usize>();
+        if carried.v.is_some() && waiting + cost(n) < r * r {
+            carried.pending.push(Update { s, g });
+        } else {
+            carried.pending.clear();
+            carried.v = None;
+        }
+        Ok(())
+    }
+
+    /// `Vᵀ = C Uᵀ` into `out` (`u`: `Uᵀ`, `rank × 3·C` column-major, of compliance `c`'s
+    /// columns): from the last `V` and the updates since where they were made for `c`'s `L`,
+    /// else afresh ([`Cut::cap_times`]); kept for the next cut.
+    pub(super) fn v_times(&self, c: &Compliance, u: &[f64], out: &mut [f64]) {
+        let r = self.cap.nrows();
+        if r == 0 || u.is_empty() {
+            return;
+        }
+        let cols = u.len() / r;
+        let mut carried = self.carried.lock().unwrap_or_else(|e| e.into_inner());
+        let last = carried.v.take();
+        match last {
+            Some((base, r0, v0)) if base.shares_l(c) && r0 <= r && v0.len() == r0 * cols => {
+                for (j, col) in out.chunks_exact_mut(r).enumerate() {
+                    col[..r0].copy_from_slice(&v0[j * r0..(j + 1) * r0]);
+                    col[r0..].fill(0.0);
+                }
+                // Vᵀ += S (G (Sᵀ Uᵀ)) for each update, at the rank of its cut.
+                for upd in &carried.pending {
+                    let (ri, n) = upd.s.shape();
+                    let ut = MatRef::from_column_major_slice_with_stride(u, ri, cols, r);
+                    let mut wt = DMatrix::zeros(n, cols);
+                    product(view_mut(&mut wt), view(&upd.s).transpose(), ut, false);
+                    let mut y = DMatrix::zeros(n, cols);
+                    product(view_mut(&mut y), view(&upd.g), view(&wt), false);
+                    product(
+                        MatMut::from_column_major_slice_with_stride_mut(out, ri, cols, r),
+                        view(&upd.s),
+                        view(&y),
+                        true,
+                    );
+                }
+            }
+            _ => self.cap_times(u, out),
+        }
+        carried.pending.clear();
+        carried.v = Some((c.clone(), r, out.to_vec()));
+    }
+}
