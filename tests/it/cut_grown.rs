@@ -494,8 +494,8 @@ fn a_separating_cutter_that_folds_feels_what_one_that_carries_feels() {
     assert!(worst < 1e-9, "{worst}");
 }
 
-/// `C` and `V` carried from cut to cut (each cut's term of rank `|T|` added to the last ones,
-/// `cut/carry.rs`) against `V` made afresh: the same cuts on two cuts of the cube, one asked
+/// `C`, `U` and `V` carried from cut to cut (each cut's term of rank `|T|` added to the last
+/// ones, `U` read for the new columns only; `cut/carry.rs`) against them made afresh: the same cuts on two cuts of the cube, one asked
 /// for its correction after every cut (so each `V` is the last one plus the updates since),
 /// the other only at the end (its updates are not kept: `V` afresh); both against a recompute
 /// of the separated cube.

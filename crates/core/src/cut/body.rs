@@ -1080,10 +1080,8 @@ impl Cut {
                 self.dof(node, a)
             }
         };
-        let mut rows = vec![0.0; 3 * nr * r];
         let mut dead_rows = vec![false; nr];
-        // (Each held row's place in a column of `U`, and its DOF: `L_D` read a column at a
-        // time, as it is stored.)
+        // (Each held row's place in a column of `U`, and its DOF; the same of the columns.)
         let mut at: Vec<(usize, usize)> = Vec::with_capacity(3 * nr);
         for (k, &node) in c.rows()[..nr].iter().enumerate() {
             dead_rows[k] = self.pinned.get(node as usize).copied().unwrap_or(true);
@@ -1093,25 +1091,18 @@ impl Cut {
                 }
             }
         }
-        for (q, out) in rows.chunks_exact_mut(3 * nr.max(1)).enumerate().take(r) {
-            let col = self.ld.column(q);
-            for &(i, d) in &at {
-                out[i] = col[d];
-            }
-        }
-        let mut u_cols = vec![0.0; 3 * nc * r];
-        let mut v_cols = vec![0.0; 3 * nc * r];
         let mut dead_cols = vec![false; nc];
+        let mut at_cols: Vec<(usize, usize)> = Vec::with_capacity(3 * nc);
         for (ci, &node) in c.cols().iter().enumerate() {
             dead_cols[ci] = self.pinned.get(node as usize).copied().unwrap_or(true);
             for a in 0..3 {
-                let Some(d) = dof(node, a) else { continue };
-                let u = &mut u_cols[(3 * ci + a) * r..][..r];
-                for (q, uq) in u.iter_mut().enumerate() {
-                    *uq = self.ld[(d, q)];
+                if let Some(d) = dof(node, a) {
+                    at_cols.push((3 * ci + a, d));
                 }
             }
         }
+        let (rows, u_cols) = self.u_of(c, (&at, &dead_rows), (&at_cols, &dead_cols));
+        let mut v_cols = vec![0.0; 3 * nc * r];
         // V = U Cᵀ for every column at once (a matrix product; u_cols is U row by row, so
         // U's transpose column-major: Vᵀ = C Uᵀ).
         self.v_times(c, &u_cols, &mut v_cols);

@@ -13,10 +13,13 @@ pub(super) struct Update {
     pub(super) g: DMatrix<f64>,
 }
 
-/// The last `V` made and the updates since.
+/// The last `U` and `V` made and the updates since.
 #[derive(Default)]
 pub(super) struct Carried {
     pub(super) pending: Vec<Update>,
     /// `Vᵀ` (`rank × 3·C`, column-major) of the compliance `L` it was made for, at `rank`.
     pub(super) v: Option<(Compliance, usize, Vec<f64>)>,
+    /// `U` at the rows and, transposed, at the columns of the compliance it was read for,
+    /// at `rank` ([`super::Cut::correction`]'s `rows` and `u_cols`).
+    pub(super) u: Option<(Compliance, usize, Vec<f64>, Vec<f64>)>,
 }

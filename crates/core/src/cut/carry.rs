@@ -193,4 +193,55 @@ impl Cut {
         carried.pending.clear();
         carried.v = Some((c.clone(), r, out.to_vec()));
     }
+
+    /// `U` at `c`'s held rows (`3·R × rank`, column-major) and, transposed, at its columns
+    /// (`rank × 3·C`): each `(place, DOF)` of `rows` and `cols` read from `L_D`, the places
+    /// of dead nodes zero. The columns of `L_D` read for the last `U` of the same `L` are
+    /// copied from it (they do not change: a cut only adds columns, and a node once pinned
+    /// stays dead), so only the new ones are read: the same bits either way.
+    pub(super) fn u_of(
+        &self,
+        c: &Compliance,
+        (rows, dead_rows): (&[(usize, usize)], &[bool]),
+        (cols, dead_cols): (&[(usize, usize)], &[bool]),
+    ) -> (Vec<f64>, Vec<f64>) {
+        let r = self.d.len();
+        let (nr3, nc3) = (3 * dead_rows.len(), 3 * dead_cols.len());
+        let mut u_rows = vec![0.0; nr3 * r];
+        let mut u_cols = vec![0.0; nc3 * r];
+        let mut carried = self.carried.lock().unwrap_or_else(|e| e.into_inner());
+        let mut r0 = 0;
+        if let Some((base, k0, rows0, cols0)) = carried.u.take() {
+            if base.shares_l(c) && k0 <= r && rows0.len() == nr3 * k0 && cols0.len() == nc3 * k0 {
+                r0 = k0;
+                u_rows[..nr3 * r0].copy_from_slice(&rows0);
+                if r0 > 0 {
+                    for (dst, src) in u_cols.chunks_exact_mut(r).zip(cols0.chunks_exact(r0)) {
+                        dst[..r0].copy_from_slice(src);
+                    }
+                }
+                // Nodes pinned since: dead, zero.
+                for (k, _) in dead_rows.iter().enumerate().filter(|p| *p.1) {
+                    for q in 0..r0 {
+                        u_rows[q * nr3 + 3 * k..][..3].fill(0.0);
+                    }
+                }
+                for (k, _) in dead_cols.iter().enumerate().filter(|p| *p.1) {
+                    u_cols[3 * k * r..][..3 * r].fill(0.0);
+                }
+            }
+        }
+        for q in r0..r {
+            let col = self.ld.column(q);
+            let out = &mut u_rows[q * nr3..][..nr3];
+            for &(i, d) in rows {
+                out[i] = col[d];
+            }
+            for &(j, d) in cols {
+                u_cols[j * r + q] = col[d];
+            }
+        }
+        carried.u = Some((c.clone(), r, u_rows.clone(), u_cols.clone()));
+        (u_rows, u_cols)
+    }
 }
