@@ -662,6 +662,38 @@ impl Cut {
                 }
             }
         }
+        // Three non-collinear points among these nodes (the same test as the stiffness's).
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        for &p in &self.nodes {
+            lo = lo.min(p);
+            hi = hi.max(p);
+        }
+        let scale = (hi - lo).length().max(f64::MIN_POSITIVE);
+        let spans_plane = |pts: &mut dyn Iterator<Item = u32>| -> bool {
+            let pts: Vec<DVec3> = pts.map(|v| self.nodes[v as usize]).collect();
+            pts.len() >= 3 && !collinear(&pts, scale)
+        };
+        // One component (what most cuts leave): held by its clamped nodes, or free whole.
+        let kept = (0..nt).filter(|&t| !self.removed[t]);
+        let first = kept.clone().next().map(|t| root(&mut parent, t as u32));
+        if let Some(r0) = first {
+            if kept.clone().all(|t| root(&mut parent, t as u32) == r0) {
+                let mut on = vec![false; self.nodes.len()];
+                for t in kept.clone() {
+                    for &v in &self.tets[t] {
+                        on[v as usize] = true;
+                    }
+                }
+                let mut clamped = (0..self.nodes.len() as u32)
+                    .filter(|&v| on[v as usize] && self.fixed[v as usize]);
+                return if spans_plane(&mut clamped) {
+                    Vec::new()
+                } else {
+                    vec![kept.collect()]
+                };
+            }
+        }
         // Each component's nodes.
         let mut nodes_of: BTreeMap<u32, Vec<u32>> = Default::default();
         let mut tets_of: BTreeMap<u32, Vec<usize>> = Default::default();
@@ -677,18 +709,6 @@ impl Cut {
             v.sort_unstable();
             v.dedup();
         }
-        // Three non-collinear points among these nodes (the same test as the stiffness's).
-        let mut lo = DVec3::splat(f64::INFINITY);
-        let mut hi = DVec3::splat(f64::NEG_INFINITY);
-        for &p in &self.nodes {
-            lo = lo.min(p);
-            hi = hi.max(p);
-        }
-        let scale = (hi - lo).length().max(f64::MIN_POSITIVE);
-        let spans_plane = |pts: &mut dyn Iterator<Item = u32>| -> bool {
-            let pts: Vec<DVec3> = pts.map(|v| self.nodes[v as usize]).collect();
-            pts.len() >= 3 && !collinear(&pts, scale)
-        };
         let roots: Vec<u32> = nodes_of.keys().copied().collect();
         let mut held: BTreeSet<u32> = roots
             .iter()

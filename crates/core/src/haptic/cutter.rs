@@ -741,22 +741,18 @@ impl Cutter {
             return Err(Error::Input(format!("object {o} is not cuttable")));
         };
         let separating = oc.cut.copies() > 0 || self.cut_mode == CutMode::Separate;
-        let correction = if separating {
-            oc.cut.grown_correction(&oc.base)?
+        let (correction, open) = if separating {
+            let open = oc.cut.separated_mesh(&oc.mesh);
+            (oc.cut.grown_correction_on(&oc.base, &open.surface)?, open)
         } else {
-            oc.cut.correction(&oc.base)?
+            let mut open = oc.mesh.clone();
+            open.surface = oc.mesh.open_surface(oc.cut.removed());
+            (oc.cut.correction(&oc.base)?, open)
         };
         let compliance = oc
             .base
             .with_correction(Arc::new(correction))
             .map_err(Error::from)?;
-        let open = if separating {
-            oc.cut.separated_mesh(&oc.mesh)
-        } else {
-            let mut open = oc.mesh.clone();
-            open.surface = oc.mesh.open_surface(oc.cut.removed());
-            open
-        };
         let surface = Surface::new(&open);
         oc.generation += 1;
         oc.current = Some(compliance.clone());
