@@ -90,10 +90,26 @@ impl Compliance {
     }
 }
 
-/// `dst = a·b` (`accumulate`: `dst += a·b`) for `a` (`m × k`) and `b` (`k × n`) column-major,
-/// into the `m × n` block at the start of `dst` whose columns are `ld` apart: faer's product
-/// on this thread alone (the same bits on every run, so that a replay folds to the same `L`),
-/// about twice nalgebra's on one core. Nothing when a dimension is 0.
+/// `dst = a·b` (`add`: `dst += a·b`) by faer's product on the calling thread alone: the same
+/// bits on every run (a replay folds and cuts to the same `L` and correction), about twice
+/// nalgebra's on one core. What every dense product of a cut and a fold goes through.
+pub(crate) fn product_seq(
+    dst: faer::MatMut<'_, f64>,
+    a: faer::MatRef<'_, f64>,
+    b: faer::MatRef<'_, f64>,
+    add: bool,
+) {
+    let accum = if add {
+        faer::Accum::Add
+    } else {
+        faer::Accum::Replace
+    };
+    faer::linalg::matmul::matmul(dst, accum, a, b, 1.0, faer::Par::Seq);
+}
+
+/// [`product_seq`] for `a` (`m × k`) and `b` (`k × n`) column-major into the `m × n` block at
+/// the start of `dst` whose columns are `ld` apart (`accumulate`: added). Nothing when a
+/// dimension is 0.
 pub(super) fn gemm_seq(
     dst: &mut [f64],
     (m, n, ld): (usize, usize, usize),
@@ -102,21 +118,15 @@ pub(super) fn gemm_seq(
     k: usize,
     accumulate: bool,
 ) {
-    use faer::{Accum, MatMut, MatRef, Par};
+    use faer::{MatMut, MatRef};
     if m == 0 || n == 0 || k == 0 {
         return;
     }
-    faer::linalg::matmul::matmul(
+    product_seq(
         MatMut::from_column_major_slice_with_stride_mut(&mut dst[..(n - 1) * ld + m], m, n, ld),
-        if accumulate {
-            Accum::Add
-        } else {
-            Accum::Replace
-        },
         MatRef::from_column_major_slice(&a[..m * k], m, k),
         MatRef::from_column_major_slice(&b[..k * n], k, n),
-        1.0,
-        Par::Seq,
+        accumulate,
     );
 }
 

@@ -17,6 +17,7 @@ pub mod conditioning;
 pub mod correction;
 mod error;
 mod grown;
+pub(crate) use grown::product_seq;
 pub mod hmatrix;
 pub mod near;
 pub(crate) mod plan;

@@ -16,19 +16,13 @@
 //! than `V` afresh make it afresh. Both ways depend only on the cuts made, never on timing, so a replay
 //! makes the same bits.
 
-use faer::{Accum, MatMut, MatRef, Par};
+use faer::{MatMut, MatRef, Par};
 use nalgebra::DMatrix;
 
 use super::body::Cut;
 use super::carried::Update;
-use crate::compliance::Compliance;
+use crate::compliance::{product_seq as product, Compliance};
 use crate::Error;
-
-/// `dst (+)= a · b` by faer's product on this thread (the same bits on every run).
-fn product(dst: MatMut<'_, f64>, a: MatRef<'_, f64>, b: MatRef<'_, f64>, add: bool) {
-    let accum = if add { Accum::Add } else { Accum::Replace };
-    faer::linalg::matmul::matmul(dst, accum, a, b, 1.0, Par::Seq);
-}
 
 /// `m` as a faer view (nalgebra stores column-major).
 fn view(m: &DMatrix<f64>) -> MatRef<'_, f64> {

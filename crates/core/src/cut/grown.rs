@@ -16,19 +16,17 @@ impl Cut {
     /// whose `U` rows `u` holds row by row): faer's product, sequential, so the same bits every
     /// run. Nothing at rank 0 or without columns.
     pub(super) fn cap_times(&self, u: &[f64], out: &mut [f64]) {
-        use faer::{Accum, MatMut, MatRef, Par};
+        use faer::{MatMut, MatRef};
         let r = self.cap.nrows();
         if r == 0 || u.is_empty() {
             return;
         }
         let n = u.len() / r;
-        faer::linalg::matmul::matmul(
+        crate::compliance::product_seq(
             MatMut::from_column_major_slice_mut(out, r, n),
-            Accum::Replace,
             MatRef::from_column_major_slice(self.cap.as_slice(), r, r),
             MatRef::from_column_major_slice(u, r, n),
-            1.0,
-            Par::Seq,
+            false,
         );
     }
 
