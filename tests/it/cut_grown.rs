@@ -541,3 +541,70 @@ fn v_carried_from_cut_to_cut_equals_v_made_afresh() {
     );
     assert!(check_grown("cube, carried over five cuts", &carried, &mesh, &c) < 1e-9);
 }
+
+/// `L₀`'s columns solved up front (`Cut::precompute_columns`) at some of the DOFs a cut
+/// reaches, the others solved as the cut goes: the same correction as a cut that solves
+/// them all (to roundoff: solved in other blocks), a recompute's compliance, and after a
+/// rebase the rebased cut solves its own (the held nodes and their copies).
+#[test]
+fn columns_solved_up_front_give_the_same_cut() {
+    let mesh = cube();
+    let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
+    let (mut plain, mut held) = (Cut::new(&mesh).unwrap(), Cut::new(&mesh).unwrap());
+    assert_eq!(plain.columns_held(), 0);
+    // Columns at the nodes with x < 15 mm: the blade's path runs past them both ways.
+    let mark: Vec<bool> = mesh.nodes.iter().map(|p| p.x < 0.015).collect();
+    let n = held.precompute_columns(&mark);
+    let free = |m: &[bool]| {
+        (0..mesh.nodes.len())
+            .filter(|&v| m[v] && !mesh.fixed[v])
+            .count()
+            * 3
+    };
+    assert_eq!(n, free(&mark));
+    assert_eq!(held.columns_held(), n);
+    assert!(n > 0 && n < free(&vec![true; mesh.nodes.len()]));
+    for (a, b) in [([2.0, 20.0], [28.0, 20.0]), ([11.0, 3.0], [11.0, 15.0])] {
+        let q = quad(&mesh, [a[0], a[1], 30.0], [b[0], b[1], 30.0], 10.0);
+        plain.split(&mesh, std::slice::from_ref(&q)).unwrap();
+        held.split(&mesh, &[q]).unwrap();
+    }
+    let (kp, kh) = (plain.correction(&c).unwrap(), held.correction(&c).unwrap());
+    assert_eq!(kp.rank, kh.rank);
+    let scale = kp.v_cols.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let worst = (kp.v_cols.iter().zip(&kh.v_cols)).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    eprintln!(
+        "cube, rank {}: {n} columns held, V against every column solved as the cut goes {:.1e}",
+        kp.rank,
+        worst / scale
+    );
+    assert!(scale > 0.0 && worst <= 1e-10 * scale, "{worst} of {scale}");
+    assert!(check_grown("cube, columns held", &held, &mesh, &c) < 1e-9);
+    // Rebased: the held nodes and their copies, solved with the new factor.
+    let folded = (c.with_correction(Arc::new(held.grown_correction(&c).unwrap())))
+        .unwrap()
+        .folded()
+        .unwrap();
+    let mut rebased = held.rebase(&mesh).unwrap();
+    let moving_held = |from: usize| {
+        (from..held.node_count())
+            .filter(|&v| mark[held.origin()[v] as usize] && !held.holds_still(v as u32))
+            .count()
+    };
+    assert_eq!(rebased.columns_held(), 3 * moving_held(0));
+    assert!(moving_held(mesh.nodes.len()) > 0, "no copy of a held node");
+    rebased
+        .split(
+            &mesh,
+            &[quad(&mesh, [2.0, 15.0, 30.0], [28.0, 15.0, 30.0], 16.0)],
+        )
+        .unwrap();
+    assert!(
+        check_grown(
+            "cube, columns held, rebased, cut again",
+            &rebased,
+            &mesh,
+            &folded
+        ) < 1e-9
+    );
+}

@@ -239,8 +239,9 @@ impl PageWorld {
             .position(|f| f.device == DeviceSpec::Pointer);
         let blades = world.fingers.iter().any(|f| f.tool.blade_depth().is_some());
         let cutter = if blades && world.objects.iter().any(|o| o.cuttable.is_some()) {
-            // One thread here: each fold runs inline, before the object's next cut.
-            let mut c = Cutter::new(world)?;
+            // One thread here: each fold runs inline, before the object's next cut, and no
+            // columns of `L₀` are solved up front (the page would load seconds later).
+            let mut c = Cutter::from_plan(Cutter::plan(world)?.without_columns())?;
             c.set_fold_mode(FoldMode::Inline);
             Some(c)
         } else {

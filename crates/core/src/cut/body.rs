@@ -78,11 +78,11 @@ impl Changes {
 /// `K₀ = blockdiag(K, S)`, with `S` each copy's own diagonal (its node's in `K`).
 pub struct Cut {
     /// The factored body's free DOFs, over its nodes (`base_nodes` of them).
-    dofs: Dofs,
-    base_nodes: usize,
-    factor: Factor,
+    pub(super) dofs: Dofs,
+    pub(super) base_nodes: usize,
+    pub(super) factor: Factor,
     /// The diagonal of `K₀` at each DOF (a pinned DOF's own stiffness, a copy's `S`).
-    diag0: Vec<f64>,
+    pub(super) diag0: Vec<f64>,
     /// Per node past the factored body's: its first DOF, or `u32::MAX` when clamped.
     copy_dof: Vec<u32>,
     /// The uncut mesh's node count.
@@ -117,6 +117,8 @@ pub struct Cut {
     pub(super) cap: DMatrix<f64>,
     /// What [`Cut::correction`]'s `V` is made from next (`cut/carry.rs`).
     pub(super) carried: std::sync::Mutex<super::carried::Carried>,
+    /// `L₀`'s columns solved up front (`cut/columns.rs`).
+    pub(super) columns: Option<std::sync::Arc<super::columns::Columns>>,
 }
 
 /// A cut's rebase, planned ([`Cut::rebase_plan`]) and not yet run: the separated body and
@@ -124,12 +126,19 @@ pub struct Cut {
 pub struct Rebase {
     rest: Mesh,
     state: State,
+    /// The nodes whose columns of `L₀` the rebased cut solves up front (`cut/columns.rs`).
+    columns: Option<Vec<bool>>,
 }
 
 impl Rebase {
-    /// Assembles and factors the separated body: the rebased cut ([`Cut::rebase`]).
+    /// Assembles and factors the separated body: the rebased cut ([`Cut::rebase`]), with
+    /// its columns solved up front where the cut it comes from had them.
     pub fn run(self) -> Result<Cut, Error> {
-        Cut::factored(&self.rest, self.state)
+        let mut cut = Cut::factored(&self.rest, self.state)?;
+        if let Some(nodes) = self.columns {
+            cut.precompute_columns(&nodes);
+        }
+        Ok(cut)
     }
 }
 
@@ -273,6 +282,7 @@ impl Cut {
             ld: DMatrix::zeros(n_free, 0),
             cap: DMatrix::zeros(0, 0),
             carried: Default::default(),
+            columns: None,
         })
     }
 
@@ -337,7 +347,7 @@ impl Cut {
     }
 
     /// The number of DOFs of `K₀` (the factored body's and the copies').
-    fn n_dofs(&self) -> usize {
+    pub(super) fn n_dofs(&self) -> usize {
         self.diag0.len()
     }
 
@@ -584,7 +594,7 @@ impl Cut {
 
     /// `L₀ X` for `X` over every DOF (`n_dofs × k`, column-major): solves with the factor on
     /// the factored body's DOFs, `S⁻¹` on the copies'.
-    fn solve0(&self, x: &mut DMatrix<f64>) {
+    pub(super) fn solve0(&self, x: &mut DMatrix<f64>) {
         let nf = self.dofs.n_free;
         let k = x.ncols();
         let mut b = faer::Mat::<f64>::zeros(nf, k);
@@ -602,28 +612,6 @@ impl Cut {
                 x[(i, j)] /= self.diag0[i];
             }
         }
-    }
-
-    /// Appends `L₀`'s columns at `new` to `L_D`; the cut lives in `C` alone.
-    fn grow(&mut self, new: &[usize]) {
-        let n = self.n_dofs();
-        let mut b = DMatrix::zeros(n, new.len());
-        for (j, &f) in new.iter().enumerate() {
-            b[(f, j)] = 1.0;
-        }
-        self.solve0(&mut b);
-        let old = self.d.len();
-        let m = old + new.len();
-        // Grown in place (column-major: the new columns go at the end of the same storage,
-        // which the allocator can extend without copying `L_D`'s old columns).
-        let ld = std::mem::replace(&mut self.ld, DMatrix::zeros(0, 0));
-        let mut ld = ld.resize_horizontally(m, 0.0);
-        ld.view_mut((0, old), (n, new.len())).copy_from(&b);
-        self.ld = ld;
-        let mut dk = DMatrix::zeros(m, m);
-        dk.view_mut((0, 0), (old, old)).copy_from(&self.dk);
-        self.dk = dk;
-        self.d.extend_from_slice(new);
     }
 
     /// The pieces of the remaining tets that nothing holds rigidly: each a list of tets.
@@ -1068,7 +1056,21 @@ impl Cut {
             pinned: self.pinned.clone(),
             uncut_nodes: self.uncut_nodes,
         };
-        Ok(Rebase { rest, state })
+        // The rebased cut's columns: the same nodes and their copies made since.
+        let columns = self.columns.as_ref().map(|c| {
+            let held = c.nodes();
+            (self.origin.iter().enumerate())
+                .map(|(v, &o)| {
+                    held.get(v).copied().unwrap_or(false)
+                        || held.get(o as usize).copied().unwrap_or(false)
+                })
+                .collect()
+        });
+        Ok(Rebase {
+            rest,
+            state,
+            columns,
+        })
     }
 }
 

@@ -5,7 +5,9 @@
 //! `L′ = L + L_D (I − ΔK′ L_DD)⁻¹ ΔK′ L_Dᵀ`, with `ΔK′ = K₀ − K′` on `D`.
 //!
 //! `L_D` (every DOF's row, `D`'s columns, interior ones included) comes from solves with the
-//! stiffness's factor, kept for that: a tet's 12 DOFs cost 12 solves. Nothing is recomputed.
+//! stiffness's factor, kept for that: a tet's 12 DOFs cost 12 solves, made up front for a
+//! scene's cuttable region ([`Columns`], `Cut::precompute_columns`) or as the cut goes.
+//! Nothing is recomputed.
 //! A cut changes `K` in two ways, which share this machinery ([`Cut`]):
 //! * **removal** ([`Cut::remove`]): tets go, their element stiffness subtracted (rank at most
 //!   12 a tet);
@@ -31,10 +33,13 @@ mod blade;
 mod body;
 mod carried;
 mod carry;
+pub mod columns;
 mod grown;
+mod solved;
 mod split;
 
 pub use blade::{blade_tets, BladeQuad};
 pub use body::{point_poke, point_poke_paper, tets_near, tets_near_keeping_nodes};
 pub use body::{Cut, CutPoke, CutReport, Rebase};
+pub use columns::Columns;
 pub use split::{SplitReport, SLIVER_FRACTION};

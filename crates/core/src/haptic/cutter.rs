@@ -198,6 +198,24 @@ fn separate(
     Ok(changed.then_some(rep))
 }
 
+/// A cut of `mesh` with `L₀`'s columns solved up front at the DOFs it may reach: the
+/// nodes of `region`'s tets (`cut::Columns`; none where they would not fit its budget; a
+/// snap that reaches past the region solves for those few).
+fn region_cut(mesh: &crate::Mesh, region: &CutRegion) -> Result<Cut, Error> {
+    let mut cut = Cut::new(mesh)?;
+    let mut mark = vec![false; mesh.nodes.len()];
+    for (t, nodes) in mesh.tets.iter().enumerate() {
+        if region.contains(t) {
+            for &v in nodes {
+                mark[v as usize] = true;
+            }
+        }
+    }
+    let held = cut.precompute_columns(&mark);
+    log::debug!("a cut holds {held} columns of L₀ solved up front");
+    Ok(cut)
+}
+
 /// Those of `tets` that `cut` may still remove: in its `region`, and not removed yet.
 fn still_to_cut(cut: &Cut, region: &CutRegion, tets: Vec<usize>) -> Vec<usize> {
     let removed = cut.removed();
@@ -341,6 +359,17 @@ impl ObjectCut {
 /// What a [`Cutter`] is made from: each cuttable object's mesh, compliance and region.
 pub struct CutPlan {
     objects: Vec<Option<(crate::Mesh, Compliance, CutRegion)>>,
+    /// Whether [`Cutter::from_plan`] solves `L₀`'s columns at the regions' DOFs up front.
+    columns: bool,
+}
+
+impl CutPlan {
+    /// A plan whose cutter solves every column a cut needs as it goes, none up front: a
+    /// quicker start and slower passes (the web page's single thread). The same bits.
+    pub fn without_columns(mut self) -> CutPlan {
+        self.columns = false;
+        self
+    }
 }
 
 /// The rank at which a cutter folds its correction into `L` (see [`Cutter::fold_due`]): a
@@ -359,9 +388,10 @@ pub struct Cutter {
 }
 
 impl Cutter {
-    /// Prepares every cuttable object of `world` (factors its stiffness: the part of the
-    /// precompute a cut needs, kept rather than `L`'s columns at every cuttable DOF, which
-    /// would cost a full column solve per DOF up front). Errors on an object whose `L` is not
+    /// Prepares every cuttable object of `world`: factors its stiffness and solves `L₀`'s
+    /// columns at its cuttable region's DOFs up front (a solve per DOF, 1.8 s for the
+    /// incision's 2,466 on a 2-core VM; none past `cut::columns::BUDGET`), so that a cut's
+    /// pass reads them instead of solving. Errors on an object whose `L` is not
     /// held on the host or whose formulation cannot be cut.
     pub fn new(world: &World) -> Result<Cutter, Error> {
         Cutter::from_plan(Cutter::plan(world)?)
@@ -388,7 +418,10 @@ impl Cutter {
                 region.clone(),
             )));
         }
-        Ok(CutPlan { objects })
+        Ok(CutPlan {
+            objects,
+            columns: true,
+        })
     }
 
     /// Factors every planned object's stiffness.
@@ -398,7 +431,11 @@ impl Cutter {
             objects.push(match p {
                 None => None,
                 Some((mesh, base, region)) => Some(ObjectCut {
-                    cut: Cut::new(&mesh)?,
+                    cut: if plan.columns {
+                        region_cut(&mesh, &region)?
+                    } else {
+                        Cut::new(&mesh)?
+                    },
                     before: Vec::new(),
                     segment: Vec::new(),
                     edge: mesh.mean_edge(),

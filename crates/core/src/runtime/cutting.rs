@@ -251,6 +251,7 @@ impl CutThread {
         let done = Arc::new(std::sync::atomic::AtomicU64::new(0));
         let done2 = done.clone();
         let haptic_cpus = crate::threads::cpus_of_current_thread();
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
         let handle = std::thread::Builder::new()
             .name("touchfem-cutter".into())
             .spawn(move || -> Result<CutStats, Error> {
@@ -259,6 +260,7 @@ impl CutThread {
                 let mut cutter = Cutter::from_plan(plan)?;
                 cutter.set_fold_mode(mode);
                 cutter.set_cut_mode(cut);
+                let _ = ready_tx.send(());
                 // Its passes now go before the visual loop on their core (the factorisation
                 // above did not: it is long). The fold's thread stays a background worker.
                 if mode == FoldMode::Deferred {
@@ -395,6 +397,10 @@ impl CutThread {
                 result
             })
             .map_err(|e| Error::Input(format!("cannot start the cutter's thread: {e}")))?;
+        // The loop starts once the cutter is ready (its factor and its columns of `L₀`
+        // solved up front), so that no stroke waits for them; a cutter that failed to
+        // start drops its end and reports why when it is joined.
+        let _ = ready_rx.recv();
         Ok(Some((
             CutLink {
                 strokes: sp,

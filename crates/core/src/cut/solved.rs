@@ -1,0 +1,134 @@
+//! A cut's columns of `L₀` solved up front ([`super::columns`]), and `L_D` grown by the
+//! columns a pass brings into `D`: read where held, solved otherwise.
+
+use std::sync::Arc;
+
+use super::body::Cut;
+use super::columns::{Columns, BLOCK, BUDGET};
+
+impl Cut {
+    /// Solves and keeps `L₀`'s columns at the free DOFs of the marked nodes (those of the
+    /// factored body; `nodes` is over every node, copies past it ignored), in blocks of
+    /// [`BLOCK`]. Keeps none when they would take more than [`BUDGET`] bytes. Returns how
+    /// many it keeps.
+    pub fn precompute_columns(&mut self, nodes: &[bool]) -> usize {
+        let nf = self.n_free();
+        let base = self.base_node_count();
+        let mut dofs = Vec::new();
+        for (v, _) in nodes.iter().enumerate().take(base).filter(|p| *p.1) {
+            for a in 0..3 {
+                if let Some(f) = self.base_dof(v as u32, a) {
+                    dofs.push(f);
+                }
+            }
+        }
+        dofs.sort_unstable();
+        dofs.dedup();
+        if dofs.is_empty() || dofs.len().saturating_mul(nf).saturating_mul(8) > BUDGET {
+            self.set_columns(None);
+            return 0;
+        }
+        let mut cols = vec![0.0; dofs.len() * nf];
+        let mut at = vec![u32::MAX; nf];
+        for (k, block) in dofs.chunks(BLOCK).enumerate() {
+            let mut b = faer::Mat::<f64>::zeros(nf, block.len());
+            for (j, &f) in block.iter().enumerate() {
+                b[(f, j)] = 1.0;
+            }
+            self.solve_free(&mut b);
+            for (j, &f) in block.iter().enumerate() {
+                let col = k * BLOCK + j;
+                at[f] = col as u32;
+                let out = &mut cols[col * nf..][..nf];
+                for (i, o) in out.iter_mut().enumerate() {
+                    *o = b[(i, j)];
+                }
+            }
+        }
+        let mut mask = nodes.to_vec();
+        mask.resize(base, false);
+        mask.truncate(base);
+        let n = dofs.len();
+        self.set_columns(Some(Arc::new(Columns {
+            nodes: mask,
+            at,
+            cols,
+            n_free: nf,
+        })));
+        n
+    }
+}
+
+impl Cut {
+    /// The factored body's free DOFs.
+    fn n_free(&self) -> usize {
+        self.dofs.n_free
+    }
+
+    /// The factored body's nodes (copies made since come after them).
+    fn base_node_count(&self) -> usize {
+        self.base_nodes
+    }
+
+    /// The free DOF of a node of the factored body, or `None`.
+    fn base_dof(&self, node: u32, a: usize) -> Option<usize> {
+        ((node as usize) < self.base_nodes)
+            .then(|| self.dofs.free(node, a))
+            .flatten()
+    }
+
+    fn set_columns(&mut self, c: Option<Arc<Columns>>) {
+        self.columns = c;
+    }
+
+    /// How many columns of `L₀` this cut holds solved up front.
+    pub fn columns_held(&self) -> usize {
+        self.columns.as_ref().map_or(0, |c| c.len())
+    }
+
+    /// `K X = B` on the factored body's free DOFs.
+    fn solve_free(&self, b: &mut faer::Mat<f64>) {
+        self.factor.solve_in_place(b);
+    }
+
+    /// Appends `L₀`'s columns at `new` to `L_D`; the cut lives in `C` alone. A column held
+    /// up front is copied, a copy's is `S⁻¹` at its DOF, the others are solved together.
+    pub(super) fn grow(&mut self, new: &[usize]) {
+        use nalgebra::DMatrix;
+        let n = self.n_dofs();
+        let nf = self.n_free();
+        let mut b = DMatrix::zeros(n, new.len());
+        let mut solve = Vec::new();
+        for (j, &f) in new.iter().enumerate() {
+            if f >= nf {
+                b[(f, j)] = 1.0 / self.diag0[f];
+            } else if let Some(col) = self.columns.as_ref().and_then(|c| c.column(f)) {
+                b.view_mut((0, j), (nf, 1)).copy_from_slice(col);
+            } else {
+                solve.push(j);
+            }
+        }
+        if !solve.is_empty() {
+            let mut x = DMatrix::zeros(n, solve.len());
+            for (k, &j) in solve.iter().enumerate() {
+                x[(new[j], k)] = 1.0;
+            }
+            self.solve0(&mut x);
+            for (k, &j) in solve.iter().enumerate() {
+                b.column_mut(j).copy_from(&x.column(k));
+            }
+        }
+        let old = self.d.len();
+        let m = old + new.len();
+        // Grown in place (column-major: the new columns go at the end of the same storage,
+        // which the allocator can extend without copying `L_D`'s old columns).
+        let ld = std::mem::replace(&mut self.ld, DMatrix::zeros(0, 0));
+        let mut ld = ld.resize_horizontally(m, 0.0);
+        ld.view_mut((0, old), (n, new.len())).copy_from(&b);
+        self.ld = ld;
+        let mut dk = DMatrix::zeros(m, m);
+        dk.view_mut((0, 0), (old, old)).copy_from(&self.dk);
+        self.dk = dk;
+        self.d.extend_from_slice(new);
+    }
+}
