@@ -718,6 +718,16 @@ fn bench_cut_rows_hold_the_cut_and_the_fold_to_a_full_recompute() {
     let sep = get("separate-pass");
     assert!(sep.rank > 0 && sep.time_us > 0.0, "{sep:?}");
     assert_eq!(sep.tets_removed, 0, "{sep:?}");
+    // The same step solving every column as it goes: the same rank; the cutter that solves
+    // the ball's columns up front takes longer to be ready (no timing asserted beyond > 0).
+    let solving = get("separate-pass-solving");
+    assert!(
+        solving.rank == sep.rank && solving.time_us > 0.0,
+        "{solving:?}"
+    );
+    for m in ["separate-cutter-ready", "separate-cutter-ready-solving"] {
+        assert!(get(m).time_us > 0.0, "{m}");
+    }
     // The finger's tick beside the slit (the press touched, or the rows are an error).
     let tick = get("separate-tick-point-exact");
     assert!(tick.time_us > 0.0 && tick.rank == sep.rank, "{tick:?}");

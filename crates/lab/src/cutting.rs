@@ -342,18 +342,40 @@ fn separate_rows(
         depth: 8e-3,
     };
     let (first, second) = (stroke(xs[0], xs[1]), stroke(xs[1], xs[2]));
-    let mut times = Vec::new();
+    // The pass with the region's columns of `L₀` solved up front (as the live cutter does)
+    // and without (every column solved as the cut goes), alternated; and the cutter's
+    // preparation each way.
+    let (mut times, mut solving) = (Vec::new(), Vec::new());
+    let (mut ready, mut ready_solving) = (Vec::new(), Vec::new());
     let mut body: Option<Arc<CutBody>> = None;
     for _ in 0..reps {
-        let mut cutter = Cutter::new(&w)?;
-        cutter.set_cut_mode(CutMode::Separate);
-        cutter.apply(&first)?;
-        let t = Instant::now();
-        let b = cutter.apply(&second)?;
-        times.push(t.elapsed().as_secs_f64() * 1e6);
-        body = b.or(body);
+        for up_front in [true, false] {
+            let t = Instant::now();
+            let plan = Cutter::plan(&w)?;
+            let mut cutter = if up_front {
+                Cutter::from_plan(plan)?
+            } else {
+                Cutter::from_plan(plan.without_columns())?
+            };
+            let prep = t.elapsed().as_secs_f64() * 1e6;
+            cutter.set_cut_mode(CutMode::Separate);
+            cutter.apply(&first)?;
+            let t = Instant::now();
+            let b = cutter.apply(&second)?;
+            let us = t.elapsed().as_secs_f64() * 1e6;
+            if up_front {
+                times.push(us);
+                ready.push(prep);
+                body = b.or(body);
+            } else {
+                solving.push(us);
+                ready_solving.push(prep);
+            }
+        }
     }
-    times.sort_by(f64::total_cmp);
+    for t in [&mut times, &mut solving, &mut ready, &mut ready_solving] {
+        t.sort_by(f64::total_cmp);
+    }
     let body = body.ok_or_else(|| Error::Study("the separating blade cut nothing".into()))?;
     let row = |method: &str, time_us: f64, rel_error: f64| CutRow {
         method: method.into(),
@@ -366,6 +388,17 @@ fn separate_rows(
     };
     let pass = times[times.len() / 2];
     rows.push(row("separate-pass", pass, 0.0));
+    rows.push(row(
+        "separate-pass-solving",
+        solving[solving.len() / 2],
+        0.0,
+    ));
+    rows.push(row("separate-cutter-ready", ready[ready.len() / 2], 0.0));
+    rows.push(row(
+        "separate-cutter-ready-solving",
+        ready_solving[ready_solving.len() / 2],
+        0.0,
+    ));
     // The point finger's exact tick pressing 0.5 mm at the touchable node nearest the blade's
     // end, on the separated body (its correction carried: rank above, copies as columns).
     let c = &body.compliance;
