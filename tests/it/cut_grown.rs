@@ -593,6 +593,31 @@ fn columns_solved_up_front_give_the_same_cut() {
     };
     assert_eq!(rebased.columns_held(), 3 * moving_held(0));
     assert!(moving_held(mesh.nodes.len()) > 0, "no copy of a held node");
+    // They were derived from the cut before (L′'s columns by its correction): against the
+    // same columns solved with the rebased body's own factor.
+    let mut solved = held.rebase(&mesh).unwrap();
+    let again: Vec<bool> = (0..held.node_count())
+        .map(|v| mark[held.origin()[v] as usize])
+        .collect();
+    assert_eq!(solved.precompute_columns(&again), rebased.columns_held());
+    let (mut worst, mut scale, mut n_cmp) = (0.0f64, 0.0f64, 0);
+    for v in 0..held.node_count() as u32 {
+        for a in 0..3 {
+            if let (Some(x), Some(y)) = (rebased.held_column(v, a), solved.held_column(v, a)) {
+                n_cmp += 1;
+                for (p, q) in x.iter().zip(y) {
+                    worst = worst.max((p - q).abs());
+                    scale = scale.max(q.abs());
+                }
+            }
+        }
+    }
+    eprintln!(
+        "cube, rebased: {n_cmp} columns derived against solved {:.1e}",
+        worst / scale
+    );
+    assert_eq!(n_cmp, rebased.columns_held());
+    assert!(scale > 0.0 && worst <= 1e-10 * scale, "{worst} of {scale}");
     rebased
         .split(
             &mesh,

@@ -126,17 +126,18 @@ pub struct Cut {
 pub struct Rebase {
     rest: Mesh,
     state: State,
-    /// The nodes whose columns of `L₀` the rebased cut solves up front (`cut/columns.rs`).
-    columns: Option<Vec<bool>>,
+    /// The nodes whose columns of `L₀` the rebased cut holds up front (`cut/columns.rs`),
+    /// and what they are derived from (`cut/derive.rs`).
+    columns: Option<(Vec<bool>, super::columns::Derive)>,
 }
 
 impl Rebase {
     /// Assembles and factors the separated body: the rebased cut ([`Cut::rebase`]), with
-    /// its columns solved up front where the cut it comes from had them.
+    /// its columns held up front where the cut it comes from had them (derived from it).
     pub fn run(self) -> Result<Cut, Error> {
         let mut cut = Cut::factored(&self.rest, self.state)?;
-        if let Some(nodes) = self.columns {
-            cut.precompute_columns(&nodes);
+        if let Some((nodes, from)) = self.columns {
+            cut.derive_columns(&nodes, &from);
         }
         Ok(cut)
     }
@@ -1057,15 +1058,20 @@ impl Cut {
             uncut_nodes: self.uncut_nodes,
         };
         // The rebased cut's columns: the same nodes and their copies made since.
-        let columns = self.columns.as_ref().map(|c| {
-            let held = c.nodes();
-            (self.origin.iter().enumerate())
-                .map(|(v, &o)| {
-                    held.get(v).copied().unwrap_or(false)
-                        || held.get(o as usize).copied().unwrap_or(false)
-                })
-                .collect()
-        });
+        let columns = self
+            .columns
+            .as_ref()
+            .zip(self.derive_from())
+            .map(|(c, from)| {
+                let held = c.nodes();
+                let nodes = (self.origin.iter().enumerate())
+                    .map(|(v, &o)| {
+                        held.get(v).copied().unwrap_or(false)
+                            || held.get(o as usize).copied().unwrap_or(false)
+                    })
+                    .collect();
+                (nodes, from)
+            });
         Ok(Rebase {
             rest,
             state,

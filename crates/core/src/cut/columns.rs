@@ -6,8 +6,8 @@
 //! The columns are solved in fixed blocks of [`BLOCK`] DOFs in ascending order, so they
 //! hold the same bits however and whenever they are made (and, faer's supernodal solve
 //! treating each right-hand side alone, the same bits as a pass's own solve: the tests find
-//! no difference): a replay reads what the live run read. A rebased cut (after a fold) solves its own with its new factor, on the fold's
-//! thread ([`super::Rebase::run`]). Where they would take more than [`BUDGET`] bytes, none
+//! no difference): a replay reads what the live run read. A rebased cut (after a fold) derives its own from the cut it
+//! comes from, on the fold's thread ([`super::Rebase::run`], `cut/derive.rs`). Where they would take more than [`BUDGET`] bytes, none
 //! are kept and every pass solves, as before.
 
 /// DOFs solved together.
@@ -50,4 +50,21 @@ impl Columns {
     pub fn nodes(&self) -> &[bool] {
         &self.nodes
     }
+}
+
+/// What a rebased cut's columns are derived from: the old cut's `L_D`, `C`, held columns
+/// and DOF numbering (`Cut::derive_from`, `cut/derive.rs`).
+pub struct Derive {
+    /// The old cut's held columns.
+    pub(super) columns: std::sync::Arc<Columns>,
+    /// `L_D` at every DOF of the old `K₀` (`n_old × rank`).
+    pub(super) ld: nalgebra::DMatrix<f64>,
+    /// The old capacitance `C`.
+    pub(super) cap: nalgebra::DMatrix<f64>,
+    /// Each old DOF's place in `D` (`u32::MAX`: none).
+    pub(super) place: Vec<u32>,
+    /// The old `K₀`'s diagonal (a copy's `S`).
+    pub(super) diag0: Vec<f64>,
+    /// Per node: its three DOFs in the old `K₀` (`u32::MAX`: none).
+    pub(super) dof: Vec<[u32; 3]>,
 }

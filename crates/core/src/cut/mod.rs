@@ -34,6 +34,7 @@ mod body;
 mod carried;
 mod carry;
 pub mod columns;
+mod derive;
 mod grown;
 mod solved;
 mod split;

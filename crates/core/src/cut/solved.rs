@@ -81,6 +81,12 @@ impl Cut {
         self.columns = c;
     }
 
+    /// The column of `L₀` held up front at `node`'s DOF on axis `a` (the factored body's
+    /// free DOFs), if held.
+    pub fn held_column(&self, node: u32, a: usize) -> Option<&[f64]> {
+        self.columns.as_ref()?.column(self.base_dof(node, a)?)
+    }
+
     /// How many columns of `L₀` this cut holds solved up front.
     pub fn columns_held(&self) -> usize {
         self.columns.as_ref().map_or(0, |c| c.len())

@@ -8,7 +8,7 @@ pub use crate::haptic::cutter::{
     Stroke, FOLD_RANK,
 };
 #[cfg(feature = "native")]
-use crate::scene::World;
+use crate::scene::{DeviceSpec, World};
 #[cfg(feature = "native")]
 use crate::Error;
 
@@ -397,10 +397,16 @@ impl CutThread {
                 result
             })
             .map_err(|e| Error::Input(format!("cannot start the cutter's thread: {e}")))?;
-        // The loop starts once the cutter is ready (its factor and its columns of `L₀`
-        // solved up front), so that no stroke waits for them; a cutter that failed to
-        // start drops its end and reports why when it is joined.
-        let _ = ready_rx.recv();
+        // A scripted run's loop starts once the cutter is ready (its factor and its columns
+        // of `L₀` solved up front: seconds), so that none of the script's strokes waits for
+        // them; a hand's (the window's pointer, a device) starts at once, pressing while the
+        // cutter prepares, its first strokes cut when it is ready. (A cutter that failed to
+        // start drops its end and reports why when it is joined.)
+        let scripted = (world.fingers.iter())
+            .all(|f| matches!(f.device, DeviceSpec::Script(_) | DeviceSpec::Replay));
+        if scripted {
+            let _ = ready_rx.recv();
+        }
         Ok(Some((
             CutLink {
                 strokes: sp,
