@@ -564,6 +564,14 @@ fn columns_solved_up_front_give_the_same_cut() {
     assert_eq!(n, free(&mark));
     assert_eq!(held.columns_held(), n);
     assert!(n > 0 && n < free(&vec![true; mesh.nodes.len()]));
+    // Half of them solved by a helper thread (idle on core 0): the same bits.
+    let mut helped = Cut::new(&mesh).unwrap();
+    assert_eq!(helped.precompute_columns_on(&mark, Some(&[0])), n);
+    for v in 0..mesh.nodes.len() as u32 {
+        for a in 0..3 {
+            assert_eq!(helped.held_column(v, a), held.held_column(v, a), "node {v}");
+        }
+    }
     for (a, b) in [([2.0, 20.0], [28.0, 20.0]), ([11.0, 3.0], [11.0, 15.0])] {
         let q = quad(&mesh, [a[0], a[1], 30.0], [b[0], b[1], 30.0], 10.0);
         plain.split(&mesh, std::slice::from_ref(&q)).unwrap();

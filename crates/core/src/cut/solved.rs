@@ -12,6 +12,13 @@ impl Cut {
     /// [`BLOCK`]. Keeps none when they would take more than [`BUDGET`] bytes. Returns how
     /// many it keeps.
     pub fn precompute_columns(&mut self, nodes: &[bool]) -> usize {
+        self.precompute_columns_on(nodes, None)
+    }
+
+    /// [`Cut::precompute_columns`], half of the blocks solved by a helper thread that runs
+    /// on `helper`'s cores in their idle time (the haptic loop's: native builds; the same
+    /// bits, each block solved alone). A helper that fails leaves its blocks to this thread.
+    pub fn precompute_columns_on(&mut self, nodes: &[bool], helper: Option<&[usize]>) -> usize {
         let nf = self.n_free();
         let base = self.base_node_count();
         let mut dofs = Vec::new();
@@ -30,19 +37,63 @@ impl Cut {
         }
         let mut cols = vec![0.0; dofs.len() * nf];
         let mut at = vec![u32::MAX; nf];
-        for (k, block) in dofs.chunks(BLOCK).enumerate() {
+        for (k, &f) in dofs.iter().enumerate() {
+            at[f] = k as u32;
+        }
+        let blocks: Vec<&[usize]> = dofs.chunks(BLOCK).collect();
+        let this = &*self;
+        // Block `k` solved into `out` (its columns, `nf` rows each).
+        let solve = |block: &[usize], out: &mut [f64]| {
             let mut b = faer::Mat::<f64>::zeros(nf, block.len());
             for (j, &f) in block.iter().enumerate() {
                 b[(f, j)] = 1.0;
             }
-            self.solve_free(&mut b);
-            for (j, &f) in block.iter().enumerate() {
-                let col = k * BLOCK + j;
-                at[f] = col as u32;
-                let out = &mut cols[col * nf..][..nf];
-                for (i, o) in out.iter_mut().enumerate() {
+            this.solve_free(&mut b);
+            for (j, col) in out.chunks_exact_mut(nf).enumerate() {
+                for (i, o) in col.iter_mut().enumerate() {
                     *o = b[(i, j)];
                 }
+            }
+        };
+        #[cfg(feature = "native")]
+        let theirs: Vec<(usize, Vec<f64>)> =
+            match helper.filter(|c| !c.is_empty() && blocks.len() > 1) {
+                Some(cpus) => std::thread::scope(|s| {
+                    let solve = &solve;
+                    let blocks = &blocks;
+                    let h = s.spawn(move || {
+                        crate::threads::become_idle_worker(cpus);
+                        (blocks.iter().enumerate().skip(1).step_by(2))
+                            .map(|(k, block)| {
+                                let mut out = vec![0.0; block.len() * nf];
+                                solve(block, &mut out);
+                                (k, out)
+                            })
+                            .collect::<Vec<_>>()
+                    });
+                    for (k, block) in blocks.iter().enumerate().step_by(2) {
+                        solve(block, &mut cols[k * BLOCK * nf..][..block.len() * nf]);
+                    }
+                    h.join().unwrap_or_default()
+                }),
+                None => Vec::new(),
+            };
+        #[cfg(not(feature = "native"))]
+        let theirs: Vec<(usize, Vec<f64>)> = {
+            let _ = helper;
+            Vec::new()
+        };
+        let mut done = vec![false; blocks.len()];
+        for (k, out) in theirs {
+            cols[k * BLOCK * nf..][..out.len()].copy_from_slice(&out);
+            done[k] = true;
+        }
+        // (The even blocks are solved already where the helper did its part.)
+        let mine_done = done.iter().any(|&d| d);
+        for (k, block) in blocks.iter().enumerate() {
+            let solved = done[k] || (mine_done && k % 2 == 0);
+            if !solved {
+                solve(block, &mut cols[k * BLOCK * nf..][..block.len() * nf]);
             }
         }
         let mut mask = nodes.to_vec();

@@ -201,7 +201,11 @@ fn separate(
 /// A cut of `mesh` with `L₀`'s columns solved up front at the DOFs it may reach: the
 /// nodes of `region`'s tets (`cut::Columns`; none where they would not fit its budget; a
 /// snap that reaches past the region solves for those few).
-fn region_cut(mesh: &crate::Mesh, region: &CutRegion) -> Result<Cut, Error> {
+fn region_cut(
+    mesh: &crate::Mesh,
+    region: &CutRegion,
+    helper: Option<&[usize]>,
+) -> Result<Cut, Error> {
     let mut cut = Cut::new(mesh)?;
     let mut mark = vec![false; mesh.nodes.len()];
     for (t, nodes) in mesh.tets.iter().enumerate() {
@@ -211,8 +215,16 @@ fn region_cut(mesh: &crate::Mesh, region: &CutRegion) -> Result<Cut, Error> {
             }
         }
     }
-    let held = cut.precompute_columns(&mark);
-    log::debug!("a cut holds {held} columns of L₀ solved up front");
+    #[cfg(feature = "native")]
+    let t = std::time::Instant::now();
+    let held = cut.precompute_columns_on(&mark, helper);
+    #[cfg(feature = "native")]
+    log::info!(
+        "the cutter solved {held} columns of L₀ up front in {:.2} s",
+        t.elapsed().as_secs_f64()
+    );
+    #[cfg(not(feature = "native"))]
+    log::debug!("the cutter solved {held} columns of L₀ up front");
     Ok(cut)
 }
 
@@ -361,6 +373,8 @@ pub struct CutPlan {
     objects: Vec<Option<(crate::Mesh, Compliance, CutRegion)>>,
     /// Whether [`Cutter::from_plan`] solves `L₀`'s columns at the regions' DOFs up front.
     columns: bool,
+    /// Cores where a helper may solve half of them in their idle time (the haptic loop's).
+    helper: Option<Vec<usize>>,
 }
 
 impl CutPlan {
@@ -368,6 +382,13 @@ impl CutPlan {
     /// quicker start and slower passes (the web page's single thread). The same bits.
     pub fn without_columns(mut self) -> CutPlan {
         self.columns = false;
+        self
+    }
+
+    /// A plan whose cutter has a helper thread solve half of the columns up front on
+    /// `cpus` (the haptic loop's cores), in their idle time (`Cut::precompute_columns_on`).
+    pub fn with_helper_on(mut self, cpus: Vec<usize>) -> CutPlan {
+        self.helper = Some(cpus);
         self
     }
 }
@@ -421,6 +442,7 @@ impl Cutter {
         Ok(CutPlan {
             objects,
             columns: true,
+            helper: None,
         })
     }
 
@@ -432,7 +454,7 @@ impl Cutter {
                 None => None,
                 Some((mesh, base, region)) => Some(ObjectCut {
                     cut: if plan.columns {
-                        region_cut(&mesh, &region)?
+                        region_cut(&mesh, &region, plan.helper.as_deref())?
                     } else {
                         Cut::new(&mesh)?
                     },

@@ -240,7 +240,9 @@ impl CutThread {
         if !blades || world.objects.iter().all(|o| o.cuttable.is_none()) {
             return Ok(None);
         }
-        let plan = Cutter::plan(world)?;
+        let haptic_cpus = crate::threads::cpus_of_current_thread();
+        // (Half of the columns up front solved in the haptic core's idle time.)
+        let plan = Cutter::plan(world)?.with_helper_on(haptic_cpus.clone());
         let mode = fold_mode();
         let cut = cut_mode();
         let (sp, mut sc) = rtrb::RingBuffer::<Stroke>::new(STROKE_RING);
@@ -250,7 +252,6 @@ impl CutThread {
         let stop2 = stop.clone();
         let done = Arc::new(std::sync::atomic::AtomicU64::new(0));
         let done2 = done.clone();
-        let haptic_cpus = crate::threads::cpus_of_current_thread();
         let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
         let handle = std::thread::Builder::new()
             .name("touchfem-cutter".into())
