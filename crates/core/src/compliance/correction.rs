@@ -1,6 +1,6 @@
 //! An exact low-rank correction of a compliance, carried beside `L` instead of folded into it:
 //! `L′ = L + U C Uᵀ` on the held rows and the touchable columns (a cut's Woodbury term, see
-//! [`crate::cut`]), with the nodes it pins held still.
+//! the `cut` room), with the nodes it pins held still.
 //!
 //! What each path reads:
 //! * the haptic path's 3×3 blocks: `L′(i, j) = L(i, j) + U_i V_jᵀ` with `V = U Cᵀ` stored per

@@ -1,6 +1,6 @@
 //! What a device can render, in the manner of CHAI3D's `cHapticDeviceInfo`: the largest force,
 //! and the largest stiffness and damping it renders stably at 1 kHz. The virtual coupling
-//! ([`crate::runtime::coupling`]) is sized from these.
+//! (the runtime's `coupling`) is sized from these.
 //!
 //! The presets carry the numbers CHAI3D's own drivers declare for each device
 //! (`cFalconDevice`, `cPhantomDevices`, `CDeltaDevices`): peak force, the closed-loop stiffness

@@ -840,8 +840,12 @@ pub(crate) mod tests {
     /// A clamped cube of `n`³ cells, its factor and the Gram plan of its free surface (rows and
     /// columns).
     fn cube_surface(n: usize) -> (Factor, GramPlan) {
-        let m = crate::mesh::cube_with([n, n, n], [30.0, 30.0, 30.0], crate::Material::DEFAULT)
-            .expect("cube");
+        let m = crate::mesh::cube_with(
+            [n, n, n],
+            [30.0, 30.0, 30.0],
+            crate::mesh::units::Material::DEFAULT,
+        )
+        .expect("cube");
         let k = crate::fem::Stiffness::assemble(&m).expect("K");
         let f = k.factorize().expect("factor");
         let shown = m.free_surface_nodes();

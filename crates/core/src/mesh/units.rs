@@ -6,7 +6,7 @@ use std::str::FromStr;
 use thiserror::Error;
 
 /// Why a material cannot be used (the FEM room wraps it as
-/// [`FemError::Material`](crate::fem::FemError::Material)).
+/// `FemError::Material`).
 #[derive(Debug, Error)]
 pub enum MaterialError {
     /// E or ν out of range.
