@@ -68,6 +68,12 @@ fn world(mesh: &str, at_mm: DVec3, radius_mm: f64) -> Result<World, Error> {
     )?)
 }
 
+/// The median of `v` (the upper one of an even count, as the other rows take it).
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
 /// Max-norm relative difference of `a` (rows of `ca`) against `b` (rows of `cb`) over the
 /// rows both display.
 fn rel_err(ca: &Compliance, a: &[DVec3], cb: &Compliance, b: &[DVec3]) -> f64 {
@@ -373,9 +379,6 @@ fn separate_rows(
             }
         }
     }
-    for t in [&mut times, &mut solving, &mut ready, &mut ready_solving] {
-        t.sort_by(f64::total_cmp);
-    }
     let body = body.ok_or_else(|| Error::Study("the separating blade cut nothing".into()))?;
     let row = |method: &str, time_us: f64, rel_error: f64| CutRow {
         method: method.into(),
@@ -386,17 +389,13 @@ fn separate_rows(
         time_us,
         rel_error,
     };
-    let pass = times[times.len() / 2];
+    let pass = median(times);
     rows.push(row("separate-pass", pass, 0.0));
-    rows.push(row(
-        "separate-pass-solving",
-        solving[solving.len() / 2],
-        0.0,
-    ));
-    rows.push(row("separate-cutter-ready", ready[ready.len() / 2], 0.0));
+    rows.push(row("separate-pass-solving", median(solving), 0.0));
+    rows.push(row("separate-cutter-ready", median(ready), 0.0));
     rows.push(row(
         "separate-cutter-ready-solving",
-        ready_solving[ready_solving.len() / 2],
+        median(ready_solving),
         0.0,
     ));
     // The point finger's exact tick pressing 0.5 mm at the touchable node nearest the blade's

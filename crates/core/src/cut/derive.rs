@@ -5,12 +5,10 @@
 //! quarter of the time of `m` solves on the phantom; a column the old cut could not give
 //! (its DOF neither held nor in `D`) is solved.
 
-use std::sync::Arc;
-
 use faer::{MatMut, MatRef};
 
 use super::body::Cut;
-use super::columns::{Columns, Derive, BLOCK, BUDGET};
+use super::columns::{Derive, BLOCK};
 use crate::compliance::product_seq;
 
 /// Columns derived at once (bounds the scratch: `n × CHUNK` doubles).
@@ -40,50 +38,37 @@ impl Cut {
     /// [`Cut::precompute_columns`] does, derived from the cut this one was rebased from
     /// (`from`) where it can give them, solved otherwise. Returns how many it keeps.
     pub(super) fn derive_columns(&mut self, nodes: &[bool], from: &Derive) -> usize {
-        let nf = self.dofs.n_free;
-        let base = self.base_nodes;
-        // (New DOF, old DOF) of every held node's axis, by new DOF.
-        let mut want: Vec<(usize, u32)> = Vec::new();
-        for (v, _) in nodes.iter().enumerate().take(base).filter(|p| *p.1) {
-            for a in 0..3 {
-                if let Some(g) = self.dofs.free(v as u32, a) {
-                    let old = from.dof.get(v).map_or(u32::MAX, |d| d[a]);
-                    want.push((g, old));
-                }
-            }
-        }
-        want.sort_unstable();
-        want.dedup();
-        if want.is_empty() || want.len().saturating_mul(nf).saturating_mul(8) > BUDGET {
+        let Some(dofs) = self.column_dofs(nodes) else {
             self.columns = None;
             return 0;
-        }
+        };
+        let nf = self.dofs.n_free;
         // Each new DOF's row in the old numbering (`u32::MAX`: none).
         let mut old_row = vec![u32::MAX; nf];
-        for v in 0..base {
+        for v in 0..self.base_nodes {
             for a in 0..3 {
                 if let Some(g) = self.dofs.free(v as u32, a) {
                     old_row[g] = from.dof.get(v).map_or(u32::MAX, |d| d[a]);
                 }
             }
         }
-        let n_old = from.ld.nrows();
-        let r = from.ld.ncols();
+        let (n_old, r) = from.ld.shape();
         let old_nf = from.columns.n_free;
-        let mut cols = vec![0.0; want.len() * nf];
-        let mut at = vec![u32::MAX; nf];
+        let mut cols = vec![0.0; dofs.len() * nf];
         let mut solve: Vec<usize> = Vec::new();
-        for (k, chunk) in want.chunks(CHUNK).enumerate() {
+        for (k, chunk) in dofs.chunks(CHUNK).enumerate() {
             let m = chunk.len();
-            // L₀'s columns at the old DOFs, and their rows of L_D (transposed).
+            // L₀'s columns at the old DOFs, and their rows of L_D (transposed); whether the
+            // old cut could give each.
             let mut a = vec![0.0; n_old * m];
             let mut w = vec![0.0; r * m];
-            for (j, &(_, f)) in chunk.iter().enumerate() {
-                let f = f as usize;
-                let col = &mut a[j * n_old..][..n_old];
+            let mut given = vec![false; m];
+            for (j, &g) in chunk.iter().enumerate() {
+                let f = old_row[g] as usize;
                 if f >= n_old {
                     continue;
                 }
+                let col = &mut a[j * n_old..][..n_old];
                 let p = from.place[f];
                 if p != u32::MAX {
                     col.copy_from_slice(from.ld.column(p as usize).as_slice());
@@ -94,6 +79,7 @@ impl Cut {
                 } else {
                     continue;
                 }
+                given[j] = true;
                 for q in 0..r {
                     w[j * r + q] = from.ld[(f, q)];
                 }
@@ -114,50 +100,28 @@ impl Cut {
                     true,
                 );
             }
-            for (j, &(g, f)) in chunk.iter().enumerate() {
+            for j in 0..m {
                 let col = k * CHUNK + j;
-                at[g] = col as u32;
-                let derivable = (f as usize) < n_old && {
-                    let f = f as usize;
-                    from.place[f] != u32::MAX || from.columns.column(f).is_some() || f >= old_nf
-                };
-                if !derivable {
+                if !given[j] {
                     solve.push(col);
                     continue;
                 }
                 let src = &a[j * n_old..][..n_old];
                 let out = &mut cols[col * nf..][..nf];
                 for (o, &i) in out.iter_mut().zip(&old_row) {
-                    *o = if (i as usize) < n_old {
-                        src[i as usize]
-                    } else {
-                        0.0
-                    };
+                    *o = src.get(i as usize).copied().unwrap_or(0.0);
                 }
             }
         }
         // The few the old cut could not give, solved with this cut's factor.
         for block in solve.chunks(BLOCK) {
-            let mut b = faer::Mat::<f64>::zeros(nf, block.len());
-            for (j, &col) in block.iter().enumerate() {
-                b[(want[col].0, j)] = 1.0;
-            }
-            self.factor.solve_in_place(&mut b);
-            for (j, &col) in block.iter().enumerate() {
-                for (i, o) in cols[col * nf..][..nf].iter_mut().enumerate() {
-                    *o = b[(i, j)];
-                }
+            let dof_block: Vec<usize> = block.iter().map(|&col| dofs[col]).collect();
+            let mut out = vec![0.0; block.len() * nf];
+            self.solve_block(&dof_block, &mut out);
+            for (&col, src) in block.iter().zip(out.chunks_exact(nf)) {
+                cols[col * nf..][..nf].copy_from_slice(src);
             }
         }
-        let mut mask = nodes.to_vec();
-        mask.resize(base, false);
-        let held = want.len();
-        self.columns = Some(Arc::new(Columns {
-            nodes: mask,
-            at,
-            cols,
-            n_free: nf,
-        }));
-        held
+        self.keep_columns(nodes, &dofs, cols)
     }
 }

@@ -3,12 +3,9 @@
 //! [`crate::compliance::correction`]). Each of them has its DOFs in `D`, so its column of `L₀`
 //! is a column of `L_D` and no solve is needed beyond those the cut made.
 
-use std::collections::HashMap;
-
 use super::body::Cut;
 use crate::compliance::correction::Correction;
 use crate::compliance::{invert3, Compliance};
-use crate::mesh::TET_FACES;
 use crate::Error;
 
 impl Cut {
@@ -38,22 +35,7 @@ impl Cut {
     /// ([`Compliance::displace_extra`]) are exact. Costs `3·rank²` multiply-adds a node more
     /// than [`Cut::correction`].
     pub fn grown_correction(&self, c: &Compliance) -> Result<Correction, Error> {
-        // The surface of the remaining tets: faces that one tet alone has.
-        let mut faces: HashMap<[u32; 3], u32> = HashMap::new();
-        for (t, nodes) in self.tets.iter().enumerate() {
-            if self.removed[t] {
-                continue;
-            }
-            for f in TET_FACES {
-                let mut key = f.map(|i| nodes[i]);
-                key.sort_unstable();
-                *faces.entry(key).or_default() += 1;
-            }
-        }
-        let surface: Vec<[u32; 3]> = (faces.into_iter())
-            .filter(|p| p.1 == 1)
-            .map(|p| p.0)
-            .collect();
+        let surface = crate::mesh::open_surface_of(&self.tets, &self.removed);
         self.grown_correction_on(c, &surface)
     }
 

@@ -19,60 +19,31 @@ impl Cut {
     /// on `helper`'s cores in their idle time (the haptic loop's: native builds; the same
     /// bits, each block solved alone). A helper that fails leaves its blocks to this thread.
     pub fn precompute_columns_on(&mut self, nodes: &[bool], helper: Option<&[usize]>) -> usize {
-        let nf = self.n_free();
-        let base = self.base_node_count();
-        let mut dofs = Vec::new();
-        for (v, _) in nodes.iter().enumerate().take(base).filter(|p| *p.1) {
-            for a in 0..3 {
-                if let Some(f) = self.base_dof(v as u32, a) {
-                    dofs.push(f);
-                }
-            }
-        }
-        dofs.sort_unstable();
-        dofs.dedup();
-        if dofs.is_empty() || dofs.len().saturating_mul(nf).saturating_mul(8) > BUDGET {
-            self.set_columns(None);
+        let Some(dofs) = self.column_dofs(nodes) else {
+            self.columns = None;
             return 0;
-        }
-        let mut cols = vec![0.0; dofs.len() * nf];
-        let mut at = vec![u32::MAX; nf];
-        for (k, &f) in dofs.iter().enumerate() {
-            at[f] = k as u32;
-        }
-        let blocks: Vec<&[usize]> = dofs.chunks(BLOCK).collect();
-        let this = &*self;
-        // Block `k` solved into `out` (its columns, `nf` rows each).
-        let solve = |block: &[usize], out: &mut [f64]| {
-            let mut b = faer::Mat::<f64>::zeros(nf, block.len());
-            for (j, &f) in block.iter().enumerate() {
-                b[(f, j)] = 1.0;
-            }
-            this.solve_free(&mut b);
-            for (j, col) in out.chunks_exact_mut(nf).enumerate() {
-                for (i, o) in col.iter_mut().enumerate() {
-                    *o = b[(i, j)];
-                }
-            }
         };
+        let nf = self.dofs.n_free;
+        let mut cols = vec![0.0; dofs.len() * nf];
+        let blocks: Vec<&[usize]> = dofs.chunks(BLOCK).collect();
+        let at = |k: usize, len: usize| k * BLOCK * nf..k * BLOCK * nf + len * nf;
         #[cfg(feature = "native")]
         let theirs: Vec<(usize, Vec<f64>)> =
             match helper.filter(|c| !c.is_empty() && blocks.len() > 1) {
                 Some(cpus) => std::thread::scope(|s| {
-                    let solve = &solve;
-                    let blocks = &blocks;
+                    let (this, blocks) = (&*self, &blocks);
                     let h = s.spawn(move || {
                         crate::threads::become_idle_worker(cpus);
                         (blocks.iter().enumerate().skip(1).step_by(2))
                             .map(|(k, block)| {
                                 let mut out = vec![0.0; block.len() * nf];
-                                solve(block, &mut out);
+                                this.solve_block(block, &mut out);
                                 (k, out)
                             })
                             .collect::<Vec<_>>()
                     });
                     for (k, block) in blocks.iter().enumerate().step_by(2) {
-                        solve(block, &mut cols[k * BLOCK * nf..][..block.len() * nf]);
+                        this.solve_block(block, &mut cols[at(k, block.len())]);
                     }
                     h.join().unwrap_or_default()
                 }),
@@ -85,51 +56,86 @@ impl Cut {
         };
         let mut done = vec![false; blocks.len()];
         for (k, out) in theirs {
-            cols[k * BLOCK * nf..][..out.len()].copy_from_slice(&out);
+            cols[at(k, out.len() / nf)].copy_from_slice(&out);
             done[k] = true;
         }
         // (The even blocks are solved already where the helper did its part.)
         let mine_done = done.iter().any(|&d| d);
         for (k, block) in blocks.iter().enumerate() {
-            let solved = done[k] || (mine_done && k % 2 == 0);
-            if !solved {
-                solve(block, &mut cols[k * BLOCK * nf..][..block.len() * nf]);
+            if !(done[k] || (mine_done && k % 2 == 0)) {
+                self.solve_block(block, &mut cols[at(k, block.len())]);
             }
         }
+        self.keep_columns(nodes, &dofs, cols)
+    }
+
+    /// The free DOFs of the marked nodes of the factored body, sorted; `None` when there are
+    /// none or their columns would take more than [`BUDGET`] bytes.
+    pub(super) fn column_dofs(&self, nodes: &[bool]) -> Option<Vec<usize>> {
+        let mut dofs = Vec::new();
+        for (v, _) in nodes
+            .iter()
+            .enumerate()
+            .take(self.base_nodes)
+            .filter(|p| *p.1)
+        {
+            for a in 0..3 {
+                if let Some(f) = self.dofs.free(v as u32, a) {
+                    dofs.push(f);
+                }
+            }
+        }
+        dofs.sort_unstable();
+        dofs.dedup();
+        let bytes = dofs
+            .len()
+            .saturating_mul(self.dofs.n_free)
+            .saturating_mul(8);
+        (!dofs.is_empty() && bytes <= BUDGET).then_some(dofs)
+    }
+
+    /// `L₀`'s columns at the free DOFs `block`, solved together into `out` (`n_free` rows
+    /// each).
+    pub(super) fn solve_block(&self, block: &[usize], out: &mut [f64]) {
+        let nf = self.dofs.n_free;
+        let mut b = faer::Mat::<f64>::zeros(nf, block.len());
+        for (j, &f) in block.iter().enumerate() {
+            b[(f, j)] = 1.0;
+        }
+        self.factor.solve_in_place(&mut b);
+        for (j, col) in out.chunks_exact_mut(nf).enumerate() {
+            for (i, o) in col.iter_mut().enumerate() {
+                *o = b[(i, j)];
+            }
+        }
+    }
+
+    /// Holds `cols` (`n_free` rows each) as the columns of `dofs` ([`Cut::column_dofs`] of
+    /// the marked `nodes`); returns how many.
+    pub(super) fn keep_columns(&mut self, nodes: &[bool], dofs: &[usize], cols: Vec<f64>) -> usize {
+        let nf = self.dofs.n_free;
+        let mut at = vec![u32::MAX; nf];
+        for (k, &f) in dofs.iter().enumerate() {
+            at[f] = k as u32;
+        }
         let mut mask = nodes.to_vec();
-        mask.resize(base, false);
-        mask.truncate(base);
-        let n = dofs.len();
-        self.set_columns(Some(Arc::new(Columns {
+        mask.resize(self.base_nodes, false);
+        self.columns = Some(Arc::new(Columns {
             nodes: mask,
             at,
             cols,
             n_free: nf,
-        })));
-        n
+        }));
+        dofs.len()
     }
 }
 
 impl Cut {
-    /// The factored body's free DOFs.
-    fn n_free(&self) -> usize {
-        self.dofs.n_free
-    }
-
-    /// The factored body's nodes (copies made since come after them).
-    fn base_node_count(&self) -> usize {
-        self.base_nodes
-    }
-
     /// The free DOF of a node of the factored body, or `None`.
     fn base_dof(&self, node: u32, a: usize) -> Option<usize> {
         ((node as usize) < self.base_nodes)
             .then(|| self.dofs.free(node, a))
             .flatten()
-    }
-
-    fn set_columns(&mut self, c: Option<Arc<Columns>>) {
-        self.columns = c;
     }
 
     /// The column of `L₀` held up front at `node`'s DOF on axis `a` (the factored body's
@@ -143,17 +149,12 @@ impl Cut {
         self.columns.as_ref().map_or(0, |c| c.len())
     }
 
-    /// `K X = B` on the factored body's free DOFs.
-    fn solve_free(&self, b: &mut faer::Mat<f64>) {
-        self.factor.solve_in_place(b);
-    }
-
     /// Appends `L₀`'s columns at `new` to `L_D`; the cut lives in `C` alone. A column held
     /// up front is copied, a copy's is `S⁻¹` at its DOF, the others are solved together.
     pub(super) fn grow(&mut self, new: &[usize]) {
         use nalgebra::DMatrix;
         let n = self.n_dofs();
-        let nf = self.n_free();
+        let nf = self.dofs.n_free;
         let mut b = DMatrix::zeros(n, new.len());
         let mut solve = Vec::new();
         for (j, &f) in new.iter().enumerate() {

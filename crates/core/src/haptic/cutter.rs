@@ -215,16 +215,7 @@ fn region_cut(
             }
         }
     }
-    #[cfg(feature = "native")]
-    let t = std::time::Instant::now();
-    let held = cut.precompute_columns_on(&mark, helper);
-    #[cfg(feature = "native")]
-    log::info!(
-        "the cutter solved {held} columns of L₀ up front in {:.2} s",
-        t.elapsed().as_secs_f64()
-    );
-    #[cfg(not(feature = "native"))]
-    log::debug!("the cutter solved {held} columns of L₀ up front");
+    cut.precompute_columns_on(&mark, helper);
     Ok(cut)
 }
 
@@ -483,6 +474,13 @@ impl Cutter {
             mode: FoldMode::default(),
             cut_mode: CutMode::default(),
         })
+    }
+
+    /// How many columns of `L₀` its objects' cuts hold up front (`Cut::columns_held`).
+    pub fn columns_held(&self) -> usize {
+        (self.objects.iter().flatten())
+            .map(|oc| oc.cut.columns_held())
+            .sum()
     }
 
     /// Sets how the cutter folds (default [`FoldMode::Deferred`]).

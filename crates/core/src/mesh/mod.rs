@@ -478,10 +478,7 @@ impl Mesh {
     /// cut faces included), sorted. Unlike a loaded mesh's, it is not checked to be a closed
     /// 2-manifold: a cut may leave two tets touching along an edge.
     pub fn open_surface(&self, removed: &[bool]) -> Vec<[u32; 3]> {
-        let kept = (self.tets.iter().enumerate())
-            .filter(|&(k, _)| !removed.get(k).copied().unwrap_or(false))
-            .map(|(_, t)| t);
-        single_faces(kept, self.tets.len()).0
+        open_surface_of(&self.tets, removed)
     }
 
     /// The region index of each tet: 0 for the base material, k + 1 for `regions[k]`.
@@ -681,6 +678,14 @@ fn remap_groups(
             (name, v)
         })
         .collect()
+}
+
+/// [`Mesh::open_surface`] of bare `tets` (a cut body's, whose tets name copies of nodes).
+pub fn open_surface_of(tets: &[[u32; 4]], removed: &[bool]) -> Vec<[u32; 3]> {
+    let kept = (tets.iter().enumerate())
+        .filter(|&(k, _)| !removed.get(k).copied().unwrap_or(false))
+        .map(|(_, t)| t);
+    single_faces(kept, tets.len()).0
 }
 
 /// The faces that exactly one of `tets` (`n` of them at most) holds, as that tet holds them

@@ -258,7 +258,13 @@ impl CutThread {
             .spawn(move || -> Result<CutStats, Error> {
                 // Spawned from the haptic loop: off its core and out of its real-time class.
                 crate::threads::become_background_worker(&haptic_cpus);
+                let t = std::time::Instant::now();
                 let mut cutter = Cutter::from_plan(plan)?;
+                log::info!(
+                    "the cutter was ready in {:.2} s (its factor, and {} columns of L₀ solved up front)",
+                    t.elapsed().as_secs_f64(),
+                    cutter.columns_held()
+                );
                 cutter.set_fold_mode(mode);
                 cutter.set_cut_mode(cut);
                 let _ = ready_tx.send(());
