@@ -527,7 +527,8 @@ fn v_carried_from_cut_to_cut_equals_v_made_afresh() {
     );
     assert_eq!(kc.rank, ka.rank);
     let scale = ka.v_cols.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    let worst = (kc.v_cols.iter().zip(&ka.v_cols)).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    let worst =
+        (kc.v_cols.iter().zip(ka.v_cols.iter())).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
     eprintln!(
         "ranks {ranks:?}: V carried against V afresh {:.1e} (of {scale:.2e})",
         worst / scale
@@ -580,7 +581,8 @@ fn columns_solved_up_front_give_the_same_cut() {
     let (kp, kh) = (plain.correction(&c).unwrap(), held.correction(&c).unwrap());
     assert_eq!(kp.rank, kh.rank);
     let scale = kp.v_cols.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    let worst = (kp.v_cols.iter().zip(&kh.v_cols)).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    let worst =
+        (kp.v_cols.iter().zip(kh.v_cols.iter())).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
     eprintln!(
         "cube, rank {}: {n} columns held, V against every column solved as the cut goes {:.1e}",
         kp.rank,

@@ -365,7 +365,7 @@ impl CorrectionPass {
             u_cols: if n_extra > 0 {
                 k.u_cols.clone()
             } else {
-                Vec::new()
+                Default::default()
             },
             v_cols: k.v_cols.clone(),
             dead_cols: k.dead_cols.clone(),

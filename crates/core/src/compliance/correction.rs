@@ -19,6 +19,8 @@
 //! it has no row of `L`, is `U_x z + w_p(x)` with `w = Σ_c U_cᵀ F_c` over the columns of `L`
 //! ([`Correction::extra_rows`]).
 
+use std::sync::Arc;
+
 use glam::{DMat3, DVec3};
 
 /// `U`, `V = U Cᵀ` and what they pin, for one compliance's rows and columns.
@@ -27,11 +29,13 @@ pub struct Correction {
     /// The correction's rank (`U`'s columns).
     pub rank: usize,
     /// `U` on the held rows: `3·l_rows × rank`, by column (entry `q·3·l_rows + 3r + a`).
-    pub rows: Vec<f64>,
-    /// `U` on the touchable columns' nodes: entry `(3c + a)·rank + q`.
-    pub u_cols: Vec<f64>,
-    /// `V = U Cᵀ` on the touchable columns' nodes, laid out as `u_cols`.
-    pub v_cols: Vec<f64>,
+    /// Shared: the cutter keeps it to grow the next cut's from, and a renderer keeps it to
+    /// draw with, without a copy.
+    pub rows: Arc<Vec<f64>>,
+    /// `U` on the touchable columns' nodes: entry `(3c + a)·rank + q` (shared, as `rows`).
+    pub u_cols: Arc<Vec<f64>>,
+    /// `V = U Cᵀ` on the touchable columns' nodes, laid out as `u_cols` (shared, as `rows`).
+    pub v_cols: Arc<Vec<f64>>,
     /// Per held row: pinned (the node does not move).
     pub dead_rows: Vec<bool>,
     /// Per touchable column: pinned (no longer touchable).
@@ -271,9 +275,9 @@ impl Correction {
     pub fn pins_only(&self) -> Correction {
         Correction {
             rank: 0,
-            rows: Vec::new(),
-            u_cols: Vec::new(),
-            v_cols: Vec::new(),
+            rows: Arc::default(),
+            u_cols: Arc::default(),
+            v_cols: Arc::default(),
             dead_rows: self.dead_rows.clone(),
             dead_cols: self.dead_cols.clone(),
             diag_inv: self.diag_inv.clone(),

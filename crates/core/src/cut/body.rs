@@ -1130,10 +1130,9 @@ impl Cut {
             }
         }
         let (rows, u_cols) = self.u_of(c, (&at, &dead_rows), (&at_cols, &dead_cols));
-        let mut v_cols = vec![0.0; 3 * nc * r];
         // V = U Cᵀ for every column at once (a matrix product; u_cols is U row by row, so
         // U's transpose column-major: Vᵀ = C Uᵀ).
-        self.v_times(c, &u_cols, &mut v_cols);
+        let v_cols = self.v_times(c, &u_cols);
         let mut k = Correction {
             rank: r,
             rows,

@@ -16,6 +16,8 @@
 //! than `V` afresh make it afresh. Both ways depend only on the cuts made, never on timing, so a replay
 //! makes the same bits.
 
+use std::sync::Arc;
+
 use faer::{MatMut, MatRef, Par};
 use nalgebra::DMatrix;
 
@@ -149,22 +151,26 @@ impl Cut {
         Ok(())
     }
 
-    /// `Vᵀ = C Uᵀ` into `out` (`u`: `Uᵀ`, `rank × 3·C` column-major, of compliance `c`'s
-    /// columns): from the last `V` and the updates since where they were made for `c`'s `L`,
-    /// else afresh ([`Cut::cap_times`]); kept for the next cut.
-    pub(super) fn v_times(&self, c: &Compliance, u: &[f64], out: &mut [f64]) {
+    /// `Vᵀ = C Uᵀ` (`u`: `Uᵀ`, `rank × 3·C` column-major, of compliance `c`'s columns; the
+    /// result laid out as `u`): from the last `V` and the updates since where they were made
+    /// for `c`'s `L`, else afresh ([`Cut::cap_times`]); kept (shared, not copied) for the next
+    /// cut.
+    pub(super) fn v_times(&self, c: &Compliance, u: &[f64]) -> Arc<Vec<f64>> {
         let r = self.cap.nrows();
         if r == 0 || u.is_empty() {
-            return;
+            return Arc::new(vec![0.0; u.len()]);
         }
         let cols = u.len() / r;
         let mut carried = self.carried.lock().unwrap_or_else(|e| e.into_inner());
         let last = carried.v.take();
+        let mut out;
         match last {
             Some((base, r0, v0)) if base.shares_l(c) && r0 <= r && v0.len() == r0 * cols => {
-                for (j, col) in out.chunks_exact_mut(r).enumerate() {
-                    col[..r0].copy_from_slice(&v0[j * r0..(j + 1) * r0]);
-                    col[r0..].fill(0.0);
+                // (Appended column by column: each entry written once, in order.)
+                out = Vec::with_capacity(u.len());
+                for j in 0..cols {
+                    out.extend_from_slice(&v0[j * r0..(j + 1) * r0]);
+                    out.resize(out.len() + r - r0, 0.0);
                 }
                 // Vᵀ += S (G (Sᵀ Uᵀ)) for each update, at the rank of its cut.
                 for upd in &carried.pending {
@@ -175,17 +181,22 @@ impl Cut {
                     let mut y = DMatrix::zeros(n, cols);
                     product(view_mut(&mut y), view(&upd.g), view(&wt), false);
                     product(
-                        MatMut::from_column_major_slice_with_stride_mut(out, ri, cols, r),
+                        MatMut::from_column_major_slice_with_stride_mut(&mut out, ri, cols, r),
                         view(&upd.s),
                         view(&y),
                         true,
                     );
                 }
             }
-            _ => self.cap_times(u, out),
+            _ => {
+                out = vec![0.0; u.len()];
+                self.cap_times(u, &mut out);
+            }
         }
+        let out = Arc::new(out);
         carried.pending.clear();
-        carried.v = Some((c.clone(), r, out.to_vec()));
+        carried.v = Some((c.clone(), r, out.clone()));
+        out
     }
 
     /// `U` at `c`'s held rows (`3·R × rank`, column-major) and, transposed, at its columns
@@ -198,43 +209,56 @@ impl Cut {
         c: &Compliance,
         (rows, dead_rows): (&[(usize, usize)], &[bool]),
         (cols, dead_cols): (&[(usize, usize)], &[bool]),
-    ) -> (Vec<f64>, Vec<f64>) {
+    ) -> (Arc<Vec<f64>>, Arc<Vec<f64>>) {
         let r = self.d.len();
         let (nr3, nc3) = (3 * dead_rows.len(), 3 * dead_cols.len());
-        let mut u_rows = vec![0.0; nr3 * r];
-        let mut u_cols = vec![0.0; nc3 * r];
         let mut carried = self.carried.lock().unwrap_or_else(|e| e.into_inner());
-        let mut r0 = 0;
-        if let Some((base, k0, rows0, cols0)) = carried.u.take() {
-            if base.shares_l(c) && k0 <= r && rows0.len() == nr3 * k0 && cols0.len() == nc3 * k0 {
-                r0 = k0;
-                u_rows[..nr3 * r0].copy_from_slice(&rows0);
-                if r0 > 0 {
-                    for (dst, src) in u_cols.chunks_exact_mut(r).zip(cols0.chunks_exact(r0)) {
-                        dst[..r0].copy_from_slice(src);
-                    }
-                }
-                // Nodes pinned since: dead, zero.
-                for (k, _) in dead_rows.iter().enumerate().filter(|p| *p.1) {
-                    for q in 0..r0 {
-                        u_rows[q * nr3 + 3 * k..][..3].fill(0.0);
-                    }
-                }
-                for (k, _) in dead_cols.iter().enumerate().filter(|p| *p.1) {
-                    u_cols[3 * k * r..][..3 * r].fill(0.0);
-                }
+        let last = carried.u.take().filter(|(base, k0, rows0, cols0)| {
+            base.shares_l(c) && *k0 <= r && rows0.len() == nr3 * k0 && cols0.len() == nc3 * k0
+        });
+        let (r0, rows0, cols0) = match &last {
+            Some((_, k0, rows0, cols0)) => (*k0, &rows0[..], &cols0[..]),
+            None => (0, &[][..], &[][..]),
+        };
+        // (Built by appending, each entry written once and in order: at rank 600 these are
+        // tens of megabytes, and a pass beside the renderer is bound by memory.)
+        let mut u_rows = Vec::with_capacity(nr3 * r);
+        u_rows.extend_from_slice(rows0);
+        // Nodes pinned since: dead, zero.
+        for (k, _) in dead_rows.iter().enumerate().filter(|p| *p.1) {
+            for q in 0..r0 {
+                u_rows[q * nr3 + 3 * k..][..3].fill(0.0);
             }
         }
         for q in r0..r {
             let col = self.ld.column(q);
-            let out = &mut u_rows[q * nr3..][..nr3];
+            let at = u_rows.len();
+            u_rows.resize(at + nr3, 0.0);
+            let out = &mut u_rows[at..];
             for &(i, d) in rows {
                 out[i] = col[d];
             }
+        }
+        // The new columns' entries at the columns first (rank-major, small), then each column
+        // of U's row: its old entries, then its new ones.
+        let dr = r - r0;
+        let mut new = vec![0.0; nc3 * dr];
+        for q in r0..r {
+            let col = self.ld.column(q);
             for &(j, d) in cols {
-                u_cols[j * r + q] = col[d];
+                new[j * dr + q - r0] = col[d];
             }
         }
+        let mut u_cols = Vec::with_capacity(nc3 * r);
+        for j in 0..nc3 {
+            if dead_cols[j / 3] {
+                u_cols.resize(u_cols.len() + r, 0.0);
+            } else {
+                u_cols.extend_from_slice(&cols0[j * r0..][..r0]);
+                u_cols.extend_from_slice(&new[j * dr..][..dr]);
+            }
+        }
+        let (u_rows, u_cols) = (Arc::new(u_rows), Arc::new(u_cols));
         carried.u = Some((c.clone(), r, u_rows.clone(), u_cols.clone()));
         (u_rows, u_cols)
     }

@@ -11,36 +11,61 @@ use glam::DVec3;
 /// line on each lip, also while its lips are closed. Sorted; empty where nothing was split.
 /// Triangles naming a node without a rest position are skipped.
 pub fn slit_edges(triangles: &[[u32; 3]], rest: &[DVec3]) -> Vec<[u32; 2]> {
-    let key = |t: &[u32; 3]| -> Option<[[u64; 3]; 3]> {
-        let mut k = [[0u64; 3]; 3];
-        for (slot, &v) in k.iter_mut().zip(t) {
-            let p = rest.get(v as usize)?;
-            *slot = [p.x, p.y, p.z].map(|c| (c + 0.0).to_bits());
+    let bits = |p: DVec3| [p.x, p.y, p.z].map(|c| (c + 0.0).to_bits());
+    let valid = |t: &[u32; 3]| t.iter().all(|&v| (v as usize) < rest.len());
+    // Twins differ in a node at least (the same three nodes twice would be one face of two
+    // tets, inside), so only a triangle with a node that shares its rest position with
+    // another can have a twin: those nodes first (a sort of the surface's nodes), then only
+    // their triangles hashed (a surface of thousands has tens near a cut).
+    let mut on: Vec<u32> = (triangles.iter().filter(|t| valid(t)))
+        .flatten()
+        .copied()
+        .collect();
+    on.sort_unstable();
+    on.dedup();
+    let mut by_place: Vec<([u64; 3], u32)> =
+        on.iter().map(|&v| (bits(rest[v as usize]), v)).collect();
+    by_place.sort_unstable();
+    let mut shared = vec![false; rest.len()];
+    for w in by_place.windows(2) {
+        if w[0].0 == w[1].0 {
+            shared[w[0].1 as usize] = true;
+            shared[w[1].1 as usize] = true;
         }
-        k.sort_unstable();
-        Some(k)
-    };
-    let keys: Vec<Option<[[u64; 3]; 3]>> = triangles.iter().map(key).collect();
-    let mut count: HashMap<[[u64; 3]; 3], u32> = HashMap::new();
-    for k in keys.iter().flatten() {
-        *count.entry(*k).or_default() += 1;
     }
-    // Per edge: whether a twinned triangle has it, whether an untwinned one does.
-    let mut sides: HashMap<[u32; 2], (bool, bool)> = HashMap::new();
-    for (t, k) in triangles.iter().zip(&keys) {
-        let Some(k) = k else { continue };
-        let twinned = count.get(k).is_some_and(|&n| n >= 2);
-        for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
-            let s = sides.entry([a.min(b), a.max(b)]).or_default();
-            if twinned {
-                s.0 = true;
-            } else {
-                s.1 = true;
+    let key = |t: &[u32; 3]| -> [[u64; 3]; 3] {
+        let mut k = t.map(|v| bits(rest[v as usize]));
+        k.sort_unstable();
+        k
+    };
+    let maybe = |t: &[u32; 3]| valid(t) && t.iter().any(|&v| shared[v as usize]);
+    let mut count: HashMap<[[u64; 3]; 3], u32> = HashMap::new();
+    for t in triangles.iter().filter(|t| maybe(t)) {
+        *count.entry(key(t)).or_default() += 1;
+    }
+    let twinned = |t: &[u32; 3]| maybe(t) && count.get(&key(t)).is_some_and(|&n| n >= 2);
+    let edges_of = |t: &[u32; 3]| {
+        [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])].map(|(a, b)| [a.min(b), a.max(b)])
+    };
+    // Per edge of a twinned triangle: whether an untwinned one has it too.
+    let mut sides: HashMap<[u32; 2], bool> = HashMap::new();
+    for t in triangles.iter().filter(|t| twinned(t)) {
+        for e in edges_of(t) {
+            sides.entry(e).or_insert(false);
+        }
+    }
+    if sides.is_empty() {
+        return Vec::new();
+    }
+    for t in triangles.iter().filter(|t| valid(t) && !twinned(t)) {
+        for e in edges_of(t) {
+            if let Some(plain) = sides.get_mut(&e) {
+                *plain = true;
             }
         }
     }
     let mut edges: Vec<[u32; 2]> = (sides.into_iter())
-        .filter(|(_, (twin, plain))| *twin && *plain)
+        .filter(|(_, plain)| *plain)
         .map(|(e, _)| e)
         .collect();
     edges.sort_unstable();
