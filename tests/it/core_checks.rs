@@ -6,9 +6,10 @@
 use touchfem_core::self_check::{all, Check};
 
 /// The engine's rooms that have unit checks, each run by its test below.
-const ROOMS: [&str; 9] = [
+const ROOMS: [&str; 10] = [
     "cache",
     "compliance",
+    "cut",
     "devices",
     "fem",
     "haptic",
@@ -39,6 +40,11 @@ fn cache_checks() {
 #[test]
 fn compliance_checks() {
     assert!(run_room("compliance") > 0);
+}
+
+#[test]
+fn cut_checks() {
+    assert!(run_room("cut") > 0);
 }
 
 #[test]

@@ -108,6 +108,10 @@ pub fn all() -> Vec<Check> {
             the_stabilised_elements_keep_the_whole_bodys_volume
         ),
         check!(fem::locking_free::tests, poisson_one_half_is_a_typed_error),
+        check!(
+            cut::carried::tests,
+            a_spare_buffer_is_reused_only_when_free_and_large_enough
+        ),
         check!(fem::tests, direct_assembly_equals_the_dense_assembly),
         check!(
             fem::tests,

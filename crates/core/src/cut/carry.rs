@@ -167,7 +167,7 @@ impl Cut {
         match last {
             Some((base, r0, v0)) if base.shares_l(c) && r0 <= r && v0.len() == r0 * cols => {
                 // (Appended column by column: each entry written once, in order.)
-                out = Vec::with_capacity(u.len());
+                out = carried.buffer(u.len());
                 for j in 0..cols {
                     out.extend_from_slice(&v0[j * r0..(j + 1) * r0]);
                     out.resize(out.len() + r - r0, 0.0);
@@ -189,11 +189,12 @@ impl Cut {
                 }
             }
             _ => {
-                out = vec![0.0; u.len()];
+                out = carried.buffer(u.len());
+                out.resize(u.len(), 0.0);
                 self.cap_times(u, &mut out);
             }
         }
-        let out = Arc::new(out);
+        let out = carried.share(out);
         carried.pending.clear();
         carried.v = Some((c.clone(), r, out.clone()));
         out
@@ -222,7 +223,7 @@ impl Cut {
         };
         // (Built by appending, each entry written once and in order: at rank 600 these are
         // tens of megabytes, and a pass beside the renderer is bound by memory.)
-        let mut u_rows = Vec::with_capacity(nr3 * r);
+        let mut u_rows = carried.buffer(nr3 * r);
         u_rows.extend_from_slice(rows0);
         // Nodes pinned since: dead, zero.
         for (k, _) in dead_rows.iter().enumerate().filter(|p| *p.1) {
@@ -249,7 +250,7 @@ impl Cut {
                 new[j * dr + q - r0] = col[d];
             }
         }
-        let mut u_cols = Vec::with_capacity(nc3 * r);
+        let mut u_cols = carried.buffer(nc3 * r);
         for j in 0..nc3 {
             if dead_cols[j / 3] {
                 u_cols.resize(u_cols.len() + r, 0.0);
@@ -258,7 +259,7 @@ impl Cut {
                 u_cols.extend_from_slice(&new[j * dr..][..dr]);
             }
         }
-        let (u_rows, u_cols) = (Arc::new(u_rows), Arc::new(u_cols));
+        let (u_rows, u_cols) = (carried.share(u_rows), carried.share(u_cols));
         carried.u = Some((c.clone(), r, u_rows.clone(), u_cols.clone()));
         (u_rows, u_cols)
     }

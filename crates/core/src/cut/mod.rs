@@ -31,7 +31,7 @@
 
 mod blade;
 mod body;
-mod carried;
+pub(crate) mod carried;
 mod carry;
 pub mod columns;
 mod derive;
