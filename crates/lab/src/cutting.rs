@@ -193,7 +193,7 @@ pub fn rows(gpu: Option<&touchfem_gpu::Gpu>, quick: bool) -> Result<Vec<CutRow>,
                 let mut times = Vec::new();
                 let mut err = 0.0;
                 for _ in 0..reps {
-                    let (us, d) = install_timed(g, obj, &body, &opts, &forces, &forces)?;
+                    let (us, d) = install_timed(g, obj, &body, &opts, &forces, &forces, None)?;
                     times.push(us);
                     let (pos, _) = d.read_back(&g.device, &g.queue)?;
                     let c = &body.compliance;
@@ -288,8 +288,8 @@ fn tick_us(body: &CutBody, node: u32, p: DVec3, what: &str, quick: bool) -> Resu
     }))
 }
 
-/// A deformer of `obj`'s uncut compliance, one frame of `warm` forces, then the time (µs) to
-/// put `body` on it ([`touchfem_gpu::install_cut`]) and draw one frame of `forces`.
+/// A deformer of `obj`'s uncut compliance (holding `before` where given: the cut body of the
+/// blade's step before), one frame of `warm` forces, then the time (µs) to put `body` on it ([`touchfem_gpu::install_cut`]) and draw one frame of `forces`.
 fn install_timed(
     g: &touchfem_gpu::Gpu,
     obj: &touchfem_core::scene::Object,
@@ -297,11 +297,25 @@ fn install_timed(
     opts: &touchfem_gpu::DeformerOptions,
     warm: &[(u32, [f32; 3])],
     forces: &[(u32, [f32; 3])],
+    before: Option<&CutBody>,
 ) -> Result<(f64, touchfem_gpu::Deformer), Error> {
     let mesh = &obj.body.mesh;
     let uncut = &obj.body.compliance;
     let mut d =
         touchfem_gpu::Deformer::new(&g.device, &g.queue, uncut, &mesh.nodes, &mesh.surface, opts)?;
+    if let Some(b) = before {
+        let c = &b.compliance;
+        touchfem_gpu::install_cut(
+            &g.device,
+            &g.queue,
+            &mut d,
+            uncut,
+            c,
+            &b.triangles,
+            &b.rest,
+            opts,
+        )?;
+    }
     crate::tradeoff::gpu_frame(g, &mut d, warm)?;
     let t = Instant::now();
     touchfem_gpu::install_cut(
@@ -353,7 +367,7 @@ fn separate_rows(
     // preparation each way.
     let (mut times, mut solving) = (Vec::new(), Vec::new());
     let (mut ready, mut ready_solving) = (Vec::new(), Vec::new());
-    let mut body: Option<Arc<CutBody>> = None;
+    let (mut body, mut first_body): (Option<Arc<CutBody>>, Option<Arc<CutBody>>) = (None, None);
     for _ in 0..reps {
         for up_front in [true, false] {
             let t = Instant::now();
@@ -365,7 +379,7 @@ fn separate_rows(
             };
             let prep = t.elapsed().as_secs_f64() * 1e6;
             cutter.set_cut_mode(CutMode::Separate);
-            cutter.apply(&first)?;
+            let a = cutter.apply(&first)?;
             let t = Instant::now();
             let b = cutter.apply(&second)?;
             let us = t.elapsed().as_secs_f64() * 1e6;
@@ -373,6 +387,7 @@ fn separate_rows(
                 times.push(us);
                 ready.push(prep);
                 body = b.or(body);
+                first_body = a.or(first_body);
             } else {
                 solving.push(us);
                 ready_solving.push(prep);
@@ -380,6 +395,8 @@ fn separate_rows(
         }
     }
     let body = body.ok_or_else(|| Error::Study("the separating blade cut nothing".into()))?;
+    let first_body = first_body
+        .ok_or_else(|| Error::Study("the separating blade's first chord cut nothing".into()))?;
     let row = |method: &str, time_us: f64, rel_error: f64| CutRow {
         method: method.into(),
         mesh: name.into(),
@@ -431,7 +448,8 @@ fn separate_rows(
     let mut times = Vec::new();
     let mut err = 0.0;
     for _ in 0..reps {
-        let (us, d) = install_timed(g, obj, &body, &opts, &[], &forces)?;
+        // (On a deformer that holds the chord before's body, as a live blade's step finds it.)
+        let (us, d) = install_timed(g, obj, &body, &opts, &[], &forces, Some(&first_body))?;
         times.push(us);
         // The GPU's vertices against the f64 product: rows, then the copies drawn.
         let (pos, _) = d.read_back(&g.device, &g.queue)?;
