@@ -112,6 +112,7 @@ pub fn all() -> Vec<Check> {
             cut::carried::tests,
             a_spare_buffer_is_reused_only_when_free_and_large_enough
         ),
+        check!(cut::solved::tests, l_d_grows_into_room_that_doubles),
         check!(fem::tests, direct_assembly_equals_the_dense_assembly),
         check!(
             fem::tests,

@@ -36,7 +36,7 @@ mod carry;
 pub mod columns;
 mod derive;
 mod grown;
-mod solved;
+pub(crate) mod solved;
 mod split;
 
 pub use blade::{blade_tets, BladeQuad};

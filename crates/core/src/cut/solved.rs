@@ -198,3 +198,46 @@ impl Cut {
         self.d.extend_from_slice(new);
     }
 }
+
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
+    use super::*;
+
+    /// `L_D` grows into room that doubles: over twenty cuts on the cube, each bringing new
+    /// DOFs into `D`, its storage is moved only when the room runs out (a handful of times),
+    /// not once a cut, and always holds what it must.
+    #[cfg_attr(test, test)]
+    pub(crate) fn l_d_grows_into_room_that_doubles() {
+        let mesh = crate::mesh::cube();
+        let mut cut = Cut::new(&mesh).expect("the cube factors");
+        let (mut grown, mut moved, mut cap) = (0, 0, 0);
+        let mut first = 0;
+        for t in (0..mesh.tets.len()).step_by(17).take(20) {
+            let rank = cut.rank();
+            cut.remove(&mesh, &[t]).expect("a tet removed");
+            if cut.rank() == rank {
+                continue;
+            }
+            grown += 1;
+            let v = cut.ld.data.as_vec();
+            assert_eq!(v.len(), cut.ld.nrows() * cut.rank());
+            assert!(v.capacity() >= v.len());
+            if first == 0 {
+                first = v.len();
+            }
+            if v.capacity() != cap {
+                moved += 1;
+                cap = v.capacity();
+            }
+        }
+        let last = cut.ld.len();
+        let doublings = (last as f64 / first as f64).log2().ceil() as usize;
+        eprintln!("L_D grew {grown} times from {first} to {last} entries, moved {moved} times");
+        assert!(grown >= 15, "{grown} cuts grew D");
+        // (Each move at least doubles the room, which may end up to twice the entries.)
+        assert!(
+            moved <= doublings + 2,
+            "moved {moved} times in {grown} growths"
+        );
+    }
+}
