@@ -30,7 +30,7 @@ pub(super) struct Carried {
     pub(super) u: Option<(Compliance, usize, Shared, Shared)>,
     /// The buffers of the last passes' `U` and `V`, kept to be written again once nothing
     /// else holds them (the bodies that read them were replaced): a pass then writes memory
-    /// it has written before instead of fresh pages, and no thread that reads a body frees
+    /// it has written before instead of fresh pages, and a thread that reads a body seldom frees
     /// tens of megabytes.
     pub(super) spare: Vec<Shared>,
 }
