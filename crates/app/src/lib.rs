@@ -24,7 +24,6 @@ use clap::Parser;
 /// returns the exit status (2 for bad input).
 pub fn main() -> std::process::ExitCode {
     install_logger();
-    keep_freed_memory();
     let cli = args::Cli::parse();
     match cli::run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
@@ -32,22 +31,6 @@ pub fn main() -> std::process::ExitCode {
             eprintln!("error: {e}");
             std::process::ExitCode::from(2)
         }
-    }
-}
-
-/// Tells glibc's allocator to keep the memory it is given back (up to 1 GiB) and to hand
-/// out blocks below 32 MiB from it, instead of mapping fresh pages for each: a live cut
-/// builds and drops tens of megabytes of its correction every pass, and beside the renderer
-/// the page faults of fresh mappings were a third of a pass (the separating incision's
-/// median stroke-to-haptic delay 53/45/56 ms against 67/98/55 ms without, alternated:
-/// `docs/measurements/2026-12-06-separating-cut.md`). Elsewhere, nothing.
-fn keep_freed_memory() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: `mallopt` only sets the allocator's parameters; called once, before any thread.
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
-        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
-        libc::mallopt(libc::M_TOP_PAD, 64 << 20);
     }
 }
 

@@ -17,14 +17,14 @@ pub fn slit_edges(triangles: &[[u32; 3]], rest: &[DVec3]) -> Vec<[u32; 2]> {
     // tets, inside), so only a triangle with a node that shares its rest position with
     // another can have a twin: those nodes first (a sort of the surface's nodes), then only
     // their triangles hashed (a surface of thousands has tens near a cut).
-    let mut on: Vec<u32> = (triangles.iter().filter(|t| valid(t)))
-        .flatten()
-        .copied()
+    let mut on = vec![false; rest.len()];
+    for &v in triangles.iter().filter(|t| valid(t)).flatten() {
+        on[v as usize] = true;
+    }
+    let mut by_place: Vec<([u64; 3], u32)> = (0..rest.len() as u32)
+        .filter(|&v| on[v as usize])
+        .map(|v| (bits(rest[v as usize]), v))
         .collect();
-    on.sort_unstable();
-    on.dedup();
-    let mut by_place: Vec<([u64; 3], u32)> =
-        on.iter().map(|&v| (bits(rest[v as usize]), v)).collect();
     by_place.sort_unstable();
     let mut shared = vec![false; rest.len()];
     for w in by_place.windows(2) {
