@@ -183,5 +183,10 @@ pub fn all() -> Vec<Check> {
     ]);
     #[cfg(all(feature = "native", target_os = "linux"))]
     v.push(check!(threads::tests, pin_and_restore));
+    #[cfg(all(feature = "native", target_os = "linux"))]
+    v.push(check!(
+        threads::tests,
+        workers_find_their_cores_from_a_pinned_thread
+    ));
     v
 }

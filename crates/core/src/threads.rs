@@ -238,6 +238,42 @@ pub(crate) mod tests {
         .join()
         .unwrap();
     }
+
+    /// The calling thread's scheduling class (Linux `SCHED_*`).
+    fn policy() -> i32 {
+        // SAFETY: a plain query on the current thread.
+        unsafe { libc::sched_getscheduler(0) }
+    }
+
+    /// A worker spawned by a thread pinned off the haptic core (as the cutter spawns its fold
+    /// and its helpers) becomes an idle worker on the haptic core, and a background worker
+    /// spawned from the haptic core goes to the others. (On one core: a background worker.)
+    #[cfg_attr(test, test)]
+    pub(crate) fn workers_find_their_cores_from_a_pinned_thread() {
+        std::thread::spawn(|| {
+            let all = current_cpus();
+            let (first, last) = (all[0], *all.last().unwrap());
+            assert!(pin_current_thread(&[first]));
+            let idle =
+                std::thread::spawn(move || (become_idle_worker(&[last]), current_cpus(), policy()));
+            let idle = idle.join().unwrap();
+            assert!(pin_current_thread(&[last]));
+            let back = std::thread::spawn(move || {
+                become_background_worker(&[last]);
+                (current_cpus(), policy())
+            });
+            let back = back.join().unwrap();
+            let others: Vec<usize> = all.iter().copied().filter(|&c| c != last).collect();
+            if all.len() >= 2 {
+                assert_eq!(idle, (true, vec![last], libc::SCHED_IDLE));
+                assert_eq!(back, (others, libc::SCHED_OTHER));
+            } else {
+                assert_eq!(idle, (false, vec![last], libc::SCHED_OTHER));
+            }
+        })
+        .join()
+        .unwrap();
+    }
 }
 
 /// Asks the OS to run the calling thread at real-time priority (Linux `SCHED_FIFO`, priority
@@ -247,14 +283,37 @@ pub fn try_realtime_priority() -> bool {
     try_realtime_priority_at(80)
 }
 
+/// The cores off `haptic_cpus` that the calling thread may use: those of its own mask, or,
+/// where its mask holds only haptic cores (a thread the haptic loop spawned), the machine's
+/// other online cores. Not [`available`]: a thread inherits its spawner's mask, so a worker
+/// that a pinned thread spawned would count one core where the machine has two (the cutter's
+/// fold and columns helper did, and so ran beside the visual loop, never in the haptic
+/// core's idle time).
+fn off_haptic(haptic_cpus: &[usize]) -> Vec<usize> {
+    let own: Vec<usize> = (current_cpus().into_iter())
+        .filter(|c| !haptic_cpus.contains(c))
+        .collect();
+    if !own.is_empty() {
+        return own;
+    }
+    #[cfg(all(feature = "native", target_os = "linux"))]
+    let n = {
+        // SAFETY: a plain query, no pointers.
+        let n = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) };
+        usize::try_from(n).unwrap_or(1)
+    };
+    #[cfg(not(all(feature = "native", target_os = "linux")))]
+    let n = available();
+    (0..n).filter(|c| !haptic_cpus.contains(c)).collect()
+}
+
 /// Makes the calling thread a background worker when the haptic loop spawned it: it leaves
 /// the haptic loop's real-time class (threads inherit it, and a busy real-time thread gets
 /// the whole class throttled) for the normal one, and the haptic loop's cores for the others
 /// (where there are others). What the cutter's thread does first. Returns whether the
 /// scheduling class was changed.
 pub fn become_background_worker(haptic_cpus: &[usize]) -> bool {
-    let n = available();
-    let others: Vec<usize> = (0..n).filter(|c| !haptic_cpus.contains(c)).collect();
+    let others = off_haptic(haptic_cpus);
     if !others.is_empty() && !haptic_cpus.is_empty() {
         pin_current_thread(&others);
     }
@@ -292,7 +351,7 @@ pub fn become_urgent_worker(haptic_cpus: &[usize]) -> bool {
 pub fn become_idle_worker(haptic_cpus: &[usize]) -> bool {
     #[cfg(all(feature = "native", target_os = "linux"))]
     {
-        if available() >= 2 && !haptic_cpus.is_empty() && pin_current_thread(haptic_cpus) {
+        if !off_haptic(haptic_cpus).is_empty() && pin_current_thread(haptic_cpus) {
             // SAFETY: plain FFI call on the current thread with a fully initialised parameter
             // (priority 0 is the only one SCHED_IDLE takes).
             let ok = unsafe {
