@@ -643,3 +643,51 @@ fn columns_solved_up_front_give_the_same_cut() {
         ) < 1e-9
     );
 }
+
+/// `V` made with a helper thread taking blocks of its columns (`Cut::share_v_with`, as the
+/// live cutter does on the haptic core) has the same bits as `V` made by one thread, carried
+/// from cut to cut and afresh: each block is the same products whoever makes it, so a replay
+/// (which has no helper) makes what the live run made.
+#[test]
+fn v_shared_with_a_helper_has_the_same_bits() {
+    let mesh = touchfem::mesh::cube_with(
+        [6, 6, 6],
+        [30.0; 3],
+        touchfem::mesh::units::Material {
+            young_pa: 10_000.0,
+            poisson: 0.49,
+        },
+    )
+    .unwrap();
+    let c = Compliance::compute(&mesh, &Selection::default()).unwrap();
+    let n = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let cpus: Arc<[usize]> = (0..n).collect();
+    let (mut one, mut two) = (Cut::new(&mesh).unwrap(), Cut::new(&mesh).unwrap());
+    // (Above 0: the helper takes part in every `V`.)
+    two.share_v_with(Some(cpus), 0);
+    let steps = [
+        ([2.0, 20.0], [28.0, 20.0]),
+        ([11.0, 3.0], [11.0, 6.0]),
+        ([11.0, 6.0], [11.0, 9.0]),
+        ([11.0, 9.0], [11.0, 12.0]),
+    ];
+    let mut blocks = 0;
+    for (k, (a, b)) in steps.into_iter().enumerate() {
+        let q = quad(&mesh, [a[0], a[1], 30.0], [b[0], b[1], 30.0], 10.0);
+        one.split(&mesh, std::slice::from_ref(&q)).unwrap();
+        two.split(&mesh, &[q]).unwrap();
+        // (The second cut's `V` afresh on both: asked for only after the third cut.)
+        if k == 1 {
+            continue;
+        }
+        let (k1, k2) = (one.correction(&c).unwrap(), two.correction(&c).unwrap());
+        assert!(k1.rank > 0 && k1.rank == k2.rank);
+        blocks = k1.v_cols.len().div_ceil(128 * k1.rank);
+        let same = |a: &[f64], b: &[f64]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+        };
+        assert!(same(&k1.v_cols, &k2.v_cols), "cut {k}: V differs");
+        assert!(same(&k1.u_cols, &k2.u_cols) && same(&k1.rows, &k2.rows));
+    }
+    assert!(blocks >= 3, "{blocks} blocks of V's columns");
+}

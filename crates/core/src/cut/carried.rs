@@ -33,6 +33,9 @@ pub(super) struct Carried {
     /// it has written before instead of fresh pages, and a thread that reads a body seldom frees
     /// tens of megabytes.
     pub(super) spare: Vec<Shared>,
+    /// Cores where a helper thread makes part of a `V` of more multiply-adds than the number
+    /// in their idle time (the haptic loop's; [`super::Cut::share_v_with`]).
+    pub(super) helper: Option<(Arc<[usize]>, usize)>,
 }
 
 /// How many of the last buffers [`Carried::spare`] keeps (three a pass: `U` at the rows, at

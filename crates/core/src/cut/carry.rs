@@ -15,6 +15,11 @@
 //! `V` again with the same `L`; a cut undone, another `L`, or updates that would cost more
 //! than `V` afresh make it afresh. Both ways depend only on the cuts made, never on timing, so a replay
 //! makes the same bits.
+//!
+//! Either way each column of `V` depends on its own column of `U` alone, so `V` is made in
+//! fixed blocks of [`V_BLOCK`] columns; where it is large, a helper thread takes blocks in the
+//! haptic core's idle time while the cutter's thread takes the others. Each block is the same
+//! products whoever makes it, so the bits do not depend on the sharing.
 
 use std::sync::Arc;
 
@@ -23,8 +28,18 @@ use nalgebra::DMatrix;
 
 use super::body::Cut;
 use super::carried::Update;
+
 use crate::compliance::{product_seq as product, Compliance};
 use crate::Error;
+
+/// Columns of `V` made together: a fixed grid, so a column's bits do not depend on which
+/// thread makes it (at rank 600 and a pass's `|T|` of 50, a block is about 8 million
+/// multiply-adds, 1–2 ms).
+const V_BLOCK: usize = 128;
+
+/// The multiply-adds of a `V` below which the cutter's thread makes it alone (a helper's
+/// start costs about 0.1 ms): [`Cut::share_v_with`]'s usual `above`.
+pub const V_SHARE_ABOVE: usize = 20_000_000;
 
 /// `m` as a faer view (nalgebra stores column-major).
 fn view(m: &DMatrix<f64>) -> MatRef<'_, f64> {
@@ -163,41 +178,104 @@ impl Cut {
         let cols = u.len() / r;
         let mut carried = self.carried.lock().unwrap_or_else(|e| e.into_inner());
         let last = carried.v.take();
-        let mut out;
-        match last {
+        let mut out = carried.buffer(u.len());
+        let pending = std::mem::take(&mut carried.pending);
+        let updates = match last {
             Some((base, r0, v0)) if base.shares_l(c) && r0 <= r && v0.len() == r0 * cols => {
                 // (Appended column by column: each entry written once, in order.)
-                out = carried.buffer(u.len());
                 for j in 0..cols {
                     out.extend_from_slice(&v0[j * r0..(j + 1) * r0]);
                     out.resize(out.len() + r - r0, 0.0);
                 }
-                // Vᵀ += S (G (Sᵀ Uᵀ)) for each update, at the rank of its cut.
-                for upd in &carried.pending {
-                    let (ri, n) = upd.s.shape();
-                    let ut = MatRef::from_column_major_slice_with_stride(u, ri, cols, r);
-                    let mut wt = DMatrix::zeros(n, cols);
-                    product(view_mut(&mut wt), view(&upd.s).transpose(), ut, false);
-                    let mut y = DMatrix::zeros(n, cols);
-                    product(view_mut(&mut y), view(&upd.g), view(&wt), false);
-                    product(
-                        MatMut::from_column_major_slice_with_stride_mut(&mut out, ri, cols, r),
-                        view(&upd.s),
-                        view(&y),
-                        true,
-                    );
-                }
+                Some(&pending[..])
             }
             _ => {
-                out = carried.buffer(u.len());
                 out.resize(u.len(), 0.0);
-                self.cap_times(u, &mut out);
+                None
             }
-        }
+        };
+        let macs = cols
+            * updates.map_or(r * r, |ups| {
+                (ups.iter())
+                    .map(|x| 2 * x.s.nrows() * x.s.ncols() + x.g.len())
+                    .sum()
+            });
+        let helper =
+            (carried.helper.clone()).and_then(|(cpus, above)| (macs > above).then_some(cpus));
+        self.v_blocks(u, &mut out, updates, helper.as_deref());
         let out = carried.share(out);
         carried.pending.clear();
         carried.v = Some((c.clone(), r, out.clone()));
         out
+    }
+
+    /// Lets a helper thread on `cpus` (the haptic loop's cores, in their idle time) make part
+    /// of each `V` of more than `above` multiply-adds (usually [`V_SHARE_ABOVE`]; `None`:
+    /// the calling thread makes all of it). The same bits either way.
+    pub fn share_v_with(&mut self, cpus: Option<Arc<[usize]>>, above: usize) {
+        let carried = self.carried.get_mut().unwrap_or_else(|e| e.into_inner());
+        carried.helper = cpus.map(|c| (c, above));
+    }
+
+    /// Makes `Vᵀ` into `out` (`rank × cols`, as `u`) block by block: `C Uᵀ` afresh, or, given
+    /// `updates`, `out` (the last `V`, grown) plus each update's `S (G (Sᵀ Uᵀ))` at the rank
+    /// of its cut. With `helper`, a thread there takes blocks too.
+    fn v_blocks(
+        &self,
+        u: &[f64],
+        out: &mut [f64],
+        updates: Option<&[Update]>,
+        helper: Option<&[usize]>,
+    ) {
+        let r = self.cap.nrows();
+        let block = |(j0, o): (usize, &mut [f64])| {
+            let m = o.len() / r;
+            let ub = &u[j0 * r..][..m * r];
+            let Some(ups) = updates else {
+                self.cap_times(ub, o);
+                return;
+            };
+            for upd in ups {
+                let (ri, n) = upd.s.shape();
+                let ut = MatRef::from_column_major_slice_with_stride(ub, ri, m, r);
+                let mut wt = DMatrix::zeros(n, m);
+                product(view_mut(&mut wt), view(&upd.s).transpose(), ut, false);
+                let mut y = DMatrix::zeros(n, m);
+                product(view_mut(&mut y), view(&upd.g), view(&wt), false);
+                product(
+                    MatMut::from_column_major_slice_with_stride_mut(o, ri, m, r),
+                    view(&upd.s),
+                    view(&y),
+                    true,
+                );
+            }
+        };
+        let blocks = (out.chunks_mut(V_BLOCK * r).enumerate()).map(|(k, o)| (k * V_BLOCK, o));
+        #[cfg(feature = "native")]
+        if let Some(cpus) = helper {
+            // (Each thread takes the next block left; the cutter's thread does not wait for
+            // the helper beyond the block it is making.)
+            let jobs = std::sync::Mutex::new(blocks);
+            let next = || jobs.lock().unwrap_or_else(|e| e.into_inner()).next();
+            std::thread::scope(|s| {
+                // (A helper that cannot start leaves every block to this thread.)
+                let _ = std::thread::Builder::new()
+                    .name("touchfem-v".into())
+                    .spawn_scoped(s, || {
+                        crate::threads::become_idle_worker(cpus);
+                        while let Some(b) = next() {
+                            block(b);
+                        }
+                    });
+                while let Some(b) = next() {
+                    block(b);
+                }
+            });
+            return;
+        }
+        #[cfg(not(feature = "native"))]
+        let _ = helper;
+        blocks.for_each(block);
     }
 
     /// `U` at `c`'s held rows (`3·R × rank`, column-major) and, transposed, at its columns

@@ -42,5 +42,6 @@ mod split;
 pub use blade::{blade_tets, BladeQuad};
 pub use body::{point_poke, point_poke_paper, tets_near, tets_near_keeping_nodes};
 pub use body::{Cut, CutPoke, CutReport, Rebase};
+pub use carry::V_SHARE_ABOVE;
 pub use columns::Columns;
 pub use split::{SplitReport, SLIVER_FRACTION};

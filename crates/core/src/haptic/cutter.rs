@@ -397,6 +397,8 @@ pub struct Cutter {
     fold_rank: usize,
     mode: FoldMode,
     cut_mode: CutMode,
+    /// Cores where a helper makes part of each large `V` (`Cut::share_v_with`).
+    helper: Option<Arc<[usize]>>,
 }
 
 impl Cutter {
@@ -473,6 +475,7 @@ impl Cutter {
             fold_rank: FOLD_RANK,
             mode: FoldMode::default(),
             cut_mode: CutMode::default(),
+            helper: plan.helper.map(Arc::from),
         })
     }
 
@@ -797,6 +800,8 @@ impl Cutter {
         let Some(Some(oc)) = self.objects.get_mut(o) else {
             return Err(Error::Input(format!("object {o} is not cuttable")));
         };
+        oc.cut
+            .share_v_with(self.helper.clone(), crate::cut::V_SHARE_ABOVE);
         let separating = oc.cut.copies() > 0 || self.cut_mode == CutMode::Separate;
         let (correction, open) = if separating {
             let open = oc.cut.separated_mesh(&oc.mesh);
