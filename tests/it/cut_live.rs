@@ -734,3 +734,58 @@ fn bench_cut_rows_hold_the_cut_and_the_fold_to_a_full_recompute() {
     // `--scene` with a mesh file that is not there: a typed error, no rows.
     assert!(touchfem_lab::cutting::scene_rows(None, "no/such/organ.msh", true).is_err());
 }
+
+/// A fold's adoption makes the same correction to the bit however the cuts made since its
+/// snapshot are split between the fold's thread (`Folded::catch_up`) and the adoption: `V`
+/// follows them by one rule either way (carried along, brought up to date whenever it falls
+/// a quarter of `V` afresh behind), so a replay, which makes them all at the adoption, makes
+/// what the live run made.
+#[test]
+fn an_adopted_fold_has_the_same_bits_however_its_catch_up_is_split() {
+    use touchfem::runtime::cutting::{CutBody, CutMode, Cutter, FoldMode};
+    let run = crate::common::separated_incision();
+    // Each fold is adopted up to twelve passes after it was handed out, its catch-up making `share`
+    // of the cuts made since: (cuts since, the adopted body) for each.
+    let adopted = |share: fn(usize) -> usize| -> Vec<(usize, std::sync::Arc<CutBody>)> {
+        let mut cutter = Cutter::new(&run.world).unwrap();
+        cutter.set_cut_mode(CutMode::Separate);
+        cutter.set_fold_mode(FoldMode::Deferred);
+        cutter.set_fold_rank(60);
+        let (mut out, mut ready): (_, Vec<touchfem::runtime::cutting::Folded>) =
+            (Vec::new(), Vec::new());
+        for (k, strokes) in run.passes.iter().enumerate() {
+            if k % 12 == 0 {
+                for mut f in std::mem::take(&mut ready) {
+                    let o = f.object();
+                    let ops = cutter.fold_ops(o).to_vec();
+                    f.catch_up(&ops[..share(ops.len())]).unwrap();
+                    let n = cutter.fold_ops(o).len();
+                    cutter.adopt(f).unwrap();
+                    out.push((n, cutter.body_now(o).unwrap()));
+                }
+            }
+            if !cutter.apply_all(strokes).unwrap().is_empty() && ready.is_empty() {
+                for job in cutter.take_folds().unwrap() {
+                    ready.push(job.run().1.unwrap());
+                }
+            }
+        }
+        out
+    };
+    let (all_at_adoption, all_on_fold) = (adopted(|_| 0), adopted(|n| n));
+    let v = |b: &CutBody| -> Vec<u64> {
+        let k = b.compliance.correction().expect("a carried correction");
+        (k.v_cols.iter().chain(k.rows.iter()))
+            .map(|x| x.to_bits())
+            .collect()
+    };
+    let since: Vec<usize> = all_at_adoption.iter().map(|p| p.0).collect();
+    eprintln!("folds adopted after {since:?} cuts since their snapshots");
+    assert!(all_at_adoption.len() >= 2, "{since:?}");
+    assert!(since.iter().any(|&n| n >= 3), "{since:?}");
+    assert_eq!(all_at_adoption.len(), all_on_fold.len());
+    for ((n, a), (_, b)) in all_at_adoption.iter().zip(&all_on_fold) {
+        assert!(a.compliance.correction().is_some_and(|k| k.rank > 0));
+        assert!(v(a) == v(b), "the fold adopted after {n} cuts differs");
+    }
+}

@@ -209,6 +209,20 @@ impl Cut {
         out
     }
 
+    /// How far behind the `V` this cut carries is: the multiply-adds of the updates waiting
+    /// for it over those of `V` afresh (`None`: it carries none). The next
+    /// [`Cut::correction`] costs about this fraction of `V` afresh (or `V` afresh at `None`).
+    pub fn v_behind(&self) -> Option<f64> {
+        let carried = self.carried.lock().unwrap_or_else(|e| e.into_inner());
+        carried.v.as_ref()?;
+        let r = self.cap.nrows().max(1);
+        let t = |u: &Update| u.g.nrows();
+        let cost: usize = (carried.pending.iter())
+            .map(|u| 2 * r * t(u) + t(u) * t(u))
+            .sum();
+        Some(cost as f64 / (r * r) as f64)
+    }
+
     /// Lets a helper thread on `cpus` (the haptic loop's cores, in their idle time) make part
     /// of each `V` of more than `above` multiply-adds (usually [`V_SHARE_ABOVE`]; `None`:
     /// the calling thread makes all of it). The same bits either way.
