@@ -753,7 +753,11 @@ fn an_adopted_fold_has_the_same_bits_however_its_catch_up_is_split() {
         cutter.set_fold_rank(60);
         let (mut out, mut ready): (_, Vec<touchfem::runtime::cutting::Folded>) =
             (Vec::new(), Vec::new());
+        // (Four adoptions are enough, and half the incision's passes.)
         for (k, strokes) in run.passes.iter().enumerate() {
+            if out.len() >= 4 {
+                break;
+            }
             if k % 12 == 0 {
                 for mut f in std::mem::take(&mut ready) {
                     let o = f.object();

@@ -307,7 +307,8 @@ impl Folded {
         self.object
     }
 
-    /// Makes again the cuts made since the snapshot that it has not made yet: `ops` are
+    /// Makes again the cuts made since the snapshot that it has not made yet, carrying `U`
+    /// and `V` along as the adoption does (`redo_carried`): `ops` are
     /// [`Cutter::fold_ops`] as they stand (or any longer prefix of them), so that the fold's
     /// thread catches up with the cutter and the adoption is left little to do.
     pub fn catch_up(&mut self, ops: &[CutOp]) -> Result<(), Error> {
