@@ -289,7 +289,8 @@ fn tick_us(body: &CutBody, node: u32, p: DVec3, what: &str, quick: bool) -> Resu
 }
 
 /// A deformer of `obj`'s uncut compliance (holding `before` where given: the cut body of the
-/// blade's step before), one frame of `warm` forces, then the time (µs) to put `body` on it ([`touchfem_gpu::install_cut`]) and draw one frame of `forces`.
+/// blade's step before), one frame of `warm` forces, then the time (µs) to put `body` on it
+/// ([`touchfem_gpu::install_cut`]) and draw one frame of `forces`.
 fn install_timed(
     g: &touchfem_gpu::Gpu,
     obj: &touchfem_core::scene::Object,

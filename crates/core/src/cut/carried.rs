@@ -19,6 +19,12 @@ pub(super) struct Update {
     pub(super) g: DMatrix<f64>,
 }
 
+/// The multiply-adds a column of `V` costs to take in an update of `t` places at rank `r`
+/// (`Sᵀ`, `G`, `S`: `2·r·t + t²`).
+pub(super) fn update_cost(r: usize, t: usize) -> usize {
+    2 * r * t + t * t
+}
+
 /// The last `U` and `V` made and the updates since.
 #[derive(Default)]
 pub(super) struct Carried {
@@ -43,6 +49,13 @@ pub(super) struct Carried {
 const SPARE: usize = 9;
 
 impl Carried {
+    /// What the updates waiting for `V` cost a column at rank `r` ([`update_cost`]).
+    pub(super) fn waiting(&self, r: usize) -> usize {
+        (self.pending.iter())
+            .map(|u| update_cost(r, u.g.nrows()))
+            .sum()
+    }
+
     /// An empty buffer with room for `len` entries: a spare one that nothing else holds and
     /// that is large enough where there is one, else a new one with a quarter more room (a
     /// cut's rank grows pass by pass; a spare too small is let go).

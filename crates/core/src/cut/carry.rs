@@ -27,7 +27,7 @@ use faer::{MatMut, MatRef, Par};
 use nalgebra::DMatrix;
 
 use super::body::Cut;
-use super::carried::Update;
+use super::carried::{update_cost, Update};
 
 use crate::compliance::{product_seq as product, Compliance};
 use crate::Error;
@@ -151,13 +151,8 @@ impl Cut {
         self.cap = c;
         // Kept for V while the updates cost less than making it afresh (`2·rank·|T| + |T|²`
         // against `rank²` multiply-adds a column).
-        let cost = |t: usize| 2 * r * t + t * t;
-        let waiting: usize = carried
-            .pending
-            .iter()
-            .map(|u| cost(u.g.nrows()))
-            .sum::<usize>();
-        if carried.v.is_some() && waiting + cost(n) < r * r {
+        let waiting = carried.waiting(r);
+        if carried.v.is_some() && waiting + update_cost(r, n) < r * r {
             carried.pending.push(Update { s, g });
         } else {
             carried.pending.clear();
@@ -197,14 +192,13 @@ impl Cut {
         let macs = cols
             * updates.map_or(r * r, |ups| {
                 (ups.iter())
-                    .map(|x| 2 * x.s.nrows() * x.s.ncols() + x.g.len())
+                    .map(|x| update_cost(x.s.nrows(), x.g.nrows()))
                     .sum()
             });
         let helper =
             (carried.helper.clone()).and_then(|(cpus, above)| (macs > above).then_some(cpus));
         self.v_blocks(u, &mut out, updates, helper.as_deref());
         let out = carried.share(out);
-        carried.pending.clear();
         carried.v = Some((c.clone(), r, out.clone()));
         out
     }
@@ -216,10 +210,7 @@ impl Cut {
         let carried = self.carried.lock().unwrap_or_else(|e| e.into_inner());
         carried.v.as_ref()?;
         let r = self.cap.nrows().max(1);
-        let t = |u: &Update| u.g.nrows();
-        let cost: usize = (carried.pending.iter())
-            .map(|u| 2 * r * t(u) + t(u) * t(u))
-            .sum();
+        let cost = carried.waiting(r);
         Some(cost as f64 / (r * r) as f64)
     }
 
