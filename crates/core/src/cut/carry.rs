@@ -27,7 +27,8 @@ use faer::{MatMut, MatRef, Par};
 use nalgebra::DMatrix;
 
 use super::body::Cut;
-use super::carried::{update_cost, Update};
+use super::carried::{update_cost, Shared, Update};
+use super::correct::RowsJob;
 
 use crate::compliance::{product_seq as product, Compliance};
 use crate::Error;
@@ -165,16 +166,30 @@ impl Cut {
     /// result laid out as `u`): from the last `V` and the updates since where they were made
     /// for `c`'s `L`, else afresh ([`Cut::cap_times`]); kept (shared, not copied) for the next
     /// cut.
-    pub(super) fn v_times(&self, c: &Compliance, u: &[f64]) -> Arc<Vec<f64>> {
+    pub(super) fn v_times(
+        &self,
+        c: &Compliance,
+        u: &[f64],
+        meanwhile: &mut dyn FnMut(),
+    ) -> Arc<Vec<f64>> {
         let r = self.cap.nrows();
         if r == 0 || u.is_empty() {
+            meanwhile();
             return Arc::new(vec![0.0; u.len()]);
         }
         let cols = u.len() / r;
-        let mut carried = self.carried.lock().unwrap_or_else(|e| e.into_inner());
-        let last = carried.v.take();
-        let mut out = carried.buffer(u.len());
-        let pending = std::mem::take(&mut carried.pending);
+        // (Not locked while `V` is made: `meanwhile` takes buffers too.)
+        let (last, mut out, pending, helper) = {
+            let mut carried = self.carried.lock().unwrap_or_else(|e| e.into_inner());
+            let last = carried.v.take();
+            let out = carried.buffer(u.len());
+            (
+                last,
+                out,
+                std::mem::take(&mut carried.pending),
+                carried.helper.clone(),
+            )
+        };
         let updates = match last {
             Some((base, r0, v0)) if base.shares_l(c) && r0 <= r && v0.len() == r0 * cols => {
                 // (Appended column by column: each entry written once, in order.)
@@ -195,9 +210,9 @@ impl Cut {
                     .map(|x| update_cost(x.s.nrows(), x.g.nrows()))
                     .sum()
             });
-        let helper =
-            (carried.helper.clone()).and_then(|(cpus, above)| (macs > above).then_some(cpus));
-        self.v_blocks(u, &mut out, updates, helper.as_deref());
+        let helper = helper.and_then(|(cpus, above)| (macs > above).then_some(cpus));
+        self.v_blocks(u, &mut out, updates, helper.as_deref(), meanwhile);
+        let mut carried = self.carried.lock().unwrap_or_else(|e| e.into_inner());
         let out = carried.share(out);
         carried.v = Some((c.clone(), r, out.clone()));
         out
@@ -224,13 +239,15 @@ impl Cut {
 
     /// Makes `Vᵀ` into `out` (`rank × cols`, as `u`) block by block: `C Uᵀ` afresh, or, given
     /// `updates`, `out` (the last `V`, grown) plus each update's `S (G (Sᵀ Uᵀ))` at the rank
-    /// of its cut. With `helper`, a thread there takes blocks too.
+    /// of its cut. With `helper`, a thread there takes blocks too, while this one first
+    /// runs `meanwhile` (without, `meanwhile` runs first).
     fn v_blocks(
         &self,
         u: &[f64],
         out: &mut [f64],
         updates: Option<&[Update]>,
         helper: Option<&[usize]>,
+        meanwhile: &mut dyn FnMut(),
     ) {
         let r = self.cap.nrows();
         let block = |(j0, o): (usize, &mut [f64])| {
@@ -272,6 +289,7 @@ impl Cut {
                             block(b);
                         }
                     });
+                meanwhile();
                 while let Some(b) = next() {
                     block(b);
                 }
@@ -280,51 +298,36 @@ impl Cut {
         }
         #[cfg(not(feature = "native"))]
         let _ = helper;
+        meanwhile();
         blocks.for_each(block);
     }
 
-    /// `U` at `c`'s held rows (`3·R × rank`, column-major) and, transposed, at its columns
-    /// (`rank × 3·C`): each `(place, DOF)` of `rows` and `cols` read from `L_D`, the places
-    /// of dead nodes zero. The columns of `L_D` read for the last `U` of the same `L` are
-    /// copied from it (they do not change: a cut only adds columns, and a node once pinned
-    /// stays dead), so only the new ones are read: the same bits either way.
-    pub(super) fn u_of(
+    /// `U` at `c`'s columns, transposed (`rank × 3·C`, column-major; `nr3`: `3·R`, `c`'s
+    /// held rows), and what [`Cut::u_rows_of`] needs for its rows (`3·R × rank`): each
+    /// `(place, DOF)` of `cols` read from `L_D`, the places of dead nodes zero. The columns
+    /// of `L_D` read for the last `U` of the same `L` are copied from it (they do not
+    /// change: a cut only adds columns, and a node once pinned stays dead), so only the new
+    /// ones are read: the same bits either way.
+    pub(super) fn u_cols_of(
         &self,
         c: &Compliance,
-        (rows, dead_rows): (&[(usize, usize)], &[bool]),
         (cols, dead_cols): (&[(usize, usize)], &[bool]),
-    ) -> (Arc<Vec<f64>>, Arc<Vec<f64>>) {
+        nr3: usize,
+    ) -> (Shared, RowsJob) {
         let r = self.d.len();
-        let (nr3, nc3) = (3 * dead_rows.len(), 3 * dead_cols.len());
+        let nc3 = 3 * dead_cols.len();
         let mut carried = self.carried.lock().unwrap_or_else(|e| e.into_inner());
         let last = carried.u.take().filter(|(base, k0, rows0, cols0)| {
             base.shares_l(c) && *k0 <= r && rows0.len() == nr3 * k0 && cols0.len() == nc3 * k0
         });
-        let (r0, rows0, cols0) = match &last {
-            Some((_, k0, rows0, cols0)) => (*k0, &rows0[..], &cols0[..]),
-            None => (0, &[][..], &[][..]),
+        let (r0, cols0) = match &last {
+            Some((_, k0, _, cols0)) => (*k0, &cols0[..]),
+            None => (0, &[][..]),
         };
-        // (Built by appending, each entry written once and in order: at rank 600 these are
-        // tens of megabytes, and a pass beside the renderer is bound by memory.)
-        let mut u_rows = carried.buffer(nr3 * r);
-        u_rows.extend_from_slice(rows0);
-        // Nodes pinned since: dead, zero.
-        for (k, _) in dead_rows.iter().enumerate().filter(|p| *p.1) {
-            for q in 0..r0 {
-                u_rows[q * nr3 + 3 * k..][..3].fill(0.0);
-            }
-        }
-        for q in r0..r {
-            let col = self.ld.column(q);
-            let at = u_rows.len();
-            u_rows.resize(at + nr3, 0.0);
-            let out = &mut u_rows[at..];
-            for &(i, d) in rows {
-                out[i] = col[d];
-            }
-        }
         // The new columns' entries at the columns first (rank-major, small), then each column
-        // of U's row: its old entries, then its new ones.
+        // of U's row: its old entries, then its new ones. (Built by appending, each entry
+        // written once and in order: at rank 600 these are tens of megabytes, and a pass
+        // beside the renderer is bound by memory.)
         let dr = r - r0;
         let mut new = vec![0.0; nc3 * dr];
         for q in r0..r {
@@ -342,8 +345,49 @@ impl Cut {
                 u_cols.extend_from_slice(&new[j * dr..][..dr]);
             }
         }
-        let (u_rows, u_cols) = (carried.share(u_rows), carried.share(u_cols));
-        carried.u = Some((c.clone(), r, u_rows.clone(), u_cols.clone()));
-        (u_rows, u_cols)
+        let u_cols = carried.share(u_cols);
+        let last = last.map(|(_, k0, rows0, _)| (k0, rows0));
+        (u_cols, RowsJob::new(last))
+    }
+
+    /// `U` at the held rows (`3·R × rank`, column-major) whose `(place, DOF)` are `rows`,
+    /// after [`Cut::u_cols_of`]: the last `U`'s rows copied where `job` carries them, the
+    /// new columns of `L_D` read, a dead row zero.
+    pub(super) fn u_rows_of(
+        &self,
+        job: RowsJob,
+        (rows, dead_rows): (&[(usize, usize)], &[bool]),
+    ) -> Shared {
+        let r = self.d.len();
+        let nr3 = 3 * dead_rows.len();
+        let (r0, rows0) = match job.last() {
+            Some((k0, rows0)) => (k0, rows0),
+            None => (0, &[][..]),
+        };
+        let mut u_rows = (self.carried.lock().unwrap_or_else(|e| e.into_inner())).buffer(nr3 * r);
+        u_rows.extend_from_slice(rows0);
+        // Nodes pinned since: dead, zero.
+        for (k, _) in dead_rows.iter().enumerate().filter(|p| *p.1) {
+            for q in 0..r0 {
+                u_rows[q * nr3 + 3 * k..][..3].fill(0.0);
+            }
+        }
+        for q in r0..r {
+            let col = self.ld.column(q);
+            let at = u_rows.len();
+            u_rows.resize(at + nr3, 0.0);
+            let out = &mut u_rows[at..];
+            for &(i, d) in rows {
+                out[i] = col[d];
+            }
+        }
+        drop(job);
+        (self.carried.lock().unwrap_or_else(|e| e.into_inner())).share(u_rows)
+    }
+
+    /// Keeps `U` (its `rows` and `cols` at `rank`, read for `c`) for the next correction.
+    pub(super) fn keep_u(&self, c: &Compliance, rank: usize, rows: &Shared, cols: &Shared) {
+        let mut carried = self.carried.lock().unwrap_or_else(|e| e.into_inner());
+        carried.u = Some((c.clone(), rank, rows.clone(), cols.clone()));
     }
 }

@@ -46,7 +46,18 @@ impl Cut {
         c: &Compliance,
         surface: &[[u32; 3]],
     ) -> Result<Correction, Error> {
-        let mut k = self.correction(c)?;
+        let k = self.correction(c)?;
+        self.grown(c, k, surface)
+    }
+
+    /// [`Cut::grown_correction_on`] of `k`, this cut's [`Cut::correction`] for `c` (made
+    /// with [`Cut::correction_meanwhile`], say, the surface made meanwhile).
+    pub fn grown(
+        &self,
+        c: &Compliance,
+        mut k: Correction,
+        surface: &[[u32; 3]],
+    ) -> Result<Correction, Error> {
         let r = k.rank;
         let nc = c.cols().len();
         let mut on_surface = vec![false; self.nodes.len()];

@@ -34,6 +34,7 @@ mod body;
 pub(crate) mod carried;
 mod carry;
 pub mod columns;
+mod correct;
 mod derive;
 mod grown;
 pub(crate) mod solved;

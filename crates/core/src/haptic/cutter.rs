@@ -829,19 +829,26 @@ impl Cutter {
         oc.cut
             .share_v_with(self.helper.clone(), crate::cut::V_SHARE_ABOVE);
         let separating = oc.cut.copies() > 0 || self.cut_mode == CutMode::Separate;
-        let (correction, open) = if separating {
-            let open = oc.cut.separated_mesh(&oc.mesh);
-            (oc.cut.grown_correction_on(&oc.base, &open.surface)?, open)
+        // (The opened mesh and its contact surface are made while a helper makes `V`.)
+        let (correction, (open, surface)) = if separating {
+            let (k, (open, surface)) = oc.cut.correction_meanwhile(&oc.base, || {
+                let open = oc.cut.separated_mesh(&oc.mesh);
+                let surface = Surface::new(&open);
+                (open, surface)
+            })?;
+            (oc.cut.grown(&oc.base, k, &open.surface)?, (open, surface))
         } else {
-            let mut open = oc.mesh.clone();
-            open.surface = oc.mesh.open_surface(oc.cut.removed());
-            (oc.cut.correction(&oc.base)?, open)
+            oc.cut.correction_meanwhile(&oc.base, || {
+                let mut open = oc.mesh.clone();
+                open.surface = oc.mesh.open_surface(oc.cut.removed());
+                let surface = Surface::new(&open);
+                (open, surface)
+            })?
         };
         let compliance = oc
             .base
             .with_correction(Arc::new(correction))
             .map_err(Error::from)?;
-        let surface = Surface::new(&open);
         oc.generation += 1;
         oc.current = Some(compliance.clone());
         Ok(Arc::new(CutBody {
