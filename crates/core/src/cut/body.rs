@@ -104,6 +104,9 @@ pub struct Cut {
     pub(super) removed: Vec<bool>,
     /// Per node: tets left.
     tets_left: Vec<u32>,
+    /// Per tet: the tet across each face (the face opposite each node), or `u32::MAX`. A cut
+    /// only parts faces (a split moves one side's tets onto copies), never joins them.
+    nbr: Vec<[u32; 4]>,
     /// Per node: pinned (no tet left, or in a removed piece).
     pub(super) pinned: Vec<bool>,
     /// The DOFs the correction touches, in order; and each DOF's place (or MAX).
@@ -165,6 +168,7 @@ pub(super) struct Saved {
     clamp_normal: Vec<DVec3>,
     removed: Vec<bool>,
     tets_left: Vec<u32>,
+    nbr: Vec<[u32; 4]>,
     pinned: Vec<bool>,
     diag0: Vec<f64>,
     copy_dof: Vec<u32>,
@@ -175,6 +179,41 @@ pub(super) struct Saved {
     /// decoupled in `K₀`) and columns, so a failed one truncates it back.
     ld_shape: (usize, usize),
     cap: DMatrix<f64>,
+}
+
+/// The face of `t` opposite its node `k`, sorted.
+fn face(t: [u32; 4], k: usize) -> [u32; 3] {
+    let mut f = [0u32; 3];
+    let mut j = 0;
+    for (a, &v) in t.iter().enumerate() {
+        if a != k {
+            f[j] = v;
+            j += 1;
+        }
+    }
+    f.sort_unstable();
+    f
+}
+
+/// Per tet: the tet across each face (the face opposite each node), or `u32::MAX`.
+fn face_neighbours(tets: &[[u32; 4]]) -> Vec<[u32; 4]> {
+    let mut nbr = vec![[u32::MAX; 4]; tets.len()];
+    let mut faces: HashMap<[u32; 3], (u32, u8)> = HashMap::with_capacity(2 * tets.len());
+    for (ti, &t) in tets.iter().enumerate() {
+        for k in 0..4 {
+            match faces.entry(face(t, k)) {
+                std::collections::hash_map::Entry::Occupied(o) => {
+                    let (tj, kj) = *o.get();
+                    nbr[ti][k] = tj;
+                    nbr[tj as usize][kj as usize] = ti as u32;
+                }
+                std::collections::hash_map::Entry::Vacant(v) => {
+                    v.insert((ti as u32, k as u8));
+                }
+            }
+        }
+    }
+    nbr
 }
 
 /// Per node: the unit normal of the plane all its clamped boundary faces lie in, or zero
@@ -253,6 +292,7 @@ impl Cut {
                 *kd = vals[p];
             }
         }
+        let nbr = face_neighbours(&state.tets);
         let mut tets_left = vec![0u32; state.nodes.len()];
         for (t, r) in state.tets.iter().zip(&state.removed) {
             if !r {
@@ -277,6 +317,7 @@ impl Cut {
             vol0: state.vol0,
             removed: state.removed,
             tets_left,
+            nbr,
             pinned: state.pinned,
             d: Vec::new(),
             dk: DMatrix::zeros(0, 0),
@@ -388,6 +429,7 @@ impl Cut {
             clamp_normal: self.clamp_normal.clone(),
             removed: self.removed.clone(),
             tets_left: self.tets_left.clone(),
+            nbr: self.nbr.clone(),
             pinned: self.pinned.clone(),
             diag0: self.diag0.clone(),
             copy_dof: self.copy_dof.clone(),
@@ -408,6 +450,7 @@ impl Cut {
         self.clamp_normal = s.clamp_normal;
         self.removed = s.removed;
         self.tets_left = s.tets_left;
+        self.nbr = s.nbr;
         self.pinned = s.pinned;
         self.diag0 = s.diag0;
         self.copy_dof = s.copy_dof;
@@ -471,8 +514,44 @@ impl Cut {
         born: usize,
     ) -> Result<CutReport, Error> {
         let mut report = CutReport::default();
-        // Pieces no clamp holds.
-        let cut_off = self.free_pieces();
+        // Pieces no clamp holds. Every piece was held before this cut (its stiffness was
+        // not singular), so none is free where the cut removed no tet, gave none a copy and
+        // moved no clamped node (a snap alone: most passes of a blade), and the search over
+        // every tet (3–5 ms on the phantom) is not made.
+        let same_pieces = born == self.nodes.len()
+            && changes.list.iter().all(|b| {
+                !self.removed[b.tet]
+                    && b.nodes == self.tets[b.tet]
+                    && (b.nodes.iter().zip(&b.at))
+                        .all(|(&v, &p)| !self.fixed[v as usize] || self.nodes[v as usize] == p)
+            });
+        // Faces a split parted: a tet moved onto copies no longer shares them.
+        for b in &changes.list {
+            let t = self.tets[b.tet];
+            if b.nodes == t {
+                continue;
+            }
+            for k in 0..4 {
+                let o = self.nbr[b.tet][k];
+                if o == u32::MAX {
+                    continue;
+                }
+                let f = face(t, k);
+                let back = (0..4).find(|&j| face(self.tets[o as usize], j) == f);
+                if back.is_none() {
+                    self.nbr[b.tet][k] = u32::MAX;
+                    if let Some(j) = (self.nbr[o as usize].iter()).position(|&x| x == b.tet as u32)
+                    {
+                        self.nbr[o as usize][j] = u32::MAX;
+                    }
+                }
+            }
+        }
+        let cut_off = if same_pieces {
+            Vec::new()
+        } else {
+            self.free_pieces()
+        };
         report.pieces_removed = cut_off.len();
         if !cut_off.is_empty() {
             log::debug!(
@@ -626,28 +705,13 @@ impl Cut {
         let mut parent: Vec<u32> = (0..nt as u32).collect();
         use crate::fem::{collinear, join, root};
         // Tets sharing a face.
-        let mut faces: HashMap<[u32; 3], u32> = Default::default();
-        for (ti, t) in self.tets.iter().enumerate() {
+        for (ti, nb) in self.nbr.iter().enumerate() {
             if self.removed[ti] {
                 continue;
             }
-            for skip in 0..4 {
-                let mut f = [0u32; 3];
-                let mut k = 0;
-                for (a, &v) in t.iter().enumerate() {
-                    if a != skip {
-                        f[k] = v;
-                        k += 1;
-                    }
-                }
-                f.sort_unstable();
-                match faces.entry(f) {
-                    std::collections::hash_map::Entry::Occupied(o) => {
-                        join(&mut parent, *o.get(), ti as u32);
-                    }
-                    std::collections::hash_map::Entry::Vacant(v) => {
-                        v.insert(ti as u32);
-                    }
+            for &o in nb {
+                if o != u32::MAX && !self.removed[o as usize] {
+                    join(&mut parent, o, ti as u32);
                 }
             }
         }
