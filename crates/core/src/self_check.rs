@@ -113,6 +113,10 @@ pub fn all() -> Vec<Check> {
             a_spare_buffer_is_reused_only_when_free_and_large_enough
         ),
         check!(cut::solved::tests, l_d_grows_into_room_that_doubles),
+        check!(
+            cut::body::tests,
+            face_neighbours_kept_through_splits_equal_those_found_afresh
+        ),
         check!(fem::tests, direct_assembly_equals_the_dense_assembly),
         check!(
             fem::tests,

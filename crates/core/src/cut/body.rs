@@ -1143,3 +1143,42 @@ impl Cut {
         })
     }
 }
+
+#[cfg(any(test, feature = "self-check"))]
+pub(crate) mod tests {
+    use super::*;
+
+    /// The face neighbours a cut keeps through a split equal those found afresh from its tets,
+    /// and the split parted some of the faces it cut and no others: a blade in the cube's
+    /// grid plane x = 15 mm, 12 mm deep, then a second across it.
+    #[cfg_attr(test, test)]
+    pub(crate) fn face_neighbours_kept_through_splits_equal_those_found_afresh() {
+        use super::super::BladeQuad;
+        let mesh = crate::mesh::cube();
+        let mut cut = Cut::new(&mesh).expect("the cube factors");
+        let links = |cut: &Cut| cut.nbr.iter().flatten().filter(|&&o| o != u32::MAX).count();
+        let mm = |x: f64, y: f64, z: f64| DVec3::new(x, y, z) * 1e-3;
+        let blades = [
+            (mm(15.0, 2.0, 30.0), mm(15.0, 28.0, 30.0)),
+            (mm(4.0, 12.0, 30.0), mm(26.0, 18.0, 30.0)),
+        ];
+        for (k, (p1, p2)) in blades.into_iter().enumerate() {
+            let before = links(&cut);
+            let q = BladeQuad::new(p1, p2, DVec3::NEG_Z, 12e-3).expect("a quad");
+            let rep = cut.split(&mesh, &[q]).expect("the cube splits");
+            assert!(
+                rep.nodes_split > 0 && rep.faces_cut > 0,
+                "blade {k}: {rep:?}"
+            );
+            assert_eq!(rep.cut.pieces_removed, 0, "blade {k}: {rep:?}");
+            assert!(cut.nbr == face_neighbours(&cut.tets), "blade {k}");
+            // (A face cut where the blade ends inside the body stays joined where none of its
+            // nodes got a copy: at most the faces cut are parted.)
+            let parted = before - links(&cut);
+            assert!(
+                parted > 0 && parted <= 2 * rep.faces_cut,
+                "blade {k}: {parted} links parted, {rep:?}"
+            );
+        }
+    }
+}

@@ -30,7 +30,7 @@
 //! The standard formulation only (a locking-free mixed system's cut is not this rank).
 
 mod blade;
-mod body;
+pub(crate) mod body;
 pub(crate) mod carried;
 mod carry;
 pub mod columns;
