@@ -281,14 +281,23 @@ impl Cut {
             let next = || jobs.lock().unwrap_or_else(|e| e.into_inner()).next();
             std::thread::scope(|s| {
                 // (A helper that cannot start leaves every block to this thread.)
-                let _ = std::thread::Builder::new()
+                let (moved, on_its_core) = std::sync::mpsc::sync_channel::<()>(1);
+                let (next, block) = (&next, &block);
+                let started = std::thread::Builder::new()
                     .name("touchfem-v".into())
-                    .spawn_scoped(s, || {
+                    .spawn_scoped(s, move || {
                         crate::threads::become_idle_worker(cpus);
+                        let _ = moved.send(());
                         while let Some(b) = next() {
                             block(b);
                         }
                     });
+                // The helper starts on this thread's core, in its scheduling class: under
+                // a real-time cutter it would not run before the cutter sleeps (it made no
+                // block of `V` at all). Waiting for it to move to its own core lets it start.
+                if started.is_ok() {
+                    let _ = on_its_core.recv_timeout(std::time::Duration::from_millis(5));
+                }
                 meanwhile();
                 while let Some(b) = next() {
                     block(b);
