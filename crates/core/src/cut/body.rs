@@ -8,7 +8,7 @@ use glam::{DMat3, DVec3};
 use nalgebra::DMatrix;
 
 use crate::fem::{element_stiffness, Dofs, Factor, Stiffness};
-use crate::mesh::{tet_volume, Mesh};
+use crate::mesh::{tet_volume, Mesh, TET_FACES};
 use crate::Error;
 
 /// Copies of nodes whose rows `L_D` holds beyond those made so far (zero rows).
@@ -181,16 +181,9 @@ pub(super) struct Saved {
     cap: DMatrix<f64>,
 }
 
-/// The face of `t` opposite its node `k`, sorted.
+/// The face of `t` opposite its node `k` ([`TET_FACES`]), sorted.
 fn face(t: [u32; 4], k: usize) -> [u32; 3] {
-    let mut f = [0u32; 3];
-    let mut j = 0;
-    for (a, &v) in t.iter().enumerate() {
-        if a != k {
-            f[j] = v;
-            j += 1;
-        }
-    }
+    let mut f = TET_FACES[k].map(|i| t[i]);
     f.sort_unstable();
     f
 }

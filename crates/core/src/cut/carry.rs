@@ -28,7 +28,6 @@ use nalgebra::DMatrix;
 
 use super::body::Cut;
 use super::carried::{update_cost, Shared, Update};
-use super::correct::RowsJob;
 
 use crate::compliance::{product_seq as product, Compliance};
 use crate::Error;
@@ -312,7 +311,8 @@ impl Cut {
     }
 
     /// `U` at `c`'s columns, transposed (`rank × 3·C`, column-major; `nr3`: `3·R`, `c`'s
-    /// held rows), and what [`Cut::u_rows_of`] needs for its rows (`3·R × rank`): each
+    /// held rows), and the last `U`'s rank and rows where [`Cut::u_rows_of`] can copy them
+    /// (read for the same `L`): each
     /// `(place, DOF)` of `cols` read from `L_D`, the places of dead nodes zero. The columns
     /// of `L_D` read for the last `U` of the same `L` are copied from it (they do not
     /// change: a cut only adds columns, and a node once pinned stays dead), so only the new
@@ -322,7 +322,7 @@ impl Cut {
         c: &Compliance,
         (cols, dead_cols): (&[(usize, usize)], &[bool]),
         nr3: usize,
-    ) -> (Shared, RowsJob) {
+    ) -> (Shared, Option<(usize, Shared)>) {
         let r = self.d.len();
         let nc3 = 3 * dead_cols.len();
         let mut carried = self.carried.lock().unwrap_or_else(|e| e.into_inner());
@@ -355,22 +355,21 @@ impl Cut {
             }
         }
         let u_cols = carried.share(u_cols);
-        let last = last.map(|(_, k0, rows0, _)| (k0, rows0));
-        (u_cols, RowsJob::new(last))
+        (u_cols, last.map(|(_, k0, rows0, _)| (k0, rows0)))
     }
 
     /// `U` at the held rows (`3·R × rank`, column-major) whose `(place, DOF)` are `rows`,
-    /// after [`Cut::u_cols_of`]: the last `U`'s rows copied where `job` carries them, the
-    /// new columns of `L_D` read, a dead row zero.
+    /// after [`Cut::u_cols_of`]: the `last` `U`'s rows copied where it gave them, the new
+    /// columns of `L_D` read, a dead row zero.
     pub(super) fn u_rows_of(
         &self,
-        job: RowsJob,
+        last: Option<(usize, Shared)>,
         (rows, dead_rows): (&[(usize, usize)], &[bool]),
     ) -> Shared {
         let r = self.d.len();
         let nr3 = 3 * dead_rows.len();
-        let (r0, rows0) = match job.last() {
-            Some((k0, rows0)) => (k0, rows0),
+        let (r0, rows0) = match &last {
+            Some((k0, rows0)) => (*k0, &rows0[..]),
             None => (0, &[][..]),
         };
         let mut u_rows = (self.carried.lock().unwrap_or_else(|e| e.into_inner())).buffer(nr3 * r);
@@ -390,7 +389,6 @@ impl Cut {
                 out[i] = col[d];
             }
         }
-        drop(job);
         (self.carried.lock().unwrap_or_else(|e| e.into_inner())).share(u_rows)
     }
 

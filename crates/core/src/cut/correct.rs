@@ -9,28 +9,9 @@ use std::sync::Arc;
 use glam::DMat3;
 
 use super::body::Cut;
-use super::carried::Shared;
 use crate::compliance::correction::Correction;
 use crate::compliance::{invert3, Compliance};
 use crate::Error;
-
-/// What [`Cut::u_rows_of`] carries from the last `U`: its rank and rows, where they were
-/// read for the same `L`.
-pub(super) struct RowsJob {
-    last: Option<(usize, Shared)>,
-}
-
-impl RowsJob {
-    /// What it carries (`last`: the last `U`'s rank and rows, where they can be copied).
-    pub(super) fn new(last: Option<(usize, Shared)>) -> RowsJob {
-        RowsJob { last }
-    }
-
-    /// The last `U`'s rank and rows, if carried.
-    pub(super) fn last(&self) -> Option<(usize, &[f64])> {
-        self.last.as_ref().map(|(k, rows)| (*k, &rows[..]))
-    }
-}
 
 impl Cut {
     /// The correction to carry beside `c` (the uncut body's compliance, `L` on the host) so
@@ -89,12 +70,12 @@ impl Cut {
             }
         }
         // U at the columns first (V needs it), at the rows beside V (it does not).
-        let (u_cols, rows_job) = self.u_cols_of(c, (&at_cols, &dead_cols), 3 * nr);
-        let (mut meanwhile, mut rows_job) = (Some(meanwhile), Some(rows_job));
+        let (u_cols, last_rows) = self.u_cols_of(c, (&at_cols, &dead_cols), 3 * nr);
+        let (mut meanwhile, mut last_rows) = (Some(meanwhile), Some(last_rows));
         let mut done: Option<(Arc<Vec<f64>>, T)> = None;
         let mut beside = || {
-            if let (Some(f), Some(job)) = (meanwhile.take(), rows_job.take()) {
-                let rows = self.u_rows_of(job, (&at, &dead_rows));
+            if let (Some(f), Some(last)) = (meanwhile.take(), last_rows.take()) {
+                let rows = self.u_rows_of(last, (&at, &dead_rows));
                 done = Some((rows, f()));
             }
         };
