@@ -192,5 +192,10 @@ pub fn all() -> Vec<Check> {
         threads::tests,
         workers_find_their_cores_from_a_pinned_thread
     ));
+    #[cfg(all(feature = "native", target_os = "linux"))]
+    v.push(check!(
+        threads::tests,
+        a_helper_left_working_is_lent_the_waiting_threads_class
+    ));
     v
 }

@@ -274,6 +274,90 @@ pub(crate) mod tests {
         .join()
         .unwrap();
     }
+
+    /// [`share_jobs`]: every job done once, and a helper still on a job when the calling
+    /// thread runs out of them is lent the caller's class (its job here waits for that, at
+    /// most 10 s: an idle-class helper would otherwise starve beside busy work). A job the
+    /// helper panics in is returned, and the rest are done. [`make_ordinary`] moves an idle
+    /// worker to the normal class.
+    #[cfg_attr(test, test)]
+    pub(crate) fn a_helper_left_working_is_lent_the_waiting_threads_class() {
+        use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering::SeqCst};
+        std::thread::spawn(|| {
+            let all = current_cpus();
+            let (first, last) = (all[0], *all.last().unwrap());
+            assert!(pin_current_thread(&[first]));
+            let helper_took = AtomicBool::new(false);
+            let done = AtomicUsize::new(0);
+            let lent_to = std::sync::Mutex::new(None);
+            let is_helper = || std::thread::current().name() == Some("touchfem-helper");
+            let lost = share_jobs(
+                0..2,
+                Some(&[last]),
+                || {
+                    // Until the helper is on a job (at most 10 s).
+                    let t0 = std::time::Instant::now();
+                    while !helper_took.load(SeqCst) && t0.elapsed().as_secs() < 10 {
+                        std::thread::sleep(std::time::Duration::from_millis(1));
+                    }
+                },
+                |_| {
+                    if is_helper() {
+                        helper_took.store(true, SeqCst);
+                        let t0 = std::time::Instant::now();
+                        while policy() == libc::SCHED_IDLE && t0.elapsed().as_secs() < 10 {
+                            std::thread::sleep(std::time::Duration::from_millis(1));
+                        }
+                        *lent_to.lock().unwrap() = Some((policy(), current_cpus()));
+                    }
+                    done.fetch_add(1, SeqCst);
+                },
+            );
+            assert!(lost.is_empty());
+            assert_eq!(done.load(SeqCst), 2);
+            if all.len() >= 2 {
+                assert_eq!(
+                    *lent_to.lock().unwrap(),
+                    Some((libc::SCHED_OTHER, vec![last]))
+                );
+            }
+            // A helper that panics on its job: that job is returned, the others done.
+            let done = AtomicUsize::new(0);
+            let lost = share_jobs(
+                0..6,
+                Some(&[last]),
+                || {},
+                |k| {
+                    if is_helper() {
+                        panic!("a helper's job {k} fails (expected by this check)");
+                    }
+                    done.fetch_add(1, SeqCst);
+                },
+            );
+            if all.len() >= 2 {
+                assert_eq!(lost.len(), 1, "{lost:?}");
+                assert_eq!(done.load(SeqCst), 5);
+            }
+            // An idle worker left to end on its own is moved to the normal class.
+            let (idle_tx, idle_rx) = std::sync::mpsc::channel();
+            let (go_tx, go_rx) = std::sync::mpsc::channel::<()>();
+            let h = std::thread::spawn(move || {
+                become_idle_worker(&[last]);
+                idle_tx.send(policy()).unwrap();
+                let _ = go_rx.recv();
+                policy()
+            });
+            let before = idle_rx.recv().unwrap();
+            assert!(make_ordinary(&h));
+            go_tx.send(()).unwrap();
+            assert_eq!(h.join().unwrap(), libc::SCHED_OTHER);
+            if all.len() >= 2 {
+                assert_eq!(before, libc::SCHED_IDLE);
+            }
+        })
+        .join()
+        .unwrap();
+    }
 }
 
 /// Asks the OS to run the calling thread at real-time priority (Linux `SCHED_FIFO`, priority
@@ -365,6 +449,138 @@ pub fn become_idle_worker(haptic_cpus: &[usize]) -> bool {
     }
     become_background_worker(haptic_cpus);
     false
+}
+
+/// Runs `work` on every job of `jobs`: on the calling thread and on one helper thread on
+/// `cpus` (the haptic loop's cores) in their idle time ([`become_idle_worker`]), each taking
+/// the next job left. `first` runs on the calling thread once the helper has moved to its
+/// cores (or after 5 ms), so the helper starts meanwhile: spawned from a real-time thread it
+/// would otherwise wait on that thread's core for it to sleep. When the calling thread finds
+/// no job left it lends the helper its own scheduling class before waiting for it: an idle
+/// class thread gets almost no time while other work fills its cores (a loaded machine held
+/// a cut's pass for seconds), and the caller must never wait on it (priority inversion).
+/// Returns the numbers of the jobs the helper took and did not finish (it panicked), for the
+/// caller to redo or give up on; empty normally. Without `cpus` (or the `native` feature),
+/// `first` then every job on the calling thread.
+pub fn share_jobs<J: Send>(
+    jobs: impl Iterator<Item = J> + Send,
+    cpus: Option<&[usize]>,
+    first: impl FnOnce(),
+    work: impl Fn(J) + Sync,
+) -> Vec<usize> {
+    #[cfg(feature = "native")]
+    if let Some(cpus) = cpus.filter(|c| !c.is_empty()) {
+        let jobs = std::sync::Mutex::new(jobs.enumerate());
+        let next = || jobs.lock().unwrap_or_else(|e| e.into_inner()).next();
+        // The job the helper is on (usize::MAX: none).
+        let on = std::sync::atomic::AtomicUsize::new(usize::MAX);
+        return std::thread::scope(|s| {
+            let (me, its_id) = std::sync::mpsc::sync_channel::<Lendee>(1);
+            let (moved, on_its_core) = std::sync::mpsc::sync_channel::<()>(1);
+            let (next, work, on) = (&next, &work, &on);
+            let helper = std::thread::Builder::new()
+                .name("touchfem-helper".into())
+                .spawn_scoped(s, move || {
+                    let _ = me.send(Lendee::current());
+                    become_idle_worker(cpus);
+                    let _ = moved.send(());
+                    while let Some((k, j)) = next() {
+                        on.store(k, std::sync::atomic::Ordering::Relaxed);
+                        work(j);
+                        on.store(usize::MAX, std::sync::atomic::Ordering::Relaxed);
+                    }
+                });
+            // (Its id comes first, before it leaves this thread's class and core.)
+            let lendee = helper.as_ref().ok().and_then(|_| its_id.recv().ok());
+            if lendee.is_some() {
+                let _ = on_its_core.recv_timeout(std::time::Duration::from_millis(5));
+            }
+            first();
+            while let Some((_, j)) = next() {
+                work(j);
+            }
+            let Ok(helper) = helper else {
+                return Vec::new();
+            };
+            if let Some(l) = lendee {
+                // The helper is joinable until `join` below: its thread is live.
+                l.lend_mine();
+            }
+            match helper.join() {
+                Ok(()) => Vec::new(),
+                Err(_) => match on.load(std::sync::atomic::Ordering::Relaxed) {
+                    usize::MAX => Vec::new(),
+                    k => vec![k],
+                },
+            }
+        });
+    }
+    let _ = cpus;
+    first();
+    jobs.for_each(work);
+    Vec::new()
+}
+
+/// Moves the thread of `h` (a worker, such as an idle one) into the normal scheduling class
+/// (Linux `SCHED_OTHER`; its cores stay), for a worker left to end on its own: the last
+/// thread of a process frees the process's memory as it exits, and in an idle worker that
+/// took over 30 s on a loaded machine (a window's exit waited for it). Returns whether it
+/// did.
+pub fn make_ordinary<T>(h: &std::thread::JoinHandle<T>) -> bool {
+    #[cfg(all(feature = "native", target_os = "linux"))]
+    {
+        use std::os::unix::thread::JoinHandleExt;
+        // SAFETY: `h` is held, so its thread is neither joined nor detached and its id is
+        // valid; the parameter is fully initialised (priority 0 is SCHED_OTHER's only one).
+        unsafe {
+            let param = libc::sched_param { sched_priority: 0 };
+            libc::pthread_setschedparam(h.as_pthread_t(), libc::SCHED_OTHER, &param) == 0
+        }
+    }
+    #[cfg(not(all(feature = "native", target_os = "linux")))]
+    {
+        let _ = h;
+        false
+    }
+}
+
+/// A thread that may be lent another's scheduling ([`Lendee::lend_mine`]).
+#[cfg(feature = "native")]
+struct Lendee {
+    #[cfg(target_os = "linux")]
+    thread: libc::pthread_t,
+}
+
+#[cfg(feature = "native")]
+impl Lendee {
+    /// The calling thread.
+    fn current() -> Lendee {
+        Lendee {
+            // SAFETY: a plain query of the calling thread's id.
+            #[cfg(target_os = "linux")]
+            thread: unsafe { libc::pthread_self() },
+        }
+    }
+
+    /// Gives this thread the calling thread's scheduling class and priority (its cores
+    /// stay). It must not have been joined or detached yet. Returns whether it did.
+    fn lend_mine(&self) -> bool {
+        #[cfg(target_os = "linux")]
+        {
+            // SAFETY: `self.thread` names a thread that is still joinable (the caller's
+            // promise), so its id is valid; the parameter is fully initialised by the query.
+            unsafe {
+                let mut policy = 0;
+                let mut param = libc::sched_param { sched_priority: 0 };
+                libc::pthread_getschedparam(libc::pthread_self(), &mut policy, &mut param) == 0
+                    && libc::pthread_setschedparam(self.thread, policy, &param) == 0
+            }
+        }
+        #[cfg(not(target_os = "linux"))]
+        {
+            false
+        }
+    }
 }
 
 /// The cores the calling thread may run on (empty where unknown).

@@ -272,42 +272,9 @@ impl Cut {
             }
         };
         let blocks = (out.chunks_mut(V_BLOCK * r).enumerate()).map(|(k, o)| (k * V_BLOCK, o));
-        #[cfg(feature = "native")]
-        if let Some(cpus) = helper {
-            // (Each thread takes the next block left; the cutter's thread does not wait for
-            // the helper beyond the block it is making.)
-            let jobs = std::sync::Mutex::new(blocks);
-            let next = || jobs.lock().unwrap_or_else(|e| e.into_inner()).next();
-            std::thread::scope(|s| {
-                // (A helper that cannot start leaves every block to this thread.)
-                let (moved, on_its_core) = std::sync::mpsc::sync_channel::<()>(1);
-                let (next, block) = (&next, &block);
-                let started = std::thread::Builder::new()
-                    .name("touchfem-v".into())
-                    .spawn_scoped(s, move || {
-                        crate::threads::become_idle_worker(cpus);
-                        let _ = moved.send(());
-                        while let Some(b) = next() {
-                            block(b);
-                        }
-                    });
-                // The helper starts on this thread's core, in its scheduling class: under
-                // a real-time cutter it would not run before the cutter sleeps (it made no
-                // block of `V` at all). Waiting for it to move to its own core lets it start.
-                if started.is_ok() {
-                    let _ = on_its_core.recv_timeout(std::time::Duration::from_millis(5));
-                }
-                meanwhile();
-                while let Some(b) = next() {
-                    block(b);
-                }
-            });
-            return;
-        }
-        #[cfg(not(feature = "native"))]
-        let _ = helper;
-        meanwhile();
-        blocks.for_each(block);
+        // (A block left half made cannot be made again where it adds to the last `V`.)
+        let lost = crate::threads::share_jobs(blocks, helper, meanwhile, block);
+        assert!(lost.is_empty(), "the helper making V's blocks failed");
     }
 
     /// `U` at `c`'s columns, transposed (`rank × 3·C`, column-major; `nr3`: `3·R`, `c`'s

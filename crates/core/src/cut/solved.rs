@@ -18,9 +18,10 @@ impl Cut {
         self.precompute_columns_on(nodes, None)
     }
 
-    /// [`Cut::precompute_columns`], half of the blocks solved by a helper thread that runs
-    /// on `helper`'s cores in their idle time (the haptic loop's: native builds; the same
-    /// bits, each block solved alone). A helper that fails leaves its blocks to this thread.
+    /// [`Cut::precompute_columns`], the blocks shared with a helper thread that runs on
+    /// `helper`'s cores in their idle time (the haptic loop's: native builds; the same bits,
+    /// each block solved alone; [`crate::threads::share_jobs`]). A block the helper fails to
+    /// finish is solved again by this thread.
     pub fn precompute_columns_on(&mut self, nodes: &[bool], helper: Option<&[usize]>) -> usize {
         let Some(dofs) = self.column_dofs(nodes) else {
             self.columns = None;
@@ -28,46 +29,17 @@ impl Cut {
         };
         let nf = self.dofs.n_free;
         let mut cols = vec![0.0; dofs.len() * nf];
-        let blocks: Vec<&[usize]> = dofs.chunks(BLOCK).collect();
-        let at = |k: usize, len: usize| k * BLOCK * nf..k * BLOCK * nf + len * nf;
-        #[cfg(feature = "native")]
-        let theirs: Vec<(usize, Vec<f64>)> =
-            match helper.filter(|c| !c.is_empty() && blocks.len() > 1) {
-                Some(cpus) => std::thread::scope(|s| {
-                    let (this, blocks) = (&*self, &blocks);
-                    let h = s.spawn(move || {
-                        crate::threads::become_idle_worker(cpus);
-                        (blocks.iter().enumerate().skip(1).step_by(2))
-                            .map(|(k, block)| {
-                                let mut out = vec![0.0; block.len() * nf];
-                                this.solve_block(block, &mut out);
-                                (k, out)
-                            })
-                            .collect::<Vec<_>>()
-                    });
-                    for (k, block) in blocks.iter().enumerate().step_by(2) {
-                        this.solve_block(block, &mut cols[at(k, block.len())]);
-                    }
-                    h.join().unwrap_or_default()
-                }),
-                None => Vec::new(),
-            };
-        #[cfg(not(feature = "native"))]
-        let theirs: Vec<(usize, Vec<f64>)> = {
-            let _ = helper;
-            Vec::new()
+        let blocks = dofs.chunks(BLOCK);
+        let lost = {
+            let jobs = blocks.clone().zip(cols.chunks_mut(BLOCK * nf));
+            let this = &*self;
+            let helper = helper.filter(|_| blocks.len() > 1);
+            crate::threads::share_jobs(jobs, helper, || {}, |(b, out)| this.solve_block(b, out))
         };
-        let mut done = vec![false; blocks.len()];
-        for (k, out) in theirs {
-            cols[at(k, out.len() / nf)].copy_from_slice(&out);
-            done[k] = true;
-        }
-        // (The even blocks are solved already where the helper did its part.)
-        let mine_done = done.iter().any(|&d| d);
-        for (k, block) in blocks.iter().enumerate() {
-            if !(done[k] || (mine_done && k % 2 == 0)) {
-                self.solve_block(block, &mut cols[at(k, block.len())]);
-            }
+        // (A block is solved afresh into its place: one the helper left half made, again.)
+        for k in lost {
+            let b = blocks.clone().nth(k).expect("a block the helper took");
+            self.solve_block(b, &mut cols[k * BLOCK * nf..][..b.len() * nf]);
         }
         self.keep_columns(nodes, &dofs, cols)
     }

@@ -212,16 +212,26 @@ fn fold_thread(rx: std::sync::mpsc::Receiver<ToFold>, tx: std::sync::mpsc::Sende
             let t = std::time::Instant::now();
             let (o, r) = job.run();
             let fold_s = t.elapsed().as_secs_f64();
-            let r = r.and_then(|mut f| loop {
-                while let Ok(m) = rx.try_recv() {
-                    take(m, &mut jobs, &mut ops);
+            let r = r.map_err(Some).and_then(|mut f| loop {
+                loop {
+                    match rx.try_recv() {
+                        Ok(m) => take(m, &mut jobs, &mut ops),
+                        Err(std::sync::mpsc::TryRecvError::Empty) => break,
+                        // The cutter has ended: nothing to hand back.
+                        Err(std::sync::mpsc::TryRecvError::Disconnected) => return Err(None),
+                    }
                 }
                 let have = ops.get(&id).map_or(&[][..], |v| &v[..]);
                 if f.applied() >= have.len() {
                     return Ok(f);
                 }
-                f.catch_up(have)?;
+                f.catch_up(have).map_err(Some)?;
             });
+            let r = match r {
+                Err(None) => return,
+                Err(Some(e)) => Err(e),
+                Ok(f) => Ok(f),
+            };
             ops.remove(&id);
             if tx.send((o, r, fold_s, t.elapsed().as_secs_f64())).is_err() {
                 return;
@@ -398,9 +408,13 @@ impl CutThread {
                         std::thread::sleep(std::time::Duration::from_millis(1));
                     }
                 };
-                // A fold still out is not waited for beyond its own end.
+                // A fold still out is not waited for: its thread ends once the fold in hand
+                // is made, in the normal class (in the haptic core's idle time, which a
+                // loaded machine may not give for seconds, it held a window's exit for over
+                // 30 s: joined, or as the process's last thread, freeing its memory).
                 drop(job_tx);
-                let _ = folder.join();
+                crate::threads::make_ordinary(&folder);
+                drop(folder);
                 result
             })
             .map_err(|e| Error::Input(format!("cannot start the cutter's thread: {e}")))?;
