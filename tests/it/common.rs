@@ -90,6 +90,10 @@ pub struct IncisionRun {
     pub body: std::sync::Arc<touchfem::runtime::cutting::CutBody>,
     /// The tets it removed.
     pub removed: Vec<bool>,
+    /// The cut's nodes at rest at the end (copies after the mesh's), m.
+    pub cut_nodes: Vec<glam::DVec3>,
+    /// The cut's tets not removed at the end (naming copies on a split's further side).
+    pub cut_tets: Vec<[u32; 4]>,
     /// The strokes of each pass of the cutter, in order.
     pub passes: Vec<Vec<touchfem::runtime::cutting::Stroke>>,
 }
@@ -241,6 +245,12 @@ pub fn run_incision_in(
         (sample, before, f[0], body)
     };
     let removed = cutter.removed(0).unwrap().to_vec();
+    let cut = cutter.cut(0).expect("the tissue is cuttable");
+    let cut_nodes = cut.nodes().to_vec();
+    let cut_tets = (cut.tets().iter().zip(&removed))
+        .filter(|(_, &r)| !r)
+        .map(|(t, _)| *t)
+        .collect();
     IncisionRun {
         world,
         sample,
@@ -248,6 +258,8 @@ pub fn run_incision_in(
         after,
         body,
         removed,
+        cut_nodes,
+        cut_tets,
         passes: strokes_of,
     }
 }

@@ -3,7 +3,8 @@
 //! 1. **Snap.** Every edge that crosses the quad's plane at a point inside the quad has its
 //!    endpoint nearer the plane moved onto it, nearest first, until no edge crosses: an
 //!    interior node along the plane's normal, a node on the body's surface sliding along the
-//!    surface (so the body keeps its shape), a clamped node only within the plane of its
+//!    surface (so the body keeps its shape; the pocket a dropped sliver left along the plane
+//!    is not the body's surface and holds no node), a clamped node only within the plane of its
 //!    clamped faces; never more than half the edge. Where the nearer end may not move the
 //!    other one does, within the same bound, else the crossing stays. A node's copies at its
 //!    place move with it. A tet the snapping leaves with [`SLIVER_FRACTION`] of its uncut
@@ -51,6 +52,10 @@ pub struct SplitReport {
     /// Edges left crossing a quad (their nearer end clamped, the other too far to move).
     pub crossings_left: usize,
 }
+
+/// A face whose normal is within about 25° of a blade's plane normal (the cosine) lies along
+/// that plane (a dropped sliver's pocket that does not hold a snap: `Cut::boundary_normals`).
+const ALONG_THE_PLANE: f64 = 0.9;
 
 /// What an edge needs from the snapping.
 enum Crossing {
@@ -166,9 +171,18 @@ impl Cut {
         // Each blade snaps and finds its cut faces; the nodes are split once, over the faces
         // of every blade (a face cut by one quad and one cut by the next may part a node
         // between them: a continuous blade's chords, a polyline's quads).
+        // The uncut body's boundary (its faces' nodes, sorted): the faces a cut exposes (its
+        // lips, a dropped sliver's pocket) are not the body's shape, which a snap keeps.
+        let outer: HashSet<[u32; 3]> = (mesh.surface.iter())
+            .map(|f| {
+                let mut k = *f;
+                k.sort_unstable();
+                k
+            })
+            .collect();
         let mut faces: HashMap<[u32; 3], u32> = HashMap::new();
         for b in blades {
-            for (k, n) in self.split_one(b, eps, region, &mut changes, &mut report) {
+            for (k, n) in self.split_one(b, eps, region, &outer, &mut changes, &mut report) {
                 let e = faces.entry(k).or_insert(0);
                 *e = (*e).max(n);
             }
@@ -204,6 +218,7 @@ impl Cut {
         b: &BladeQuad,
         eps: f64,
         region: Option<&[bool]>,
+        outer: &HashSet<[u32; 3]>,
         changes: &mut Changes,
         report: &mut SplitReport,
     ) -> HashMap<[u32; 3], u32> {
@@ -250,7 +265,7 @@ impl Cut {
             b,
             eps,
             frozen,
-            normals: self.boundary_normals(&near, &adj, &twins),
+            normals: self.boundary_normals(&near, &adj, &twins, (outer, b.normal)),
             twins,
         };
         loop {
@@ -595,12 +610,18 @@ impl Cut {
 
     /// The outward normals of the boundary faces of the tets alive at the nodes of the `near`
     /// tets and their copies (sorted): from the faces of those nodes' tets alone (`adj`), since
-    /// every tet of a face holds each of its nodes.
+    /// every tet of a face holds each of its nodes. The pocket a dropped sliver left (a face
+    /// not on the uncut body's boundary `outer`, sorted uncut nodes, and with no twin, which
+    /// a lip's face has) along the blade's `plane` (its normal) does not count: it is not
+    /// the body's shape, and a node on it that had to slide along it could not reach the
+    /// plane, which left the material joined across the incision's path next to a dropped
+    /// flat sliver. (Lips keep their nodes on them, as the body's surface does.)
     fn boundary_normals(
         &self,
         near: &[usize],
         adj: &NodeTets,
         twins: &HashMap<u32, Vec<u32>>,
+        (outer, plane): (&HashSet<[u32; 3]>, DVec3),
     ) -> HashMap<u32, Vec<DVec3>> {
         let mut nodes: Vec<u32> = near.iter().flat_map(|&t| self.tets[t]).collect();
         for k in 0..nodes.len() {
@@ -624,12 +645,29 @@ impl Cut {
             }
         }
         let mut out: HashMap<u32, Vec<DVec3>> = HashMap::new();
-        for (f, count) in faces.into_values() {
-            if count != 1 {
-                continue;
-            }
+        let bounding: Vec<[u32; 3]> = (faces.into_values())
+            .filter(|&(_, count)| count == 1)
+            .map(|(f, _)| f)
+            .collect();
+        // A lip's face has a twin (the other lip's, at the same rest positions).
+        let place = |f: &[u32; 3]| {
+            let mut k = f.map(|v| self.nodes[v as usize].to_array().map(f64::to_bits));
+            k.sort_unstable();
+            k
+        };
+        let mut at_place: HashMap<[[u64; 3]; 3], u32> = HashMap::new();
+        for f in &bounding {
+            *at_place.entry(place(f)).or_default() += 1;
+        }
+        for f in bounding {
             let [a, b, c] = f.map(|v| self.nodes[v as usize]);
             let n = (b - a).cross(c - a).normalize_or_zero();
+            let mut uncut = f.map(|v| self.origin[v as usize]);
+            uncut.sort_unstable();
+            let pocket = !outer.contains(&uncut) && at_place[&place(&f)] == 1;
+            if pocket && n.dot(plane).abs() >= ALONG_THE_PLANE {
+                continue;
+            }
             if n != DVec3::ZERO {
                 for v in f {
                     if nodes.binary_search(&v).is_ok() {

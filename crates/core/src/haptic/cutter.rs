@@ -674,6 +674,11 @@ impl Cutter {
         self.objects.get(o)?.as_ref().map(|oc| oc.cut.removed())
     }
 
+    /// Object `o`'s cut as it stands (its nodes, tets and copies; `None`: not cuttable).
+    pub fn cut(&self, o: usize) -> Option<&Cut> {
+        self.objects.get(o)?.as_ref().map(|oc| &oc.cut)
+    }
+
     /// Whether any object can be cut.
     pub fn any(&self) -> bool {
         self.objects.iter().any(|o| o.is_some())
