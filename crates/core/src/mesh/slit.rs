@@ -8,7 +8,10 @@ use glam::DVec3;
 /// (mesh nodes, the smaller first) of one triangle that has a twin and one that has none. A
 /// cut's face has a twin on the other lip (the same three rest positions: a copy rests where
 /// its node does), the surface around the slit has none, so these edges trace the slit's
-/// line on each lip, also while its lips are closed. Sorted; empty where nothing was split.
+/// line on each lip, also while its lips are closed. Where the faces below have no twin (the
+/// pocket a dropped sliver left, triangulated differently on each lip), an edge where the
+/// surface folds into the slit and whose twin edge is on the surface too is the slit's.
+/// Sorted; empty where nothing was split.
 /// Triangles naming a node without a rest position are skipped.
 pub fn slit_edges(triangles: &[[u32; 3]], rest: &[DVec3]) -> Vec<[u32; 2]> {
     let bits = |p: DVec3| [p.x, p.y, p.z].map(|c| (c + 0.0).to_bits());
@@ -54,9 +57,6 @@ pub fn slit_edges(triangles: &[[u32; 3]], rest: &[DVec3]) -> Vec<[u32; 2]> {
             sides.entry(e).or_insert(false);
         }
     }
-    if sides.is_empty() {
-        return Vec::new();
-    }
     for t in triangles.iter().filter(|t| valid(t) && !twinned(t)) {
         for e in edges_of(t) {
             if let Some(plain) = sides.get_mut(&e) {
@@ -68,9 +68,55 @@ pub fn slit_edges(triangles: &[[u32; 3]], rest: &[DVec3]) -> Vec<[u32; 2]> {
         .filter(|(_, plain)| *plain)
         .map(|(e, _)| e)
         .collect();
+    edges.extend(folds_into_the_slit(triangles, rest, &shared));
     edges.sort_unstable();
+    edges.dedup();
     edges
 }
+
+/// The edges (between nodes that share their rest positions with others, `shared`) where the
+/// surface folds by more than [`FOLD`] and whose twin (other nodes, the same rest positions)
+/// is an edge of the surface too: where the surface turns into a slit whose faces have no
+/// twin, as where a dropped sliver left a pocket between two lips triangulated differently.
+fn folds_into_the_slit(triangles: &[[u32; 3]], rest: &[DVec3], shared: &[bool]) -> Vec<[u32; 2]> {
+    let bits = |v: u32| rest[v as usize].to_array().map(|c| (c + 0.0).to_bits());
+    let mut normals: HashMap<[u32; 2], Vec<DVec3>> = HashMap::new();
+    for t in triangles {
+        if !t.iter().all(|&v| (v as usize) < rest.len()) {
+            continue;
+        }
+        let [a, b, c] = t.map(|v| rest[v as usize]);
+        let n = (b - a).cross(c - a).normalize_or_zero();
+        for (x, y) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+            if shared[x as usize] && shared[y as usize] {
+                normals.entry([x.min(y), x.max(y)]).or_default().push(n);
+            }
+        }
+    }
+    let place = |e: &[u32; 2]| {
+        let mut k = [bits(e[0]), bits(e[1])];
+        k.sort_unstable();
+        k
+    };
+    let mut at_place: HashMap<[[u64; 3]; 2], u32> = HashMap::new();
+    for e in normals.keys() {
+        *at_place.entry(place(e)).or_default() += 1;
+    }
+    (normals.iter())
+        .filter(|(e, ns)| {
+            ns.len() == 2
+                && ns[0] != DVec3::ZERO
+                && ns[1] != DVec3::ZERO
+                && ns[0].dot(ns[1]) < FOLD.cos()
+                && at_place[&place(e)] >= 2
+        })
+        .map(|(e, _)| *e)
+        .collect()
+}
+
+/// The least angle between the normals of an edge's two triangles at which the surface
+/// turns into a slit there (rad): 45°, well above the bends between a blade's segments.
+const FOLD: f64 = std::f64::consts::FRAC_PI_4;
 
 #[cfg(any(test, feature = "self-check"))]
 pub(crate) mod tests {
@@ -105,6 +151,13 @@ pub(crate) mod tests {
             [6, 7, 9],
         ];
         assert_eq!(slit_edges(&tris, &rest), vec![[1, 4], [6, 7]]);
+        // The second lip triangulated the other way (no face has a twin, as beside a dropped
+        // sliver's pocket): the same line, where the surface folds into the slit.
+        let mut pocket = tris;
+        pocket[6] = [6, 7, 8];
+        pocket[7] = [7, 9, 8];
+        assert_eq!(slit_edges(&pocket, &rest), vec![[1, 4], [6, 7]]);
+
         // Nothing split: no twin, no slit; a node without a rest position is skipped.
         assert!(slit_edges(&tris[..4], &rest).is_empty());
         assert!(slit_edges(&[[0, 1, 99], [0, 1, 99]], &rest).is_empty());
