@@ -402,7 +402,7 @@ impl CutPlan {
         self
     }
 
-    /// A plan whose cutter has a helper thread solve half of the columns up front on
+    /// A plan whose cutter shares the columns it solves up front with a helper thread on
     /// `cpus` (the haptic loop's cores), in their idle time (`Cut::precompute_columns_on`).
     pub fn with_helper_on(mut self, cpus: Vec<usize>) -> CutPlan {
         self.helper = Some(cpus);

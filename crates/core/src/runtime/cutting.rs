@@ -251,7 +251,7 @@ impl CutThread {
             return Ok(None);
         }
         let haptic_cpus = crate::threads::cpus_of_current_thread();
-        // (Half of the columns up front solved in the haptic core's idle time.)
+        // (The columns up front shared with a helper in the haptic core's idle time.)
         let plan = Cutter::plan(world)?.with_helper_on(haptic_cpus.clone());
         let mode = fold_mode();
         let cut = cut_mode();
