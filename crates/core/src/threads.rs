@@ -403,17 +403,32 @@ pub fn become_background_worker(haptic_cpus: &[usize]) -> bool {
     }
     #[cfg(all(feature = "native", target_os = "linux"))]
     {
-        // SAFETY: plain FFI call on the current thread with a fully initialised parameter
-        // (priority 0 is the only one SCHED_OTHER takes).
-        unsafe {
-            let param = libc::sched_param { sched_priority: 0 };
-            libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_OTHER, &param) == 0
-        }
+        set_own_scheduling(libc::SCHED_OTHER, 0)
     }
     #[cfg(not(all(feature = "native", target_os = "linux")))]
     {
         false
     }
+}
+
+/// Sets the scheduling class and priority of `thread` (Linux); returns whether it did.
+///
+/// # Safety
+/// `thread` must name a live thread that is neither joined nor detached (its id valid).
+#[cfg(all(feature = "native", target_os = "linux"))]
+unsafe fn set_scheduling_of(thread: libc::pthread_t, policy: i32, priority: i32) -> bool {
+    let param = libc::sched_param {
+        sched_priority: priority,
+    };
+    // SAFETY: `thread` is valid (the caller's promise); the parameter is fully initialised.
+    unsafe { libc::pthread_setschedparam(thread, policy, &param) == 0 }
+}
+
+/// [`set_scheduling_of`] the calling thread.
+#[cfg(all(feature = "native", target_os = "linux"))]
+fn set_own_scheduling(policy: i32, priority: i32) -> bool {
+    // SAFETY: the calling thread is live.
+    unsafe { set_scheduling_of(libc::pthread_self(), policy, priority) }
 }
 
 /// [`become_background_worker`], then a real-time priority below the haptic loop's (Linux
@@ -435,16 +450,11 @@ pub fn become_urgent_worker(haptic_cpus: &[usize]) -> bool {
 pub fn become_idle_worker(haptic_cpus: &[usize]) -> bool {
     #[cfg(all(feature = "native", target_os = "linux"))]
     {
-        if !off_haptic(haptic_cpus).is_empty() && pin_current_thread(haptic_cpus) {
-            // SAFETY: plain FFI call on the current thread with a fully initialised parameter
-            // (priority 0 is the only one SCHED_IDLE takes).
-            let ok = unsafe {
-                let param = libc::sched_param { sched_priority: 0 };
-                libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_IDLE, &param) == 0
-            };
-            if ok {
-                return true;
-            }
+        if !off_haptic(haptic_cpus).is_empty()
+            && pin_current_thread(haptic_cpus)
+            && set_own_scheduling(libc::SCHED_IDLE, 0)
+        {
+            return true;
         }
     }
     become_background_worker(haptic_cpus);
@@ -530,12 +540,8 @@ pub fn make_ordinary<T>(h: &std::thread::JoinHandle<T>) -> bool {
     #[cfg(all(feature = "native", target_os = "linux"))]
     {
         use std::os::unix::thread::JoinHandleExt;
-        // SAFETY: `h` is held, so its thread is neither joined nor detached and its id is
-        // valid; the parameter is fully initialised (priority 0 is SCHED_OTHER's only one).
-        unsafe {
-            let param = libc::sched_param { sched_priority: 0 };
-            libc::pthread_setschedparam(h.as_pthread_t(), libc::SCHED_OTHER, &param) == 0
-        }
+        // SAFETY: `h` is held, so its thread is neither joined nor detached.
+        unsafe { set_scheduling_of(h.as_pthread_t(), libc::SCHED_OTHER, 0) }
     }
     #[cfg(not(all(feature = "native", target_os = "linux")))]
     {
@@ -567,13 +573,12 @@ impl Lendee {
     fn lend_mine(&self) -> bool {
         #[cfg(target_os = "linux")]
         {
-            // SAFETY: `self.thread` names a thread that is still joinable (the caller's
-            // promise), so its id is valid; the parameter is fully initialised by the query.
+            let (mut policy, mut param) = (0, libc::sched_param { sched_priority: 0 });
+            // SAFETY: a query of the calling thread into initialised places; `self.thread`
+            // names a thread that is still joinable (the caller's promise).
             unsafe {
-                let mut policy = 0;
-                let mut param = libc::sched_param { sched_priority: 0 };
                 libc::pthread_getschedparam(libc::pthread_self(), &mut policy, &mut param) == 0
-                    && libc::pthread_setschedparam(self.thread, policy, &param) == 0
+                    && set_scheduling_of(self.thread, policy, param.sched_priority)
             }
         }
         #[cfg(not(target_os = "linux"))]
@@ -592,13 +597,7 @@ pub fn cpus_of_current_thread() -> Vec<usize> {
 pub(crate) fn try_realtime_priority_at(priority: i32) -> bool {
     #[cfg(all(feature = "native", target_os = "linux"))]
     {
-        // SAFETY: plain FFI calls on the current thread with a fully initialised parameter.
-        unsafe {
-            let param = libc::sched_param {
-                sched_priority: priority,
-            };
-            libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) == 0
-        }
+        set_own_scheduling(libc::SCHED_FIFO, priority)
     }
     #[cfg(not(all(feature = "native", target_os = "linux")))]
     {

@@ -87,6 +87,8 @@ pub struct Cut {
     copy_dof: Vec<u32>,
     /// The uncut mesh's node count.
     uncut_nodes: usize,
+    /// The uncut body's boundary faces (their nodes, sorted): a split's snap keeps its shape.
+    pub(super) outer: std::sync::Arc<std::collections::HashSet<[u32; 3]>>,
     /// Every node's rest position (m), the copies' after the uncut mesh's.
     pub(super) nodes: Vec<DVec3>,
     /// Every tet's nodes (indices as the uncut mesh's; a moved tet names the copy).
@@ -157,6 +159,7 @@ struct State {
     removed: Vec<bool>,
     pinned: Vec<bool>,
     uncut_nodes: usize,
+    outer: std::sync::Arc<std::collections::HashSet<[u32; 3]>>,
 }
 
 /// What a cut changes of a [`Cut`], kept to put back when it fails.
@@ -260,6 +263,15 @@ impl Cut {
             removed: vec![false; mesh.tets.len()],
             pinned: vec![false; n],
             uncut_nodes: n,
+            outer: std::sync::Arc::new(
+                (mesh.surface.iter())
+                    .map(|f| {
+                        let mut k = *f;
+                        k.sort_unstable();
+                        k
+                    })
+                    .collect(),
+            ),
         };
         Cut::factored(mesh, state)
     }
@@ -302,6 +314,7 @@ impl Cut {
             diag0,
             copy_dof: Vec::new(),
             uncut_nodes: state.uncut_nodes,
+            outer: state.outer,
             nodes: state.nodes,
             tets: state.tets,
             fixed: state.fixed,
@@ -1113,6 +1126,7 @@ impl Cut {
             removed: self.removed.clone(),
             pinned: self.pinned.clone(),
             uncut_nodes: self.uncut_nodes,
+            outer: self.outer.clone(),
         };
         // The rebased cut's columns: the same nodes and their copies made since.
         let columns = self

@@ -171,15 +171,9 @@ impl Cut {
         // Each blade snaps and finds its cut faces; the nodes are split once, over the faces
         // of every blade (a face cut by one quad and one cut by the next may part a node
         // between them: a continuous blade's chords, a polyline's quads).
-        // The uncut body's boundary (its faces' nodes, sorted): the faces a cut exposes (its
-        // lips, a dropped sliver's pocket) are not the body's shape, which a snap keeps.
-        let outer: HashSet<[u32; 3]> = (mesh.surface.iter())
-            .map(|f| {
-                let mut k = *f;
-                k.sort_unstable();
-                k
-            })
-            .collect();
+        // (The faces a cut exposes, its lips and a dropped sliver's pocket, are not in the
+        // uncut body's boundary, whose shape a snap keeps.)
+        let outer = self.outer.clone();
         let mut faces: HashMap<[u32; 3], u32> = HashMap::new();
         for b in blades {
             for (k, n) in self.split_one(b, eps, region, &outer, &mut changes, &mut report) {

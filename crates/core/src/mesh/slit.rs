@@ -14,7 +14,6 @@ use glam::DVec3;
 /// Sorted; empty where nothing was split.
 /// Triangles naming a node without a rest position are skipped.
 pub fn slit_edges(triangles: &[[u32; 3]], rest: &[DVec3]) -> Vec<[u32; 2]> {
-    let bits = |p: DVec3| [p.x, p.y, p.z].map(|c| (c + 0.0).to_bits());
     let valid = |t: &[u32; 3]| t.iter().all(|&v| (v as usize) < rest.len());
     // Twins differ in a node at least (the same three nodes twice would be one face of two
     // tets, inside), so only a triangle with a node that shares its rest position with
@@ -74,12 +73,16 @@ pub fn slit_edges(triangles: &[[u32; 3]], rest: &[DVec3]) -> Vec<[u32; 2]> {
     edges
 }
 
+/// A rest position's bits, −0 read as +0: where two nodes rest at one place.
+fn bits(p: DVec3) -> [u64; 3] {
+    p.to_array().map(|c| (c + 0.0).to_bits())
+}
+
 /// The edges (between nodes that share their rest positions with others, `shared`) where the
 /// surface folds by more than [`FOLD`] and whose twin (other nodes, the same rest positions)
 /// is an edge of the surface too: where the surface turns into a slit whose faces have no
 /// twin, as where a dropped sliver left a pocket between two lips triangulated differently.
 fn folds_into_the_slit(triangles: &[[u32; 3]], rest: &[DVec3], shared: &[bool]) -> Vec<[u32; 2]> {
-    let bits = |v: u32| rest[v as usize].to_array().map(|c| (c + 0.0).to_bits());
     let mut normals: HashMap<[u32; 2], Vec<DVec3>> = HashMap::new();
     for t in triangles {
         if !t.iter().all(|&v| (v as usize) < rest.len()) {
@@ -94,7 +97,7 @@ fn folds_into_the_slit(triangles: &[[u32; 3]], rest: &[DVec3], shared: &[bool]) 
         }
     }
     let place = |e: &[u32; 2]| {
-        let mut k = [bits(e[0]), bits(e[1])];
+        let mut k = e.map(|v| bits(rest[v as usize]));
         k.sort_unstable();
         k
     };

@@ -212,26 +212,28 @@ fn fold_thread(rx: std::sync::mpsc::Receiver<ToFold>, tx: std::sync::mpsc::Sende
             let t = std::time::Instant::now();
             let (o, r) = job.run();
             let fold_s = t.elapsed().as_secs_f64();
-            let r = r.map_err(Some).and_then(|mut f| loop {
+            let mut gone = false;
+            let r = r.and_then(|mut f| loop {
                 loop {
                     match rx.try_recv() {
                         Ok(m) => take(m, &mut jobs, &mut ops),
                         Err(std::sync::mpsc::TryRecvError::Empty) => break,
-                        // The cutter has ended: nothing to hand back.
-                        Err(std::sync::mpsc::TryRecvError::Disconnected) => return Err(None),
+                        Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+                            gone = true;
+                            break;
+                        }
                     }
                 }
                 let have = ops.get(&id).map_or(&[][..], |v| &v[..]);
-                if f.applied() >= have.len() {
+                if gone || f.applied() >= have.len() {
                     return Ok(f);
                 }
-                f.catch_up(have).map_err(Some)?;
+                f.catch_up(have)?;
             });
-            let r = match r {
-                Err(None) => return,
-                Err(Some(e)) => Err(e),
-                Ok(f) => Ok(f),
-            };
+            // The cutter has ended: nothing to hand back.
+            if gone {
+                return;
+            }
             ops.remove(&id);
             if tx.send((o, r, fold_s, t.elapsed().as_secs_f64())).is_err() {
                 return;
