@@ -48,6 +48,9 @@ struct Outcome {
     max_force: f64,
     /// Ticks whose force a limit changed (`HapticWorld::limited`; in process only).
     limited: usize,
+    /// First tick of the window in which the press must have settled: [`SETTLED_FROM`], or
+    /// later over a socket when the machine stalled the loop inside that window.
+    settled_from: usize,
 }
 
 /// The hand's target: from `start` to `end` over 1 s, then held.
@@ -80,6 +83,7 @@ fn press_on(
         x: Vec::new(),
         max_force: 0.0,
         limited: 0,
+        settled_from: SETTLED_FROM,
     };
     let mut work = 0.0;
     for tick in 0..10_000 {
@@ -103,16 +107,17 @@ const SETTLED_FROM: usize = 9_000;
 /// recorded to `record`. A stall of this machine near the watchdog (20 ms) is a real
 /// disturbance over a socket: the contact is released, the force ramped back in, and the hand
 /// moves. A run with such a stall in or just before the settle window is run again (at most
-/// three times; the stall is measured by the client's clock, not read from the outcome), and
-/// so is one with more late answers than this VM's stalls explain.
+/// five times; the stall is measured by the client's clock, not read from the outcome), and
+/// so is one with more late answers than this VM's stalls explain. If every run stalled
+/// there, the one whose last stall came earliest is judged on the ticks from
+/// [`SETTLE_AFTER_STALL`] after that stall, at least [`SHORTEST_WINDOW`] of them.
 /// Shorter stalls, every few ticks when the machine is loaded, leave the press settled.
 fn press_over_udp(world: &World, start: DVec3, end: DVec3, record: &std::path::Path) -> Outcome {
     // The ramp (0.1 s) and the hand's decay in contact (~0.05 s) before the window.
-    let quiet_from = (SETTLED_FROM - 300) as u64;
-    let mut attempt = 0;
-    loop {
-        attempt += 1;
-        let (out, stalls, late) = press_over_udp_once(world, start, end, record);
+    let quiet_from = (SETTLED_FROM - SETTLE_AFTER_STALL) as u64;
+    let mut best: Option<(usize, Outcome)> = None;
+    for attempt in 1..=5 {
+        let (mut out, stalls, late) = press_over_udp_once(world, start, end, record);
         let long: Vec<(u64, f64)> = stalls.into_iter().filter(|s| s.1 >= 0.01).collect();
         eprintln!(
             "attempt {attempt}: {late} late answers; stalls of 10 ms or more (tick, s): {long:?}"
@@ -120,16 +125,35 @@ fn press_over_udp(world: &World, start: DVec3, end: DVec3, record: &std::path::P
         // Every force arrives in time but for the machine's own stalls: this VM misses 1–6
         // deadlines in 20 s even for a bare C loop while the other core is busy (the test
         // suite runs beside this test), and one such stall (80 ms) made one answer late here.
-        let quiet = long.iter().all(|s| s.0 < quiet_from) && late <= 5;
-        if quiet || attempt == 3 {
-            assert!(
-                late <= 5,
-                "every force arrived, all but a stall's: {late} late"
-            );
+        if late > 5 {
+            continue;
+        }
+        let last_stall = long.iter().map(|s| s.0).filter(|&t| t >= quiet_from).max();
+        let Some(last_stall) = last_stall else {
             return out;
+        };
+        out.settled_from = last_stall as usize + SETTLE_AFTER_STALL;
+        if best.as_ref().is_none_or(|b| out.settled_from < b.0) {
+            best = Some((out.settled_from, out));
         }
     }
+    let (from, out) =
+        best.expect("every force arrived, all but a stall's: too many late in every run");
+    assert!(
+        from + SHORTEST_WINDOW <= out.x.len(),
+        "the machine stalled the loop in every run's last {} ticks",
+        out.x.len() - from
+    );
+    eprintln!("every run stalled in the settle window: judged from tick {from}");
+    out
 }
+
+/// Ticks a press takes to settle again after a stall released its contact: the ramp
+/// (0.1 s) and the hand's decay in contact (~0.05 s), with a margin.
+const SETTLE_AFTER_STALL: usize = 300;
+
+/// Fewest ticks a settle window may have.
+const SHORTEST_WINDOW: usize = 200;
 
 fn press_over_udp_once(
     world: &World,
@@ -176,6 +200,7 @@ fn press_over_udp_once(
             x: rep.positions,
             max_force: rep.max_force_n,
             limited: 0,
+            settled_from: SETTLED_FROM,
         },
         rep.stalls,
         rep.late,
@@ -199,7 +224,7 @@ fn check(with: &Outcome, without: &Outcome, what: &str) {
 /// [`check`] with the coupled press's energy growth held under `energy_j` (over a real
 /// socket the device's measured tick times jitter, and the damping follows them).
 fn check_within(with: &Outcome, without: &Outcome, what: &str, energy_j: f64) {
-    let late = |o: &Outcome| peak_to_peak(&o.x[SETTLED_FROM..]);
+    let late = |o: &Outcome| peak_to_peak(&o.x[o.settled_from..]);
     // Energy the device put into the hand from 2 s on (the hold): it never grows.
     let grow = |o: &Outcome| {
         o.work[2000..]
