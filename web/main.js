@@ -348,8 +348,9 @@ function live(p) {
       $('n-step').textContent = stepTicks ? (stepMs * 1000 / stepTicks).toFixed(1) : '–';
       stepMs = 0;
       stepTicks = 0;
-      const [bodies, tets] = p.cut_readout();
-      $('n-cut').textContent = bodies > 0 ? `${tets} tets (pass ${cutMs.toFixed(0)} ms)` : '–';
+      const [bodies, tets, , , copies] = p.cut_readout();
+      $('n-cut').textContent = bodies > 0
+        ? `${copies} copies, ${tets} tets dropped (pass ${cutMs.toFixed(0)} ms)` : '–';
       drawTrace(ctx, trace, now);
     }
     requestAnimationFrame(loop);

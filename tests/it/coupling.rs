@@ -405,7 +405,8 @@ fn presses_beside_a_cut_stay_passive_through_the_coupling_and_the_bound() {
             cut.max_force,
             uncut.max_force
         );
-        assert!(body.tets_removed > 0);
+        // The default blade parts the cube: copies of the nodes on the slit.
+        assert!(body.nodes_split > 0);
         assert!(late < 1e-6, "settles ({late})");
         assert!(grow < 1e-6, "energy growth {grow}");
         assert!(cut.max_force <= 8.0 + 1e-9 && cut.max_force > 0.05);

@@ -656,7 +656,9 @@ path = [[0.0, 15.0, 11.25, 40.0]]
     )
     .unwrap();
     let mesh = &world.objects[0].body.mesh;
+    // (A blade that removes: the slit is the trench of the cells it sweeps.)
     let mut cutter = Cutter::new(&world).unwrap();
+    cutter.set_cut_mode(touchfem::runtime::cutting::CutMode::Remove);
     let body = cutter
         .apply(&Stroke {
             object: 0,

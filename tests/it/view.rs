@@ -652,6 +652,9 @@ struct Stroke {
     /// Tets the cutter removed (its own count, and the visual feed's).
     tets_removed: usize,
     feed_tets: usize,
+    /// Copies of nodes the cutter made (its own count, and the visual feed's).
+    nodes_split: usize,
+    feed_split: usize,
     /// The largest force sent to the finger the pointer drove, and to any finger, N.
     pointer_force_n: f64,
     max_force_n: f64,
@@ -702,6 +705,13 @@ fn pointer_stroke(
             .iter()
             .map(|(_, b)| b.tets_removed)
             .sum(),
+        nodes_split: run.cuts.nodes_split,
+        feed_split: status
+            .cuts
+            .latest()
+            .iter()
+            .map(|(_, b)| b.nodes_split)
+            .sum(),
         pointer_force_n,
         max_force_n: run.stats.max_force_n,
         ticks: status.ticks.load(std::sync::atomic::Ordering::Relaxed),
@@ -711,8 +721,8 @@ fn pointer_stroke(
 /// `B` in `view` (the haptic side, no window): a scene with a cuttable object gets the
 /// pointer's blade twin in its text (default depth 5 mm here; the scene's own blade depth in
 /// `incision`), the cutter's thread starts, and the same pointer stroke across the cuttable
-/// ball removes tets with blade mode on (at zero force) and none with it off (the point
-/// presses); a scene with nothing cuttable gets no twin, and `B` says why and changes nothing.
+/// ball parts it with blade mode on (copies of nodes, at zero force) and cuts nothing with it
+/// off (the point presses); a scene with nothing cuttable gets no twin, and `B` says why and changes nothing.
 #[test]
 fn view_blade_mode_cuts_only_while_it_is_on() {
     use touchfem::scene::{DeviceSpec, SceneSource, World};
@@ -750,25 +760,32 @@ fn view_blade_mode_cuts_only_while_it_is_on() {
     assert_eq!(route.blade_depth_m(), Some(DEFAULT_BLADE_M));
     let on = pointer_stroke(&w, &route);
     eprintln!(
-        "blade off: {} tets removed, pointer |F| {:.3} N, {} ticks; blade on: {} tets removed \
-         ({} in the feed), pointer |F| {:.3} N, max |F| {:.3} N, {} ticks",
+        "blade off: {} tets removed, {} copies, pointer |F| {:.3} N, {} ticks; blade on: {} copies \
+         ({} in the feed), {} tets dropped ({} in the feed), pointer |F| {:.3} N, max |F| {:.3} N, \
+         {} ticks",
         off.tets_removed,
+        off.nodes_split,
         off.pointer_force_n,
         off.ticks,
+        on.nodes_split,
+        on.feed_split,
         on.tets_removed,
         on.feed_tets,
         on.pointer_force_n,
         on.max_force_n,
         on.ticks
     );
-    assert_eq!(off.tets_removed, 0);
-    assert_eq!(off.feed_tets, 0);
+    assert_eq!((off.tets_removed, off.nodes_split), (0, 0));
+    assert_eq!((off.feed_tets, off.feed_split), (0, 0));
     assert!(
         off.pointer_force_n > 1e-3,
         "the point presses: {}",
         off.pointer_force_n
     );
-    assert!(on.tets_removed > 0, "the blade cut nothing");
+    // The default blade separates: copies, and no tets dropped but slivers.
+    assert!(on.nodes_split > 0, "the blade parted nothing");
+    assert!(on.tets_removed <= 3 * on.nodes_split, "{}", on.tets_removed);
+    assert_eq!(on.feed_split, on.nodes_split);
     assert_eq!(on.feed_tets, on.tets_removed);
     assert_eq!(on.pointer_force_n, 0.0, "a blade presses nothing");
     assert_eq!(on.max_force_n, 0.0);
@@ -795,7 +812,8 @@ fn view_blade_mode_cuts_only_while_it_is_on() {
 
 /// `B` in the real window (under Xvfb, real X events): on the phantom with a cuttable ball, a
 /// drag across the ball cuts nothing with the scene's point, and the same drag after `B` cuts
-/// (the window's log counts the tets removed; the summary line says `cut N tets`); the
+/// (the window's log counts the copies the blade made; the summary line says `cut T tets, N
+/// copies`); the
 /// recorded session, whose text carries the blade twin, replays to the same forces.
 #[test]
 fn view_window_b_turns_the_pointer_into_a_blade() {
@@ -848,13 +866,15 @@ fn view_window_b_turns_the_pointer_into_a_blade() {
         std::thread::sleep(Duration::from_millis(300));
         xdotool(&display, &["mouseup", "1"]);
     };
-    let tets = |lines: &[serde_json::Value]| {
+    let most = |lines: &[serde_json::Value], key: &str| {
         lines
             .iter()
-            .filter_map(|l| l["tets_removed"].as_u64())
+            .filter_map(|l| l[key].as_u64())
             .max()
             .unwrap_or(0)
     };
+    let tets = |lines: &[serde_json::Value]| most(lines, "tets_removed");
+    let copies = |lines: &[serde_json::Value]| most(lines, "nodes_split");
 
     // The scene's point: a press, no cut.
     drag();
@@ -866,7 +886,7 @@ fn view_window_b_turns_the_pointer_into_a_blade() {
         || read_log(&log).len() >= n + 2,
     );
     let lines = read_log(&log);
-    assert_eq!(tets(&lines), 0, "the point cut");
+    assert_eq!((tets(&lines), copies(&lines)), (0, 0), "the point cut");
     assert!(lines.iter().all(|l| l["blade"] == false));
     let pressed = lines
         .iter()
@@ -880,14 +900,14 @@ fn view_window_b_turns_the_pointer_into_a_blade() {
     std::thread::sleep(Duration::from_millis(300));
     drag();
     wait_until(
-        "a log line with tets removed",
+        "a log line with copies made",
         Duration::from_secs(30),
         &mut view.0,
-        || tets(&read_log(&log)) > 0,
+        || copies(&read_log(&log)) > 0,
     );
     let lines = read_log(&log);
     assert_eq!(lines.last().unwrap()["blade"], true);
-    let removed = tets(&lines);
+    let (split, removed) = (copies(&lines), tets(&lines));
     let _ = capture(&display, &win, &dir.join("cut.png"));
 
     quit_on_escape(
@@ -898,14 +918,26 @@ fn view_window_b_turns_the_pointer_into_a_blade() {
         Duration::from_secs(30),
     );
     let out = std::fs::read_to_string(&stdout_path).unwrap();
-    eprintln!("{out}log: {removed} tets removed, the point pressed {pressed:.3} N");
-    let cut: usize = out
+    eprintln!("{out}log: {split} copies, {removed} tets dropped, the point pressed {pressed:.3} N");
+    // "…, cut T tets, N copies": the default blade separates; no tets dropped but slivers.
+    let summary = out
         .split("cut ")
         .nth(1)
-        .and_then(|s| s.split(' ').next())
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| panic!("no `cut N tets` in: {out}"));
-    assert!(cut as u64 >= removed && removed > 0, "{cut} vs {removed}");
+        .unwrap_or_else(|| panic!("no `cut T tets, N copies` in: {out}"));
+    let number = |after: &str| -> u64 {
+        let words: Vec<&str> = summary
+            .split(|c: char| c.is_whitespace() || c == ',')
+            .filter(|w| !w.is_empty())
+            .collect();
+        let i = words.iter().position(|w| *w == after).expect(after);
+        words[i - 1].parse().unwrap()
+    };
+    let (cut_tets, cut_copies) = (number("tets"), number("copies"));
+    assert!(cut_copies >= split && split > 0, "{cut_copies} vs {split}");
+    assert!(
+        cut_tets >= removed && cut_tets <= 3 * cut_copies,
+        "{cut_tets} vs {removed}"
+    );
 
     let r = common::replay_json(&session);
     eprintln!("replay: {r}");

@@ -250,9 +250,9 @@ fn the_page_computes_the_compliance_itself_when_asked_and_equals_the_cache() {
 
 /// The incision in the page: the scene's own scripts for 5.5 s (the blade drawn 20 mm through
 /// the cuttable ball, then the fingertip pressing beside the open cut), the page's cutter
-/// between passes. The browser cuts the same tets as the same run natively
-/// ([`touchfem_web::page::PageWorld::run_scripts`], f64 on both sides, the compliance computed
-/// on each), its fingertip's force agrees to 1e-9, and the vertices its GPU wrote (the folded
+/// between passes. The browser's blade parts the ball as the same run does natively (the same
+/// copies and slivers; [`touchfem_web::page::PageWorld::run_scripts`], f64 on both sides, the
+/// compliance computed on each), its fingertip's force agrees to 1e-9, and the vertices its GPU wrote (the folded
 /// `L` and the correction's pass on WebGPU) match the cut compliance's f64 displacement.
 #[test]
 fn the_page_cuts_the_incision_as_the_engine_does_natively() {
@@ -272,16 +272,21 @@ fn the_page_cuts_the_incision_as_the_engine_does_natively() {
     let mut native = touchfem_web::page::PageWorld::load("incision", None).unwrap();
     native.run_scripts(seconds).unwrap();
     let tets = r["tets_removed"].as_u64().unwrap() as usize;
+    let split = r["nodes_split"].as_u64().unwrap() as usize;
     let bodies = r["cut_bodies"].as_u64().unwrap();
     eprintln!(
-        "incision page: {tets} tets removed in {bodies} cut bodies (native {} in {}), run {:.0} ms, \
-         compliance and cutter {:.0} ms",
+        "incision page: {split} copies made, {tets} tets dropped in {bodies} cut bodies (native {} and {} in {}), \
+         run {:.0} ms, compliance and cutter {:.0} ms",
+        native.nodes_split,
         native.tets_removed,
         native.cut_bodies,
         r["run_ms"].as_f64().unwrap(),
         r["compliance_ms"].as_f64().unwrap()
     );
-    assert!(tets > 100, "the blade cut {tets} tets");
+    // The blade separates, as natively: the same copies, the same slivers dropped.
+    assert!(split >= 20, "the blade parted {split} nodes");
+    assert!(tets <= 3 * split, "{tets} tets dropped for {split} copies");
+    assert_eq!(split, native.nodes_split);
     assert_eq!(tets, native.tets_removed);
     assert_eq!(bodies, native.cut_bodies);
     let forces = r["forces"].as_array().unwrap();
@@ -296,13 +301,12 @@ fn the_page_cuts_the_incision_as_the_engine_does_natively() {
     assert!(rel <= 1e-9, "{tip:?} vs {want:?} ({rel:e})");
     // The GPU's vertices against rest + the cut compliance's f64 displacement.
     let body = native.cut_body(0).expect("the native run cut");
-    let o = &native.world.objects[0];
     let bc: Vec<(u32, DVec3)> = native.sample().bcs[0]
         .entries()
         .iter()
         .map(|&(c, f)| (c, f.as_vec3().as_dvec3()))
         .collect();
-    gpu_matches_f64("incision", r, &o.body.mesh.nodes, &body.compliance, &bc);
+    gpu_matches_f64("incision", r, &body.rest, &body.compliance, &bc);
 }
 
 #[test]

@@ -282,7 +282,8 @@ impl Page {
 
     /// The scripted run (`run=SECONDS`): the scene's scripts for `seconds` of haptic time, a
     /// cut pass every 16 ticks ([`PageWorld::run_scripts`]). Returns a JSON object with each
-    /// finger's `forces` (N), `tets_removed`, `cut_bodies` and the haptic `time` (s); the next
+    /// finger's `forces` (N), `tets_removed`, `nodes_split`, `cut_bodies` and the haptic `time`
+    /// (s); the next
     /// frames draw the result.
     pub fn run_scripts(&mut self, seconds: f64) -> Result<String, JsError> {
         self.scripted = None;
@@ -296,6 +297,7 @@ impl Page {
         Ok(serde_json::json!({
             "forces": forces,
             "tets_removed": self.world.tets_removed,
+            "nodes_split": self.world.nodes_split,
             "cut_bodies": self.world.cut_bodies,
             "time": self.world.time(),
         })
@@ -377,13 +379,15 @@ impl Page {
         self.world.toggle_blade().map_err(js_err)
     }
 
-    /// The cutting so far: `[cut bodies made, tets removed, blade mode (0/1), blade depth m]`.
+    /// The cutting so far: `[cut bodies made, tets removed, blade mode (0/1), blade depth m,
+    /// copies of nodes made]`.
     pub fn cut_readout(&self) -> Vec<f64> {
         vec![
             self.world.cut_bodies as f64,
             self.world.tets_removed as f64,
             f64::from(u8::from(self.world.blade_on())),
             self.world.blade_depth_m().unwrap_or(0.0),
+            self.world.nodes_split as f64,
         ]
     }
 
@@ -588,12 +592,26 @@ impl Page {
         }
     }
 
-    /// The first object's displayed rows (mesh node per vertex of the read-back).
+    /// The first object's displayed rows: the node drawn at each vertex of the read-back.
+    /// Once it is cut, those of the body its GPU holds (a fold's `L` has rows for the copies;
+    /// copies made since are drawn after the rows and not read back).
     pub fn rows(&self) -> Vec<u32> {
-        self.world
-            .world
-            .objects
-            .first()
-            .map_or(Vec::new(), |o| o.body.compliance.rows().to_vec())
+        let Some(o) = self.world.world.objects.first() else {
+            return Vec::new();
+        };
+        let uncut = || o.body.compliance.rows().to_vec();
+        let Some(g) = self.gfx.as_ref() else {
+            return uncut();
+        };
+        let (Some(d), Some(Some(body))) = (g.deformers.first(), g.bodies.first()) else {
+            return uncut();
+        };
+        let mut rows = vec![u32::MAX; d.vertex_count() as usize];
+        for node in 0..body.rest.len() as u32 {
+            if let Some(v) = d.row_of(node).and_then(|v| rows.get_mut(v as usize)) {
+                *v = node;
+            }
+        }
+        rows
     }
 }

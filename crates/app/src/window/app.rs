@@ -587,6 +587,7 @@ impl<'a> App<'a> {
                 "touching": touching,
                 "blade": self.pointer.as_ref().is_some_and(PointerRoute::blade_on),
                 "tets_removed": self.status.cuts.latest().iter().map(|(_, b)| b.tets_removed).sum::<usize>(),
+                "nodes_split": self.status.cuts.latest().iter().map(|(_, b)| b.nodes_split).sum::<usize>(),
             });
             if let Some(f) = &mut self.log {
                 let _ = writeln!(f, "{line}");

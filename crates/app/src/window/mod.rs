@@ -22,8 +22,9 @@
 //! * **B** turns the pointer into a blade and back ([`blade`]): on a scene with a cuttable
 //!   object the pointer then drives its blade twin. A left press on an object puts the blade's
 //!   top just under the surface there (`max(0.2 mm, 0.5 % of the scene diagonal)`), and dragging
-//!   slides it in the plane tangent to the surface at that point, following the pointer: the
-//!   blade, hanging its depth below, cuts what it sweeps in the cuttable region (no force).
+//!   keeps it that far under the rest surface under the pointer, along the normal there (off
+//!   the object, under the plane tangent at the press): the blade, hanging its depth below,
+//!   parts the material it passes in the cuttable region (no force).
 //!   Without a cuttable object the status line shows `warning: …` in its place for 3 s
 //!   ([`status_overlay`], cut short of the legend; the title and the log carry it whole) and
 //!   nothing changes. The status line shows `blade D mm` while it is on.
@@ -39,8 +40,10 @@
 //!   naming the variable);
 //! * `TOUCHFEM_VIEW_LOG=FILE`: append one JSON line per second, `{"t", "frames", "fps",
 //!   "frame_ms_median", "draw_ms_median", "force_n", "haptic_hz", "haptic_missed",
-//!   "touching", "blade", "tets_removed"}` (`frames`, `haptic_missed`: so far; `blade`: blade
-//!   mode on; `tets_removed`: tets the cuts removed so far, every object; `frame_ms_median`: median time between
+//!   "touching", "blade", "tets_removed", "nodes_split"}` (`frames`, `haptic_missed`: so far;
+//!   `blade`: blade mode on; `tets_removed`: tets the cuts removed so far, every object (slivers,
+//!   with the default blade that separates); `nodes_split`: copies of nodes the cuts made so
+//!   far; `frame_ms_median`: median time between
 //!   presented frames over that second;
 //!   `force_n`: the largest [`force_readout`] over that second), and a final line with
 //!   `"summary": true`;

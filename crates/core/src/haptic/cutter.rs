@@ -46,15 +46,15 @@ pub struct Stroke {
 /// What a blade does to the material it passes ([`Cutter::set_cut_mode`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum CutMode {
-    /// It removes the tets its quad sweeps (the live default: see
-    /// `docs/measurements/2026-12-06-separating-cut.md` for why not yet [`CutMode::Separate`]).
-    #[default]
+    /// It removes the tets its quad sweeps (`TOUCHFEM_CUT=remove` for a live cutter): a
+    /// trench about one element wide, at a lower rank.
     Remove,
     /// It separates the material along its quad ([`Cut::split_within`], snap and split):
     /// nothing is removed but slivers, and the body's compliance grows by the copies and the
     /// exposed nodes ([`Cut::grown_correction`]), which its surface then holds. In
     /// [`FoldMode::Inline`] a fold due runs before the object's next cut, as the deferred
-    /// one does, then is adopted at once. The live cutter's with `TOUCHFEM_CUT=separate`.
+    /// one does, then is adopted at once. The default, the live cutter's included.
+    #[default]
     Separate,
 }
 
@@ -522,7 +522,7 @@ impl Cutter {
         self.mode
     }
 
-    /// Sets what a blade does (default [`CutMode::Remove`]). Set it before the first cut.
+    /// Sets what a blade does (default [`CutMode::Separate`]). Set it before the first cut.
     pub fn set_cut_mode(&mut self, mode: CutMode) {
         self.cut_mode = mode;
     }
@@ -756,6 +756,11 @@ impl Cutter {
         let Some(Some(oc)) = self.objects.get_mut(stroke.object) else {
             return Ok(false);
         };
+        // A blade of no depth (or a depth not finite) cuts nothing, whatever it does: the
+        // separating quad's margin below would otherwise give it half an edge.
+        if !(stroke.depth.is_finite() && stroke.depth > 0.0) {
+            return Ok(false);
+        }
         if self.cut_mode == CutMode::Separate {
             self.fold_object(stroke.object)?;
             let Some(Some(oc)) = self.objects.get_mut(stroke.object) else {

@@ -159,12 +159,13 @@ pub fn fold_mode() -> FoldMode {
     }
 }
 
-/// What a live cutter's blade does: [`CutMode::Remove`], unless `TOUCHFEM_CUT=separate` (it
-/// separates the material along its path; its sessions are version 5).
+/// What a live cutter's blade does: [`CutMode::Separate`] (it parts the material along its
+/// path; its sessions are version 5), unless `TOUCHFEM_CUT=remove` (it removes the tets it
+/// sweeps; version 3 or 4). Any other value keeps the default, as the other switches do.
 pub fn cut_mode() -> CutMode {
     match crate::options::var("TOUCHFEM_CUT").as_deref() {
-        Some("separate") => CutMode::Separate,
-        _ => CutMode::Remove,
+        Some("remove") => CutMode::Remove,
+        _ => CutMode::Separate,
     }
 }
 

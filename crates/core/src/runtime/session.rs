@@ -20,9 +20,9 @@
 //! with bit 31 of the object word set on a body that follows a deferred fold's adoption
 //! ([`crate::haptic::cutter::FoldMode::Deferred`]): the replay adopts its fold there, where
 //! the live run did. A version 3 session replays with the folds inline, as it was recorded.
-//! Version 5 is version 4 for blades that separate the material ([`CutMode::Separate`],
-//! `TOUCHFEM_CUT=separate`); versions 3 and 4 replay with blades that remove the tets they
-//! sweep.
+//! Version 5 is version 4 for blades that separate the material ([`CutMode::Separate`], the
+//! default); versions 3 and 4 replay with blades that remove the tets they sweep
+//! (`TOUCHFEM_CUT=remove`).
 //! The haptic loop pushes each tick into a wait-free ring ([`rtrb`]); a writer thread drains
 //! it to disk, so the loop never blocks on the file and allocates nothing.
 
@@ -232,8 +232,9 @@ pub fn record(
     let cuts = records_cuts(world);
     let header = SessionHeader {
         format: "touchfem-session".into(),
-        // (Blades that separate, `TOUCHFEM_CUT=separate`, replay as version 5's; folds made
-        // inline, `TOUCHFEM_FOLD=inline`, as version 3's.)
+        // (Blades that separate, the default, replay as version 5's; blades that remove,
+        // `TOUCHFEM_CUT=remove`, as version 4's, or 3's with folds made inline,
+        // `TOUCHFEM_FOLD=inline`.)
         version: match (cuts, super::cutting::cut_mode(), super::cutting::fold_mode()) {
             (false, _, _) => 2,
             (true, CutMode::Remove, FoldMode::Inline) => 3,
