@@ -8,7 +8,7 @@
 //!
 //! `page_native SCENE --run SECONDS` runs the scene's scripts as the page's `run=SECONDS` does
 //! (`PageWorld::run_scripts`, a cut pass every 16 ticks) and prints `load_ms` (the compliance
-//! and the cutter's factorisation), `run_ms`, `tets_removed` and `cut_bodies`.
+//! and the cutter's factorisation), `run_ms`, `tets_removed`, `nodes_split` and `cut_bodies`.
 use std::time::Instant;
 use touchfem_web::page::{PageWorld, PressSpec, POKE_STEPS};
 
@@ -27,6 +27,7 @@ fn main() {
                 "load_ms": load_ms,
                 "run_ms": t.elapsed().as_secs_f64() * 1e3,
                 "tets_removed": p.tets_removed,
+                "nodes_split": p.nodes_split,
                 "cut_bodies": p.cut_bodies,
             }))
         };
