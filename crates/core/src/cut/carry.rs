@@ -37,9 +37,13 @@ use crate::Error;
 /// multiply-adds, 1–2 ms).
 const V_BLOCK: usize = 128;
 
-/// The multiply-adds of a `V` below which the cutter's thread makes it alone (a helper's
-/// start costs about 0.1 ms): [`Cut::share_v_with`]'s usual `above`.
-pub const V_SHARE_ABOVE: usize = 20_000_000;
+/// The multiply-adds of a `V` at or below which the cutter's thread makes it alone:
+/// [`Cut::share_v_with`]'s usual `above`. None: a pass's own work (`U`'s rows, the opened mesh
+/// and its contact surface, several ms) runs on the cutter's thread meanwhile, so a helper
+/// (whose start costs about 0.1 ms) that takes even a small `V` shortens the pass. With 20
+/// million, ten rounds of the incision alternated read a median delay of 36.5 ms against
+/// 33 ms with none (`docs/measurements/2026-12-06-separating-cut.md`, the twelfth session).
+pub const V_SHARE_ABOVE: usize = 0;
 
 /// `m` as a faer view (nalgebra stores column-major).
 fn view(m: &DMatrix<f64>) -> MatRef<'_, f64> {

@@ -423,7 +423,7 @@ pub struct Cutter {
     fold_rank: usize,
     mode: FoldMode,
     cut_mode: CutMode,
-    /// Cores where a helper makes part of each large `V` (`Cut::share_v_with`).
+    /// Cores where a helper makes part of each `V` (`Cut::share_v_with`).
     helper: Option<Arc<[usize]>>,
 }
 
