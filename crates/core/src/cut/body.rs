@@ -962,7 +962,7 @@ impl Cut {
     /// `mesh` is the uncut mesh.
     pub fn separated_mesh(&self, mesh: &Mesh) -> Mesh {
         let mut m = self.current_mesh(mesh);
-        m.surface = m.open_surface(&self.removed);
+        m.surface = crate::mesh::open_surface_from_neighbours(&m.tets, &self.nbr, &self.removed);
         let mut on = vec![false; m.nodes.len()];
         for f in &m.surface {
             for &v in f {
@@ -1155,15 +1155,20 @@ impl Cut {
 pub(crate) mod tests {
     use super::*;
 
-    /// The face neighbours a cut keeps through a split equal those found afresh from its tets,
-    /// and the split parted some of the faces it cut and no others: a blade in the cube's
-    /// grid plane x = 15 mm, 12 mm deep, then a second across it.
+    /// The face neighbours a cut keeps through a split equal those found afresh (and give the
+    /// opened surface matched afresh), the split parted some faces it cut and no others: a
+    /// blade in the cube's grid plane x = 15 mm, 12 mm deep, a second across it, a removal.
     #[cfg_attr(test, test)]
     pub(crate) fn face_neighbours_kept_through_splits_equal_those_found_afresh() {
         use super::super::BladeQuad;
         let mesh = crate::mesh::cube();
         let mut cut = Cut::new(&mesh).expect("the cube factors");
         let links = |cut: &Cut| cut.nbr.iter().flatten().filter(|&&o| o != u32::MAX).count();
+        // The opened surface from the neighbours kept is the faces matched afresh.
+        let open_matches = |c: &Cut| {
+            crate::mesh::open_surface_from_neighbours(&c.tets, &c.nbr, &c.removed)
+                == crate::mesh::open_surface_of(&c.tets, &c.removed)
+        };
         let mm = |x: f64, y: f64, z: f64| DVec3::new(x, y, z) * 1e-3;
         let blades = [
             (mm(15.0, 2.0, 30.0), mm(15.0, 28.0, 30.0)),
@@ -1179,6 +1184,7 @@ pub(crate) mod tests {
             );
             assert_eq!(rep.cut.pieces_removed, 0, "blade {k}: {rep:?}");
             assert!(cut.nbr == face_neighbours(&cut.tets), "blade {k}");
+            assert!(open_matches(&cut), "blade {k}");
             // (A face cut where the blade ends inside the body stays joined where none of its
             // nodes got a copy: at most the faces cut are parted.)
             let parted = before - links(&cut);
@@ -1187,5 +1193,8 @@ pub(crate) mod tests {
                 "blade {k}: {parted} links parted, {rep:?}"
             );
         }
+        // So after tets beside the cuts are removed too.
+        cut.remove(&mesh, &[0, 7, 49]).expect("three tets removed");
+        assert!(open_matches(&cut));
     }
 }

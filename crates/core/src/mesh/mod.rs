@@ -688,6 +688,31 @@ pub fn open_surface_of(tets: &[[u32; 4]], removed: &[bool]) -> Vec<[u32; 3]> {
     single_faces(kept, tets.len()).0
 }
 
+/// [`open_surface_of`] from the tets' face neighbours (`nbr[t][k]`: the tet across the face
+/// opposite node `k` of tet `t`, [`TET_FACES`], or `u32::MAX`): the faces of the tets not
+/// `removed` with no such tet across them, as their tets hold them, sorted. The same faces
+/// in the same order, without matching every face (a cut keeps its tets' neighbours).
+pub(crate) fn open_surface_from_neighbours(
+    tets: &[[u32; 4]],
+    nbr: &[[u32; 4]],
+    removed: &[bool],
+) -> Vec<[u32; 3]> {
+    let gone = |t: usize| removed.get(t).copied().unwrap_or(false);
+    let mut out = Vec::new();
+    for (t, (tet, across)) in tets.iter().zip(nbr).enumerate() {
+        if gone(t) {
+            continue;
+        }
+        for (k, &o) in across.iter().enumerate() {
+            if o == u32::MAX || gone(o as usize) {
+                out.push(TET_FACES[k].map(|i| tet[i]));
+            }
+        }
+    }
+    out.sort_unstable();
+    out
+}
+
 /// The faces that exactly one of `tets` (`n` of them at most) holds, as that tet holds them
 /// (outward for a positively oriented tet), sorted; and the first face (its vertices sorted),
 /// in the tets' order, that more than two tets hold.
