@@ -283,8 +283,7 @@ impl Page {
     /// The scripted run (`run=SECONDS`): the scene's scripts for `seconds` of haptic time, a
     /// cut pass every 16 ticks ([`PageWorld::run_scripts`]). Returns a JSON object with each
     /// finger's `forces` (N), `tets_removed`, `nodes_split`, `cut_bodies` and the haptic `time`
-    /// (s); the next
-    /// frames draw the result.
+    /// (s); the next frames draw the result.
     pub fn run_scripts(&mut self, seconds: f64) -> Result<String, JsError> {
         self.scripted = None;
         self.world.run_scripts(seconds).map_err(js_err)?;

@@ -24,8 +24,9 @@ impl Cut {
     }
 
     /// [`Cut::correction`], with `meanwhile` run on the calling thread (once, with `U`'s
-    /// rows) while the helper of [`Cut::share_v_with`] makes the first blocks of `V`: the work of a pass that does not need `V` (the separated mesh, its contact
-    /// surface) overlapped with it. Without a helper it runs before `V`. The same bits as
+    /// rows) while the helper of [`Cut::share_v_with`] makes the first blocks of `V`: the
+    /// work of a pass that does not need `V` (the separated mesh, its contact surface)
+    /// overlapped with it. Without a helper it runs before `V`. The same bits as
     /// [`Cut::correction`]; its result comes back beside the correction.
     pub fn correction_meanwhile<T>(
         &self,
