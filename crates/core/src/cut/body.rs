@@ -8,7 +8,7 @@ use glam::{DMat3, DVec3};
 use nalgebra::DMatrix;
 
 use crate::fem::{element_stiffness, Dofs, Factor, Stiffness};
-use crate::mesh::{tet_volume, Mesh, TET_FACES};
+use crate::mesh::{face_neighbours, tet_face as face, tet_volume, Mesh};
 use crate::Error;
 
 /// Copies of nodes whose rows `L_D` holds beyond those made so far (zero rows).
@@ -182,34 +182,6 @@ pub(super) struct Saved {
     /// decoupled in `K₀`) and columns, so a failed one truncates it back.
     ld_shape: (usize, usize),
     cap: DMatrix<f64>,
-}
-
-/// The face of `t` opposite its node `k` ([`TET_FACES`]), sorted.
-fn face(t: [u32; 4], k: usize) -> [u32; 3] {
-    let mut f = TET_FACES[k].map(|i| t[i]);
-    f.sort_unstable();
-    f
-}
-
-/// Per tet: the tet across each face (the face opposite each node), or `u32::MAX`.
-fn face_neighbours(tets: &[[u32; 4]]) -> Vec<[u32; 4]> {
-    let mut nbr = vec![[u32::MAX; 4]; tets.len()];
-    let mut faces: HashMap<[u32; 3], (u32, u8)> = HashMap::with_capacity(2 * tets.len());
-    for (ti, &t) in tets.iter().enumerate() {
-        for k in 0..4 {
-            match faces.entry(face(t, k)) {
-                std::collections::hash_map::Entry::Occupied(o) => {
-                    let (tj, kj) = *o.get();
-                    nbr[ti][k] = tj;
-                    nbr[tj as usize][kj as usize] = ti as u32;
-                }
-                std::collections::hash_map::Entry::Vacant(v) => {
-                    v.insert((ti as u32, k as u8));
-                }
-            }
-        }
-    }
-    nbr
 }
 
 /// Per node: the unit normal of the plane all its clamped boundary faces lie in, or zero

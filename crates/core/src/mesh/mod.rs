@@ -688,6 +688,34 @@ pub fn open_surface_of(tets: &[[u32; 4]], removed: &[bool]) -> Vec<[u32; 3]> {
     single_faces(kept, tets.len()).0
 }
 
+/// The face of `t` opposite its node `k` ([`TET_FACES`]), sorted.
+pub(crate) fn tet_face(t: [u32; 4], k: usize) -> [u32; 3] {
+    let mut f = TET_FACES[k].map(|i| t[i]);
+    f.sort_unstable();
+    f
+}
+
+/// Per tet: the tet across each face (the face opposite each node), or `u32::MAX`.
+pub(crate) fn face_neighbours(tets: &[[u32; 4]]) -> Vec<[u32; 4]> {
+    let mut nbr = vec![[u32::MAX; 4]; tets.len()];
+    let mut faces: HashMap<[u32; 3], (u32, u8)> = HashMap::with_capacity(2 * tets.len());
+    for (ti, &t) in tets.iter().enumerate() {
+        for k in 0..4 {
+            match faces.entry(tet_face(t, k)) {
+                std::collections::hash_map::Entry::Occupied(o) => {
+                    let (tj, kj) = *o.get();
+                    nbr[ti][k] = tj;
+                    nbr[tj as usize][kj as usize] = ti as u32;
+                }
+                std::collections::hash_map::Entry::Vacant(v) => {
+                    v.insert((ti as u32, k as u8));
+                }
+            }
+        }
+    }
+    nbr
+}
+
 /// [`open_surface_of`] from the tets' face neighbours (`nbr[t][k]`: the tet across the face
 /// opposite node `k` of tet `t`, [`TET_FACES`], or `u32::MAX`): the faces of the tets not
 /// `removed` with no such tet across them, as their tets hold them, sorted. The same faces
