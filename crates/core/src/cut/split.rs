@@ -645,7 +645,7 @@ impl Cut {
             .collect();
         // A lip's face has a twin (the other lip's, at the same rest positions).
         let place = |f: &[u32; 3]| {
-            let mut k = f.map(|v| self.nodes[v as usize].to_array().map(f64::to_bits));
+            let mut k = f.map(|v| crate::mesh::slit::bits(self.nodes[v as usize]));
             k.sort_unstable();
             k
         };

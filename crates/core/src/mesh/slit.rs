@@ -73,8 +73,9 @@ pub fn slit_edges(triangles: &[[u32; 3]], rest: &[DVec3]) -> Vec<[u32; 2]> {
     edges
 }
 
-/// A rest position's bits, −0 read as +0: where two nodes rest at one place.
-fn bits(p: DVec3) -> [u64; 3] {
+/// A rest position's bits, −0 read as +0: the key of where two nodes (a node and its copy)
+/// rest at one place.
+pub(crate) fn bits(p: DVec3) -> [u64; 3] {
     p.to_array().map(|c| (c + 0.0).to_bits())
 }
 
